@@ -1,0 +1,30 @@
+#version 450
+// Forward pass: object-space vertices, per-object data from a storage buffer indexed by
+// gl_InstanceIndex (the draw's firstInstance is the object index).
+layout(location = 0) in vec3 in_position;
+layout(location = 1) in vec3 in_normal;
+
+struct ObjectData {
+    mat4 model;
+    mat4 normal_matrix;
+    vec4 color;
+};
+layout(std430, set = 0, binding = 0) readonly buffer Objects { ObjectData objects[]; };
+
+layout(push_constant) uniform Push {
+    mat4 view_proj;
+    vec4 sun_dir;
+} pc;
+
+layout(location = 0) out vec3 v_normal;
+layout(location = 1) out vec4 v_color;
+layout(location = 2) flat out uint v_object;
+
+void main() {
+    ObjectData o = objects[gl_InstanceIndex];
+    vec4 world = o.model * vec4(in_position, 1.0);
+    gl_Position = pc.view_proj * world;
+    v_normal = mat3(o.normal_matrix) * in_normal;
+    v_color = o.color;
+    v_object = uint(gl_InstanceIndex);
+}

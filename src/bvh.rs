@@ -1,0 +1,205 @@
+//! The object hierarchy: a binary BVH over object bounds built with obvhs (PLOC), flattened into
+//! our own node array with parents and depths. Culling state lives beside it, indexed by node.
+
+use std::collections::BinaryHeap;
+
+use glam::Vec3;
+use obvhs::aabb::Aabb as OAabb;
+use obvhs::{Boundable, BvhBuildParams};
+
+use crate::scene::Aabb;
+
+/// One node: an interior node with two children, or a leaf with a range of objects.
+#[derive(Clone, Debug)]
+pub struct BvhNode {
+    /// World-space bounds of everything below.
+    pub bounds: Aabb,
+    /// Parent index (`u32::MAX` for the root).
+    pub parent: u32,
+    /// Children (interior nodes only).
+    pub children: [u32; 2],
+    /// First entry in [`ObjectBvh::leaf_objects`] (leaves only).
+    pub first_object: u32,
+    /// Number of objects (0 for interior nodes).
+    pub object_count: u32,
+    /// Depth (root 0).
+    pub depth: u32,
+}
+
+impl BvhNode {
+    /// Whether this is a leaf.
+    pub fn is_leaf(&self) -> bool {
+        self.object_count > 0
+    }
+}
+
+/// The object BVH. Node 0 is the root.
+#[derive(Clone, Debug)]
+pub struct ObjectBvh {
+    /// All nodes; parents come before children.
+    pub nodes: Vec<BvhNode>,
+    /// Object indices, grouped by leaf.
+    pub leaf_objects: Vec<u32>,
+}
+
+struct Bounded(OAabb);
+impl Boundable for Bounded {
+    fn aabb(&self) -> OAabb {
+        self.0
+    }
+}
+
+impl ObjectBvh {
+    /// Builds the hierarchy over `bounds` (one per object) with at most `leaf_size` objects per
+    /// leaf. An empty input gives a root leaf with no objects.
+    pub fn build(bounds: &[Aabb], leaf_size: u32) -> ObjectBvh {
+        if bounds.is_empty() {
+            return ObjectBvh {
+                nodes: vec![BvhNode {
+                    bounds: Aabb::new(Vec3::ZERO, Vec3::ZERO),
+                    parent: u32::MAX,
+                    children: [0; 2],
+                    first_object: 0,
+                    object_count: 0,
+                    depth: 0,
+                }],
+                leaf_objects: Vec::new(),
+            };
+        }
+        let prims: Vec<Bounded> = bounds
+            .iter()
+            .map(|b| {
+                let (min, max) = if b.is_valid() { (b.min, b.max) } else { (Vec3::ZERO, Vec3::ZERO) };
+                Bounded(OAabb::new(min.into(), max.into()))
+            })
+            .collect();
+        let mut params = BvhBuildParams::fast_build();
+        params.max_prims_per_leaf = leaf_size.clamp(1, 255);
+        params.collapse_traversal_cost = 1.0;
+        let mut t = std::time::Duration::ZERO;
+        let bvh2 = obvhs::bvh2::builder::build_bvh2(&prims, params, &mut t);
+        let mut out = ObjectBvh { nodes: Vec::with_capacity(bvh2.nodes.len()), leaf_objects: Vec::with_capacity(bounds.len()) };
+        // Flatten breadth-first from obvhs's root (index 0).
+        let mut stack = vec![(0usize, u32::MAX, 0u32)];
+        while let Some((src, parent, depth)) = stack.pop() {
+            let n = &bvh2.nodes[src];
+            let id = out.nodes.len() as u32;
+            if parent != u32::MAX {
+                let p = &mut out.nodes[parent as usize];
+                if p.children[0] == u32::MAX {
+                    p.children[0] = id;
+                } else {
+                    p.children[1] = id;
+                }
+            }
+            let mut node = BvhNode {
+                bounds: Aabb::EMPTY,
+                parent,
+                children: [u32::MAX; 2],
+                first_object: 0,
+                object_count: 0,
+                depth,
+            };
+            if n.prim_count > 0 || bvh2.nodes.len() == 1 {
+                node.first_object = out.leaf_objects.len() as u32;
+                let count = n.prim_count.max(1);
+                for k in 0..count {
+                    let obj = bvh2.primitive_indices[(n.first_index + k) as usize];
+                    node.bounds = node.bounds.union(&bounds_or_point(&bounds[obj as usize]));
+                    out.leaf_objects.push(obj);
+                }
+                node.object_count = count;
+                out.nodes.push(node);
+            } else {
+                out.nodes.push(node);
+                stack.push((n.first_index as usize + 1, id, depth + 1));
+                stack.push((n.first_index as usize, id, depth + 1));
+            }
+        }
+        // Bounds bottom-up (children come after parents).
+        for i in (0..out.nodes.len()).rev() {
+            if !out.nodes[i].is_leaf() {
+                let [a, b] = out.nodes[i].children;
+                out.nodes[i].bounds = out.nodes[a as usize].bounds.union(&out.nodes[b as usize].bounds);
+            }
+        }
+        out
+    }
+
+    /// The objects of a leaf (empty for interior nodes).
+    pub fn objects(&self, node: u32) -> &[u32] {
+        let n = &self.nodes[node as usize];
+        &self.leaf_objects[n.first_object as usize..(n.first_object + n.object_count) as usize]
+    }
+
+    /// Number of leaves.
+    pub fn leaf_count(&self) -> usize {
+        self.nodes.iter().filter(|n| n.is_leaf()).count()
+    }
+
+    /// Visits nodes front to back from `eye` (by distance to their boxes); `visit` returns
+    /// whether to descend into the node.
+    pub fn front_to_back(&self, eye: Vec3, mut visit: impl FnMut(u32, &BvhNode) -> bool) {
+        let mut queue = DistanceQueue::default();
+        queue.push(0, self.nodes[0].bounds.distance_squared(eye));
+        while let Some(id) = queue.pop() {
+            let node = &self.nodes[id as usize];
+            if visit(id, node) && !node.is_leaf() {
+                for c in node.children {
+                    queue.push(c, self.nodes[c as usize].bounds.distance_squared(eye));
+                }
+            }
+        }
+    }
+}
+
+fn bounds_or_point(b: &Aabb) -> Aabb {
+    if b.is_valid() {
+        *b
+    } else {
+        Aabb::new(Vec3::ZERO, Vec3::ZERO)
+    }
+}
+
+/// A min-priority queue of nodes keyed by squared distance (ties broken by node id, so traversal
+/// order is deterministic).
+#[derive(Default, Debug)]
+pub struct DistanceQueue {
+    heap: BinaryHeap<Entry>,
+}
+
+#[derive(Debug, PartialEq)]
+struct Entry {
+    dist: f32,
+    node: u32,
+}
+impl Eq for Entry {}
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Entry {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        other.dist.total_cmp(&self.dist).then_with(|| other.node.cmp(&self.node))
+    }
+}
+
+impl DistanceQueue {
+    /// Adds a node.
+    pub fn push(&mut self, node: u32, dist: f32) {
+        self.heap.push(Entry { dist, node });
+    }
+    /// Removes the nearest node.
+    pub fn pop(&mut self) -> Option<u32> {
+        self.heap.pop().map(|e| e.node)
+    }
+    /// Whether empty.
+    pub fn is_empty(&self) -> bool {
+        self.heap.is_empty()
+    }
+    /// Empties the queue.
+    pub fn clear(&mut self) {
+        self.heap.clear();
+    }
+}

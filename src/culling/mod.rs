@@ -1,0 +1,130 @@
+//! Occlusion culling: one trait ([`Culler`]) and one file per algorithm. Algorithms never call
+//! Vulkan; they speak to an [`OcclusionBackend`], which the renderer (or a host engine) implements.
+
+pub mod chc;
+pub mod chcpp;
+pub mod oracle;
+pub mod stop_and_wait;
+pub mod vfc;
+
+use glam::Vec3;
+
+use crate::bvh::ObjectBvh;
+use crate::error::{Error, Result};
+use crate::scene::camera::{Camera, Frustum};
+use crate::scene::Aabb;
+
+pub use chcpp::ChcppParams;
+
+/// An occlusion query handed out by the backend, valid within one frame.
+pub type QueryId = u32;
+
+/// What a culling algorithm needs from a renderer: the embedding API. A host engine implements
+/// this over its own device and command buffers.
+pub trait OcclusionBackend {
+    /// Record draws of these objects (render state, depth test and write on).
+    fn draw_objects(&mut self, objects: &[u32]) -> Result<()>;
+    /// Record one occlusion query covering all `boxes` (query state: depth test on, no writes).
+    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId>;
+    /// Submit everything recorded so far, so its queries can complete.
+    fn flush(&mut self) -> Result<()>;
+    /// The query's pixel count if it is ready, without waiting; `None` if not (yet).
+    fn query_result(&mut self, query: QueryId) -> Result<Option<u64>>;
+    /// Waits for the query's pixel count (flushing first if needed); the wait is stall time.
+    fn wait_query(&mut self, query: QueryId) -> Result<u64>;
+    /// Submits what is left and waits until the frame's work has completed on the device.
+    fn finish(&mut self) -> Result<()>;
+}
+
+/// Per-frame input of a culler.
+pub struct FrameInput<'a> {
+    /// The object hierarchy.
+    pub bvh: &'a ObjectBvh,
+    /// The camera.
+    pub camera: &'a Camera,
+    /// Frame number (for temporal state).
+    pub frame: u64,
+    /// The exact visible set (only for cullers whose [`Culler::needs_exact_visibility`]).
+    pub exact_visible: Option<&'a [u32]>,
+}
+
+/// What an algorithm did in a frame, from its own bookkeeping (the recorder's counts are the
+/// authority on queries and draws; tests cross-check these against them).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CullStats {
+    /// Nodes visited.
+    pub nodes_visited: u32,
+    /// Objects sent to the backend for drawing.
+    pub objects_drawn: u32,
+    /// Queries issued in all.
+    pub queries: u32,
+    /// Queries for nodes that were invisible last frame (the i-queue), multiqueries included.
+    pub invisible_node_queries: u32,
+    /// Queries for previously visible leaves (the v-queue).
+    pub visible_leaf_queries: u32,
+    /// Multiqueries (queries covering more than one node).
+    pub multiqueries: u32,
+    /// Multiqueries that came back visible (their nodes were re-queried).
+    pub failed_multiqueries: u32,
+    /// Query results that said visible.
+    pub visible_results: u32,
+    /// Query batches (switches into query state by the algorithm).
+    pub query_batches: u32,
+    /// Nodes culled by the frustum.
+    pub frustum_culled: u32,
+    /// Nodes culled by a query result.
+    pub query_culled: u32,
+}
+
+/// A culling algorithm with its temporal state.
+pub trait Culler {
+    /// Name used on the command line and in reports.
+    fn name(&self) -> &str;
+    /// Whether the renderer must compute the exact visible set before the frame (oracle).
+    fn needs_exact_visibility(&self) -> bool {
+        false
+    }
+    /// Decides visibility and records draws and queries through `backend`; must read back every
+    /// query it issued before returning (after [`OcclusionBackend::finish`] if need be).
+    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats>;
+    /// Forgets temporal state (e.g. after a camera cut).
+    fn reset(&mut self);
+}
+
+/// The algorithm names `create` accepts.
+pub const ALGORITHMS: &[&str] = &["vfc", "stop-and-wait", "chc", "chcpp", "oracle"];
+
+/// Creates an algorithm by name (`chcpp` takes `params`).
+pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
+    Ok(match name {
+        "vfc" => Box::new(vfc::Vfc::default()),
+        "stop-and-wait" => Box::new(stop_and_wait::StopAndWait::default()),
+        "chc" => Box::new(chc::Chc::default()),
+        "chcpp" => Box::new(chcpp::Chcpp::new(params.clone())),
+        "oracle" => Box::new(oracle::Oracle::default()),
+        other => {
+            return Err(Error::Input(format!(
+                "unknown algorithm \"{other}\" (known: {})",
+                ALGORITHMS.join(", ")
+            )))
+        }
+    })
+}
+
+/// Whether a node's query can't be trusted because the eye is inside (or the near plane cuts)
+/// its box: such a node is treated as visible without a query.
+pub fn eye_inside(bounds: &Aabb, camera: &Camera) -> bool {
+    bounds.enlarged(camera.near_corner_distance() * 1.01).contains(camera.eye)
+}
+
+/// Helper shared by the algorithms: the frustum and eye of a frame.
+pub(crate) struct View {
+    pub frustum: Frustum,
+    pub eye: Vec3,
+}
+
+impl View {
+    pub fn new(camera: &Camera) -> View {
+        View { frustum: camera.frustum(), eye: camera.eye }
+    }
+}

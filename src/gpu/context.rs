@@ -1,0 +1,517 @@
+//! The Vulkan context: instance, validation capture, physical-device choice, logical device,
+//! queue and the memory allocator. One `GpuContext` owns them and destroys them in reverse order.
+
+use std::ffi::{c_void, CStr, CString};
+use std::mem::ManuallyDrop;
+use std::sync::{Arc, Mutex};
+
+use ash::{ext, vk};
+use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+
+use crate::error::{Error, Result, VkContext};
+
+const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+
+/// Severity of a captured validation message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Severity {
+    /// A warning (best practice, likely misuse).
+    Warning,
+    /// An error (invalid usage).
+    Error,
+}
+
+/// One message from the validation layer.
+#[derive(Clone, Debug)]
+pub struct ValidationMessage {
+    /// Warning or error.
+    pub severity: Severity,
+    /// The message ID name (a VUID or UNASSIGNED-...).
+    pub id: String,
+    /// The full text.
+    pub text: String,
+}
+
+/// The messages a context's validation messenger captured. Shared, so that a test can keep it
+/// after the context is dropped and see the teardown reports ("not destroyed") too.
+#[derive(Debug, Default)]
+pub struct ValidationLog {
+    messages: Mutex<Vec<ValidationMessage>>,
+    echo: bool,
+}
+
+impl ValidationLog {
+    /// A copy of every message captured so far.
+    pub fn messages(&self) -> Vec<ValidationMessage> {
+        self.messages.lock().map(|m| m.clone()).unwrap_or_default()
+    }
+    /// Number of warnings and errors captured so far.
+    pub fn count(&self) -> usize {
+        self.messages.lock().map(|m| m.len()).unwrap_or(0)
+    }
+    fn push(&self, m: ValidationMessage) {
+        if self.echo {
+            eprintln!("validation {:?}: {}", m.severity, m.text);
+        }
+        if let Ok(mut v) = self.messages.lock() {
+            v.push(m);
+        }
+    }
+}
+
+unsafe extern "system" fn debug_callback(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    _types: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    user: *mut c_void,
+) -> vk::Bool32 {
+    let sev = if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+        Severity::Error
+    } else if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::WARNING) {
+        Severity::Warning
+    } else {
+        return vk::FALSE;
+    };
+    if user.is_null() || data.is_null() {
+        return vk::FALSE;
+    }
+    // SAFETY: `user` is the pointer from `Arc::into_raw` that the context keeps alive until after
+    // the messenger and instance are destroyed; `data` is valid for the callback's duration.
+    let (log, data) = unsafe { (&*(user as *const ValidationLog), &*data) };
+    // SAFETY: the strings are null-terminated and valid for the duration of the callback.
+    let id = unsafe { data.message_id_name_as_c_str() }
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    // SAFETY: as above.
+    let text = unsafe { data.message_as_c_str() }
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    log.push(ValidationMessage { severity: sev, id, text });
+    vk::FALSE
+}
+
+/// How to create a context.
+#[derive(Clone, Debug, Default)]
+pub struct ContextOptions {
+    /// Enable `VK_LAYER_KHRONOS_validation` and capture its messages (an error if not installed).
+    pub validation: bool,
+    /// Print captured messages to stderr as they arrive.
+    pub echo_validation: bool,
+    /// Pick the first device whose name contains this (case-insensitive). `COHERENT_DEVICE`
+    /// is used when this is `None`.
+    pub device_filter: Option<String>,
+    /// Instance extensions needed by the caller (e.g. surface extensions for a window).
+    pub instance_extensions: Vec<CString>,
+    /// Device extensions needed by the caller (e.g. `VK_KHR_swapchain`).
+    pub device_extensions: Vec<CString>,
+}
+
+/// What was chosen and why, for `coherent info`.
+#[derive(Clone, Debug)]
+pub struct DeviceInfo {
+    /// Device name, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)".
+    pub name: String,
+    /// Device type as text.
+    pub device_type: String,
+    /// Driver name and info.
+    pub driver: String,
+    /// The device's Vulkan version, "1.3.238".
+    pub api_version: String,
+    /// Why this device was chosen.
+    pub reason: String,
+    /// All devices that were seen.
+    pub candidates: Vec<String>,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period_ns: f32,
+    /// Whether validation is on.
+    pub validation: bool,
+    /// Largest 2D-array layer count.
+    pub max_image_array_layers: u32,
+}
+
+/// The features `coherent` relies on, for `coherent info`.
+pub const REQUIRED_FEATURES: &[&str] = &[
+    "Vulkan 1.3",
+    "dynamicRendering",
+    "synchronization2",
+    "maintenance4",
+    "hostQueryReset",
+    "occlusionQueryPrecise",
+    "shaderOutputLayer",
+];
+
+/// Instance, device, queue and allocator. Create it with [`GpuContext::headless`] (tests,
+/// benchmarks) or [`GpuContext::new`]; share it with `Arc`. GPU resources hold an `Arc` to it, so
+/// it is destroyed last.
+pub struct GpuContext {
+    /// The loaded Vulkan entry points.
+    pub entry: ash::Entry,
+    /// The instance.
+    pub instance: ash::Instance,
+    /// The chosen physical device.
+    pub physical_device: vk::PhysicalDevice,
+    /// The logical device.
+    pub device: ash::Device,
+    /// The graphics queue.
+    pub queue: vk::Queue,
+    /// Its family.
+    pub queue_family: u32,
+    /// What was chosen.
+    pub info: DeviceInfo,
+    allocator: ManuallyDrop<Mutex<Allocator>>,
+    debug: Option<(ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    log: Arc<ValidationLog>,
+    log_raw: *const ValidationLog,
+}
+
+// SAFETY: the raw log pointer is only read by the validation callback (it points at data behind an
+// `Arc` that lives as long as the context); every other field is Send + Sync.
+unsafe impl Send for GpuContext {}
+// SAFETY: as above.
+unsafe impl Sync for GpuContext {}
+
+impl GpuContext {
+    /// A context with validation on, for tests and benchmarks: `GpuContext::headless()?`.
+    pub fn headless() -> Result<Arc<GpuContext>> {
+        Self::new(&ContextOptions { validation: true, ..Default::default() })
+    }
+
+    /// Creates instance, device and allocator.
+    pub fn new(options: &ContextOptions) -> Result<Arc<GpuContext>> {
+        // SAFETY: loading the system Vulkan loader; no other Vulkan state exists yet.
+        let entry = unsafe { ash::Entry::load() }.map_err(|e| {
+            Error::Loader(format!("{e} (install libvulkan1 and mesa-vulkan-drivers)"))
+        })?;
+        let log = Arc::new(ValidationLog { messages: Mutex::default(), echo: options.echo_validation });
+        let log_raw = Arc::into_raw(log.clone());
+        match Self::create(entry, options, log, log_raw) {
+            Ok(ctx) => Ok(Arc::new(ctx)),
+            Err(e) => {
+                // SAFETY: the pointer came from Arc::into_raw above and nothing else uses it now.
+                unsafe { drop(Arc::from_raw(log_raw)) };
+                Err(e)
+            }
+        }
+    }
+
+    fn create(
+        entry: ash::Entry,
+        options: &ContextOptions,
+        log: Arc<ValidationLog>,
+        log_raw: *const ValidationLog,
+    ) -> Result<GpuContext> {
+        // SAFETY: plain query of the loader.
+        let version = unsafe { entry.try_enumerate_instance_version() }
+            .vk("vkEnumerateInstanceVersion")?
+            .unwrap_or(vk::API_VERSION_1_0);
+        if version < vk::API_VERSION_1_3 {
+            return Err(Error::Unsupported { feature: "Vulkan 1.3 instance".into() });
+        }
+        let mut layers: Vec<*const i8> = Vec::new();
+        let mut extensions: Vec<*const i8> =
+            options.instance_extensions.iter().map(|e| e.as_ptr()).collect();
+        if options.validation {
+            // SAFETY: plain query of the loader.
+            let available = unsafe { entry.enumerate_instance_layer_properties() }
+                .vk("vkEnumerateInstanceLayerProperties")?;
+            let found = available
+                .iter()
+                .any(|l| l.layer_name_as_c_str().map(|n| n == VALIDATION_LAYER).unwrap_or(false));
+            if !found {
+                return Err(Error::Unsupported {
+                    feature: "VK_LAYER_KHRONOS_validation (apt install vulkan-validationlayers)"
+                        .into(),
+                });
+            }
+            layers.push(VALIDATION_LAYER.as_ptr());
+            extensions.push(ext::debug_utils::NAME.as_ptr());
+        }
+        let app = vk::ApplicationInfo::default()
+            .application_name(c"coherent")
+            .engine_name(c"coherent")
+            .api_version(vk::API_VERSION_1_3);
+        let mut messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+            .message_severity(
+                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+                    | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+            )
+            .message_type(
+                vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                    | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+            )
+            .pfn_user_callback(Some(debug_callback))
+            .user_data(log_raw as *mut c_void);
+        let mut create_info = vk::InstanceCreateInfo::default()
+            .application_info(&app)
+            .enabled_layer_names(&layers)
+            .enabled_extension_names(&extensions);
+        if options.validation {
+            create_info = create_info.push_next(&mut messenger_info);
+        }
+        // SAFETY: all pointers in create_info outlive the call.
+        let instance = unsafe { entry.create_instance(&create_info, None) }.vk("vkCreateInstance")?;
+        let mut partial = Partial { instance: Some(instance.clone()), debug: None, device: None };
+        if options.validation {
+            let du = ext::debug_utils::Instance::new(&entry, &instance);
+            // SAFETY: valid instance; the user data outlives the messenger.
+            let messenger = unsafe { du.create_debug_utils_messenger(&messenger_info, None) }
+                .vk("vkCreateDebugUtilsMessengerEXT")?;
+            partial.debug = Some((du, messenger));
+        }
+
+        let filter = options
+            .device_filter
+            .clone()
+            .or_else(|| std::env::var("COHERENT_DEVICE").ok().filter(|s| !s.is_empty()));
+        let (physical_device, queue_family, mut info) = pick_device(&instance, filter.as_deref())?;
+        info.validation = options.validation;
+        check_features(&instance, physical_device)?;
+
+        let priorities = [1.0f32];
+        let queue_info = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(queue_family)
+            .queue_priorities(&priorities)];
+        let features10 = vk::PhysicalDeviceFeatures::default().occlusion_query_precise(true);
+        let mut features12 = vk::PhysicalDeviceVulkan12Features::default()
+            .host_query_reset(true)
+            .shader_output_layer(true);
+        let mut features13 = vk::PhysicalDeviceVulkan13Features::default()
+            .dynamic_rendering(true)
+            .synchronization2(true)
+            .maintenance4(true);
+        let dev_ext: Vec<*const i8> = options.device_extensions.iter().map(|e| e.as_ptr()).collect();
+        let device_info = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queue_info)
+            .enabled_features(&features10)
+            .enabled_extension_names(&dev_ext)
+            .push_next(&mut features12)
+            .push_next(&mut features13);
+        // SAFETY: physical device from this instance; pointers outlive the call.
+        let device = unsafe { instance.create_device(physical_device, &device_info, None) }
+            .vk("vkCreateDevice")?;
+        partial.device = Some(device.clone());
+        // SAFETY: the family was created with one queue.
+        let queue = unsafe { device.get_device_queue(queue_family, 0) };
+        let allocator = Allocator::new(&AllocatorCreateDesc {
+            instance: instance.clone(),
+            device: device.clone(),
+            physical_device,
+            debug_settings: Default::default(),
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        })
+        .map_err(|e| Error::Alloc(e.to_string()))?;
+        let debug = partial.debug.take();
+        partial.instance = None;
+        partial.device = None;
+        Ok(GpuContext {
+            entry,
+            instance,
+            physical_device,
+            device,
+            queue,
+            queue_family,
+            info,
+            allocator: ManuallyDrop::new(Mutex::new(allocator)),
+            debug,
+            log,
+            log_raw,
+        })
+    }
+
+    /// The validation messages of this context (shared; survives the context).
+    pub fn validation_log(&self) -> Arc<ValidationLog> {
+        self.log.clone()
+    }
+
+    /// The memory allocator.
+    pub(crate) fn allocator(&self) -> std::sync::MutexGuard<'_, Allocator> {
+        // A poisoned lock only means another thread panicked mid-allocation; the allocator's
+        // bookkeeping is still usable for freeing.
+        self.allocator.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Waits until the device is idle.
+    pub fn wait_idle(&self) -> Result<()> {
+        // SAFETY: valid device.
+        unsafe { self.device.device_wait_idle() }.vk("vkDeviceWaitIdle")
+    }
+
+    /// Deliberately breaks a valid-usage rule once (a buffer with no usage flags), so tests can
+    /// prove that this context's messenger captures errors. The buffer is destroyed again.
+    #[doc(hidden)]
+    pub fn provoke_validation_error(&self) -> Result<()> {
+        let info = vk::BufferCreateInfo::default()
+            .size(256)
+            .usage(vk::BufferUsageFlags::empty())
+            .sharing_mode(vk::SharingMode::EXCLUSIVE);
+        // SAFETY: lavapipe accepts an empty usage mask; the layer reports it, which is the point.
+        let buffer = unsafe { self.device.create_buffer(&info, None) }.vk("vkCreateBuffer")?;
+        // SAFETY: created above, never used.
+        unsafe { self.device.destroy_buffer(buffer, None) };
+        Ok(())
+    }
+}
+
+/// Cleans up a half-built context when creation fails.
+struct Partial {
+    instance: Option<ash::Instance>,
+    debug: Option<(ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    device: Option<ash::Device>,
+}
+
+impl Drop for Partial {
+    fn drop(&mut self) {
+        // SAFETY: objects created by this module and not handed out; destroyed in reverse order.
+        unsafe {
+            if let Some(d) = self.device.take() {
+                d.destroy_device(None);
+            }
+            if let Some((du, m)) = self.debug.take() {
+                du.destroy_debug_utils_messenger(m, None);
+            }
+            if let Some(i) = self.instance.take() {
+                i.destroy_instance(None);
+            }
+        }
+    }
+}
+
+impl Drop for GpuContext {
+    fn drop(&mut self) {
+        // SAFETY: every resource holds an Arc to this context, so none is alive now; the
+        // allocator goes before the device, the messenger before the instance, and the log's
+        // raw pointer is released last.
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            ManuallyDrop::drop(&mut self.allocator);
+            self.device.destroy_device(None);
+            if let Some((du, m)) = self.debug.take() {
+                du.destroy_debug_utils_messenger(m, None);
+            }
+            self.instance.destroy_instance(None);
+            drop(Arc::from_raw(self.log_raw));
+        }
+    }
+}
+
+fn version_string(v: u32) -> String {
+    format!("{}.{}.{}", vk::api_version_major(v), vk::api_version_minor(v), vk::api_version_patch(v))
+}
+
+fn pick_device(
+    instance: &ash::Instance,
+    filter: Option<&str>,
+) -> Result<(vk::PhysicalDevice, u32, DeviceInfo)> {
+    // SAFETY: valid instance.
+    let devices = unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
+    let mut candidates = Vec::new();
+    let mut best: Option<(i32, vk::PhysicalDevice, u32, DeviceInfo)> = None;
+    for pd in devices {
+        // SAFETY: pd from this instance.
+        let props = unsafe { instance.get_physical_device_properties(pd) };
+        let mut driver = vk::PhysicalDeviceDriverProperties::default();
+        let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
+        // SAFETY: as above.
+        unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
+        let name = props.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let driver_name = format!(
+            "{} {}",
+            driver.driver_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
+            driver.driver_info_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+        );
+        candidates.push(format!("{name} ({:?})", props.device_type));
+        // SAFETY: as above.
+        let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
+        let Some(family) = families
+            .iter()
+            .position(|f| f.queue_flags.contains(vk::QueueFlags::GRAPHICS) && f.timestamp_valid_bits > 0)
+        else {
+            continue;
+        };
+        let (score, why) = match props.device_type {
+            vk::PhysicalDeviceType::DISCRETE_GPU => (4, "a discrete GPU"),
+            vk::PhysicalDeviceType::INTEGRATED_GPU => (3, "an integrated GPU"),
+            vk::PhysicalDeviceType::VIRTUAL_GPU => (2, "a virtual GPU"),
+            vk::PhysicalDeviceType::CPU => (1, "the CPU device (no GPU present)"),
+            _ => (0, "the only device"),
+        };
+        let matches = filter.map(|f| name.to_lowercase().contains(&f.to_lowercase()));
+        if matches == Some(false) {
+            continue;
+        }
+        let reason = match filter {
+            Some(f) => format!("COHERENT_DEVICE/--device matched \"{f}\""),
+            None => format!("preferred {why}"),
+        };
+        if props.api_version < vk::API_VERSION_1_3 {
+            continue;
+        }
+        let info = DeviceInfo {
+            name: name.clone(),
+            device_type: format!("{:?}", props.device_type),
+            driver: driver_name.trim().to_string(),
+            api_version: version_string(props.api_version),
+            reason,
+            candidates: Vec::new(),
+            timestamp_period_ns: props.limits.timestamp_period,
+            validation: false,
+            max_image_array_layers: props.limits.max_image_array_layers,
+        };
+        if best.as_ref().map(|b| score > b.0).unwrap_or(true) {
+            best = Some((score, pd, family as u32, info));
+        }
+    }
+    match best {
+        Some((_, pd, fam, mut info)) => {
+            info.candidates = candidates;
+            Ok((pd, fam, info))
+        }
+        None => Err(Error::Unsupported {
+            feature: match filter {
+                Some(f) => format!(
+                    "a Vulkan 1.3 device matching \"{f}\" with a graphics queue (seen: {})",
+                    candidates.join(", ")
+                ),
+                None => format!(
+                    "a Vulkan 1.3 device with a graphics queue (seen: {}); install mesa-vulkan-drivers",
+                    if candidates.is_empty() { "none".to_string() } else { candidates.join(", ") }
+                ),
+            },
+        }),
+    }
+}
+
+fn check_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Result<()> {
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12).push_next(&mut f13);
+    // SAFETY: valid physical device; the chain outlives the call.
+    unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+    let f10 = f2.features;
+    let mut missing = Vec::new();
+    if f13.dynamic_rendering == 0 {
+        missing.push("dynamicRendering");
+    }
+    if f13.maintenance4 == 0 {
+        missing.push("maintenance4");
+    }
+    if f13.synchronization2 == 0 {
+        missing.push("synchronization2");
+    }
+    if f12.host_query_reset == 0 {
+        missing.push("hostQueryReset");
+    }
+    if f12.shader_output_layer == 0 {
+        missing.push("shaderOutputLayer");
+    }
+    if f10.occlusion_query_precise == 0 {
+        missing.push("occlusionQueryPrecise");
+    }
+    if missing.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::Unsupported { feature: missing.join(", ") })
+    }
+}

@@ -1,0 +1,234 @@
+//! GPU memory: buffers and images allocated through gpu-allocator. Each owns an `Arc` to the
+//! context and frees itself on drop (callers make sure the GPU is done with it first).
+
+use std::sync::Arc;
+
+use ash::vk;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use gpu_allocator::MemoryLocation;
+
+use super::GpuContext;
+use crate::error::{Error, Result, VkContext};
+
+/// A buffer and its memory.
+pub struct Buffer {
+    ctx: Arc<GpuContext>,
+    /// The Vulkan handle.
+    pub handle: vk::Buffer,
+    /// Size in bytes.
+    pub size: u64,
+    allocation: Option<Allocation>,
+}
+
+impl Buffer {
+    /// Creates a buffer in `location` (CpuToGpu/GpuToCpu buffers are mapped).
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        location: MemoryLocation,
+    ) -> Result<Buffer> {
+        let size = size.max(4);
+        let info = vk::BufferCreateInfo::default()
+            .size(size)
+            .usage(usage)
+            .sharing_mode(vk::SharingMode::EXCLUSIVE);
+        // SAFETY: valid device and create info.
+        let handle = unsafe { ctx.device.create_buffer(&info, None) }.vk("vkCreateBuffer")?;
+        // SAFETY: handle is a buffer of this device.
+        let requirements = unsafe { ctx.device.get_buffer_memory_requirements(handle) };
+        let allocation = ctx.allocator().allocate(&AllocationCreateDesc {
+            name,
+            requirements,
+            location,
+            linear: true,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        });
+        let allocation = match allocation {
+            Ok(a) => a,
+            Err(e) => {
+                // SAFETY: unused buffer created above.
+                unsafe { ctx.device.destroy_buffer(handle, None) };
+                return Err(Error::Alloc(format!("{name}: {e}")));
+            }
+        };
+        // SAFETY: the allocation satisfies the buffer's requirements.
+        let bound = unsafe { ctx.device.bind_buffer_memory(handle, allocation.memory(), allocation.offset()) };
+        let buffer = Buffer { ctx: ctx.clone(), handle, size, allocation: Some(allocation) };
+        bound.vk("vkBindBufferMemory")?;
+        Ok(buffer)
+    }
+
+    /// A device-local buffer filled with `data` through a host-visible buffer (GpuOnly memory on
+    /// lavapipe is host-visible too, but we don't rely on that).
+    pub fn with_data(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        data: &[u8],
+        usage: vk::BufferUsageFlags,
+    ) -> Result<Buffer> {
+        let mut b = Buffer::new(ctx, name, data.len() as u64, usage, MemoryLocation::CpuToGpu)?;
+        b.write(0, data)?;
+        Ok(b)
+    }
+
+    /// The mapped bytes, if host-visible.
+    pub fn mapped(&self) -> Option<&[u8]> {
+        self.allocation.as_ref().and_then(|a| a.mapped_slice())
+    }
+
+    /// Writes `data` at `offset` into a host-visible buffer.
+    pub fn write(&mut self, offset: usize, data: &[u8]) -> Result<()> {
+        let slice = self
+            .allocation
+            .as_mut()
+            .and_then(|a| a.mapped_slice_mut())
+            .ok_or_else(|| Error::Alloc("buffer is not host-visible".into()))?;
+        let end = offset.checked_add(data.len()).filter(|&e| e <= slice.len()).ok_or_else(|| {
+            Error::Input(format!("write of {} bytes at {offset} past buffer end {}", data.len(), slice.len()))
+        })?;
+        slice[offset..end].copy_from_slice(data);
+        Ok(())
+    }
+}
+
+impl Drop for Buffer {
+    fn drop(&mut self) {
+        if let Some(a) = self.allocation.take() {
+            let _ = self.ctx.allocator().free(a);
+        }
+        // SAFETY: the owner guarantees the GPU no longer uses the buffer.
+        unsafe { self.ctx.device.destroy_buffer(self.handle, None) };
+    }
+}
+
+/// An image, its memory and one view of all its layers.
+pub struct Image {
+    ctx: Arc<GpuContext>,
+    /// The Vulkan image.
+    pub handle: vk::Image,
+    /// A view of all layers (2D or 2D array).
+    pub view: vk::ImageView,
+    /// Pixel format.
+    pub format: vk::Format,
+    /// Size.
+    pub extent: vk::Extent2D,
+    /// Array layers.
+    pub layers: u32,
+    allocation: Option<Allocation>,
+}
+
+impl Image {
+    /// Creates a 2D (array) image with a view over all layers.
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        format: vk::Format,
+        extent: vk::Extent2D,
+        layers: u32,
+        usage: vk::ImageUsageFlags,
+    ) -> Result<Image> {
+        if extent.width == 0 || extent.height == 0 || layers == 0 {
+            return Err(Error::Input(format!("{name}: image size {}x{}x{layers} is empty", extent.width, extent.height)));
+        }
+        if layers > ctx.info.max_image_array_layers {
+            return Err(Error::Input(format!(
+                "{name}: {layers} layers exceed the device limit {}",
+                ctx.info.max_image_array_layers
+            )));
+        }
+        let info = vk::ImageCreateInfo::default()
+            .image_type(vk::ImageType::TYPE_2D)
+            .format(format)
+            .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
+            .mip_levels(1)
+            .array_layers(layers)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .tiling(vk::ImageTiling::OPTIMAL)
+            .usage(usage)
+            .sharing_mode(vk::SharingMode::EXCLUSIVE)
+            .initial_layout(vk::ImageLayout::UNDEFINED);
+        // SAFETY: valid device and create info.
+        let handle = unsafe { ctx.device.create_image(&info, None) }.vk("vkCreateImage")?;
+        // SAFETY: handle is an image of this device.
+        let requirements = unsafe { ctx.device.get_image_memory_requirements(handle) };
+        let allocation = match ctx.allocator().allocate(&AllocationCreateDesc {
+            name,
+            requirements,
+            location: MemoryLocation::GpuOnly,
+            linear: false,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        }) {
+            Ok(a) => a,
+            Err(e) => {
+                // SAFETY: unused image created above.
+                unsafe { ctx.device.destroy_image(handle, None) };
+                return Err(Error::Alloc(format!("{name}: {e}")));
+            }
+        };
+        let mut image = Image {
+            ctx: ctx.clone(),
+            handle,
+            view: vk::ImageView::null(),
+            format,
+            extent,
+            layers,
+            allocation: Some(allocation),
+        };
+        // SAFETY: the memory handle is only used to bind this image.
+        let a = image.allocation.as_ref().map(|a| (unsafe { a.memory() }, a.offset())).unwrap_or_default();
+        // SAFETY: the allocation satisfies the image's requirements.
+        unsafe { ctx.device.bind_image_memory(handle, a.0, a.1) }.vk("vkBindImageMemory")?;
+        let view_info = vk::ImageViewCreateInfo::default()
+            .image(handle)
+            .view_type(if layers > 1 { vk::ImageViewType::TYPE_2D_ARRAY } else { vk::ImageViewType::TYPE_2D })
+            .format(format)
+            .subresource_range(image.full_range());
+        // SAFETY: valid image with bound memory.
+        image.view = unsafe { ctx.device.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
+        Ok(image)
+    }
+
+    /// The aspect of this image's format.
+    pub fn aspect(&self) -> vk::ImageAspectFlags {
+        aspect_of(self.format)
+    }
+
+    /// All mips and layers.
+    pub fn full_range(&self) -> vk::ImageSubresourceRange {
+        vk::ImageSubresourceRange {
+            aspect_mask: self.aspect(),
+            base_mip_level: 0,
+            level_count: 1,
+            base_array_layer: 0,
+            layer_count: self.layers,
+        }
+    }
+}
+
+/// The aspect mask for a format.
+pub fn aspect_of(format: vk::Format) -> vk::ImageAspectFlags {
+    match format {
+        vk::Format::D32_SFLOAT | vk::Format::D16_UNORM => vk::ImageAspectFlags::DEPTH,
+        vk::Format::D24_UNORM_S8_UINT | vk::Format::D32_SFLOAT_S8_UINT => {
+            vk::ImageAspectFlags::DEPTH | vk::ImageAspectFlags::STENCIL
+        }
+        _ => vk::ImageAspectFlags::COLOR,
+    }
+}
+
+impl Drop for Image {
+    fn drop(&mut self) {
+        // SAFETY: the owner guarantees the GPU no longer uses the image.
+        unsafe {
+            if self.view != vk::ImageView::null() {
+                self.ctx.device.destroy_image_view(self.view, None);
+            }
+            self.ctx.device.destroy_image(self.handle, None);
+        }
+        if let Some(a) = self.allocation.take() {
+            let _ = self.ctx.allocator().free(a);
+        }
+    }
+}

@@ -1,0 +1,43 @@
+//! The `coherent` command line: thin; parses flags and calls the library.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod cli;
+
+#[derive(Parser)]
+#[command(name = "coherent", version, about = "Temporal coherence in object space on raw Vulkan: CHC++ occlusion culling and incremental instant radiosity")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print the chosen Vulkan device, driver, version and the features coherent relies on.
+    Info,
+    /// Render one frame of a scene's default path to a PNG.
+    Render(cli::RenderArgs),
+    /// Walk a camera path with several culling algorithms side by side; write a report and plots.
+    Walk(cli::WalkArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Info => cli::info(),
+        Command::Render(a) => cli::render(&a),
+        Command::Walk(a) => cli::walk(&a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // One line: the chain of causes, no backtrace.
+            let msg: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+            eprintln!("error: {}", msg.join(": "));
+            ExitCode::FAILURE
+        }
+    }
+}
+

@@ -1,0 +1,40 @@
+//! What one rendered frame reports.
+
+use crate::culling::CullStats;
+use crate::gpu::CommandCounts;
+
+/// The measured result of one frame.
+#[derive(Clone, Debug, Default)]
+pub struct FrameResult {
+    /// Wall clock from the start of traversal until the last submission completed.
+    pub frame_ms: f64,
+    /// Sum of the segments' GPU time (timestamps).
+    pub gpu_ms: f64,
+    /// Time spent blocked on query results.
+    pub stall_ms: f64,
+    /// What the recorder counted.
+    pub counts: CommandCounts,
+    /// The algorithm's own bookkeeping.
+    pub cull: CullStats,
+}
+
+impl FrameResult {
+    /// Converts to a report row.
+    pub fn record(&self, algorithm: &str, frame: u32) -> crate::report::FrameRecord {
+        crate::report::FrameRecord {
+            algorithm: algorithm.to_string(),
+            frame,
+            frame_ms: self.frame_ms,
+            gpu_ms: self.gpu_ms,
+            stall_ms: self.stall_ms,
+            queries: self.counts.queries_begun,
+            wasted_queries: self.counts.queries_visible,
+            state_changes: self.counts.state_changes,
+            pipeline_binds: self.counts.pipeline_binds,
+            draw_calls: self.counts.draw_calls,
+            triangles: self.counts.render_triangles,
+            objects: self.cull.objects_drawn,
+            submits: self.counts.submits,
+        }
+    }
+}

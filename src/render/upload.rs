@@ -1,0 +1,81 @@
+//! Uploading a scene to GPU buffers, and the query-box geometry.
+
+use std::sync::Arc;
+
+use ash::vk;
+use glam::Vec3;
+
+use crate::error::Result;
+use crate::gpu::memory::Buffer;
+use crate::gpu::GpuContext;
+use crate::scene::{Aabb, Scene};
+
+/// The scene's GPU buffers.
+pub struct UploadedScene {
+    /// Shared vertex buffer.
+    pub vertices: Buffer,
+    /// Shared index buffer.
+    pub indices: Buffer,
+    /// Per-object data (model, normal matrix, color).
+    pub objects: Buffer,
+}
+
+/// Plain-old-data that can be viewed as bytes.
+pub trait Pod: Copy {}
+impl Pod for f32 {}
+impl Pod for u32 {}
+impl Pod for [f32; 3] {}
+impl Pod for [f32; 16] {}
+impl Pod for crate::scene::Vertex {}
+
+/// The bytes of a slice of plain data.
+pub fn as_bytes<T: Pod>(data: &[T]) -> Vec<u8> {
+    // SAFETY: T is Pod (repr(C) floats/ints without padding), so every byte is initialized.
+    unsafe { std::slice::from_raw_parts(data.as_ptr() as *const u8, std::mem::size_of_val(data)) }.to_vec()
+}
+
+/// Uploads vertices, indices and per-object data.
+pub fn upload_scene(ctx: &Arc<GpuContext>, scene: &Scene) -> Result<UploadedScene> {
+    let vertices = Buffer::with_data(ctx, "scene vertices", &as_bytes(&scene.vertices), vk::BufferUsageFlags::VERTEX_BUFFER)?;
+    let indices = Buffer::with_data(ctx, "scene indices", &as_bytes(&scene.indices), vk::BufferUsageFlags::INDEX_BUFFER)?;
+    let mut data: Vec<f32> = Vec::with_capacity(scene.objects.len() * 36);
+    for o in &scene.objects {
+        data.extend_from_slice(&o.transform.to_cols_array());
+        data.extend_from_slice(&o.transform.inverse().transpose().to_cols_array());
+        data.extend_from_slice(&o.color.to_array());
+    }
+    if data.is_empty() {
+        data.resize(36, 0.0);
+    }
+    let objects = Buffer::with_data(ctx, "scene objects", &as_bytes(&data), vk::BufferUsageFlags::STORAGE_BUFFER)?;
+    Ok(UploadedScene { vertices, indices, objects })
+}
+
+/// Indices for `n` boxes of 8 corners each (corner c = x | y << 1 | z << 2), 12 triangles each.
+pub fn box_indices(n: u32) -> Vec<u32> {
+    const FACES: [u32; 36] = [
+        0, 2, 1, 1, 2, 3, // -z
+        4, 5, 6, 5, 7, 6, // +z
+        0, 1, 4, 1, 5, 4, // -y
+        2, 6, 3, 3, 6, 7, // +y
+        0, 4, 2, 2, 4, 6, // -x
+        1, 3, 5, 3, 7, 5, // +x
+    ];
+    (0..n).flat_map(|b| FACES.iter().map(move |i| i + 8 * b)).collect()
+}
+
+/// World-space corners of boxes, 8 per box.
+pub fn box_corners(boxes: &[Aabb]) -> Vec<[f32; 3]> {
+    let mut out = Vec::with_capacity(boxes.len() * 8);
+    for b in boxes {
+        for c in 0..8 {
+            let p = Vec3::new(
+                if c & 1 == 0 { b.min.x } else { b.max.x },
+                if c & 2 == 0 { b.min.y } else { b.max.y },
+                if c & 4 == 0 { b.min.z } else { b.max.z },
+            );
+            out.push(p.to_array());
+        }
+    }
+    out
+}

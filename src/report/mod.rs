@@ -1,0 +1,181 @@
+//! Benchmark reporting: per-frame records, CSV export and robust statistics.
+//! Summaries and tables live in [`summary`], PNG figures in [`plot`].
+
+pub mod plot;
+pub mod summary;
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+use crate::Error;
+
+pub use plot::{plot_counts, plot_frametime, CountSeries};
+pub use summary::{scaling_table, summarize, AlgorithmSummary, WalkSummary};
+
+/// One frame of one algorithm.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct FrameRecord {
+    /// Algorithm name (e.g. "chc++", "oracle").
+    pub algorithm: String,
+    /// Frame index along the camera path.
+    pub frame: u32,
+    /// CPU wall-clock frame time in milliseconds.
+    pub frame_ms: f64,
+    /// GPU time of the frame in milliseconds (timestamp queries).
+    pub gpu_ms: f64,
+    /// Time the CPU spent waiting for query results, in milliseconds.
+    pub stall_ms: f64,
+    /// Occlusion queries issued.
+    pub queries: u32,
+    /// Queries whose result did not change visibility.
+    pub wasted_queries: u32,
+    /// Render-state changes (e.g. between query and shading mode).
+    pub state_changes: u32,
+    /// Pipeline binds recorded.
+    pub pipeline_binds: u32,
+    /// Draw calls recorded.
+    pub draw_calls: u32,
+    /// Triangles submitted for rendering.
+    pub triangles: u64,
+    /// Objects rendered.
+    pub objects: u32,
+    /// Queue submissions.
+    pub submits: u32,
+}
+
+/// Column names of the CSV written by [`write_frames_csv`], in order.
+pub const CSV_HEADER: [&str; 13] = [
+    "algorithm",
+    "frame",
+    "frame_ms",
+    "gpu_ms",
+    "stall_ms",
+    "queries",
+    "wasted_queries",
+    "state_changes",
+    "pipeline_binds",
+    "draw_calls",
+    "triangles",
+    "objects",
+    "submits",
+];
+
+/// Quotes a CSV field if it contains a separator, quote or line break.
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_owned()
+    }
+}
+
+/// Writes one CSV row per record, preceded by a header of the field names.
+pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Error> {
+    let mut w = BufWriter::new(File::create(path)?);
+    writeln!(w, "{}", CSV_HEADER.join(","))?;
+    for r in records {
+        writeln!(
+            w,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            csv_field(&r.algorithm),
+            r.frame,
+            r.frame_ms,
+            r.gpu_ms,
+            r.stall_ms,
+            r.queries,
+            r.wasted_queries,
+            r.state_changes,
+            r.pipeline_binds,
+            r.draw_calls,
+            r.triangles,
+            r.objects,
+            r.submits
+        )?;
+    }
+    w.flush()?;
+    Ok(())
+}
+
+/// Sorts `values` ascending with all NaNs moved to the end and returns the
+/// number of non-NaN values.
+fn sort_finite_prefix(values: &mut [f64]) -> usize {
+    values.sort_unstable_by(|a, b| a.is_nan().cmp(&b.is_nan()).then(a.total_cmp(b)));
+    values.iter().take_while(|v| !v.is_nan()).count()
+}
+
+/// Median of `values` (NaNs ignored; 0 if there are no numbers). Reorders `values`.
+pub fn median(values: &mut [f64]) -> f64 {
+    percentile(values, 50.0)
+}
+
+/// Percentile `p` in `[0, 100]` of `values` with linear interpolation between
+/// closest ranks. NaNs are ignored, an empty input yields 0. Reorders `values`.
+pub fn percentile(values: &mut [f64], p: f64) -> f64 {
+    let n = sort_finite_prefix(values);
+    if n == 0 {
+        return 0.0;
+    }
+    let p = if p.is_nan() {
+        50.0
+    } else {
+        p.clamp(0.0, 100.0)
+    };
+    let rank = p / 100.0 * (n - 1) as f64;
+    let lo = rank.floor() as usize;
+    let hi = rank.ceil() as usize;
+    let t = rank - lo as f64;
+    if lo == hi {
+        values[lo]
+    } else {
+        values[lo] + (values[hi] - values[lo]) * t
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_header_and_rows() {
+        let dir = std::env::temp_dir().join(format!("coherent_csv_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("frames.csv");
+        let records: Vec<FrameRecord> = (0..5)
+            .map(|i| FrameRecord {
+                algorithm: if i % 2 == 0 { "chc++" } else { "a,b" }.into(),
+                frame: i,
+                frame_ms: 1.5 * i as f64,
+                triangles: 1_000_000,
+                ..Default::default()
+            })
+            .collect();
+        write_frames_csv(&path, &records).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(
+            lines[0],
+            "algorithm,frame,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
+             pipeline_binds,draw_calls,triangles,objects,submits"
+        );
+        assert_eq!(lines.len(), 1 + records.len());
+        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,1000000,0,0");
+        assert!(lines[2].starts_with("\"a,b\",1,1.5,"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn median_and_percentile() {
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
+        assert_eq!(median(&mut []), 0.0);
+        assert_eq!(median(&mut [f64::NAN, f64::NAN]), 0.0);
+        assert_eq!(median(&mut [f64::NAN, 5.0, -f64::NAN, 1.0, 3.0]), 3.0);
+        let mut v: Vec<f64> = (1..=101).rev().map(f64::from).collect();
+        assert_eq!(percentile(&mut v, 0.0), 1.0);
+        assert_eq!(percentile(&mut v, 95.0), 96.0);
+        assert_eq!(percentile(&mut v, 100.0), 101.0);
+        assert_eq!(percentile(&mut [10.0, 20.0], 25.0), 12.5);
+        assert_eq!(percentile(&mut [7.0], 95.0), 7.0);
+    }
+}

@@ -1,0 +1,280 @@
+//! PNG figures of a camera walk (plotters bitmap backend): frame time per
+//! frame, and query / state-change counts per frame, one line per algorithm.
+//! Owns the one-time registration of the DejaVu Sans font used for all text.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+use crate::Error;
+
+/// Font file registered as the "sans-serif" family on first use.
+pub const FONT_PATH: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+
+/// One algorithm's count series: name and `(frame, queries, state_changes)` points.
+pub type CountSeries = (String, Vec<(u32, f64, f64)>);
+
+/// Font family name used in every text style.
+const FAMILY: &str = "sans-serif";
+
+/// Line colors assigned to algorithms in order (cycled when exhausted).
+const COLORS: [RGBColor; 8] = [
+    RGBColor(0, 0, 0),
+    RGBColor(0, 70, 220),
+    RGBColor(220, 20, 30),
+    RGBColor(0, 150, 50),
+    RGBColor(240, 130, 0),
+    RGBColor(140, 30, 180),
+    RGBColor(0, 170, 190),
+    RGBColor(140, 90, 40),
+];
+
+/// Registers the DejaVu Sans font once; later calls return the cached outcome.
+fn ensure_font() -> Result<(), Error> {
+    static FONT: OnceLock<Result<(), String>> = OnceLock::new();
+    FONT.get_or_init(|| {
+        let bytes = std::fs::read(FONT_PATH)
+            .map_err(|_| format!("font not found: {FONT_PATH} (install fonts-dejavu-core)"))?;
+        let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+        plotters::style::register_font(FAMILY, FontStyle::Normal, bytes)
+            .map_err(|_| format!("invalid font file: {FONT_PATH}"))
+    })
+    .clone()
+    .map_err(Error::Input)
+}
+
+/// Converts a plotters error into the crate error, naming the output file.
+fn plot_err(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::Input(format!("plot {}: {e}", path.display()))
+}
+
+/// Draws one line chart of `(frame, value)` series into `area`.
+fn draw_chart(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    caption: &str,
+    y_desc: &str,
+    series: &[(&str, Vec<(u32, f64)>)],
+) -> Result<(), String> {
+    let finite = |v: &f64| v.is_finite();
+    let max_x = series
+        .iter()
+        .flat_map(|(_, pts)| pts.iter().map(|p| p.0))
+        .max()
+        .unwrap_or(0)
+        .max(1);
+    let max_y = series
+        .iter()
+        .flat_map(|(_, pts)| pts.iter().map(|p| p.1))
+        .filter(finite)
+        .fold(0.0_f64, f64::max);
+    let top = if max_y > 0.0 { max_y * 1.1 } else { 1.0 };
+
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, (FAMILY, 26))
+        .margin(16)
+        .x_label_area_size(56)
+        .y_label_area_size(84)
+        .build_cartesian_2d(0u32..max_x, 0.0..top)
+        .map_err(|e| e.to_string())?;
+    chart
+        .configure_mesh()
+        .x_desc("frame")
+        .y_desc(y_desc)
+        .axis_desc_style((FAMILY, 20))
+        .label_style((FAMILY, 16))
+        .bold_line_style(RGBColor(215, 215, 215))
+        .light_line_style(RGBColor(242, 242, 242))
+        .axis_style(BLACK.stroke_width(1))
+        .x_labels(12)
+        .y_labels(10)
+        .y_label_formatter(&|v: &f64| {
+            if top >= 20.0 {
+                format!("{v:.0}")
+            } else {
+                format!("{v:.1}")
+            }
+        })
+        .draw()
+        .map_err(|e| e.to_string())?;
+
+    for (i, (name, pts)) in series.iter().enumerate() {
+        let color = COLORS[i % COLORS.len()];
+        let line = pts.iter().filter(|p| p.1.is_finite()).map(|&(x, y)| (x, y));
+        chart
+            .draw_series(LineSeries::new(line, color.stroke_width(2)))
+            .map_err(|e| e.to_string())?
+            .label(*name)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 24, y)], color.stroke_width(3))
+            });
+    }
+    if !series.is_empty() {
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .label_font((FAMILY, 18))
+            .background_style(WHITE.mix(0.9))
+            .border_style(BLACK)
+            .margin(12)
+            .draw()
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}
+
+/// Frame-time plot (1280x720): one line per algorithm of frame time in ms over
+/// the frame index, with axis labels, `title` and a legend.
+pub fn plot_frametime(
+    path: &Path,
+    title: &str,
+    series: &[(String, Vec<(u32, f64)>)],
+) -> Result<(), Error> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, (1280, 720)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+    let lines: Vec<(&str, Vec<(u32, f64)>)> = series
+        .iter()
+        .map(|(name, pts)| (name.as_str(), pts.clone()))
+        .collect();
+    draw_chart(&root, title, "frame time [ms]", &lines).map_err(|e| plot_err(path, e))?;
+    root.present().map_err(|e| plot_err(path, e))
+}
+
+/// Count plot (1280x900) of `(frame, queries, state_changes)` series: queries
+/// per frame on top, state changes per frame below, one line per algorithm.
+pub fn plot_counts(path: &Path, title: &str, series: &[CountSeries]) -> Result<(), Error> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, (1280, 900)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+    let body = root
+        .margin(8, 0, 0, 0)
+        .titled(title, (FAMILY, 30))
+        .map_err(|e| plot_err(path, e))?;
+    let (upper, lower) = body.split_vertically(body.dim_in_pixel().1 / 2);
+    let pick = |f: fn(&(u32, f64, f64)) -> f64| -> Vec<(&str, Vec<(u32, f64)>)> {
+        series
+            .iter()
+            .map(|(name, pts)| (name.as_str(), pts.iter().map(|p| (p.0, f(p))).collect()))
+            .collect()
+    };
+    draw_chart(
+        &upper,
+        "occlusion queries per frame",
+        "queries",
+        &pick(|p| p.1),
+    )
+    .map_err(|e| plot_err(path, e))?;
+    draw_chart(
+        &lower,
+        "state changes per frame",
+        "state changes",
+        &pick(|p| p.2),
+    )
+    .map_err(|e| plot_err(path, e))?;
+    root.present().map_err(|e| plot_err(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+
+    fn out_dir() -> PathBuf {
+        let dir = std::env::var_os("REPORT_PLOT_DIR")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| {
+                std::env::temp_dir().join(format!("coherent_plot_{}", std::process::id()))
+            });
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    /// Synthetic walk: per algorithm `(frame, ms, queries, state changes)`.
+    #[allow(clippy::type_complexity)]
+    fn walk(n: u32) -> Vec<(String, Vec<(u32, f64, f64, f64)>)> {
+        let names = [
+            "oracle",
+            "view-frustum",
+            "stop-and-wait",
+            "chc",
+            "chc++",
+            "hierarchical",
+        ];
+        names
+            .iter()
+            .enumerate()
+            .map(|(k, name)| {
+                let k = k as f64;
+                let pts = (0..n)
+                    .map(|f| {
+                        let t = f64::from(f) / 40.0;
+                        let ms =
+                            2.0 + k * 1.3 + (t + k).sin().abs() * (1.0 + k) + 0.3 * (7.0 * t).cos();
+                        (
+                            f,
+                            ms,
+                            200.0 * k + 150.0 * (t * 0.7).sin().abs(),
+                            4.0 * k + (t * 2.0).cos().abs() * 3.0 * k,
+                        )
+                    })
+                    .collect();
+                (name.to_string(), pts)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn frametime_png() {
+        let dir = out_dir();
+        let path = dir.join("frametime.png");
+        let series: Vec<(String, Vec<(u32, f64)>)> = walk(600)
+            .into_iter()
+            .map(|(n, pts)| (n, pts.into_iter().map(|p| (p.0, p.1)).collect()))
+            .collect();
+        plot_frametime(&path, "city walk, 1280x720", &series).unwrap();
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(size > 10 * 1024, "png too small: {size}");
+    }
+
+    #[test]
+    fn counts_png() {
+        let dir = out_dir();
+        let path = dir.join("counts.png");
+        let series: Vec<CountSeries> = walk(600)
+            .into_iter()
+            .map(|(n, pts)| (n, pts.into_iter().map(|p| (p.0, p.2, p.3)).collect()))
+            .collect();
+        plot_counts(&path, "city walk: queries and state changes", &series).unwrap();
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(size > 10 * 1024, "png too small: {size}");
+    }
+
+    #[test]
+    fn empty_series_do_not_panic() {
+        let dir = out_dir();
+        plot_frametime(&dir.join("empty1.png"), "empty", &[]).unwrap();
+        plot_frametime(
+            &dir.join("empty2.png"),
+            "no points",
+            &[("a".into(), vec![])],
+        )
+        .unwrap();
+        plot_frametime(
+            &dir.join("zero.png"),
+            "zero",
+            &[("a".into(), vec![(0, 0.0), (5, f64::NAN)])],
+        )
+        .unwrap();
+        plot_counts(&dir.join("empty3.png"), "empty", &[]).unwrap();
+        plot_counts(
+            &dir.join("empty4.png"),
+            "one",
+            &[("a".into(), vec![(3, 0.0, 0.0)])],
+        )
+        .unwrap();
+        assert!(dir.join("empty1.png").exists());
+    }
+}

@@ -1,0 +1,415 @@
+//! Per-walk summaries: median statistics per algorithm, their JSON export
+//! and fixed-width text tables (algorithm comparison and scene scaling).
+
+use std::fmt::Write as _;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+use serde::ser::{SerializeMap, Serializer};
+use serde::Serialize;
+
+use super::{median, percentile, FrameRecord};
+use crate::Error;
+
+/// Median (and p95 frame time) statistics of one algorithm over a walk.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct AlgorithmSummary {
+    /// Median CPU frame time in ms.
+    pub frame_ms_median: f64,
+    /// 95th percentile CPU frame time in ms.
+    pub frame_ms_p95: f64,
+    /// Median GPU time in ms.
+    pub gpu_ms_median: f64,
+    /// Median query-result stall in ms.
+    pub stall_ms_median: f64,
+    /// Median occlusion queries per frame.
+    pub queries_median: f64,
+    /// Median wasted queries per frame.
+    pub wasted_queries_median: f64,
+    /// Median state changes per frame.
+    pub state_changes_median: f64,
+    /// Median pipeline binds per frame.
+    pub pipeline_binds_median: f64,
+    /// Median draw calls per frame.
+    pub draw_calls_median: f64,
+    /// Median triangles per frame.
+    pub triangles_median: f64,
+    /// Median queue submissions per frame.
+    pub submits_median: f64,
+}
+
+impl AlgorithmSummary {
+    /// Computes the statistics over the given frames (all zero when empty).
+    pub fn from_records(records: &[&FrameRecord]) -> Self {
+        let col = |f: &dyn Fn(&FrameRecord) -> f64| -> Vec<f64> {
+            records.iter().map(|r| f(r)).collect()
+        };
+        let med = |f: &dyn Fn(&FrameRecord) -> f64| median(&mut col(f));
+        Self {
+            frame_ms_median: med(&|r| r.frame_ms),
+            frame_ms_p95: percentile(&mut col(&|r| r.frame_ms), 95.0),
+            gpu_ms_median: med(&|r| r.gpu_ms),
+            stall_ms_median: med(&|r| r.stall_ms),
+            queries_median: med(&|r| f64::from(r.queries)),
+            wasted_queries_median: med(&|r| f64::from(r.wasted_queries)),
+            state_changes_median: med(&|r| f64::from(r.state_changes)),
+            pipeline_binds_median: med(&|r| f64::from(r.pipeline_binds)),
+            draw_calls_median: med(&|r| f64::from(r.draw_calls)),
+            triangles_median: med(&|r| r.triangles as f64),
+            submits_median: med(&|r| f64::from(r.submits)),
+        }
+    }
+}
+
+/// Summary of one camera walk through one scene for all algorithms.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct WalkSummary {
+    /// Scene name.
+    pub scene: String,
+    /// Number of objects in the scene.
+    pub objects: usize,
+    /// Total triangles in the scene.
+    pub triangles: u64,
+    /// GPU device name.
+    pub device: String,
+    /// Render resolution, e.g. "1280x720".
+    pub size: String,
+    /// Frames per algorithm (the largest count over all algorithms).
+    pub frames: usize,
+    /// Per-algorithm statistics in caller order; serialized as a JSON object
+    /// whose keys keep this order.
+    #[serde(serialize_with = "serialize_ordered")]
+    pub algorithms: Vec<(String, AlgorithmSummary)>,
+}
+
+/// Serializes `(name, value)` pairs as a map, keeping their order.
+fn serialize_ordered<S: Serializer>(
+    pairs: &[(String, AlgorithmSummary)],
+    serializer: S,
+) -> Result<S::Ok, S::Error> {
+    let mut map = serializer.serialize_map(Some(pairs.len()))?;
+    for (name, summary) in pairs {
+        map.serialize_entry(name, summary)?;
+    }
+    map.end()
+}
+
+/// Builds a [`WalkSummary`] from per-frame records.
+///
+/// Algorithms appear in `algorithm_order` (names without records are skipped),
+/// followed by any other algorithms in order of first appearance in `records`.
+/// `size` is the render resolution `(width, height)`.
+pub fn summarize(
+    scene: &str,
+    objects: usize,
+    triangles: u64,
+    device: &str,
+    size: (u32, u32),
+    records: &[FrameRecord],
+    algorithm_order: &[String],
+) -> WalkSummary {
+    let mut names: Vec<&str> = Vec::new();
+    let ordered = algorithm_order.iter().map(String::as_str);
+    let seen = records.iter().map(|r| r.algorithm.as_str());
+    for name in ordered.chain(seen) {
+        if !names.contains(&name) && records.iter().any(|r| r.algorithm == name) {
+            names.push(name);
+        }
+    }
+    let mut frames = 0;
+    let algorithms = names
+        .into_iter()
+        .map(|name| {
+            let own: Vec<&FrameRecord> = records.iter().filter(|r| r.algorithm == name).collect();
+            frames = frames.max(own.len());
+            (name.to_owned(), AlgorithmSummary::from_records(&own))
+        })
+        .collect();
+    WalkSummary {
+        scene: scene.to_owned(),
+        objects,
+        triangles,
+        device: device.to_owned(),
+        size: format!("{}x{}", size.0, size.1),
+        frames,
+        algorithms,
+    }
+}
+
+/// Formats a count-like median: integral values without decimals.
+fn fmt_count(v: f64) -> String {
+    if v.fract() == 0.0 && v.abs() < 1e15 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.1}")
+    }
+}
+
+impl WalkSummary {
+    /// Statistics of the named algorithm, if present.
+    pub fn get(&self, algorithm: &str) -> Option<&AlgorithmSummary> {
+        self.algorithms
+            .iter()
+            .find(|(name, _)| name == algorithm)
+            .map(|(_, s)| s)
+    }
+
+    /// Writes the summary as pretty-printed JSON.
+    pub fn write_json(&self, path: &Path) -> Result<(), Error> {
+        let mut w = BufWriter::new(File::create(path)?);
+        serde_json::to_writer_pretty(&mut w, self)
+            .map_err(|e| Error::Input(format!("JSON encoding of {}: {e}", path.display())))?;
+        writeln!(w)?;
+        w.flush()?;
+        Ok(())
+    }
+
+    /// Fixed-width text table, one row per algorithm. The last column is the
+    /// median frame time relative to the `reference` algorithm ("-" if absent).
+    pub fn table(&self, reference: Option<&str>) -> String {
+        let ref_ms = reference
+            .and_then(|r| self.get(r))
+            .map(|s| s.frame_ms_median);
+        let name_w = self
+            .algorithms
+            .iter()
+            .map(|(n, _)| n.chars().count())
+            .max()
+            .unwrap_or(0)
+            .max("algorithm".len());
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "{} | {} objects, {} triangles | {} | {} | {} frames",
+            self.scene, self.objects, self.triangles, self.device, self.size, self.frames
+        );
+        let header = format!(
+            "{:<name_w$} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>7} {:>7} {:>11} {:>7} {:>8}",
+            "algorithm",
+            "frame ms",
+            "p95 ms",
+            "gpu ms",
+            "stall ms",
+            "queries",
+            "wasted",
+            "states",
+            "binds",
+            "draws",
+            "triangles",
+            "submits",
+            "x oracle",
+        );
+        let _ = writeln!(out, "{header}");
+        let _ = writeln!(out, "{}", "-".repeat(header.len()));
+        for (name, s) in &self.algorithms {
+            let ratio = match ref_ms {
+                Some(r) if r > 0.0 => format!("{:.2}", s.frame_ms_median / r),
+                _ => "-".to_owned(),
+            };
+            let _ = writeln!(
+                out,
+                "{:<name_w$} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>8} {:>8} {:>8} {:>7} {:>7} {:>11} {:>7} {:>8}",
+                name,
+                s.frame_ms_median,
+                s.frame_ms_p95,
+                s.gpu_ms_median,
+                s.stall_ms_median,
+                fmt_count(s.queries_median),
+                fmt_count(s.wasted_queries_median),
+                fmt_count(s.state_changes_median),
+                fmt_count(s.pipeline_binds_median),
+                fmt_count(s.draw_calls_median),
+                fmt_count(s.triangles_median),
+                fmt_count(s.submits_median),
+                ratio,
+            );
+        }
+        out
+    }
+}
+
+/// Scaling table: one row per algorithm, one column per scene scale with the
+/// median frame time in ms, and a final `growth` column (last / first scale).
+pub fn scaling_table(rows: &[(f32, &WalkSummary)]) -> String {
+    let mut names: Vec<&str> = Vec::new();
+    for (_, walk) in rows {
+        for (name, _) in &walk.algorithms {
+            if !names.contains(&name.as_str()) {
+                names.push(name);
+            }
+        }
+    }
+    let name_w = names
+        .iter()
+        .map(|n| n.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max("algorithm".len());
+    let mut out = String::new();
+    let mut header = format!("{:<name_w$}", "algorithm");
+    for (scale, _) in rows {
+        let _ = write!(header, " {:>10}", format!("x{scale}"));
+    }
+    let _ = write!(header, " {:>8}", "growth");
+    let _ = writeln!(out, "{header}");
+    let _ = writeln!(out, "{}", "-".repeat(header.len()));
+    for name in names {
+        let ms: Vec<Option<f64>> = rows
+            .iter()
+            .map(|(_, w)| w.get(name).map(|s| s.frame_ms_median))
+            .collect();
+        let _ = write!(out, "{name:<name_w$}");
+        for v in &ms {
+            match v {
+                Some(v) => {
+                    let _ = write!(out, " {v:>10.3}");
+                }
+                None => {
+                    let _ = write!(out, " {:>10}", "-");
+                }
+            }
+        }
+        let growth = match (ms.first().copied().flatten(), ms.last().copied().flatten()) {
+            (Some(first), Some(last)) if first > 0.0 => format!("{:.2}", last / first),
+            _ => "-".to_owned(),
+        };
+        let _ = writeln!(out, " {growth:>8}");
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeSet;
+
+    fn records() -> Vec<FrameRecord> {
+        let mut out = Vec::new();
+        for (alg, ms) in [("zeta", 4.0), ("oracle", 2.0), ("alpha", 8.0)] {
+            for f in 0..10u32 {
+                out.push(FrameRecord {
+                    algorithm: alg.into(),
+                    frame: f,
+                    frame_ms: ms,
+                    queries: 100 + f,
+                    state_changes: 7,
+                    triangles: 1_234_567,
+                    ..Default::default()
+                });
+            }
+        }
+        out
+    }
+
+    fn walk() -> WalkSummary {
+        let order = vec!["zeta".to_owned(), "missing".to_owned(), "oracle".to_owned()];
+        summarize(
+            "city",
+            5000,
+            9_000_000,
+            "Test GPU",
+            (1280, 720),
+            &records(),
+            &order,
+        )
+    }
+
+    fn keys(v: &serde_json::Value) -> BTreeSet<String> {
+        v.as_object().unwrap().keys().cloned().collect()
+    }
+
+    #[test]
+    fn summary_values() {
+        let w = walk();
+        assert_eq!(w.frames, 10);
+        assert_eq!(w.size, "1280x720");
+        let names: Vec<&str> = w.algorithms.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(names, ["zeta", "oracle", "alpha"]);
+        let z = w.get("zeta").unwrap();
+        assert_eq!(z.frame_ms_median, 4.0);
+        assert_eq!(z.queries_median, 104.5);
+        assert_eq!(z.state_changes_median, 7.0);
+        assert_eq!(z.triangles_median, 1_234_567.0);
+    }
+
+    #[test]
+    fn json_keys_and_order() {
+        let dir = std::env::temp_dir().join(format!("coherent_json_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("summary.json");
+        walk().write_json(&path).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let top: BTreeSet<String> = [
+            "scene",
+            "objects",
+            "triangles",
+            "device",
+            "size",
+            "frames",
+            "algorithms",
+        ]
+        .map(String::from)
+        .into();
+        assert_eq!(keys(&v), top);
+        let alg_keys: BTreeSet<String> = [
+            "frame_ms_median",
+            "frame_ms_p95",
+            "gpu_ms_median",
+            "stall_ms_median",
+            "queries_median",
+            "wasted_queries_median",
+            "state_changes_median",
+            "pipeline_binds_median",
+            "draw_calls_median",
+            "triangles_median",
+            "submits_median",
+        ]
+        .map(String::from)
+        .into();
+        let algs = v["algorithms"].as_object().unwrap();
+        assert_eq!(algs.len(), 3);
+        for a in algs.values() {
+            assert_eq!(keys(a), alg_keys);
+        }
+        assert_eq!(v["size"], "1280x720");
+        // serde_json::Map sorts keys without `preserve_order`, so check the raw text.
+        let pos = |k: &str| text.find(&format!("\"{k}\": {{")).unwrap();
+        assert!(pos("zeta") < pos("oracle") && pos("oracle") < pos("alpha"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn table_has_ratio() {
+        let w = walk();
+        let t = w.table(Some("oracle"));
+        assert!(t.contains("x oracle"));
+        let zeta = t.lines().find(|l| l.starts_with("zeta")).unwrap();
+        assert!(zeta.trim_end().ends_with("2.00"), "{zeta}");
+        let alpha = t.lines().find(|l| l.starts_with("alpha")).unwrap();
+        assert!(alpha.trim_end().ends_with("4.00"), "{alpha}");
+        let none = w.table(None);
+        let zeta = none.lines().find(|l| l.starts_with("zeta")).unwrap();
+        assert!(zeta.trim_end().ends_with('-'));
+        assert!(w
+            .table(Some("nope"))
+            .lines()
+            .any(|l| l.starts_with("oracle")));
+    }
+
+    #[test]
+    fn scaling() {
+        let small = walk();
+        let mut big = walk();
+        for (_, s) in &mut big.algorithms {
+            s.frame_ms_median *= 3.0;
+        }
+        let t = scaling_table(&[(1.0, &small), (4.0, &big)]);
+        let zeta = t.lines().find(|l| l.starts_with("zeta")).unwrap();
+        assert!(zeta.contains("4.000") && zeta.contains("12.000"));
+        assert!(zeta.trim_end().ends_with("3.00"), "{zeta}");
+        assert!(t.lines().next().unwrap().contains("growth"));
+        assert_eq!(scaling_table(&[]).lines().count(), 2);
+    }
+}

@@ -1,0 +1,1158 @@
+//! glTF 2.0 loading (.gltf with external or data-URI buffers, and .glb): flattens the node
+//! hierarchy of the default scene into one [`Object`] per primitive instance over shared geometry,
+//! validating every accessor so malformed files give a one-line error instead of a panic.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use ::gltf::accessor::{DataType, Dimensions};
+use ::gltf::buffer::Data;
+use ::gltf::mesh::{Mode, Semantic};
+use ::gltf::{Accessor, Document, Gltf, Node};
+use glam::{Mat4, Vec3, Vec4};
+
+use super::{Aabb, CameraPath, CameraPose, Object, Scene, Vertex};
+use crate::Error;
+
+/// Upper bound on node visits while flattening the hierarchy (guards against exponential DAGs).
+const MAX_NODE_VISITS: usize = 10_000_000;
+
+/// Loads a `.gltf` or `.glb` file into a [`Scene`].
+///
+/// Every triangle primitive reachable from the default scene (or the first scene, or all root
+/// nodes when the file has no scenes) becomes one [`Object`] per node instance; instances of the
+/// same mesh share their vertex and index range. Returns the scene and a list of warnings about
+/// content that was skipped (non-triangle primitives, unusable normals, ...).
+///
+/// Any malformed input (unreadable or truncated file, invalid JSON, missing or short buffers,
+/// out-of-range accessors or indices, non-finite positions, no triangles at all) gives
+/// [`Error::Scene`] with a single line `"<path>: <problem>"`.
+pub fn load_gltf(path: &Path) -> Result<(Scene, Vec<String>), Error> {
+    load(path).map_err(|problem| {
+        let problem = problem.replace(['\n', '\r'], " ");
+        Error::Scene(format!("{}: {problem}", path.display()))
+    })
+}
+
+/// Geometry of one loaded primitive in the scene's shared buffers (object space).
+#[derive(Clone, Copy)]
+struct PrimGeom {
+    first_index: u32,
+    index_count: u32,
+    vertex_offset: u32,
+    vertex_count: u32,
+    bounds: Aabb,
+    color: Vec4,
+}
+
+/// Accumulates shared geometry and objects while walking the document.
+struct Loader<'a> {
+    buffers: &'a [Data],
+    vertices: Vec<Vertex>,
+    indices: Vec<u32>,
+    objects: Vec<Object>,
+    warnings: Vec<String>,
+    meshes: HashMap<usize, Vec<PrimGeom>>,
+}
+
+fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read file: {e}"))?;
+    let Gltf { document, blob } = parse(&bytes)?;
+    drop(bytes);
+    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    let buffers = load_buffers(&document, base, blob)?;
+
+    let mut loader = Loader {
+        buffers: &buffers,
+        vertices: Vec::new(),
+        indices: Vec::new(),
+        objects: Vec::new(),
+        warnings: Vec::new(),
+        meshes: HashMap::new(),
+    };
+    for root in root_nodes(&document) {
+        loader.walk(&document, root)?;
+    }
+    if loader.objects.is_empty() {
+        return Err("no triangle geometry".to_string());
+    }
+
+    let bounds = loader
+        .objects
+        .iter()
+        .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
+    let name = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let scene = Scene {
+        name,
+        vertices: loader.vertices,
+        indices: loader.indices,
+        objects: loader.objects,
+        paths: vec![default_path(&bounds)],
+        sun_dir: Vec3::new(0.4, 1.0, 0.3).normalize(),
+    };
+    Ok((scene, loader.warnings))
+}
+
+/// Loads every buffer (GLB binary chunk, data URI or external file relative to `base`) and
+/// checks it holds at least its declared byte length.
+fn load_buffers(
+    doc: &Document,
+    base: &Path,
+    mut blob: Option<Vec<u8>>,
+) -> Result<Vec<Data>, String> {
+    let mut buffers = Vec::with_capacity(doc.buffers().len());
+    for buffer in doc.buffers() {
+        let source = match buffer.source() {
+            ::gltf::buffer::Source::Bin => "the GLB binary chunk".to_string(),
+            ::gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
+                "its data URI".to_string()
+            }
+            ::gltf::buffer::Source::Uri(uri) => format!("'{uri}'"),
+        };
+        let data = Data::from_source_and_blob(buffer.source(), Some(base), &mut blob)
+            .map_err(|e| format!("cannot load buffer {} from {source}: {e}", buffer.index()))?;
+        if data.len() < buffer.length() {
+            return Err(format!(
+                "buffer {} is short: {} bytes declared, {} in {source}",
+                buffer.index(),
+                buffer.length(),
+                data.len()
+            ));
+        }
+        buffers.push(data);
+    }
+    Ok(buffers)
+}
+
+/// Parses and validates the document, tolerating only missing POSITION `min`/`max` (required
+/// by the spec but often omitted by exporters; bounds are computed from the data anyway).
+fn parse(bytes: &[u8]) -> Result<Gltf, String> {
+    match Gltf::from_slice(bytes) {
+        Ok(gltf) => Ok(gltf),
+        Err(::gltf::Error::Validation(errors))
+            if errors.iter().all(|(path, error)| {
+                let path = path.to_string();
+                *error == ::gltf::json::validation::Error::Missing
+                    && (path.ends_with(".min") || path.ends_with(".max"))
+            }) =>
+        {
+            Gltf::from_slice_without_validation(bytes).map_err(|e| format!("invalid glTF: {e}"))
+        }
+        Err(e @ ::gltf::Error::Validation(_)) => Err(e.to_string()),
+        Err(e) => Err(format!("invalid glTF: {e}")),
+    }
+}
+
+/// The nodes to start from: the default scene's, else the first scene's, else every node that
+/// is nobody's child.
+fn root_nodes(doc: &Document) -> Vec<Node<'_>> {
+    if let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) {
+        return scene.nodes().collect();
+    }
+    let mut is_child = vec![false; doc.nodes().len()];
+    for node in doc.nodes() {
+        for child in node.children() {
+            if let Some(flag) = is_child.get_mut(child.index()) {
+                *flag = true;
+            }
+        }
+    }
+    doc.nodes()
+        .filter(|n| !is_child.get(n.index()).copied().unwrap_or(false))
+        .collect()
+}
+
+/// A camera orbit around `bounds`: four keys at 1.5x the bounding radius, looking at the center.
+fn default_path(bounds: &Aabb) -> CameraPath {
+    let center = bounds.center();
+    let radius = (bounds.extent().length() * 0.5).max(1e-3);
+    let keys = (0..4)
+        .map(|k| {
+            let a = std::f32::consts::FRAC_PI_4 + k as f32 * std::f32::consts::FRAC_PI_2;
+            let dir = Vec3::new(a.cos(), 0.35, a.sin()).normalize();
+            CameraPose {
+                eye: center + dir * (1.5 * radius),
+                target: center,
+            }
+        })
+        .collect();
+    CameraPath {
+        name: "default".to_string(),
+        keys,
+    }
+}
+
+impl Loader<'_> {
+    /// Depth-first walk from `root`, composing transforms and instancing meshes.
+    fn walk(&mut self, doc: &Document, root: Node<'_>) -> Result<(), String> {
+        let node_count = doc.nodes().len();
+        let mut visits = 0usize;
+        let mut stack = vec![(root, Mat4::IDENTITY, 0usize)];
+        while let Some((node, parent, depth)) = stack.pop() {
+            visits += 1;
+            if depth > node_count {
+                return Err(format!(
+                    "node {} is part of a cycle in the node hierarchy",
+                    node.index()
+                ));
+            }
+            if visits > MAX_NODE_VISITS {
+                return Err("node hierarchy expands to too many instances".to_string());
+            }
+            let local = Mat4::from_cols_array_2d(&node.transform().matrix());
+            let world = parent * local;
+            if !world.is_finite() {
+                return Err(format!("node {} has a non-finite transform", node.index()));
+            }
+            if let Some(mesh) = node.mesh() {
+                for geom in self.mesh_geometry(&mesh)? {
+                    self.objects.push(Object {
+                        first_index: geom.first_index,
+                        index_count: geom.index_count,
+                        vertex_offset: geom.vertex_offset,
+                        vertex_count: geom.vertex_count,
+                        transform: world,
+                        color: geom.color,
+                        bounds: geom.bounds.transformed(&world),
+                    });
+                }
+            }
+            let children: Vec<_> = node.children().collect();
+            for child in children.into_iter().rev() {
+                stack.push((child, world, depth + 1));
+            }
+        }
+        Ok(())
+    }
+
+    /// The triangle primitives of `mesh`, loading them into the shared buffers on first use.
+    fn mesh_geometry(&mut self, mesh: &::gltf::Mesh<'_>) -> Result<Vec<PrimGeom>, String> {
+        if let Some(geoms) = self.meshes.get(&mesh.index()) {
+            return Ok(geoms.clone());
+        }
+        let label = match mesh.name() {
+            Some(name) => format!("mesh {} '{name}'", mesh.index()),
+            None => format!("mesh {}", mesh.index()),
+        };
+        let mut geoms = Vec::new();
+        for prim in mesh.primitives() {
+            let label = format!("{label} primitive {}", prim.index());
+            if let Some(geom) = self.load_primitive(&prim, &label)? {
+                geoms.push(geom);
+            }
+        }
+        self.meshes.insert(mesh.index(), geoms.clone());
+        Ok(geoms)
+    }
+
+    /// Loads one primitive; `Ok(None)` when it is skipped (with a warning).
+    fn load_primitive(
+        &mut self,
+        prim: &::gltf::Primitive<'_>,
+        label: &str,
+    ) -> Result<Option<PrimGeom>, String> {
+        if prim.mode() != Mode::Triangles {
+            self.warnings.push(format!(
+                "{label}: mode {:?} is not supported, skipped",
+                prim.mode()
+            ));
+            return Ok(None);
+        }
+        let pos_acc = prim
+            .get(&Semantic::Positions)
+            .ok_or_else(|| format!("{label}: no POSITION attribute"))?;
+        let positions = read_vec3(&pos_acc, self.buffers)
+            .map_err(|e| format!("{label}: POSITION accessor {}: {e}", pos_acc.index()))?;
+        if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
+            return Err(format!("{label}: vertex {i} has a non-finite position"));
+        }
+        let n = positions.len();
+
+        let indices = match prim.indices() {
+            Some(acc) => {
+                let idx = read_indices(&acc, self.buffers)
+                    .map_err(|e| format!("{label}: index accessor {}: {e}", acc.index()))?;
+                if !idx.len().is_multiple_of(3) {
+                    return Err(format!(
+                        "{label}: index count {} is not a multiple of 3",
+                        idx.len()
+                    ));
+                }
+                if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
+                    return Err(format!(
+                        "{label}: index {bad} out of range (vertex count {n})"
+                    ));
+                }
+                idx
+            }
+            None => {
+                if !n.is_multiple_of(3) {
+                    return Err(format!(
+                        "{label}: non-indexed vertex count {n} is not a multiple of 3"
+                    ));
+                }
+                let n32 = u32::try_from(n).map_err(|_| format!("{label}: too many vertices"))?;
+                (0..n32).collect()
+            }
+        };
+        if indices.is_empty() {
+            self.warnings
+                .push(format!("{label}: no triangles, skipped"));
+            return Ok(None);
+        }
+
+        let normals = self.primitive_normals(prim, label, &positions, &indices)?;
+
+        let vertex_offset = u32::try_from(self.vertices.len()).ok();
+        let first_index = u32::try_from(self.indices.len()).ok();
+        let fits = self
+            .vertices
+            .len()
+            .checked_add(n)
+            .is_some_and(|v| v <= u32::MAX as usize)
+            && self
+                .indices
+                .len()
+                .checked_add(indices.len())
+                .is_some_and(|v| v <= u32::MAX as usize);
+        let (Some(vertex_offset), Some(first_index), true) = (vertex_offset, first_index, fits)
+        else {
+            return Err("scene exceeds 2^32 vertices or indices".to_string());
+        };
+
+        let mut bounds = Aabb::EMPTY;
+        for (p, nrm) in positions.iter().zip(&normals) {
+            bounds.grow(*p);
+            self.vertices.push(Vertex {
+                position: p.to_array(),
+                normal: nrm.to_array(),
+            });
+        }
+        let index_count = indices.len() as u32;
+        self.indices.extend_from_slice(&indices);
+
+        let factor = prim.material().pbr_metallic_roughness().base_color_factor();
+        let color = Vec4::from_array(factor);
+        let color = if color.is_finite() {
+            color.clamp(Vec4::ZERO, Vec4::ONE)
+        } else {
+            Vec4::ONE
+        };
+
+        Ok(Some(PrimGeom {
+            first_index,
+            index_count,
+            vertex_offset,
+            vertex_count: n as u32,
+            bounds,
+            color,
+        }))
+    }
+
+    /// The NORMAL attribute when usable, else area-weighted averaged face normals; invalid
+    /// individual normals are replaced by computed ones.
+    fn primitive_normals(
+        &mut self,
+        prim: &::gltf::Primitive<'_>,
+        label: &str,
+        positions: &[Vec3],
+        indices: &[u32],
+    ) -> Result<Vec<Vec3>, String> {
+        let Some(acc) = prim.get(&Semantic::Normals) else {
+            return Ok(computed_normals(positions, indices));
+        };
+        if acc.count() != positions.len() || acc.dimensions() != Dimensions::Vec3 {
+            self.warnings.push(format!(
+                "{label}: NORMAL accessor {} has {} {:?} elements for {} vertices, normals recomputed",
+                acc.index(),
+                acc.count(),
+                acc.dimensions(),
+                positions.len()
+            ));
+            return Ok(computed_normals(positions, indices));
+        }
+        let mut normals = read_vec3(&acc, self.buffers)
+            .map_err(|e| format!("{label}: NORMAL accessor {}: {e}", acc.index()))?;
+        let mut computed: Option<Vec<Vec3>> = None;
+        for (i, n) in normals.iter_mut().enumerate() {
+            match n.try_normalize() {
+                Some(unit) => *n = unit,
+                None => {
+                    let c = computed.get_or_insert_with(|| computed_normals(positions, indices));
+                    *n = c[i];
+                }
+            }
+        }
+        Ok(normals)
+    }
+}
+
+/// Area-weighted vertex normals averaged over the triangles using each vertex; unused or
+/// degenerate vertices get +Y. `indices` must be in range for `positions`.
+fn computed_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
+    let mut acc = vec![Vec3::ZERO; positions.len()];
+    for tri in indices.chunks_exact(3) {
+        let [a, b, c] = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
+        let n = (positions[b] - positions[a]).cross(positions[c] - positions[a]);
+        if n.is_finite() {
+            acc[a] += n;
+            acc[b] += n;
+            acc[c] += n;
+        }
+    }
+    acc.into_iter()
+        .map(|n| n.try_normalize().unwrap_or(Vec3::Y))
+        .collect()
+}
+
+/// The bytes an accessor reads and its element stride, after checking that every element lies
+/// inside its buffer view and the view inside its buffer.
+fn accessor_bytes<'b>(
+    acc: &Accessor<'_>,
+    buffers: &'b [Data],
+) -> Result<(&'b [u8], usize), String> {
+    if acc.sparse().is_some() {
+        return Err("sparse accessors are not supported".to_string());
+    }
+    let view = acc.view().ok_or("has no buffer view")?;
+    let buffer = view.buffer();
+    let data = buffers
+        .get(buffer.index())
+        .ok_or("refers to a missing buffer")?;
+    let data_len = data.len().min(buffer.length());
+    let view_end = view
+        .offset()
+        .checked_add(view.length())
+        .filter(|&end| end <= data_len)
+        .ok_or_else(|| {
+            format!(
+                "buffer view {} (offset {}, length {}) exceeds buffer {} ({data_len} bytes)",
+                view.index(),
+                view.offset(),
+                view.length(),
+                buffer.index()
+            )
+        })?;
+    let view_bytes = &data[view.offset()..view_end];
+    let elem = acc.size();
+    let stride = view.stride().unwrap_or(elem);
+    if stride < elem {
+        return Err(format!(
+            "byte stride {stride} is smaller than the element size {elem}"
+        ));
+    }
+    let count = acc.count();
+    let needed = if count == 0 {
+        Some(acc.offset())
+    } else {
+        (count - 1)
+            .checked_mul(stride)
+            .and_then(|v| v.checked_add(elem))
+            .and_then(|v| v.checked_add(acc.offset()))
+    };
+    match needed {
+        Some(end) if end <= view_bytes.len() => Ok((&view_bytes[acc.offset()..end], stride)),
+        _ => Err(format!(
+            "{count} elements at offset {} read past the end of buffer view {} ({} bytes)",
+            acc.offset(),
+            view.index(),
+            view_bytes.len()
+        )),
+    }
+}
+
+/// Reads a VEC3 accessor (float or, normalized or not, integer components) as `Vec3`s.
+fn read_vec3(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<Vec3>, String> {
+    if acc.dimensions() != Dimensions::Vec3 {
+        return Err(format!(
+            "expected VEC3 elements, found {:?}",
+            acc.dimensions()
+        ));
+    }
+    let (bytes, stride) = accessor_bytes(acc, buffers)?;
+    let ty = acc.data_type();
+    let size = ty.size();
+    let normalized = acc.normalized();
+    let component = |b: &[u8]| -> f32 {
+        match ty {
+            DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+            DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
+            DataType::U8 if normalized => b[0] as f32 / 255.0,
+            DataType::U8 => b[0] as f32,
+            DataType::I8 if normalized => (b[0] as i8 as f32 / 127.0).max(-1.0),
+            DataType::I8 => b[0] as i8 as f32,
+            DataType::U16 if normalized => u16::from_le_bytes([b[0], b[1]]) as f32 / 65535.0,
+            DataType::U16 => u16::from_le_bytes([b[0], b[1]]) as f32,
+            DataType::I16 if normalized => {
+                (i16::from_le_bytes([b[0], b[1]]) as f32 / 32767.0).max(-1.0)
+            }
+            DataType::I16 => i16::from_le_bytes([b[0], b[1]]) as f32,
+        }
+    };
+    Ok((0..acc.count())
+        .map(|i| {
+            let e = &bytes[i * stride..];
+            Vec3::new(
+                component(e),
+                component(&e[size..]),
+                component(&e[2 * size..]),
+            )
+        })
+        .collect())
+}
+
+/// Reads a SCALAR unsigned-integer index accessor.
+fn read_indices(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<u32>, String> {
+    if acc.dimensions() != Dimensions::Scalar {
+        return Err(format!(
+            "expected SCALAR indices, found {:?}",
+            acc.dimensions()
+        ));
+    }
+    let ty = acc.data_type();
+    if !matches!(ty, DataType::U8 | DataType::U16 | DataType::U32) {
+        return Err(format!(
+            "index component type {ty:?} is not an unsigned integer"
+        ));
+    }
+    let (bytes, stride) = accessor_bytes(acc, buffers)?;
+    Ok((0..acc.count())
+        .map(|i| {
+            let b = &bytes[i * stride..];
+            match ty {
+                DataType::U8 => b[0] as u32,
+                DataType::U16 => u16::from_le_bytes([b[0], b[1]]) as u32,
+                _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+            }
+        })
+        .collect())
+}
+
+/// Writers of small glTF files for tests (this crate's and the main crate's integration tests).
+#[doc(hidden)]
+pub mod testdata {
+    /// Assembles a glTF document: one binary buffer, tightly packed buffer views (one per
+    /// accessor) and hand-written JSON for meshes, nodes and materials.
+    #[derive(Default)]
+    pub struct GltfBuilder {
+        /// The binary buffer contents.
+        pub bin: Vec<u8>,
+        /// JSON objects of the buffer views.
+        pub views: Vec<String>,
+        /// JSON objects of the accessors.
+        pub accessors: Vec<String>,
+        /// JSON objects of the meshes.
+        pub meshes: Vec<String>,
+        /// JSON objects of the materials.
+        pub materials: Vec<String>,
+        /// JSON objects of the nodes.
+        pub nodes: Vec<String>,
+        /// Root nodes of the single scene; `None` writes no `scenes` at all.
+        pub scene_nodes: Option<Vec<usize>>,
+        /// Overrides the declared buffer byteLength (to fake short buffers).
+        pub buffer_length_override: Option<usize>,
+    }
+
+    impl GltfBuilder {
+        /// Appends `bytes` as a new buffer view (4-byte aligned) and returns its index.
+        pub fn view(&mut self, bytes: &[u8]) -> usize {
+            while !self.bin.len().is_multiple_of(4) {
+                self.bin.push(0);
+            }
+            self.views.push(format!(
+                r#"{{"buffer":0,"byteOffset":{},"byteLength":{}}}"#,
+                self.bin.len(),
+                bytes.len()
+            ));
+            self.bin.extend_from_slice(bytes);
+            self.views.len() - 1
+        }
+
+        /// Adds a VEC3 float accessor over `data` and returns its index.
+        pub fn vec3(&mut self, data: &[[f32; 3]]) -> usize {
+            let bytes: Vec<u8> = data
+                .iter()
+                .flatten()
+                .flat_map(|f| f.to_le_bytes())
+                .collect();
+            let view = self.view(&bytes);
+            self.accessor(view, 5126, "VEC3", data.len())
+        }
+
+        /// Adds a SCALAR u32 index accessor over `data` and returns its index.
+        pub fn indices_u32(&mut self, data: &[u32]) -> usize {
+            let bytes: Vec<u8> = data.iter().flat_map(|i| i.to_le_bytes()).collect();
+            let view = self.view(&bytes);
+            self.accessor(view, 5125, "SCALAR", data.len())
+        }
+
+        /// Adds a SCALAR u16 index accessor over `data` and returns its index.
+        pub fn indices_u16(&mut self, data: &[u16]) -> usize {
+            let bytes: Vec<u8> = data.iter().flat_map(|i| i.to_le_bytes()).collect();
+            let view = self.view(&bytes);
+            self.accessor(view, 5123, "SCALAR", data.len())
+        }
+
+        /// Adds an accessor with the given view, component type, type name and count.
+        pub fn accessor(
+            &mut self,
+            view: usize,
+            component_type: u32,
+            ty: &str,
+            count: usize,
+        ) -> usize {
+            self.accessors.push(format!(
+                r#"{{"bufferView":{view},"componentType":{component_type},"type":"{ty}","count":{count}}}"#
+            ));
+            self.accessors.len() - 1
+        }
+
+        /// Adds the unit cube (24 vertices with face normals, 36 u16 indices) as a mesh with
+        /// the given color and returns the mesh index.
+        pub fn cube_mesh(&mut self, color: [f32; 4]) -> usize {
+            let (positions, normals, indices) = cube();
+            let pos = self.vec3(&positions);
+            let nrm = self.vec3(&normals);
+            let idx = self.indices_u16(&indices);
+            self.materials.push(format!(
+                r#"{{"pbrMetallicRoughness":{{"baseColorFactor":[{},{},{},{}]}}}}"#,
+                color[0], color[1], color[2], color[3]
+            ));
+            let material = self.materials.len() - 1;
+            self.meshes.push(format!(
+                r#"{{"name":"cube","primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm}}},"indices":{idx},"material":{material}}}]}}"#
+            ));
+            self.meshes.len() - 1
+        }
+
+        /// Adds a node instancing `mesh` at `translation` and returns its index.
+        pub fn node(&mut self, mesh: usize, translation: [f32; 3]) -> usize {
+            self.nodes.push(format!(
+                r#"{{"mesh":{mesh},"translation":[{},{},{}]}}"#,
+                translation[0], translation[1], translation[2]
+            ));
+            self.nodes.len() - 1
+        }
+
+        /// The JSON document; `uri` is the buffer's URI (`None` for the GLB binary chunk).
+        pub fn json(&self, uri: Option<&str>) -> String {
+            let uri = uri.map(|u| format!(r#","uri":"{u}""#)).unwrap_or_default();
+            let length = self.buffer_length_override.unwrap_or(self.bin.len());
+            let scenes = match &self.scene_nodes {
+                Some(nodes) => {
+                    let list: Vec<String> = nodes.iter().map(|n| n.to_string()).collect();
+                    format!(r#""scene":0,"scenes":[{{"nodes":[{}]}}],"#, list.join(","))
+                }
+                None => String::new(),
+            };
+            format!(
+                r#"{{"asset":{{"version":"2.0"}},{scenes}"nodes":[{}],"meshes":[{}],"materials":[{}],"accessors":[{}],"bufferViews":[{}],"buffers":[{{"byteLength":{length}{uri}}}]}}"#,
+                self.nodes.join(","),
+                self.meshes.join(","),
+                self.materials.join(","),
+                self.accessors.join(","),
+                self.views.join(","),
+            )
+        }
+
+        /// A `.gltf` document with the buffer embedded as a base64 data URI.
+        pub fn gltf_embedded(&self) -> String {
+            let uri = format!("data:application/octet-stream;base64,{}", base64(&self.bin));
+            self.json(Some(&uri))
+        }
+
+        /// The `.glb` bytes: header, JSON chunk and binary chunk.
+        pub fn glb(&self) -> Vec<u8> {
+            let mut json = self.json(None).into_bytes();
+            while !json.len().is_multiple_of(4) {
+                json.push(b' ');
+            }
+            let mut bin = self.bin.clone();
+            while !bin.len().is_multiple_of(4) {
+                bin.push(0);
+            }
+            let total = 12 + 8 + json.len() + 8 + bin.len();
+            let mut out = Vec::with_capacity(total);
+            out.extend_from_slice(b"glTF");
+            out.extend_from_slice(&2u32.to_le_bytes());
+            out.extend_from_slice(&(total as u32).to_le_bytes());
+            out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+            out.extend_from_slice(b"JSON");
+            out.extend_from_slice(&json);
+            out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+            out.extend_from_slice(b"BIN\0");
+            out.extend_from_slice(&bin);
+            out
+        }
+    }
+
+    /// Positions, normals and indices of the cube [-0.5, 0.5]^3 (4 vertices per face).
+    pub fn cube() -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u16>) {
+        let mut positions = Vec::new();
+        let mut normals = Vec::new();
+        let mut indices = Vec::new();
+        for axis in 0..3 {
+            for sign in [-1.0f32, 1.0] {
+                let mut n = [0.0; 3];
+                n[axis] = sign;
+                let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                let base = positions.len() as u16;
+                for (a, b) in [(-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)] {
+                    let mut p = [0.0; 3];
+                    p[axis] = 0.5 * sign;
+                    p[u] = a;
+                    p[v] = b;
+                    positions.push(p);
+                    normals.push(n);
+                }
+                let quad = if sign > 0.0 {
+                    [0, 1, 2, 0, 2, 3]
+                } else {
+                    [0, 2, 1, 0, 3, 2]
+                };
+                indices.extend(quad.iter().map(|&i| base + i));
+            }
+        }
+        (positions, normals, indices)
+    }
+
+    /// Bytes of a valid `.glb` with `n` instances of one unit cube (12 triangles each), one
+    /// node per instance translated on a square grid with spacing 2 in the XZ plane.
+    pub fn cube_grid_glb(n: usize) -> Vec<u8> {
+        let mut b = GltfBuilder::default();
+        let mesh = b.cube_mesh([0.8, 0.7, 0.6, 1.0]);
+        let side = (1..).find(|s| s * s >= n).unwrap_or(1);
+        for i in 0..n {
+            b.node(
+                mesh,
+                [(i % side) as f32 * 2.0, 0.0, (i / side) as f32 * 2.0],
+            );
+        }
+        b.scene_nodes = Some((0..n).collect());
+        b.glb()
+    }
+
+    /// Standard base64 with padding.
+    pub fn base64(data: &[u8]) -> String {
+        const ALPHABET: &[u8; 64] =
+            b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut out = String::with_capacity(data.len().div_ceil(3) * 4);
+        for chunk in data.chunks(3) {
+            let b = [
+                chunk[0],
+                *chunk.get(1).unwrap_or(&0),
+                *chunk.get(2).unwrap_or(&0),
+            ];
+            let v = (b[0] as u32) << 16 | (b[1] as u32) << 8 | b[2] as u32;
+            for k in 0..4 {
+                if k <= chunk.len() {
+                    out.push(ALPHABET[(v >> (18 - 6 * k) & 63) as usize] as char);
+                } else {
+                    out.push('=');
+                }
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::testdata::{base64, cube_grid_glb, GltfBuilder};
+    use super::*;
+    use std::path::PathBuf;
+
+    /// A fresh per-test directory under the system temp dir.
+    fn temp_dir(test: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("coherent_gltf_{}_{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("create temp dir");
+        dir
+    }
+
+    fn write(dir: &Path, name: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).expect("write test file");
+        path
+    }
+
+    /// Two instances of a cube mesh plus one node with a non-indexed single triangle.
+    fn two_cubes_and_triangle() -> GltfBuilder {
+        let mut b = GltfBuilder::default();
+        let cube = b.cube_mesh([1.0, 0.0, 0.0, 1.0]);
+        let pos = b.vec3(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        b.meshes.push(format!(
+            r#"{{"name":"tri","primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}"#
+        ));
+        let tri = b.meshes.len() - 1;
+        b.node(cube, [-2.0, 0.0, 0.0]);
+        b.node(cube, [2.0, 0.0, 0.0]);
+        b.node(tri, [0.0, 5.0, 0.0]);
+        b.scene_nodes = Some(vec![0, 1, 2]);
+        b
+    }
+
+    fn triangles(scene: &Scene) -> u64 {
+        scene.objects.iter().map(|o| o.triangle_count()).sum()
+    }
+
+    /// Every object's indices are in range and its bounds contain its transformed vertices.
+    fn check_consistent(scene: &Scene) {
+        for o in &scene.objects {
+            let idx =
+                &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
+            assert!(idx.iter().all(|&i| i < o.vertex_count));
+            let verts = &scene.vertices
+                [o.vertex_offset as usize..(o.vertex_offset + o.vertex_count) as usize];
+            for v in verts {
+                let p = o.transform.transform_point3(Vec3::from_array(v.position));
+                assert!(
+                    o.bounds.enlarged(1e-4).contains(p),
+                    "{p} outside {:?}",
+                    o.bounds
+                );
+                assert!((Vec3::from_array(v.normal).length() - 1.0).abs() < 1e-4);
+            }
+        }
+    }
+
+    fn assert_scene_err(path: &Path, needle: &str) {
+        let msg = match load_gltf(path) {
+            Ok(_) => panic!("{} loaded but should fail", path.display()),
+            Err(e) => e.to_string(),
+        };
+        let file = path
+            .file_name()
+            .and_then(|f| f.to_str())
+            .unwrap_or_default();
+        assert!(msg.contains(file), "message {msg:?} lacks the file name");
+        assert!(msg.contains(needle), "message {msg:?} lacks {needle:?}");
+        assert!(!msg.contains('\n'), "message {msg:?} is not one line");
+        eprintln!("{msg}");
+    }
+
+    #[test]
+    fn loads_gltf_with_external_bin() {
+        let dir = temp_dir("external");
+        let b = two_cubes_and_triangle();
+        write(&dir, "scene.bin", &b.bin);
+        let path = write(&dir, "scene.gltf", b.json(Some("scene.bin")));
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        assert_eq!(scene.name, "scene");
+        assert_eq!(scene.objects.len(), 3);
+        assert_eq!(triangles(&scene), 12 + 12 + 1);
+        // The two cube instances share geometry but not transforms.
+        let (a, c) = (&scene.objects[0], &scene.objects[1]);
+        assert_eq!(
+            (a.first_index, a.vertex_offset),
+            (c.first_index, c.vertex_offset)
+        );
+        assert_eq!(a.bounds.min, Vec3::new(-2.5, -0.5, -0.5));
+        assert_eq!(c.bounds.max, Vec3::new(2.5, 0.5, 0.5));
+        assert_eq!(a.color, Vec4::new(1.0, 0.0, 0.0, 1.0));
+        // No material: white; no normals: computed (+Z for this triangle).
+        let t = &scene.objects[2];
+        assert_eq!(t.color, Vec4::ONE);
+        assert_eq!(
+            scene.vertices[t.vertex_offset as usize].normal,
+            [0.0, 0.0, 1.0]
+        );
+        assert_eq!(t.bounds.min, Vec3::new(0.0, 5.0, 0.0));
+        check_consistent(&scene);
+        assert_eq!(scene.paths.len(), 1);
+        assert_eq!(scene.paths[0].name, "default");
+        assert_eq!(scene.paths[0].keys.len(), 4);
+        let bounds = scene
+            .objects
+            .iter()
+            .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
+        for k in &scene.paths[0].keys {
+            assert!(!bounds.contains(k.eye));
+            assert_eq!(k.target, bounds.center());
+        }
+        assert!((scene.sun_dir.length() - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn loads_gltf_with_data_uri_and_glb() {
+        let dir = temp_dir("embedded");
+        let b = two_cubes_and_triangle();
+        let gltf = write(&dir, "embedded.gltf", b.gltf_embedded());
+        let glb = write(&dir, "binary.glb", b.glb());
+        for path in [gltf, glb] {
+            let (scene, _) = load_gltf(&path).expect("load");
+            assert_eq!(scene.objects.len(), 3);
+            assert_eq!(triangles(&scene), 25);
+            check_consistent(&scene);
+        }
+    }
+
+    #[test]
+    fn cube_grid_glb_instances() {
+        let dir = temp_dir("grid");
+        let path = write(&dir, "grid.glb", cube_grid_glb(10));
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert!(warnings.is_empty());
+        assert_eq!(scene.objects.len(), 10);
+        assert_eq!(triangles(&scene), 120);
+        // Geometry is stored once.
+        assert_eq!(scene.vertices.len(), 24);
+        assert_eq!(scene.indices.len(), 36);
+        check_consistent(&scene);
+    }
+
+    #[test]
+    fn composes_node_hierarchy_without_scenes() {
+        let dir = temp_dir("hierarchy");
+        let mut b = GltfBuilder::default();
+        let cube = b.cube_mesh([1.0; 4]);
+        // Node 0: parent translated by x=10 and scaled by 2, child node 1 translated by y=1.
+        b.nodes
+            .push(r#"{"translation":[10,0,0],"scale":[2,2,2],"children":[1]}"#.to_string());
+        b.node(cube, [0.0, 1.0, 0.0]);
+        let path = write(&dir, "tree.gltf", b.gltf_embedded());
+        let (scene, _) = load_gltf(&path).expect("load");
+        assert_eq!(scene.objects.len(), 1);
+        let bounds = scene.objects[0].bounds;
+        assert!(
+            (bounds.min - Vec3::new(9.0, 1.0, -1.0)).length() < 1e-5,
+            "{bounds:?}"
+        );
+        assert!(
+            (bounds.max - Vec3::new(11.0, 3.0, 1.0)).length() < 1e-5,
+            "{bounds:?}"
+        );
+    }
+
+    #[test]
+    fn skips_non_triangle_modes_with_warning() {
+        let dir = temp_dir("modes");
+        let mut b = two_cubes_and_triangle();
+        let pos = b.vec3(&[[0.0; 3], [1.0, 0.0, 0.0]]);
+        b.meshes.push(format!(
+            r#"{{"name":"wire","primitives":[{{"attributes":{{"POSITION":{pos}}},"mode":1}}]}}"#
+        ));
+        let wire = b.meshes.len() - 1;
+        b.node(wire, [0.0; 3]);
+        b.scene_nodes = Some(vec![0, 1, 2, 3]);
+        let path = write(&dir, "modes.gltf", b.gltf_embedded());
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert_eq!(scene.objects.len(), 3);
+        assert_eq!(warnings.len(), 1);
+        assert!(
+            warnings[0].contains("wire") && warnings[0].contains("Lines"),
+            "{warnings:?}"
+        );
+    }
+
+    #[test]
+    fn bad_normals_are_recomputed() {
+        let dir = temp_dir("normals");
+        let mut b = GltfBuilder::default();
+        let pos = b.vec3(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        let nrm = b.vec3(&[[0.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0]]);
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm}}}}}]}}"#
+        ));
+        b.node(0, [0.0; 3]);
+        let path = write(&dir, "normals.gltf", b.gltf_embedded());
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(scene.vertices.iter().all(|v| v.normal == [0.0, 0.0, 1.0]));
+    }
+
+    #[test]
+    fn err_missing_file() {
+        let dir = temp_dir("missing");
+        assert_scene_err(&dir.join("nothere.glb"), "cannot read file");
+    }
+
+    #[test]
+    fn err_truncated_glb() {
+        let dir = temp_dir("truncated");
+        let bytes = two_cubes_and_triangle().glb();
+        let path = write(&dir, "cut.glb", &bytes[..bytes.len() / 2]);
+        assert_scene_err(&path, "invalid glTF");
+        // Every cut point gives an error, never a panic or a bogus scene.
+        for len in (0..bytes.len()).step_by(7) {
+            std::fs::write(&path, &bytes[..len]).expect("write");
+            assert!(load_gltf(&path).is_err(), "cut at {len} loaded");
+        }
+    }
+
+    #[test]
+    fn err_invalid_json() {
+        let dir = temp_dir("json");
+        let path = write(
+            &dir,
+            "broken.gltf",
+            r#"{"asset":{"version":"2.0"},"nodes":[{"mesh":"#,
+        );
+        assert_scene_err(&path, "invalid glTF");
+        let path = write(
+            &dir,
+            "badref.gltf",
+            r#"{"asset":{"version":"2.0"},"nodes":[{"mesh":7}]}"#,
+        );
+        assert_scene_err(&path, "invalid glTF");
+    }
+
+    #[test]
+    fn err_short_buffer() {
+        let dir = temp_dir("shortbuf");
+        let mut b = two_cubes_and_triangle();
+        let declared = b.bin.len() + 64;
+        b.buffer_length_override = Some(declared);
+        let path = write(&dir, "short.gltf", b.gltf_embedded());
+        assert_scene_err(&path, "buffer 0 is short");
+    }
+
+    #[test]
+    fn err_missing_buffer_for_glb() {
+        // A .glb whose JSON declares a BIN buffer but that has no binary chunk.
+        let dir = temp_dir("noblob");
+        let b = two_cubes_and_triangle();
+        let mut json = b.json(None).into_bytes();
+        while !json.len().is_multiple_of(4) {
+            json.push(b' ');
+        }
+        let mut glb = Vec::new();
+        glb.extend_from_slice(b"glTF");
+        glb.extend_from_slice(&2u32.to_le_bytes());
+        glb.extend_from_slice(&((20 + json.len()) as u32).to_le_bytes());
+        glb.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        glb.extend_from_slice(b"JSON");
+        glb.extend_from_slice(&json);
+        let path = write(&dir, "noblob.glb", glb);
+        assert_scene_err(&path, "cannot load buffer 0");
+    }
+
+    #[test]
+    fn err_accessor_past_view() {
+        let dir = temp_dir("accessor");
+        let mut b = two_cubes_and_triangle();
+        // The triangle's POSITION accessor claims 4 elements in a 3-element view.
+        let view = b.view(&[0u8; 36]);
+        let acc = b.accessor(view, 5126, "VEC3", 4);
+        b.meshes[1] =
+            format!(r#"{{"name":"tri","primitives":[{{"attributes":{{"POSITION":{acc}}}}}]}}"#);
+        let path = write(&dir, "overrun.gltf", b.gltf_embedded());
+        assert_scene_err(&path, "read past the end");
+    }
+
+    #[test]
+    fn err_view_past_buffer() {
+        let dir = temp_dir("view");
+        let mut b = two_cubes_and_triangle();
+        let len = b.bin.len();
+        b.views.push(format!(
+            r#"{{"buffer":0,"byteOffset":{},"byteLength":36}}"#,
+            len - 12
+        ));
+        let acc = b.accessor(b.views.len() - 1, 5126, "VEC3", 3);
+        b.meshes[1] =
+            format!(r#"{{"name":"tri","primitives":[{{"attributes":{{"POSITION":{acc}}}}}]}}"#);
+        let path = write(&dir, "viewrun.gltf", b.gltf_embedded());
+        assert_scene_err(&path, "exceeds buffer");
+    }
+
+    #[test]
+    fn err_missing_external_bin() {
+        let dir = temp_dir("nobin");
+        let b = two_cubes_and_triangle();
+        let path = write(&dir, "lonely.gltf", b.json(Some("lonely.bin")));
+        assert_scene_err(&path, "cannot load buffer 0 from 'lonely.bin'");
+    }
+
+    #[test]
+    fn err_index_out_of_range() {
+        let dir = temp_dir("index");
+        let mut b = GltfBuilder::default();
+        let pos = b.vec3(&[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        let idx = b.indices_u32(&[0, 1, 3]);
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}},"indices":{idx}}}]}}"#
+        ));
+        b.node(0, [0.0; 3]);
+        let path = write(&dir, "badindex.glb", b.glb());
+        assert_scene_err(&path, "index 3 out of range");
+    }
+
+    #[test]
+    fn err_non_finite_position() {
+        let dir = temp_dir("nan");
+        for (name, bad) in [("nan.gltf", f32::NAN), ("inf.gltf", f32::INFINITY)] {
+            let mut b = GltfBuilder::default();
+            let pos = b.vec3(&[[0.0; 3], [1.0, bad, 0.0], [0.0, 1.0, 0.0]]);
+            b.meshes.push(format!(
+                r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}"#
+            ));
+            b.node(0, [0.0; 3]);
+            let path = write(&dir, name, b.gltf_embedded());
+            assert_scene_err(&path, "non-finite position");
+        }
+    }
+
+    #[test]
+    fn err_index_count_not_multiple_of_three() {
+        let dir = temp_dir("count");
+        let mut b = GltfBuilder::default();
+        let pos = b.vec3(&[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        let idx = b.indices_u16(&[0, 1, 2, 0, 1, 2, 0]);
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}},"indices":{idx}}}]}}"#
+        ));
+        b.node(0, [0.0; 3]);
+        let path = write(&dir, "seven.gltf", b.gltf_embedded());
+        assert_scene_err(&path, "not a multiple of 3");
+        // Non-indexed with 4 vertices.
+        let mut b = GltfBuilder::default();
+        let pos = b.vec3(&[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0; 3]]);
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}"#
+        ));
+        b.node(0, [0.0; 3]);
+        let path = write(&dir, "four.gltf", b.gltf_embedded());
+        assert_scene_err(&path, "not a multiple of 3");
+    }
+
+    #[test]
+    fn err_no_triangles() {
+        let dir = temp_dir("empty");
+        let mut b = GltfBuilder::default();
+        let pos = b.vec3(&[[0.0; 3], [1.0, 0.0, 0.0]]);
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}},"mode":0}}]}}"#
+        ));
+        b.node(0, [0.0; 3]);
+        let path = write(&dir, "points.gltf", b.gltf_embedded());
+        assert_scene_err(&path, "no triangle geometry");
+        let path = write(&dir, "nothing.glb", cube_grid_glb(0));
+        assert_scene_err(&path, "no triangle geometry");
+    }
+
+    #[test]
+    fn err_cyclic_hierarchy() {
+        let dir = temp_dir("cycle");
+        let mut b = GltfBuilder::default();
+        b.cube_mesh([1.0; 4]);
+        b.nodes.push(r#"{"mesh":0,"children":[1]}"#.to_string());
+        b.nodes.push(r#"{"children":[0]}"#.to_string());
+        b.scene_nodes = Some(vec![0]);
+        let path = write(&dir, "cycle.gltf", b.gltf_embedded());
+        assert_scene_err(&path, "cycle");
+    }
+
+    #[test]
+    fn base64_matches_known_values() {
+        assert_eq!(base64(b""), "");
+        assert_eq!(base64(b"f"), "Zg==");
+        assert_eq!(base64(b"fo"), "Zm8=");
+        assert_eq!(base64(b"foo"), "Zm9v");
+        assert_eq!(base64(b"foobar"), "Zm9vYmFy");
+    }
+}

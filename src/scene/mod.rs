@@ -1,0 +1,162 @@
+//! Scenes: objects as ranges in one shared vertex and index buffer, with a transform, a base color
+//! and world-space bounds; procedural built-in scenes, the glTF loader and camera paths.
+
+use glam::{Mat4, Vec3, Vec4};
+
+/// One vertex of the shared scene vertex buffer (object space).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Vertex {
+    pub position: [f32; 3],
+    pub normal: [f32; 3],
+}
+
+/// Axis-aligned bounding box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    pub min: Vec3,
+    pub max: Vec3,
+}
+
+impl Aabb {
+    /// The empty box (min = +inf, max = -inf); growing it with any point makes it valid.
+    pub const EMPTY: Aabb = Aabb { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
+
+    pub fn new(min: Vec3, max: Vec3) -> Self {
+        Aabb { min, max }
+    }
+    pub fn grow(&mut self, p: Vec3) {
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+    pub fn union(&self, o: &Aabb) -> Aabb {
+        Aabb { min: self.min.min(o.min), max: self.max.max(o.max) }
+    }
+    pub fn is_valid(&self) -> bool {
+        self.min.cmple(self.max).all() && self.min.is_finite() && self.max.is_finite()
+    }
+    pub fn center(&self) -> Vec3 {
+        (self.min + self.max) * 0.5
+    }
+    pub fn extent(&self) -> Vec3 {
+        self.max - self.min
+    }
+    pub fn surface_area(&self) -> f32 {
+        let e = self.extent().max(Vec3::ZERO);
+        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+    }
+    pub fn contains(&self, p: Vec3) -> bool {
+        p.cmpge(self.min).all() && p.cmple(self.max).all()
+    }
+    /// Squared distance from `p` to the box (0 inside).
+    pub fn distance_squared(&self, p: Vec3) -> f32 {
+        let d = (self.min - p).max(p - self.max).max(Vec3::ZERO);
+        d.length_squared()
+    }
+    pub fn enlarged(&self, by: f32) -> Aabb {
+        Aabb { min: self.min - Vec3::splat(by), max: self.max + Vec3::splat(by) }
+    }
+    /// The box around this box transformed by `m`.
+    pub fn transformed(&self, m: &Mat4) -> Aabb {
+        let mut out = Aabb::EMPTY;
+        for i in 0..8 {
+            let c = Vec3::new(
+                if i & 1 == 0 { self.min.x } else { self.max.x },
+                if i & 2 == 0 { self.min.y } else { self.max.y },
+                if i & 4 == 0 { self.min.z } else { self.max.z },
+            );
+            out.grow(m.transform_point3(c));
+        }
+        out
+    }
+}
+
+/// One drawable object: a range in the scene's shared index buffer (indices are relative to
+/// `vertex_offset`), a transform to world space, a base color and world-space bounds.
+#[derive(Clone, Debug)]
+pub struct Object {
+    pub first_index: u32,
+    pub index_count: u32,
+    pub vertex_offset: u32,
+    pub vertex_count: u32,
+    pub transform: Mat4,
+    pub color: Vec4,
+    pub bounds: Aabb,
+}
+
+impl Object {
+    pub fn triangle_count(&self) -> u64 {
+        (self.index_count / 3) as u64
+    }
+}
+
+/// A camera pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraPose {
+    pub eye: Vec3,
+    pub target: Vec3,
+}
+
+/// A named walkthrough: keyframes interpolated over a number of frames.
+#[derive(Clone, Debug)]
+pub struct CameraPath {
+    pub name: String,
+    pub keys: Vec<CameraPose>,
+}
+
+/// A scene: shared geometry, objects, walkthrough paths and a sun direction.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub name: String,
+    pub vertices: Vec<Vertex>,
+    pub indices: Vec<u32>,
+    pub objects: Vec<Object>,
+    pub paths: Vec<CameraPath>,
+    /// Direction *towards* the directional light, normalized.
+    pub sun_dir: Vec3,
+}
+
+pub mod camera;
+pub mod chunk;
+pub mod gltf;
+pub mod mesh;
+pub mod procedural;
+
+impl Scene {
+    /// Total triangles over all objects.
+    pub fn triangle_count(&self) -> u64 {
+        self.objects.iter().map(|o| o.triangle_count()).sum()
+    }
+
+    /// The path called `name`, or an error listing the scene's paths.
+    pub fn path(&self, name: &str) -> crate::Result<&CameraPath> {
+        self.paths.iter().find(|p| p.name == name).ok_or_else(|| {
+            crate::Error::Input(format!(
+                "scene \"{}\" has no path \"{name}\" (paths: {})",
+                self.name,
+                self.paths.iter().map(|p| p.name.as_str()).collect::<Vec<_>>().join(", ")
+            ))
+        })
+    }
+
+    /// The first (default) path.
+    pub fn default_path(&self) -> crate::Result<&CameraPath> {
+        self.paths.first().ok_or_else(|| crate::Error::Input(format!("scene \"{}\" has no paths", self.name)))
+    }
+
+    /// Loads a built-in scene by name or a .gltf/.glb file by path (large meshes are split into
+    /// chunks of at most `chunk_triangles`). Warnings are printed to stderr.
+    pub fn load(name_or_path: &str, scale: f32, chunk_triangles: u32) -> crate::Result<Scene> {
+        let lower = name_or_path.to_lowercase();
+        if lower.ends_with(".gltf") || lower.ends_with(".glb") {
+            let (mut scene, warnings) = gltf::load_gltf(std::path::Path::new(name_or_path))?;
+            for w in warnings {
+                eprintln!("warning: {w}");
+            }
+            chunk::split_large_objects(&mut scene, chunk_triangles);
+            Ok(scene)
+        } else {
+            procedural::build(name_or_path, scale)
+        }
+    }
+}
