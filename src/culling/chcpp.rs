@@ -1,15 +1,540 @@
-//! TEMPORARY: CHC++ lands next.
-use super::{CullStats, Culler, FrameInput, OcclusionBackend};
+//! CHC++ (Mattausch, Bittner, Wimmer 2008): coherent hierarchical culling with query batching
+//! (i-queue, v-queue, render queue), randomized query intervals for visible leaves, multiqueries
+//! and tight bounding volumes. Each part is a switch; with all of them off and a batch size of 1
+//! the same traversal is the original CHC (Bittner et al. 2004), see `chc.rs`.
+
+use std::collections::VecDeque;
+
+use super::{eye_inside, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, View};
+use crate::bvh::{DistanceQueue, ObjectBvh};
 use crate::error::Result;
-/// Parameters.
-#[derive(Clone, Debug, Default)]
-pub struct ChcppParams {}
-/// CHC++.
-pub struct Chcpp(super::vfc::Vfc);
-impl Chcpp { /// New.
- pub fn new(_p: ChcppParams) -> Self { Chcpp(Default::default()) } }
+use crate::scene::mesh::Rng;
+use crate::scene::Aabb;
+
+/// The parameters of CHC++ (defaults from the paper).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChcppParams {
+    /// Batch previously invisible nodes in an i-queue and visible leaves in a v-queue.
+    pub batching: bool,
+    /// Nodes per i-queue batch (`b`, default 50).
+    pub batch_size: usize,
+    /// Test visible leaves every `n_av` frames, first after a random delay in `[1, n_av]`.
+    pub randomized_interval: bool,
+    /// The assumed-visible interval `n_av` (default 5).
+    pub visible_interval: u32,
+    /// Group previously invisible nodes into multiqueries by the cost/benefit rule.
+    pub multiqueries: bool,
+    /// Query nodes with the boxes of their descendants instead of their own box.
+    pub tight_bounds: bool,
+    /// Descendant depth for tight bounding volumes (default 3).
+    pub tight_depth: u32,
+    /// Use the tight boxes only if their total surface area is at most this times the node's
+    /// (default 1.4).
+    pub tight_area_factor: f32,
+    /// A query counting more than this many pixels means visible (default 0).
+    pub pixel_threshold: u64,
+    /// Submit after this many queries have been recorded without a submit (for the
+    /// unbatched CHC; batches are always submitted as a whole).
+    pub flush_interval: usize,
+    /// Seed of the randomized interval.
+    pub seed: u64,
+}
+
+impl Default for ChcppParams {
+    fn default() -> Self {
+        ChcppParams {
+            batching: true,
+            batch_size: 50,
+            randomized_interval: true,
+            visible_interval: 5,
+            multiqueries: true,
+            tight_bounds: true,
+            tight_depth: 3,
+            tight_area_factor: 1.4,
+            pixel_threshold: 0,
+            flush_interval: 16,
+            seed: 0x00C0_FFEE,
+        }
+    }
+}
+
+impl ChcppParams {
+    /// The original CHC as a configuration of the same traversal: no batching (each query is
+    /// issued at once, so one state change per query), every visible leaf queried every frame,
+    /// single queries with the node's own box.
+    pub fn chc() -> ChcppParams {
+        ChcppParams {
+            batching: false,
+            batch_size: 1,
+            randomized_interval: false,
+            visible_interval: 1,
+            multiqueries: false,
+            tight_bounds: false,
+            ..ChcppParams::default()
+        }
+    }
+
+    /// CHC++ with only the named parts on (for measuring each part alone): any of `batching`,
+    /// `interval`, `multiqueries`, `tight`.
+    pub fn only(parts: &[&str]) -> ChcppParams {
+        let mut p = ChcppParams::chc();
+        for part in parts {
+            match *part {
+                "batching" => {
+                    p.batching = true;
+                    p.batch_size = 50;
+                }
+                "interval" => {
+                    p.randomized_interval = true;
+                    p.visible_interval = 5;
+                }
+                "multiqueries" => p.multiqueries = true,
+                "tight" => p.tight_bounds = true,
+                _ => {}
+            }
+        }
+        p
+    }
+}
+
+/// Per-node temporal state, kept beside the hierarchy.
+#[derive(Clone, Copy, Debug, Default)]
+struct NodeState {
+    visible: bool,
+    last_visited: u64,
+    /// Frame at which a visible leaf is queried next.
+    next_query: u64,
+    /// Frames the node has been invisible in a row (for the multiquery probability).
+    invisible_frames: u32,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum QueryKind {
+    /// For previously invisible nodes: the result decides traversal in this frame.
+    Invisible,
+    /// For previously visible leaves: the result matters next frame.
+    Visible,
+}
+
+struct Pending {
+    id: QueryId,
+    nodes: Vec<u32>,
+    kind: QueryKind,
+}
+
+/// CHC++ (or, configured with [`ChcppParams::chc`], CHC).
+pub struct Chcpp {
+    name: &'static str,
+    params: ChcppParams,
+    state: Vec<NodeState>,
+    tight: Vec<Option<Vec<Aabb>>>,
+    frame: u64,
+    rng: Rng,
+    traversal: DistanceQueue,
+    query_queue: VecDeque<Pending>,
+    i_queue: Vec<u32>,
+    v_queue: Vec<u32>,
+    render_queue: Vec<u32>,
+    unsubmitted: usize,
+    boxes: Vec<Aabb>,
+}
+
+impl Chcpp {
+    /// CHC++ with `params`.
+    pub fn new(params: ChcppParams) -> Chcpp {
+        Chcpp::named("chcpp", params)
+    }
+
+    pub(crate) fn named(name: &'static str, params: ChcppParams) -> Chcpp {
+        let rng = Rng::new(params.seed);
+        Chcpp {
+            name,
+            params,
+            state: Vec::new(),
+            tight: Vec::new(),
+            frame: 0,
+            rng,
+            traversal: DistanceQueue::default(),
+            query_queue: VecDeque::new(),
+            i_queue: Vec::new(),
+            v_queue: Vec::new(),
+            render_queue: Vec::new(),
+            unsubmitted: 0,
+            boxes: Vec::new(),
+        }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &ChcppParams {
+        &self.params
+    }
+
+    fn prepare(&mut self, bvh: &ObjectBvh) {
+        if self.state.len() != bvh.nodes.len() {
+            self.state = vec![NodeState::default(); bvh.nodes.len()];
+            self.tight = vec![None; bvh.nodes.len()];
+            self.frame = 0;
+            if self.params.tight_bounds {
+                for id in 0..bvh.nodes.len() as u32 {
+                    self.tight[id as usize] = tight_boxes(bvh, id, &self.params);
+                }
+            }
+        }
+    }
+
+    fn was_visible(&self, node: u32) -> bool {
+        let s = &self.state[node as usize];
+        s.visible && s.last_visited + 1 == self.frame
+    }
+
+    /// Opens a node: a leaf goes to the render queue, an interior node's children to the
+    /// traversal queue. Its visibility is re-derived this frame (pull-up from its leaves).
+    fn traverse_node(&mut self, bvh: &ObjectBvh, node: u32, eye: glam::Vec3, stats: &mut CullStats) {
+        let n = &bvh.nodes[node as usize];
+        if n.is_leaf() {
+            let objects = bvh.objects(node);
+            stats.objects_drawn += objects.len() as u32;
+            self.render_queue.extend_from_slice(objects);
+        } else {
+            self.state[node as usize].visible = false;
+            for c in n.children {
+                self.traversal.push(c, bvh.nodes[c as usize].bounds.distance_squared(eye));
+            }
+        }
+    }
+
+    fn pull_up(&mut self, bvh: &ObjectBvh, mut node: u32) {
+        loop {
+            let s = &mut self.state[node as usize];
+            if s.visible && s.last_visited == self.frame {
+                break;
+            }
+            if !s.visible {
+                s.invisible_frames = 0;
+            }
+            s.visible = true;
+            s.last_visited = self.frame;
+            let parent = bvh.nodes[node as usize].parent;
+            if parent == u32::MAX {
+                break;
+            }
+            node = parent;
+        }
+    }
+
+    fn query_boxes(&self, bvh: &ObjectBvh, node: u32, out: &mut Vec<Aabb>) {
+        match &self.tight[node as usize] {
+            Some(b) if self.params.tight_bounds => out.extend_from_slice(b),
+            _ => out.push(bvh.nodes[node as usize].bounds),
+        }
+    }
+
+    fn flush_render_queue(&mut self, backend: &mut dyn OcclusionBackend) -> Result<()> {
+        if !self.render_queue.is_empty() {
+            backend.draw_objects(&self.render_queue)?;
+            self.render_queue.clear();
+        }
+        Ok(())
+    }
+
+    fn issue(
+        &mut self,
+        bvh: &ObjectBvh,
+        nodes: Vec<u32>,
+        kind: QueryKind,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        let mut boxes = std::mem::take(&mut self.boxes);
+        boxes.clear();
+        for &n in &nodes {
+            self.query_boxes(bvh, n, &mut boxes);
+        }
+        let id = backend.issue_query(&boxes)?;
+        self.boxes = boxes;
+        stats.queries += 1;
+        match kind {
+            QueryKind::Invisible => stats.invisible_node_queries += 1,
+            QueryKind::Visible => stats.visible_leaf_queries += 1,
+        }
+        if nodes.len() > 1 {
+            stats.multiqueries += 1;
+        }
+        self.query_queue.push_back(Pending { id, nodes, kind });
+        self.unsubmitted += 1;
+        if !self.params.batching && self.unsubmitted >= self.params.flush_interval {
+            backend.flush()?;
+            self.unsubmitted = 0;
+        }
+        Ok(())
+    }
+
+    /// Issues the i-queue as one batch: render queue first, one switch into query state,
+    /// multiqueries grouped by the cost/benefit rule, then submit.
+    fn issue_i_queue(&mut self, bvh: &ObjectBvh, backend: &mut dyn OcclusionBackend, stats: &mut CullStats) -> Result<()> {
+        if self.i_queue.is_empty() {
+            return Ok(());
+        }
+        self.flush_render_queue(backend)?;
+        stats.query_batches += 1;
+        let mut nodes = std::mem::take(&mut self.i_queue);
+        if self.params.multiqueries && nodes.len() > 1 {
+            // Highest probability of staying invisible first.
+            let p = |s: &NodeState| 0.99 - 0.7 * (-(s.invisible_frames as f32)).exp();
+            nodes.sort_by(|a, b| p(&self.state[*b as usize]).total_cmp(&p(&self.state[*a as usize])).then(a.cmp(b)));
+            let mut i = 0;
+            while i < nodes.len() {
+                let mut prod = 1.0f32;
+                let mut best_value = 0.0f32;
+                let mut j = i;
+                while j < nodes.len() {
+                    let pj = p(&self.state[nodes[j] as usize]).max(0.0);
+                    let size = (j - i + 1) as f32;
+                    let cost = 1.0 + (1.0 - prod * pj) * size;
+                    let value = size / cost;
+                    if j > i && value < best_value {
+                        break;
+                    }
+                    best_value = value;
+                    prod *= pj;
+                    j += 1;
+                }
+                let group = nodes[i..j].to_vec();
+                self.issue(bvh, group, QueryKind::Invisible, backend, stats)?;
+                i = j;
+            }
+        } else {
+            for n in nodes.drain(..) {
+                self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
+            }
+        }
+        backend.flush()?;
+        self.unsubmitted = 0;
+        Ok(())
+    }
+
+    /// Issues up to `limit` v-queue queries as one batch.
+    fn issue_v_queue(
+        &mut self,
+        bvh: &ObjectBvh,
+        limit: usize,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        if self.v_queue.is_empty() {
+            return Ok(());
+        }
+        self.flush_render_queue(backend)?;
+        stats.query_batches += 1;
+        let n = limit.min(self.v_queue.len());
+        let batch: Vec<u32> = self.v_queue.drain(..n).collect();
+        for node in batch {
+            self.issue(bvh, vec![node], QueryKind::Visible, backend, stats)?;
+        }
+        backend.flush()?;
+        self.unsubmitted = 0;
+        Ok(())
+    }
+
+    fn handle_result(
+        &mut self,
+        bvh: &ObjectBvh,
+        q: Pending,
+        pixels: u64,
+        eye: glam::Vec3,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        let visible = pixels > self.params.pixel_threshold;
+        if visible {
+            stats.visible_results += 1;
+        }
+        if visible && q.nodes.len() > 1 {
+            // A failed multiquery: query each node on its own.
+            stats.failed_multiqueries += 1;
+            self.flush_render_queue(backend)?;
+            stats.query_batches += 1;
+            for n in q.nodes {
+                self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
+            }
+            backend.flush()?;
+            self.unsubmitted = 0;
+            return Ok(());
+        }
+        let node = q.nodes[0];
+        if visible {
+            if q.kind == QueryKind::Invisible {
+                self.traverse_node(bvh, node, eye, stats);
+                self.start_interval(node);
+            }
+            self.pull_up(bvh, node);
+        } else {
+            let s = &mut self.state[node as usize];
+            s.visible = false;
+            s.invisible_frames += 1;
+            if q.kind == QueryKind::Invisible {
+                stats.query_culled += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// A node that just turned visible gets its first re-test after a random delay.
+    fn start_interval(&mut self, node: u32) {
+        let n = self.params.visible_interval.max(1) as u64;
+        let delay = if self.params.randomized_interval && n > 1 { 1 + self.rng.below(n as u32) as u64 } else { 1 };
+        self.state[node as usize].next_query = self.frame + delay;
+    }
+
+    fn query_reasonable(&self, node: u32) -> bool {
+        self.frame >= self.state[node as usize].next_query
+    }
+}
+
+/// The boxes of `node`'s descendants down to `tight_depth` levels (leaves above that depth count
+/// themselves), if their total surface area is at most `tight_area_factor` times the node's.
+fn tight_boxes(bvh: &ObjectBvh, node: u32, params: &ChcppParams) -> Option<Vec<Aabb>> {
+    let root = &bvh.nodes[node as usize];
+    if root.is_leaf() {
+        return None;
+    }
+    let mut out = Vec::new();
+    let mut stack = vec![(node, 0u32)];
+    while let Some((n, d)) = stack.pop() {
+        let nn = &bvh.nodes[n as usize];
+        if nn.is_leaf() || d == params.tight_depth {
+            out.push(nn.bounds);
+        } else {
+            stack.push((nn.children[0], d + 1));
+            stack.push((nn.children[1], d + 1));
+        }
+    }
+    let area: f32 = out.iter().map(|b| b.surface_area()).sum();
+    (area <= params.tight_area_factor * root.bounds.surface_area()).then_some(out)
+}
+
 impl Culler for Chcpp {
-    fn name(&self) -> &str { "chcpp" }
-    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats> { self.0.cull_frame(input, backend) }
-    fn reset(&mut self) {}
+    fn name(&self) -> &str {
+        self.name
+    }
+
+    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats> {
+        let bvh = input.bvh;
+        self.prepare(bvh);
+        self.frame += 1;
+        let view = View::new(input.camera);
+        let eye = view.eye;
+        let mut stats = CullStats::default();
+        self.traversal.clear();
+        self.query_queue.clear();
+        self.i_queue.clear();
+        self.v_queue.clear();
+        self.render_queue.clear();
+        self.unsubmitted = 0;
+        let batch = if self.params.batching { self.params.batch_size.max(1) } else { 1 };
+        self.traversal.push(0, bvh.nodes[0].bounds.distance_squared(eye));
+
+        while !self.traversal.is_empty() || !self.query_queue.is_empty() {
+            // 1. Handle finished queries; when there is nothing else to do, fill the wait with
+            //    v-queue queries, and only then block.
+            while let Some(front) = self.query_queue.front() {
+                let id = front.id;
+                let pixels = match backend.query_result(id)? {
+                    Some(p) => p,
+                    None if !self.traversal.is_empty() => break,
+                    None if !self.v_queue.is_empty() => {
+                        self.issue_v_queue(bvh, batch, backend, &mut stats)?;
+                        continue;
+                    }
+                    None => {
+                        self.flush_render_queue(backend)?;
+                        backend.wait_query(id)?
+                    }
+                };
+                if let Some(q) = self.query_queue.pop_front() {
+                    self.handle_result(bvh, q, pixels, eye, backend, &mut stats)?;
+                }
+            }
+            // 2. Hierarchical traversal.
+            if let Some(node) = self.traversal.pop() {
+                stats.nodes_visited += 1;
+                let n = &bvh.nodes[node as usize];
+                if !view.frustum.intersects(&n.bounds) {
+                    stats.frustum_culled += 1;
+                    let s = &mut self.state[node as usize];
+                    s.visible = false;
+                    s.last_visited = self.frame;
+                    s.invisible_frames = 0;
+                } else if eye_inside(&n.bounds, input.camera) {
+                    // The query can't be trusted: treat as visible.
+                    let was = self.was_visible(node);
+                    self.traverse_node(bvh, node, eye, &mut stats);
+                    if n.is_leaf() {
+                        if !was {
+                            self.start_interval(node);
+                        }
+                        self.pull_up(bvh, node);
+                    } else {
+                        self.state[node as usize].last_visited = self.frame;
+                    }
+                } else if !self.was_visible(node) {
+                    self.state[node as usize].last_visited = self.frame;
+                    if self.params.batching {
+                        self.i_queue.push(node);
+                        if self.i_queue.len() >= batch {
+                            self.issue_i_queue(bvh, backend, &mut stats)?;
+                        }
+                    } else {
+                        self.flush_render_queue(backend)?;
+                        stats.query_batches += 1;
+                        self.issue(bvh, vec![node], QueryKind::Invisible, backend, &mut stats)?;
+                    }
+                } else {
+                    let leaf = n.is_leaf();
+                    self.traverse_node(bvh, node, eye, &mut stats);
+                    if leaf {
+                        // Rendered now; its query (if due) tells next frame.
+                        let due = self.query_reasonable(node);
+                        self.pull_up(bvh, node);
+                        if due {
+                            self.state[node as usize].next_query = self.frame + self.params.visible_interval.max(1) as u64;
+                            if self.params.batching {
+                                self.v_queue.push(node);
+                            } else {
+                                self.flush_render_queue(backend)?;
+                                stats.query_batches += 1;
+                                self.issue(bvh, vec![node], QueryKind::Visible, backend, &mut stats)?;
+                            }
+                        }
+                    } else {
+                        self.state[node as usize].last_visited = self.frame;
+                    }
+                }
+            }
+            if self.traversal.is_empty() {
+                self.issue_i_queue(bvh, backend, &mut stats)?;
+                if !self.params.batching && self.unsubmitted > 0 {
+                    self.flush_render_queue(backend)?;
+                    backend.flush()?;
+                    self.unsubmitted = 0;
+                }
+            }
+        }
+        self.flush_render_queue(backend)?;
+        // Visible-leaf queries left over: their results are for the next frame.
+        let rest = self.v_queue.len();
+        self.issue_v_queue(bvh, rest, backend, &mut stats)?;
+        backend.finish()?;
+        while let Some(q) = self.query_queue.pop_front() {
+            let pixels = backend.wait_query(q.id)?;
+            self.handle_result(bvh, q, pixels, eye, backend, &mut stats)?;
+        }
+        Ok(stats)
+    }
+
+    fn reset(&mut self) {
+        self.state.clear();
+        self.tight.clear();
+        self.rng = Rng::new(self.params.seed);
+    }
 }
