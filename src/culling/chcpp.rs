@@ -262,6 +262,9 @@ impl Chcpp {
         }
         self.query_queue.push_back(Pending { id, nodes, kind });
         self.unsubmitted += 1;
+        if !self.params.batching {
+            backend.restore_render_state()?;
+        }
         if !self.params.batching && self.unsubmitted >= self.params.flush_interval {
             backend.flush()?;
             self.unsubmitted = 0;

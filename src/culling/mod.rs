@@ -26,6 +26,11 @@ pub trait OcclusionBackend {
     fn draw_objects(&mut self, objects: &[u32]) -> Result<()>;
     /// Record one occlusion query covering all `boxes` (query state: depth test on, no writes).
     fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId>;
+    /// Go back to render state after a query (an unbatched culler does this after every query,
+    /// as the original CHC toggles write masks around each one). Default: nothing.
+    fn restore_render_state(&mut self) -> Result<()> {
+        Ok(())
+    }
     /// Submit everything recorded so far, so its queries can complete.
     fn flush(&mut self) -> Result<()>;
     /// The query's pixel count if it is ready, without waiting; `None` if not (yet).

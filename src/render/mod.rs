@@ -660,6 +660,13 @@ impl OcclusionBackend for Renderer {
         Ok(id)
     }
 
+    fn restore_render_state(&mut self) -> Result<()> {
+        if self.recording {
+            self.use_pipeline(PipelineKind::Render);
+        }
+        Ok(())
+    }
+
     fn flush(&mut self) -> Result<()> {
         self.submit_segment()
     }

@@ -1,0 +1,65 @@
+//! Shared helpers of the integration tests: validation-checked contexts, scenes, image compare.
+#![allow(dead_code)]
+
+use std::sync::Arc;
+
+use coherent::bvh::ObjectBvh;
+use coherent::culling::Culler;
+use coherent::gpu::{GpuContext, ValidationLog};
+use coherent::render::{FrameResult, Renderer};
+use coherent::scene::{CameraPath, CameraPose, Scene};
+
+/// A context with validation on, and its log (kept to check teardown messages too).
+pub fn context() -> (Arc<GpuContext>, Arc<ValidationLog>) {
+    let ctx = GpuContext::headless().expect("a Vulkan 1.3 device with the validation layer");
+    let log = ctx.validation_log();
+    (ctx, log)
+}
+
+/// Fails the test if the log holds any warning or error.
+pub fn assert_silent(log: &ValidationLog) {
+    let msgs = log.messages();
+    if !msgs.is_empty() {
+        for m in &msgs {
+            eprintln!("{:?} {}: {}", m.severity, m.id, m.text);
+        }
+        panic!("{} validation messages", msgs.len());
+    }
+}
+
+/// A scene and its BVH.
+pub fn scene(name: &str, scale: f32) -> (Scene, ObjectBvh) {
+    let s = Scene::load(name, scale, 4096).expect("scene");
+    let bvh = bvh_of(&s);
+    (s, bvh)
+}
+
+/// The object BVH of a scene.
+pub fn bvh_of(s: &Scene) -> ObjectBvh {
+    let b: Vec<_> = s.objects.iter().map(|o| o.bounds).collect();
+    ObjectBvh::build(&b, 1)
+}
+
+/// Renders one frame and returns it with the pixels.
+pub fn frame(
+    r: &mut Renderer,
+    c: &mut dyn Culler,
+    bvh: &ObjectBvh,
+    pose: CameraPose,
+    f: u64,
+) -> (FrameResult, Vec<u8>) {
+    let cam = r.camera(pose, bvh);
+    let res = r.render_frame(c, bvh, &cam, f).expect("frame");
+    let px = r.read_color().expect("readback");
+    (res, px)
+}
+
+/// Number of pixels that differ.
+pub fn diff_pixels(a: &[u8], b: &[u8]) -> usize {
+    a.chunks_exact(4).zip(b.chunks_exact(4)).filter(|(x, y)| x != y).count()
+}
+
+/// A path's pose at frame `f`.
+pub fn pose(p: &CameraPath, f: u32) -> CameraPose {
+    p.pose_at(f as f32)
+}
