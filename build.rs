@@ -8,7 +8,10 @@ fn main() {
     println!("cargo:rerun-if-changed=shaders");
     let compiler = shaderc::Compiler::new().expect("shaderc compiler");
     let mut options = shaderc::CompileOptions::new().expect("shaderc options");
-    options.set_target_env(shaderc::TargetEnv::Vulkan, shaderc::EnvVersion::Vulkan1_2 as u32);
+    options.set_target_env(
+        shaderc::TargetEnv::Vulkan,
+        shaderc::EnvVersion::Vulkan1_2 as u32,
+    );
     options.set_optimization_level(shaderc::OptimizationLevel::Performance);
     options.set_generate_debug_info();
     let mut entries: Vec<_> = std::fs::read_dir("shaders")

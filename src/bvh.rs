@@ -69,7 +69,11 @@ impl ObjectBvh {
         let prims: Vec<Bounded> = bounds
             .iter()
             .map(|b| {
-                let (min, max) = if b.is_valid() { (b.min, b.max) } else { (Vec3::ZERO, Vec3::ZERO) };
+                let (min, max) = if b.is_valid() {
+                    (b.min, b.max)
+                } else {
+                    (Vec3::ZERO, Vec3::ZERO)
+                };
                 Bounded(OAabb::new(min.into(), max.into()))
             })
             .collect();
@@ -78,7 +82,10 @@ impl ObjectBvh {
         params.collapse_traversal_cost = 1.0;
         let mut t = std::time::Duration::ZERO;
         let bvh2 = obvhs::bvh2::builder::build_bvh2(&prims, params, &mut t);
-        let mut out = ObjectBvh { nodes: Vec::with_capacity(bvh2.nodes.len()), leaf_objects: Vec::with_capacity(bounds.len()) };
+        let mut out = ObjectBvh {
+            nodes: Vec::with_capacity(bvh2.nodes.len()),
+            leaf_objects: Vec::with_capacity(bounds.len()),
+        };
         // Flatten breadth-first from obvhs's root (index 0).
         let mut stack = vec![(0usize, u32::MAX, 0u32)];
         while let Some((src, parent, depth)) = stack.pop() {
@@ -120,7 +127,9 @@ impl ObjectBvh {
         for i in (0..out.nodes.len()).rev() {
             if !out.nodes[i].is_leaf() {
                 let [a, b] = out.nodes[i].children;
-                out.nodes[i].bounds = out.nodes[a as usize].bounds.union(&out.nodes[b as usize].bounds);
+                out.nodes[i].bounds = out.nodes[a as usize]
+                    .bounds
+                    .union(&out.nodes[b as usize].bounds);
             }
         }
         out
@@ -181,7 +190,10 @@ impl PartialOrd for Entry {
 }
 impl Ord for Entry {
     fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        other.dist.total_cmp(&self.dist).then_with(|| other.node.cmp(&self.node))
+        other
+            .dist
+            .total_cmp(&self.dist)
+            .then_with(|| other.node.cmp(&self.node))
     }
 }
 

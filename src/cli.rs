@@ -63,9 +63,17 @@ pub struct WalkArgs {
 
 /// Parses "WxH".
 pub fn parse_size(s: &str) -> Result<(u32, u32)> {
-    let (w, h) = s.split_once(['x', 'X']).with_context(|| format!("size \"{s}\" is not WxH"))?;
-    let w: u32 = w.trim().parse().with_context(|| format!("size \"{s}\": bad width"))?;
-    let h: u32 = h.trim().parse().with_context(|| format!("size \"{s}\": bad height"))?;
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("size \"{s}\" is not WxH"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .with_context(|| format!("size \"{s}\": bad width"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .with_context(|| format!("size \"{s}\": bad height"))?;
     if w == 0 || h == 0 || w > 16384 || h > 16384 {
         bail!("size {w}x{h} is out of range (1..16384)");
     }
@@ -73,7 +81,11 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
 }
 
 fn context(validation: bool) -> Result<Arc<GpuContext>> {
-    Ok(GpuContext::new(&ContextOptions { validation, echo_validation: true, ..Default::default() })?)
+    Ok(GpuContext::new(&ContextOptions {
+        validation,
+        echo_validation: true,
+        ..Default::default()
+    })?)
 }
 
 fn load_scene(a: &SceneArgs) -> Result<Scene> {
@@ -100,7 +112,10 @@ pub fn info() -> Result<()> {
     println!("devices seen:    {}", i.candidates.join("; "));
     println!("timestamp tick:  {} ns", i.timestamp_period_ns);
     println!("max layers:      {}", i.max_image_array_layers);
-    println!("features used:   {} (all present)", coherent::gpu::context::REQUIRED_FEATURES.join(", "));
+    println!(
+        "features used:   {} (all present)",
+        coherent::gpu::context::REQUIRED_FEATURES.join(", ")
+    );
     Ok(())
 }
 
@@ -118,13 +133,19 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     let ctx = context(!a.no_validation)?;
     {
         let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
-        let first = if culler.needs_exact_visibility() || a.algorithm == "vfc" { a.frame } else { 0 };
+        let first = if culler.needs_exact_visibility() || a.algorithm == "vfc" {
+            a.frame
+        } else {
+            0
+        };
         let mut last = None;
         for f in first..=a.frame {
             let cam = renderer.camera(path.pose_at(f as f32), &bvh);
             last = Some(renderer.render_frame(culler.as_mut(), &bvh, &cam, f as u64)?);
         }
-        renderer.save_png(&a.out).with_context(|| format!("writing {}", a.out.display()))?;
+        renderer
+            .save_png(&a.out)
+            .with_context(|| format!("writing {}", a.out.display()))?;
         if let Some(r) = last {
             println!(
                 "{}: {} frame {} with {}: {:.1} ms, {} draws, {} triangles, {} queries, {} state changes -> {}",

@@ -7,7 +7,11 @@ use clap::{Parser, Subcommand};
 mod cli;
 
 #[derive(Parser)]
-#[command(name = "coherent", version, about = "Temporal coherence in object space on raw Vulkan: CHC++ occlusion culling and incremental instant radiosity")]
+#[command(
+    name = "coherent",
+    version,
+    about = "Temporal coherence in object space on raw Vulkan: CHC++ occlusion culling and incremental instant radiosity"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -40,4 +44,3 @@ fn main() -> ExitCode {
         }
     }
 }
-

@@ -16,38 +16,67 @@ const H: u32 = 90;
 fn algorithms() -> Vec<(String, Box<dyn Culler>)> {
     let mut v: Vec<(String, Box<dyn Culler>)> = Vec::new();
     for name in ["stop-and-wait", "chc", "chcpp", "oracle"] {
-        v.push((name.to_string(), culling::create(name, &ChcppParams::default()).unwrap()));
+        v.push((
+            name.to_string(),
+            culling::create(name, &ChcppParams::default()).unwrap(),
+        ));
     }
     for part in ["batching", "interval", "multiqueries", "tight"] {
-        v.push((format!("chcpp[{part}]"), Box::new(Chcpp::new(ChcppParams::only(&[part])))));
+        v.push((
+            format!("chcpp[{part}]"),
+            Box::new(Chcpp::new(ChcppParams::only(&[part]))),
+        ));
     }
     v
 }
 
 /// Renders `frames` consecutive frames of `path` with VFC and every algorithm, interleaved, and
 /// asserts identical images and recorder consistency. Returns per-algorithm frame results.
-fn exactness(scene_name: &str, scale: f32, path: &str, start: u32, frames: u32) -> Vec<(String, Vec<FrameResult>)> {
+fn exactness(
+    scene_name: &str,
+    scale: f32,
+    path: &str,
+    start: u32,
+    frames: u32,
+) -> Vec<(String, Vec<FrameResult>)> {
     let (ctx, log) = common::context();
-    let mut out = Vec::new();
+    let out;
     {
         let (scene, bvh) = common::scene(scene_name, scale);
-        let path = if path.is_empty() { scene.default_path().unwrap().clone() } else { scene.path(path).unwrap().clone() };
+        let path = if path.is_empty() {
+            scene.default_path().unwrap().clone()
+        } else {
+            scene.path(path).unwrap().clone()
+        };
         let mut r = Renderer::new(&ctx, &scene, W, H).unwrap();
         let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
         let mut algs = algorithms();
-        out = algs.iter().map(|(n, _)| (n.clone(), Vec::new())).collect::<Vec<_>>();
+        let mut results: Vec<(String, Vec<FrameResult>)> = algs
+            .iter()
+            .map(|(n, _)| (n.clone(), Vec::new()))
+            .collect::<Vec<_>>();
         for f in start..start + frames {
             let pose = path.pose_at(f as f32);
             let (_, reference) = common::frame(&mut r, vfc.as_mut(), &bvh, pose, f as u64);
             for (i, (name, alg)) in algs.iter_mut().enumerate() {
                 let (res, px) = common::frame(&mut r, alg.as_mut(), &bvh, pose, f as u64);
                 let d = common::diff_pixels(&reference, &px);
-                assert_eq!(d, 0, "{scene_name} frame {f}: {name} differs from vfc in {d} pixels");
-                assert_eq!(res.counts.queries_begun, res.counts.queries_read, "{name}: every query read back");
-                assert_eq!(res.counts.queries_begun, res.cull.queries, "{name}: recorder and algorithm agree");
-                out[i].1.push(res);
+                assert_eq!(
+                    d, 0,
+                    "{scene_name} frame {f}: {name} differs from vfc in {d} pixels"
+                );
+                assert_eq!(
+                    res.counts.queries_begun, res.counts.queries_read,
+                    "{name}: every query read back"
+                );
+                assert_eq!(
+                    res.counts.queries_begun, res.cull.queries,
+                    "{name}: recorder and algorithm agree"
+                );
+                results[i].1.push(res);
             }
         }
+        out = results;
     }
     drop(ctx);
     common::assert_silent(&log);
@@ -67,7 +96,13 @@ fn parking_images_equal_vfc_for_30_frames() {
     exactness("parking", 0.3, "", 0, 30);
 }
 
-fn run(alg: &mut dyn Culler, scene: &Scene, bvh: &ObjectBvh, r: &mut Renderer, frames: u32) -> Vec<FrameResult> {
+fn run(
+    alg: &mut dyn Culler,
+    scene: &Scene,
+    bvh: &ObjectBvh,
+    r: &mut Renderer,
+    frames: u32,
+) -> Vec<FrameResult> {
     let path = scene.default_path().unwrap().clone();
     (0..frames)
         .map(|f| {
@@ -82,7 +117,10 @@ fn state_changes_chcpp_batches_and_chc_per_query() {
     let (ctx, log) = common::context();
     {
         let (scene, bvh) = common::scene("city", 0.1);
-        let path_scene = Scene { paths: vec![scene.path("street").unwrap().clone()], ..scene.clone() };
+        let path_scene = Scene {
+            paths: vec![scene.path("street").unwrap().clone()],
+            ..scene.clone()
+        };
         let mut r = Renderer::new(&ctx, &path_scene, W, H).unwrap();
         let mut chcpp = Chcpp::new(ChcppParams::default());
         let mut chc = culling::create("chc", &ChcppParams::default()).unwrap();
@@ -106,7 +144,10 @@ fn state_changes_chcpp_batches_and_chc_per_query() {
         }
         let sa: u32 = a.iter().map(|r| r.counts.state_changes).sum();
         let sb: u32 = b.iter().map(|r| r.counts.state_changes).sum();
-        assert!(sa * 4 < sb, "batching cuts state changes: chcpp {sa} vs chc {sb}");
+        assert!(
+            sa * 4 < sb,
+            "batching cuts state changes: chcpp {sa} vs chc {sb}"
+        );
     }
     drop(ctx);
     common::assert_silent(&log);
@@ -119,13 +160,19 @@ fn multiqueries_cut_queries_for_invisible_nodes_on_parking() {
         let (scene, bvh) = common::scene("parking", 0.5);
         let mut r = Renderer::new(&ctx, &scene, W, H).unwrap();
         let mut with = Chcpp::new(ChcppParams::default());
-        let mut without = Chcpp::new(ChcppParams { multiqueries: false, ..ChcppParams::default() });
+        let mut without = Chcpp::new(ChcppParams {
+            multiqueries: false,
+            ..ChcppParams::default()
+        });
         let a = run(&mut with, &scene, &bvh, &mut r, 30);
         let b = run(&mut without, &scene, &bvh, &mut r, 30);
         let qa: u32 = a[5..].iter().map(|r| r.cull.invisible_node_queries).sum();
         let qb: u32 = b[5..].iter().map(|r| r.cull.invisible_node_queries).sum();
         assert!(a.iter().any(|r| r.cull.multiqueries > 0));
-        assert!(qa < qb, "multiqueries: {qa} vs {qb} queries for previously invisible nodes");
+        assert!(
+            qa < qb,
+            "multiqueries: {qa} vs {qb} queries for previously invisible nodes"
+        );
     }
     drop(ctx);
     common::assert_silent(&log);
@@ -136,17 +183,26 @@ fn randomized_interval_spreads_visible_leaf_queries() {
     let (ctx, log) = common::context();
     {
         let (scene, bvh) = common::scene("city", 0.1);
-        let street = Scene { paths: vec![scene.path("street").unwrap().clone()], ..scene.clone() };
+        let street = Scene {
+            paths: vec![scene.path("street").unwrap().clone()],
+            ..scene.clone()
+        };
         let mut r = Renderer::new(&ctx, &street, W, H).unwrap();
         let mut randomized = Chcpp::new(ChcppParams::default());
-        let mut fixed = Chcpp::new(ChcppParams { randomized_interval: false, ..ChcppParams::default() });
+        let mut fixed = Chcpp::new(ChcppParams {
+            randomized_interval: false,
+            ..ChcppParams::default()
+        });
         // A still camera isolates the interval's effect.
         let pose = street.paths[0].pose_at(40.0);
         let mut counts = |alg: &mut Chcpp| -> Vec<u32> {
             (0..40)
                 .map(|f| {
                     let cam = r.camera(pose, &bvh);
-                    r.render_frame(alg, &bvh, &cam, f).unwrap().cull.visible_leaf_queries
+                    r.render_frame(alg, &bvh, &cam, f)
+                        .unwrap()
+                        .cull
+                        .visible_leaf_queries
                 })
                 .collect()
         };
@@ -159,7 +215,10 @@ fn randomized_interval_spreads_visible_leaf_queries() {
         };
         let (amax, amean) = spread(&a);
         let (bmax, bmean) = spread(&b);
-        assert!(bmean > 0.0 && amean > 0.0, "visible leaves are queried: {a:?} {b:?}");
+        assert!(
+            bmean > 0.0 && amean > 0.0,
+            "visible leaves are queried: {a:?} {b:?}"
+        );
         assert!(amax <= 2.5 * amean, "randomized stays in a band: {a:?}");
         assert!(bmax >= 3.0 * bmean, "synchronized intervals spike: {b:?}");
     }
@@ -180,7 +239,11 @@ fn edge_case(scene: &Scene, poses: &[CameraPose]) {
                 let (_, reference) = common::frame(&mut r, vfc.as_mut(), &bvh, pose, frame);
                 for (name, alg) in algs.iter_mut() {
                     let (res, px) = common::frame(&mut r, alg.as_mut(), &bvh, pose, frame);
-                    assert_eq!(common::diff_pixels(&reference, &px), 0, "{name} at {pose:?}");
+                    assert_eq!(
+                        common::diff_pixels(&reference, &px),
+                        0,
+                        "{name} at {pose:?}"
+                    );
                     assert_eq!(res.counts.queries_begun, res.counts.queries_read);
                 }
             }
@@ -194,17 +257,30 @@ fn edge_case(scene: &Scene, poses: &[CameraPose]) {
 fn edge_cases_render_like_vfc() {
     let (city, bvh) = common::scene("city", 0.1);
     let b = bvh.nodes[0].bounds;
-    let building = city.objects.iter().max_by(|x, y| x.bounds.extent().y.total_cmp(&y.bounds.extent().y)).unwrap();
+    let building = city
+        .objects
+        .iter()
+        .max_by(|x, y| x.bounds.extent().y.total_cmp(&y.bounds.extent().y))
+        .unwrap();
     let c = building.bounds.center();
     edge_case(
         &city,
         &[
             // inside a building's box
-            CameraPose { eye: c, target: c + Vec3::X * 10.0 },
+            CameraPose {
+                eye: c,
+                target: c + Vec3::X * 10.0,
+            },
             // far outside the whole scene, looking at it
-            CameraPose { eye: b.center() + Vec3::new(3.0, 1.0, 2.0) * b.extent().length(), target: b.center() },
+            CameraPose {
+                eye: b.center() + Vec3::new(3.0, 1.0, 2.0) * b.extent().length(),
+                target: b.center(),
+            },
             // empty frustum: looking away into the sky
-            CameraPose { eye: b.center() + Vec3::new(0.0, b.extent().y + 50.0, 0.0), target: b.center() + Vec3::new(0.0, b.extent().y + 500.0, 1.0) },
+            CameraPose {
+                eye: b.center() + Vec3::new(0.0, b.extent().y + 50.0, 0.0),
+                target: b.center() + Vec3::new(0.0, b.extent().y + 500.0, 1.0),
+            },
         ],
     );
 }
@@ -221,8 +297,14 @@ fn one_object_scene_renders_like_vfc() {
     edge_case(
         &scene,
         &[
-            CameraPose { eye: c + Vec3::new(2.0, 1.5, 3.0), target: c },
-            CameraPose { eye: c, target: c + Vec3::Z },
+            CameraPose {
+                eye: c + Vec3::new(2.0, 1.5, 3.0),
+                target: c,
+            },
+            CameraPose {
+                eye: c,
+                target: c + Vec3::Z,
+            },
         ],
     );
 }
@@ -237,12 +319,19 @@ fn query_pools_grow_past_their_initial_size() {
         let initial = r.query_capacity();
         // Overhead view of the whole lot: stop-and-wait queries most nodes.
         let b = bvh.nodes[0].bounds;
-        let pose = CameraPose { eye: b.center() + Vec3::new(0.0, b.extent().x, b.extent().z * 0.2), target: b.center() };
+        let pose = CameraPose {
+            eye: b.center() + Vec3::new(0.0, b.extent().x, b.extent().z * 0.2),
+            target: b.center(),
+        };
         let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
         let mut saw = culling::create("stop-and-wait", &ChcppParams::default()).unwrap();
         let (_, reference) = common::frame(&mut r, vfc.as_mut(), &bvh, pose, 0);
         let (res, px) = common::frame(&mut r, saw.as_mut(), &bvh, pose, 0);
-        assert!(res.counts.queries_begun > initial, "{} queries > {initial}", res.counts.queries_begun);
+        assert!(
+            res.counts.queries_begun > initial,
+            "{} queries > {initial}",
+            res.counts.queries_begun
+        );
         assert!(r.query_capacity() > initial);
         assert_eq!(common::diff_pixels(&reference, &px), 0);
     }

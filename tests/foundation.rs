@@ -12,7 +12,11 @@ use coherent::scene::Scene;
 #[test]
 fn context_create_and_destroy_is_silent() {
     let (ctx, log) = common::context();
-    assert!(ctx.info.api_version.starts_with("1.3"), "Vulkan 1.3 device, got {}", ctx.info.api_version);
+    assert!(
+        ctx.info.api_version.starts_with("1.3"),
+        "Vulkan 1.3 device, got {}",
+        ctx.info.api_version
+    );
     drop(ctx);
     common::assert_silent(&log);
 }
@@ -24,7 +28,8 @@ fn validation_capture_is_per_context() {
     a.provoke_validation_error().unwrap();
     let msgs = log_a.messages();
     assert!(
-        msgs.iter().any(|m| m.severity == Severity::Error && m.id.contains("VkBufferCreateInfo-usage")),
+        msgs.iter()
+            .any(|m| m.severity == Severity::Error && m.id.contains("VkBufferCreateInfo-usage")),
         "the deliberate error was captured: {msgs:?}"
     );
     drop(a);
@@ -48,7 +53,9 @@ fn leaked_objects_are_reported_at_teardown() {
     drop(ctx);
     let msgs = log.messages();
     assert!(
-        msgs.iter().any(|m| m.text.contains("has not been destroyed") || m.id.contains("vkDestroyDevice-device")),
+        msgs.iter()
+            .any(|m| m.text.contains("has not been destroyed")
+                || m.id.contains("vkDestroyDevice-device")),
         "leak reported at teardown: {msgs:?}"
     );
 }
@@ -57,7 +64,13 @@ fn leaked_objects_are_reported_at_teardown() {
 fn built_in_scenes_render_distinct_images() {
     let (ctx, log) = common::context();
     let mut images = Vec::new();
-    for (name, scale) in [("city", 0.05), ("parking", 0.25), ("powerplant", 0.25), ("cornell", 1.0), ("hall", 0.25)] {
+    for (name, scale) in [
+        ("city", 0.05),
+        ("parking", 0.25),
+        ("powerplant", 0.25),
+        ("cornell", 1.0),
+        ("hall", 0.25),
+    ] {
         let (scene, bvh) = common::scene(name, scale);
         assert!(!scene.objects.is_empty());
         let mut r = Renderer::new(&ctx, &scene, 96, 64).unwrap();
@@ -68,7 +81,11 @@ fn built_in_scenes_render_distinct_images() {
         let background = [px[0], px[1], px[2], px[3]];
         let non_bg = px.chunks_exact(4).filter(|p| *p != background).count();
         let distinct: std::collections::HashSet<_> = px.chunks_exact(4).collect();
-        assert!(distinct.len() > 8, "{name}: image has structure ({} colors)", distinct.len());
+        assert!(
+            distinct.len() > 8,
+            "{name}: image has structure ({} colors)",
+            distinct.len()
+        );
         assert!(non_bg > 0 || name == "cornell", "{name}: not empty");
         images.push((name, px));
     }
@@ -90,7 +107,11 @@ fn built_in_scenes_render_distinct_images() {
 fn city_default_size_meets_the_spec() {
     let s = Scene::load("city", 1.0, 4096).unwrap();
     assert!(s.objects.len() >= 10_000, "{} objects", s.objects.len());
-    assert!(s.triangle_count() >= 2_000_000, "{} triangles", s.triangle_count());
+    assert!(
+        s.triangle_count() >= 2_000_000,
+        "{} triangles",
+        s.triangle_count()
+    );
     assert!(s.path("street").is_ok() && s.path("overhead").is_ok());
     // Deterministic.
     let t = Scene::load("city", 1.0, 4096).unwrap();
@@ -127,17 +148,24 @@ fn bad_gltf_inputs_give_errors_not_panics() {
         ("truncated.glb", good[..good.len() / 2].to_vec()),
         ("garbage.glb", b"not a glb at all".to_vec()),
         ("empty.glb", cube_grid_glb(0)),
-        ("bad.gltf", b"{ \"asset\": { \"version\": \"2.0\" }, \"meshes\": [ {".to_vec()),
+        (
+            "bad.gltf",
+            b"{ \"asset\": { \"version\": \"2.0\" }, \"meshes\": [ {".to_vec(),
+        ),
     ];
     for (name, bytes) in cases {
         let p = dir.join(name);
         std::fs::write(&p, bytes).unwrap();
-        let err = Scene::load(p.to_str().unwrap(), 1.0, 4096).expect_err(name).to_string();
+        let err = Scene::load(p.to_str().unwrap(), 1.0, 4096)
+            .expect_err(name)
+            .to_string();
         assert!(err.contains(name), "{name}: error names the file: {err}");
         assert!(!err.contains('\n'), "{name}: one line: {err}");
     }
     let missing = dir.join("missing.glb");
-    let err = Scene::load(missing.to_str().unwrap(), 1.0, 4096).unwrap_err().to_string();
+    let err = Scene::load(missing.to_str().unwrap(), 1.0, 4096)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("missing.glb"), "{err}");
 }
 
@@ -148,26 +176,57 @@ fn cli_reports_truncated_glb_in_one_line() {
     let p = dir.join("truncated.glb");
     std::fs::write(&p, &good[..good.len() / 2]).unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
-        .args(["render", "--scene", p.to_str().unwrap(), "--out", dir.join("x.png").to_str().unwrap()])
+        .args([
+            "render",
+            "--scene",
+            p.to_str().unwrap(),
+            "--out",
+            dir.join("x.png").to_str().unwrap(),
+        ])
         .output()
         .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    assert!(err.contains("truncated.glb") && !err.contains("panicked"), "{err}");
+    assert!(
+        err.contains("truncated.glb") && !err.contains("panicked"),
+        "{err}"
+    );
 }
 
 #[test]
 fn cli_rejects_bad_flags_cleanly() {
     for args in [
         vec!["render", "--scene", "nowhere", "--out", "/tmp/x.png"],
-        vec!["render", "--scene", "city", "--size", "0x10", "--out", "/tmp/x.png"],
-        vec!["render", "--scene", "cornell", "--algorithm", "magic", "--out", "/tmp/x.png"],
+        vec![
+            "render",
+            "--scene",
+            "city",
+            "--size",
+            "0x10",
+            "--out",
+            "/tmp/x.png",
+        ],
+        vec![
+            "render",
+            "--scene",
+            "cornell",
+            "--algorithm",
+            "magic",
+            "--out",
+            "/tmp/x.png",
+        ],
     ] {
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent")).args(&args).output().unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
+            .args(&args)
+            .output()
+            .unwrap();
         assert!(!out.status.success(), "{args:?}");
         let err = String::from_utf8_lossy(&out.stderr);
-        assert!(err.starts_with("error:") && err.trim().lines().count() == 1, "{args:?}: {err}");
+        assert!(
+            err.starts_with("error:") && err.trim().lines().count() == 1,
+            "{args:?}: {err}"
+        );
     }
 }
 

@@ -20,7 +20,11 @@ impl Culler for Chc {
         "chc"
     }
 
-    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats> {
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats> {
         self.0.cull_frame(input, backend)
     }
 

@@ -189,7 +189,13 @@ impl Chcpp {
 
     /// Opens a node: a leaf goes to the render queue, an interior node's children to the
     /// traversal queue. Its visibility is re-derived this frame (pull-up from its leaves).
-    fn traverse_node(&mut self, bvh: &ObjectBvh, node: u32, eye: glam::Vec3, stats: &mut CullStats) {
+    fn traverse_node(
+        &mut self,
+        bvh: &ObjectBvh,
+        node: u32,
+        eye: glam::Vec3,
+        stats: &mut CullStats,
+    ) {
         let n = &bvh.nodes[node as usize];
         if n.is_leaf() {
             let objects = bvh.objects(node);
@@ -198,7 +204,8 @@ impl Chcpp {
         } else {
             self.state[node as usize].visible = false;
             for c in n.children {
-                self.traversal.push(c, bvh.nodes[c as usize].bounds.distance_squared(eye));
+                self.traversal
+                    .push(c, bvh.nodes[c as usize].bounds.distance_squared(eye));
             }
         }
     }
@@ -274,7 +281,12 @@ impl Chcpp {
 
     /// Issues the i-queue as one batch: render queue first, one switch into query state,
     /// multiqueries grouped by the cost/benefit rule, then submit.
-    fn issue_i_queue(&mut self, bvh: &ObjectBvh, backend: &mut dyn OcclusionBackend, stats: &mut CullStats) -> Result<()> {
+    fn issue_i_queue(
+        &mut self,
+        bvh: &ObjectBvh,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
         if self.i_queue.is_empty() {
             return Ok(());
         }
@@ -284,7 +296,11 @@ impl Chcpp {
         if self.params.multiqueries && nodes.len() > 1 {
             // Highest probability of staying invisible first.
             let p = |s: &NodeState| 0.99 - 0.7 * (-(s.invisible_frames as f32)).exp();
-            nodes.sort_by(|a, b| p(&self.state[*b as usize]).total_cmp(&p(&self.state[*a as usize])).then(a.cmp(b)));
+            nodes.sort_by(|a, b| {
+                p(&self.state[*b as usize])
+                    .total_cmp(&p(&self.state[*a as usize]))
+                    .then(a.cmp(b))
+            });
             let mut i = 0;
             while i < nodes.len() {
                 let mut prod = 1.0f32;
@@ -385,7 +401,11 @@ impl Chcpp {
     /// A node that just turned visible gets its first re-test after a random delay.
     fn start_interval(&mut self, node: u32) {
         let n = self.params.visible_interval.max(1) as u64;
-        let delay = if self.params.randomized_interval && n > 1 { 1 + self.rng.below(n as u32) as u64 } else { 1 };
+        let delay = if self.params.randomized_interval && n > 1 {
+            1 + self.rng.below(n as u32) as u64
+        } else {
+            1
+        };
         self.state[node as usize].next_query = self.frame + delay;
     }
 
@@ -421,7 +441,11 @@ impl Culler for Chcpp {
         self.name
     }
 
-    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats> {
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats> {
         let bvh = input.bvh;
         self.prepare(bvh);
         self.frame += 1;
@@ -434,8 +458,13 @@ impl Culler for Chcpp {
         self.v_queue.clear();
         self.render_queue.clear();
         self.unsubmitted = 0;
-        let batch = if self.params.batching { self.params.batch_size.max(1) } else { 1 };
-        self.traversal.push(0, bvh.nodes[0].bounds.distance_squared(eye));
+        let batch = if self.params.batching {
+            self.params.batch_size.max(1)
+        } else {
+            1
+        };
+        self.traversal
+            .push(0, bvh.nodes[0].bounds.distance_squared(eye));
 
         while !self.traversal.is_empty() || !self.query_queue.is_empty() {
             // 1. Handle finished queries; when there is nothing else to do, fill the wait with
@@ -500,13 +529,20 @@ impl Culler for Chcpp {
                         let due = self.query_reasonable(node);
                         self.pull_up(bvh, node);
                         if due {
-                            self.state[node as usize].next_query = self.frame + self.params.visible_interval.max(1) as u64;
+                            self.state[node as usize].next_query =
+                                self.frame + self.params.visible_interval.max(1) as u64;
                             if self.params.batching {
                                 self.v_queue.push(node);
                             } else {
                                 self.flush_render_queue(backend)?;
                                 stats.query_batches += 1;
-                                self.issue(bvh, vec![node], QueryKind::Visible, backend, &mut stats)?;
+                                self.issue(
+                                    bvh,
+                                    vec![node],
+                                    QueryKind::Visible,
+                                    backend,
+                                    &mut stats,
+                                )?;
                             }
                         }
                     } else {

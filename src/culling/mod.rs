@@ -91,7 +91,11 @@ pub trait Culler {
     }
     /// Decides visibility and records draws and queries through `backend`; must read back every
     /// query it issued before returning (after [`OcclusionBackend::finish`] if need be).
-    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats>;
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats>;
     /// Forgets temporal state (e.g. after a camera cut).
     fn reset(&mut self);
 }
@@ -106,7 +110,7 @@ pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
         "stop-and-wait" => Box::new(stop_and_wait::StopAndWait::default()),
         "chc" => Box::new(chc::Chc::default()),
         "chcpp" => Box::new(chcpp::Chcpp::new(params.clone())),
-        "oracle" => Box::new(oracle::Oracle::default()),
+        "oracle" => Box::new(oracle::Oracle),
         other => {
             return Err(Error::Input(format!(
                 "unknown algorithm \"{other}\" (known: {})",
@@ -119,7 +123,9 @@ pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
 /// Whether a node's query can't be trusted because the eye is inside (or the near plane cuts)
 /// its box: such a node is treated as visible without a query.
 pub fn eye_inside(bounds: &Aabb, camera: &Camera) -> bool {
-    bounds.enlarged(camera.near_corner_distance() * 1.01).contains(camera.eye)
+    bounds
+        .enlarged(camera.near_corner_distance() * 1.01)
+        .contains(camera.eye)
 }
 
 /// Helper shared by the algorithms: the frustum and eye of a frame.
@@ -130,6 +136,9 @@ pub(crate) struct View {
 
 impl View {
     pub fn new(camera: &Camera) -> View {
-        View { frustum: camera.frustum(), eye: camera.eye }
+        View {
+            frustum: camera.frustum(),
+            eye: camera.eye,
+        }
     }
 }

@@ -17,13 +17,20 @@ impl Culler for Oracle {
         true
     }
 
-    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats> {
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats> {
         let visible = input
             .exact_visible
             .ok_or_else(|| Error::Input("the oracle needs the exact visible set".into()))?;
         backend.draw_objects(visible)?;
         backend.finish()?;
-        Ok(CullStats { objects_drawn: visible.len() as u32, ..Default::default() })
+        Ok(CullStats {
+            objects_drawn: visible.len() as u32,
+            ..Default::default()
+        })
     }
 
     fn reset(&mut self) {}

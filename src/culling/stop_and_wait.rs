@@ -16,12 +16,17 @@ impl Culler for StopAndWait {
         "stop-and-wait"
     }
 
-    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats> {
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats> {
         let view = View::new(input.camera);
         let bvh = input.bvh;
         let mut stats = CullStats::default();
         self.queue.clear();
-        self.queue.push(0, bvh.nodes[0].bounds.distance_squared(view.eye));
+        self.queue
+            .push(0, bvh.nodes[0].bounds.distance_squared(view.eye));
         while let Some(id) = self.queue.pop() {
             let node = &bvh.nodes[id as usize];
             stats.nodes_visited += 1;
@@ -46,7 +51,8 @@ impl Culler for StopAndWait {
                 backend.draw_objects(objects)?;
             } else {
                 for c in node.children {
-                    self.queue.push(c, bvh.nodes[c as usize].bounds.distance_squared(view.eye));
+                    self.queue
+                        .push(c, bvh.nodes[c as usize].bounds.distance_squared(view.eye));
                 }
             }
         }

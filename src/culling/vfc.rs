@@ -15,7 +15,11 @@ impl Culler for Vfc {
         "vfc"
     }
 
-    fn cull_frame(&mut self, input: &FrameInput, backend: &mut dyn OcclusionBackend) -> Result<CullStats> {
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats> {
         let view = View::new(input.camera);
         let mut stats = CullStats::default();
         self.batch.clear();

@@ -6,10 +6,10 @@ use std::time::Duration;
 
 use glam::{Vec3, Vec3A};
 use obvhs::{
-    BvhBuildParams,
-    bvh2::{Bvh2, builder::build_bvh2_from_tris},
+    bvh2::{builder::build_bvh2_from_tris, Bvh2},
     ray::{Ray, RayHit},
     triangle::Triangle,
+    BvhBuildParams,
 };
 
 /// Relative part of the epsilon used by [`RayScene::occluded`] at both ends.
@@ -210,11 +210,9 @@ mod tests {
     #[test]
     fn empty_scene() {
         let scene = RayScene::new(Vec::new(), Vec::new());
-        assert!(
-            scene
-                .intersect(Vec3::ZERO, Vec3::Z, f32::INFINITY)
-                .is_none()
-        );
+        assert!(scene
+            .intersect(Vec3::ZERO, Vec3::Z, f32::INFINITY)
+            .is_none());
         assert!(!scene.occluded(Vec3::ZERO, Vec3::ONE));
         assert_eq!(scene.triangle_count(), 0);
     }

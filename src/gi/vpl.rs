@@ -790,11 +790,10 @@ mod tests {
         assert!(stats.invalid_deleted > 0);
         assert!(set.vpls().iter().all(|v| is_valid(v, &up, &scene)));
         assert!(set.vpls().iter().all(|v| v.position.y > 1.9 - 1e-4));
-        assert!(
-            set.vpls()
-                .iter()
-                .all(|v| !old.contains(&v.id) || v.position.y > 1.9)
-        );
+        assert!(set
+            .vpls()
+            .iter()
+            .all(|v| !old.contains(&v.id) || v.position.y > 1.9));
         check_invariants(&set);
     }
 

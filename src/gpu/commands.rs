@@ -46,7 +46,13 @@ pub struct Recorder {
 impl Recorder {
     /// A recorder for `device`; call [`Recorder::set_command_buffer`] before recording.
     pub fn new(device: ash::Device) -> Recorder {
-        Recorder { device, cmd: vk::CommandBuffer::null(), bound: None, last_kind: None, counts: CommandCounts::default() }
+        Recorder {
+            device,
+            cmd: vk::CommandBuffer::null(),
+            bound: None,
+            last_kind: None,
+            counts: CommandCounts::default(),
+        }
     }
 
     /// Starts recording into a new command buffer (already begun): bound state is forgotten.
@@ -77,7 +83,10 @@ impl Recorder {
             return false;
         }
         // SAFETY: recording command buffer and valid pipeline.
-        unsafe { self.device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::GRAPHICS, p.handle) };
+        unsafe {
+            self.device
+                .cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::GRAPHICS, p.handle)
+        };
         self.bound = Some(p.handle);
         self.counts.pipeline_binds += 1;
         if self.last_kind.is_some() && self.last_kind != Some(p.kind) {
@@ -90,40 +99,80 @@ impl Recorder {
     /// Binds a compute pipeline.
     pub fn bind_compute_pipeline(&mut self, p: vk::Pipeline) {
         // SAFETY: recording command buffer and valid pipeline.
-        unsafe { self.device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, p) };
+        unsafe {
+            self.device
+                .cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, p)
+        };
         self.counts.pipeline_binds += 1;
     }
 
     /// Binds descriptor set 0.
-    pub fn bind_descriptor_set(&mut self, bind_point: vk::PipelineBindPoint, layout: vk::PipelineLayout, set: vk::DescriptorSet) {
+    pub fn bind_descriptor_set(
+        &mut self,
+        bind_point: vk::PipelineBindPoint,
+        layout: vk::PipelineLayout,
+        set: vk::DescriptorSet,
+    ) {
         // SAFETY: recording command buffer; set compatible with layout.
-        unsafe { self.device.cmd_bind_descriptor_sets(self.cmd, bind_point, layout, 0, &[set], &[]) };
+        unsafe {
+            self.device
+                .cmd_bind_descriptor_sets(self.cmd, bind_point, layout, 0, &[set], &[])
+        };
         self.counts.descriptor_binds += 1;
     }
 
     /// Binds vertex buffer 0 and, if given, a u32 index buffer.
-    pub fn bind_buffers(&mut self, vertices: vk::Buffer, vertex_offset: u64, indices: Option<vk::Buffer>) {
+    pub fn bind_buffers(
+        &mut self,
+        vertices: vk::Buffer,
+        vertex_offset: u64,
+        indices: Option<vk::Buffer>,
+    ) {
         // SAFETY: recording command buffer and valid buffers.
         unsafe {
-            self.device.cmd_bind_vertex_buffers(self.cmd, 0, &[vertices], &[vertex_offset]);
+            self.device
+                .cmd_bind_vertex_buffers(self.cmd, 0, &[vertices], &[vertex_offset]);
             if let Some(ib) = indices {
-                self.device.cmd_bind_index_buffer(self.cmd, ib, 0, vk::IndexType::UINT32);
+                self.device
+                    .cmd_bind_index_buffer(self.cmd, ib, 0, vk::IndexType::UINT32);
             }
         }
         self.counts.buffer_binds += 1;
     }
 
     /// Push constants for vertex+fragment(+compute) stages.
-    pub fn push_constants(&mut self, layout: vk::PipelineLayout, stages: vk::ShaderStageFlags, bytes: &[u8]) {
+    pub fn push_constants(
+        &mut self,
+        layout: vk::PipelineLayout,
+        stages: vk::ShaderStageFlags,
+        bytes: &[u8],
+    ) {
         // SAFETY: recording command buffer; range declared in the layout.
-        unsafe { self.device.cmd_push_constants(self.cmd, layout, stages, 0, bytes) };
+        unsafe {
+            self.device
+                .cmd_push_constants(self.cmd, layout, stages, 0, bytes)
+        };
     }
 
     /// Indexed draw; counts the draw and its triangles.
-    pub fn draw_indexed(&mut self, index_count: u32, instances: u32, first_index: u32, vertex_offset: i32, first_instance: u32) {
+    pub fn draw_indexed(
+        &mut self,
+        index_count: u32,
+        instances: u32,
+        first_index: u32,
+        vertex_offset: i32,
+        first_instance: u32,
+    ) {
         // SAFETY: recording inside rendering with a bound pipeline and buffers.
         unsafe {
-            self.device.cmd_draw_indexed(self.cmd, index_count, instances, first_index, vertex_offset, first_instance)
+            self.device.cmd_draw_indexed(
+                self.cmd,
+                index_count,
+                instances,
+                first_index,
+                vertex_offset,
+                first_instance,
+            )
         };
         let tris = (index_count / 3) as u64 * instances as u64;
         self.counts.draw_calls += 1;
@@ -136,7 +185,10 @@ impl Recorder {
     /// Non-indexed draw.
     pub fn draw(&mut self, vertex_count: u32, instances: u32) {
         // SAFETY: recording inside rendering with a bound pipeline.
-        unsafe { self.device.cmd_draw(self.cmd, vertex_count, instances, 0, 0) };
+        unsafe {
+            self.device
+                .cmd_draw(self.cmd, vertex_count, instances, 0, 0)
+        };
         self.counts.draw_calls += 1;
         self.counts.triangles += (vertex_count / 3) as u64 * instances as u64;
     }
@@ -144,7 +196,10 @@ impl Recorder {
     /// Begins a precise occlusion query.
     pub fn begin_occlusion_query(&mut self, pool: vk::QueryPool, index: u32) {
         // SAFETY: the query was reset and is not active.
-        unsafe { self.device.cmd_begin_query(self.cmd, pool, index, vk::QueryControlFlags::PRECISE) };
+        unsafe {
+            self.device
+                .cmd_begin_query(self.cmd, pool, index, vk::QueryControlFlags::PRECISE)
+        };
         self.counts.queries_begun += 1;
     }
 
@@ -157,7 +212,14 @@ impl Recorder {
     /// Writes a timestamp after all previous work.
     pub fn write_timestamp(&mut self, pool: vk::QueryPool, index: u32) {
         // SAFETY: the query was reset.
-        unsafe { self.device.cmd_write_timestamp2(self.cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, index) };
+        unsafe {
+            self.device.cmd_write_timestamp2(
+                self.cmd,
+                vk::PipelineStageFlags2::ALL_COMMANDS,
+                pool,
+                index,
+            )
+        };
     }
 
     /// Begins dynamic rendering.
@@ -182,7 +244,10 @@ impl Recorder {
             min_depth: 0.0,
             max_depth: 1.0,
         };
-        let sc = vk::Rect2D { offset: vk::Offset2D::default(), extent };
+        let sc = vk::Rect2D {
+            offset: vk::Offset2D::default(),
+            extent,
+        };
         // SAFETY: recording command buffer; dynamic viewport/scissor declared in pipelines.
         unsafe {
             self.device.cmd_set_viewport(self.cmd, 0, &[vp]);
@@ -191,17 +256,34 @@ impl Recorder {
     }
 
     /// A synchronization2 barrier.
-    pub fn barrier(&mut self, images: &[vk::ImageMemoryBarrier2], buffers: &[vk::BufferMemoryBarrier2]) {
-        let dep = vk::DependencyInfo::default().image_memory_barriers(images).buffer_memory_barriers(buffers);
+    pub fn barrier(
+        &mut self,
+        images: &[vk::ImageMemoryBarrier2],
+        buffers: &[vk::BufferMemoryBarrier2],
+    ) {
+        let dep = vk::DependencyInfo::default()
+            .image_memory_barriers(images)
+            .buffer_memory_barriers(buffers);
         // SAFETY: recording outside rendering.
         unsafe { self.device.cmd_pipeline_barrier2(self.cmd, &dep) };
     }
 
     /// Copies an image layer to a buffer.
-    pub fn copy_image_to_buffer(&mut self, image: vk::Image, buffer: vk::Buffer, region: vk::BufferImageCopy) {
+    pub fn copy_image_to_buffer(
+        &mut self,
+        image: vk::Image,
+        buffer: vk::Buffer,
+        region: vk::BufferImageCopy,
+    ) {
         // SAFETY: image in TRANSFER_SRC_OPTIMAL; buffer large enough (checked by caller).
         unsafe {
-            self.device.cmd_copy_image_to_buffer(self.cmd, image, vk::ImageLayout::TRANSFER_SRC_OPTIMAL, buffer, &[region])
+            self.device.cmd_copy_image_to_buffer(
+                self.cmd,
+                image,
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                buffer,
+                &[region],
+            )
         };
     }
 

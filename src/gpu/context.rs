@@ -86,7 +86,11 @@ unsafe extern "system" fn debug_callback(
     let text = unsafe { data.message_as_c_str() }
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
-    log.push(ValidationMessage { severity: sev, id, text });
+    log.push(ValidationMessage {
+        severity: sev,
+        id,
+        text,
+    });
     vk::FALSE
 }
 
@@ -173,7 +177,10 @@ unsafe impl Sync for GpuContext {}
 impl GpuContext {
     /// A context with validation on, for tests and benchmarks: `GpuContext::headless()?`.
     pub fn headless() -> Result<Arc<GpuContext>> {
-        Self::new(&ContextOptions { validation: true, ..Default::default() })
+        Self::new(&ContextOptions {
+            validation: true,
+            ..Default::default()
+        })
     }
 
     /// Creates instance, device and allocator.
@@ -182,7 +189,10 @@ impl GpuContext {
         let entry = unsafe { ash::Entry::load() }.map_err(|e| {
             Error::Loader(format!("{e} (install libvulkan1 and mesa-vulkan-drivers)"))
         })?;
-        let log = Arc::new(ValidationLog { messages: Mutex::default(), echo: options.echo_validation });
+        let log = Arc::new(ValidationLog {
+            messages: Mutex::default(),
+            echo: options.echo_validation,
+        });
         let log_raw = Arc::into_raw(log.clone());
         match Self::create(entry, options, log, log_raw) {
             Ok(ctx) => Ok(Arc::new(ctx)),
@@ -205,18 +215,25 @@ impl GpuContext {
             .vk("vkEnumerateInstanceVersion")?
             .unwrap_or(vk::API_VERSION_1_0);
         if version < vk::API_VERSION_1_3 {
-            return Err(Error::Unsupported { feature: "Vulkan 1.3 instance".into() });
+            return Err(Error::Unsupported {
+                feature: "Vulkan 1.3 instance".into(),
+            });
         }
         let mut layers: Vec<*const i8> = Vec::new();
-        let mut extensions: Vec<*const i8> =
-            options.instance_extensions.iter().map(|e| e.as_ptr()).collect();
+        let mut extensions: Vec<*const i8> = options
+            .instance_extensions
+            .iter()
+            .map(|e| e.as_ptr())
+            .collect();
         if options.validation {
             // SAFETY: plain query of the loader.
             let available = unsafe { entry.enumerate_instance_layer_properties() }
                 .vk("vkEnumerateInstanceLayerProperties")?;
-            let found = available
-                .iter()
-                .any(|l| l.layer_name_as_c_str().map(|n| n == VALIDATION_LAYER).unwrap_or(false));
+            let found = available.iter().any(|l| {
+                l.layer_name_as_c_str()
+                    .map(|n| n == VALIDATION_LAYER)
+                    .unwrap_or(false)
+            });
             if !found {
                 return Err(Error::Unsupported {
                     feature: "VK_LAYER_KHRONOS_validation (apt install vulkan-validationlayers)"
@@ -250,8 +267,13 @@ impl GpuContext {
             create_info = create_info.push_next(&mut messenger_info);
         }
         // SAFETY: all pointers in create_info outlive the call.
-        let instance = unsafe { entry.create_instance(&create_info, None) }.vk("vkCreateInstance")?;
-        let mut partial = Partial { instance: Some(instance.clone()), debug: None, device: None };
+        let instance =
+            unsafe { entry.create_instance(&create_info, None) }.vk("vkCreateInstance")?;
+        let mut partial = Partial {
+            instance: Some(instance.clone()),
+            debug: None,
+            device: None,
+        };
         if options.validation {
             let du = ext::debug_utils::Instance::new(&entry, &instance);
             // SAFETY: valid instance; the user data outlives the messenger.
@@ -260,10 +282,11 @@ impl GpuContext {
             partial.debug = Some((du, messenger));
         }
 
-        let filter = options
-            .device_filter
-            .clone()
-            .or_else(|| std::env::var("COHERENT_DEVICE").ok().filter(|s| !s.is_empty()));
+        let filter = options.device_filter.clone().or_else(|| {
+            std::env::var("COHERENT_DEVICE")
+                .ok()
+                .filter(|s| !s.is_empty())
+        });
         let (physical_device, queue_family, mut info) = pick_device(&instance, filter.as_deref())?;
         info.validation = options.validation;
         check_features(&instance, physical_device)?;
@@ -280,7 +303,11 @@ impl GpuContext {
             .dynamic_rendering(true)
             .synchronization2(true)
             .maintenance4(true);
-        let dev_ext: Vec<*const i8> = options.device_extensions.iter().map(|e| e.as_ptr()).collect();
+        let dev_ext: Vec<*const i8> = options
+            .device_extensions
+            .iter()
+            .map(|e| e.as_ptr())
+            .collect();
         let device_info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_info)
             .enabled_features(&features10)
@@ -397,7 +424,12 @@ impl Drop for GpuContext {
 }
 
 fn version_string(v: u32) -> String {
-    format!("{}.{}.{}", vk::api_version_major(v), vk::api_version_minor(v), vk::api_version_patch(v))
+    format!(
+        "{}.{}.{}",
+        vk::api_version_major(v),
+        vk::api_version_minor(v),
+        vk::api_version_patch(v)
+    )
 }
 
 fn pick_device(
@@ -405,7 +437,8 @@ fn pick_device(
     filter: Option<&str>,
 ) -> Result<(vk::PhysicalDevice, u32, DeviceInfo)> {
     // SAFETY: valid instance.
-    let devices = unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
+    let devices =
+        unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
     let mut candidates = Vec::new();
     let mut best: Option<(i32, vk::PhysicalDevice, u32, DeviceInfo)> = None;
     for pd in devices {
@@ -415,19 +448,27 @@ fn pick_device(
         let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
         // SAFETY: as above.
         unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
-        let name = props.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = props
+            .device_name_as_c_str()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
         let driver_name = format!(
             "{} {}",
-            driver.driver_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
-            driver.driver_info_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+            driver
+                .driver_name_as_c_str()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            driver
+                .driver_info_as_c_str()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default()
         );
         candidates.push(format!("{name} ({:?})", props.device_type));
         // SAFETY: as above.
         let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
-        let Some(family) = families
-            .iter()
-            .position(|f| f.queue_flags.contains(vk::QueueFlags::GRAPHICS) && f.timestamp_valid_bits > 0)
-        else {
+        let Some(family) = families.iter().position(|f| {
+            f.queue_flags.contains(vk::QueueFlags::GRAPHICS) && f.timestamp_valid_bits > 0
+        }) else {
             continue;
         };
         let (score, why) = match props.device_type {
@@ -486,7 +527,9 @@ fn pick_device(
 fn check_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Result<()> {
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
     let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
-    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12).push_next(&mut f13);
+    let mut f2 = vk::PhysicalDeviceFeatures2::default()
+        .push_next(&mut f12)
+        .push_next(&mut f13);
     // SAFETY: valid physical device; the chain outlives the call.
     unsafe { instance.get_physical_device_features2(pd, &mut f2) };
     let f10 = f2.features;
@@ -512,6 +555,8 @@ fn check_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Result<()
     if missing.is_empty() {
         Ok(())
     } else {
-        Err(Error::Unsupported { feature: missing.join(", ") })
+        Err(Error::Unsupported {
+            feature: missing.join(", "),
+        })
     }
 }

@@ -54,8 +54,16 @@ impl Buffer {
             }
         };
         // SAFETY: the allocation satisfies the buffer's requirements.
-        let bound = unsafe { ctx.device.bind_buffer_memory(handle, allocation.memory(), allocation.offset()) };
-        let buffer = Buffer { ctx: ctx.clone(), handle, size, allocation: Some(allocation) };
+        let bound = unsafe {
+            ctx.device
+                .bind_buffer_memory(handle, allocation.memory(), allocation.offset())
+        };
+        let buffer = Buffer {
+            ctx: ctx.clone(),
+            handle,
+            size,
+            allocation: Some(allocation),
+        };
         bound.vk("vkBindBufferMemory")?;
         Ok(buffer)
     }
@@ -68,7 +76,13 @@ impl Buffer {
         data: &[u8],
         usage: vk::BufferUsageFlags,
     ) -> Result<Buffer> {
-        let mut b = Buffer::new(ctx, name, data.len() as u64, usage, MemoryLocation::CpuToGpu)?;
+        let mut b = Buffer::new(
+            ctx,
+            name,
+            data.len() as u64,
+            usage,
+            MemoryLocation::CpuToGpu,
+        )?;
         b.write(0, data)?;
         Ok(b)
     }
@@ -85,9 +99,16 @@ impl Buffer {
             .as_mut()
             .and_then(|a| a.mapped_slice_mut())
             .ok_or_else(|| Error::Alloc("buffer is not host-visible".into()))?;
-        let end = offset.checked_add(data.len()).filter(|&e| e <= slice.len()).ok_or_else(|| {
-            Error::Input(format!("write of {} bytes at {offset} past buffer end {}", data.len(), slice.len()))
-        })?;
+        let end = offset
+            .checked_add(data.len())
+            .filter(|&e| e <= slice.len())
+            .ok_or_else(|| {
+                Error::Input(format!(
+                    "write of {} bytes at {offset} past buffer end {}",
+                    data.len(),
+                    slice.len()
+                ))
+            })?;
         slice[offset..end].copy_from_slice(data);
         Ok(())
     }
@@ -130,7 +151,10 @@ impl Image {
         usage: vk::ImageUsageFlags,
     ) -> Result<Image> {
         if extent.width == 0 || extent.height == 0 || layers == 0 {
-            return Err(Error::Input(format!("{name}: image size {}x{}x{layers} is empty", extent.width, extent.height)));
+            return Err(Error::Input(format!(
+                "{name}: image size {}x{}x{layers} is empty",
+                extent.width, extent.height
+            )));
         }
         if layers > ctx.info.max_image_array_layers {
             return Err(Error::Input(format!(
@@ -141,7 +165,11 @@ impl Image {
         let info = vk::ImageCreateInfo::default()
             .image_type(vk::ImageType::TYPE_2D)
             .format(format)
-            .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
+            .extent(vk::Extent3D {
+                width: extent.width,
+                height: extent.height,
+                depth: 1,
+            })
             .mip_levels(1)
             .array_layers(layers)
             .samples(vk::SampleCountFlags::TYPE_1)
@@ -177,16 +205,25 @@ impl Image {
             allocation: Some(allocation),
         };
         // SAFETY: the memory handle is only used to bind this image.
-        let a = image.allocation.as_ref().map(|a| (unsafe { a.memory() }, a.offset())).unwrap_or_default();
+        let a = image
+            .allocation
+            .as_ref()
+            .map(|a| (unsafe { a.memory() }, a.offset()))
+            .unwrap_or_default();
         // SAFETY: the allocation satisfies the image's requirements.
         unsafe { ctx.device.bind_image_memory(handle, a.0, a.1) }.vk("vkBindImageMemory")?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(handle)
-            .view_type(if layers > 1 { vk::ImageViewType::TYPE_2D_ARRAY } else { vk::ImageViewType::TYPE_2D })
+            .view_type(if layers > 1 {
+                vk::ImageViewType::TYPE_2D_ARRAY
+            } else {
+                vk::ImageViewType::TYPE_2D
+            })
             .format(format)
             .subresource_range(image.full_range());
         // SAFETY: valid image with bound memory.
-        image.view = unsafe { ctx.device.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
+        image.view =
+            unsafe { ctx.device.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
         Ok(image)
     }
 

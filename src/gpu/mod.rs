@@ -14,7 +14,9 @@ use std::sync::Arc;
 use ash::vk;
 
 pub use commands::{CommandCounts, Recorder};
-pub use context::{ContextOptions, DeviceInfo, GpuContext, Severity, ValidationLog, ValidationMessage};
+pub use context::{
+    ContextOptions, DeviceInfo, GpuContext, Severity, ValidationLog, ValidationMessage,
+};
 
 use crate::error::{Result, VkContext};
 
@@ -33,16 +35,27 @@ impl OneShot {
             .queue_family_index(ctx.queue_family)
             .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
         // SAFETY: valid device.
-        let pool = unsafe { ctx.device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
-        let mut me = OneShot { ctx: ctx.clone(), pool, cmd: vk::CommandBuffer::null(), fence: vk::Fence::null() };
+        let pool =
+            unsafe { ctx.device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
+        let mut me = OneShot {
+            ctx: ctx.clone(),
+            pool,
+            cmd: vk::CommandBuffer::null(),
+            fence: vk::Fence::null(),
+        };
         let alloc = vk::CommandBufferAllocateInfo::default()
             .command_pool(pool)
             .level(vk::CommandBufferLevel::PRIMARY)
             .command_buffer_count(1);
         // SAFETY: valid pool.
-        me.cmd = unsafe { ctx.device.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
+        me.cmd = unsafe { ctx.device.allocate_command_buffers(&alloc) }
+            .vk("vkAllocateCommandBuffers")?[0];
         // SAFETY: valid device.
-        me.fence = unsafe { ctx.device.create_fence(&vk::FenceCreateInfo::default(), None) }.vk("vkCreateFence")?;
+        me.fence = unsafe {
+            ctx.device
+                .create_fence(&vk::FenceCreateInfo::default(), None)
+        }
+        .vk("vkCreateFence")?;
         Ok(me)
     }
 
@@ -51,10 +64,12 @@ impl OneShot {
         let d = &self.ctx.device;
         // SAFETY: the buffer is not in flight (every run waits for its fence).
         unsafe {
-            d.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty()).vk("vkResetCommandBuffer")?;
+            d.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty())
+                .vk("vkResetCommandBuffer")?;
             d.begin_command_buffer(
                 self.cmd,
-                &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+                &vk::CommandBufferBeginInfo::default()
+                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
             )
             .vk("vkBeginCommandBuffer")?;
         }
@@ -69,8 +84,10 @@ impl OneShot {
         // SAFETY: recorded above; fence unsignaled.
         unsafe {
             d.end_command_buffer(self.cmd).vk("vkEndCommandBuffer")?;
-            d.queue_submit(self.ctx.queue, &[submit], self.fence).vk("vkQueueSubmit")?;
-            d.wait_for_fences(&[self.fence], true, u64::MAX).vk("vkWaitForFences")?;
+            d.queue_submit(self.ctx.queue, &[submit], self.fence)
+                .vk("vkQueueSubmit")?;
+            d.wait_for_fences(&[self.fence], true, u64::MAX)
+                .vk("vkWaitForFences")?;
             d.reset_fences(&[self.fence]).vk("vkResetFences")?;
         }
         Ok(())

@@ -75,7 +75,11 @@ impl PipelineLayout {
                     .binding(i as u32)
                     .descriptor_type(t)
                     .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT | vk::ShaderStageFlags::COMPUTE)
+                    .stage_flags(
+                        vk::ShaderStageFlags::VERTEX
+                            | vk::ShaderStageFlags::FRAGMENT
+                            | vk::ShaderStageFlags::COMPUTE,
+                    )
             })
             .collect();
         let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&b);
@@ -83,18 +87,32 @@ impl PipelineLayout {
         let set_layout = unsafe { ctx.device.create_descriptor_set_layout(&info, None) }
             .vk("vkCreateDescriptorSetLayout")?;
         let ranges = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT | vk::ShaderStageFlags::COMPUTE)
+            .stage_flags(
+                vk::ShaderStageFlags::VERTEX
+                    | vk::ShaderStageFlags::FRAGMENT
+                    | vk::ShaderStageFlags::COMPUTE,
+            )
             .offset(0)
             .size(push_size)];
         let layouts = [set_layout];
-        let info = vk::PipelineLayoutCreateInfo::default().set_layouts(&layouts).push_constant_ranges(&ranges);
+        let info = vk::PipelineLayoutCreateInfo::default()
+            .set_layouts(&layouts)
+            .push_constant_ranges(&ranges);
         // SAFETY: valid device and create info.
         match unsafe { ctx.device.create_pipeline_layout(&info, None) } {
-            Ok(handle) => Ok(PipelineLayout { ctx: ctx.clone(), handle, set_layout, push_size }),
+            Ok(handle) => Ok(PipelineLayout {
+                ctx: ctx.clone(),
+                handle,
+                set_layout,
+                push_size,
+            }),
             Err(e) => {
                 // SAFETY: created above, unused.
                 unsafe { ctx.device.destroy_descriptor_set_layout(set_layout, None) };
-                Err(crate::Error::Vulkan { call: "vkCreatePipelineLayout", result: e })
+                Err(crate::Error::Vulkan {
+                    call: "vkCreatePipelineLayout",
+                    result: e,
+                })
             }
         }
     }
@@ -105,7 +123,9 @@ impl Drop for PipelineLayout {
         // SAFETY: pipelines using this layout are gone before it (owners drop them first).
         unsafe {
             self.ctx.device.destroy_pipeline_layout(self.handle, None);
-            self.ctx.device.destroy_descriptor_set_layout(self.set_layout, None);
+            self.ctx
+                .device
+                .destroy_descriptor_set_layout(self.set_layout, None);
         }
     }
 }
@@ -121,7 +141,11 @@ pub struct Pipeline {
 
 impl Pipeline {
     /// Builds a graphics pipeline for dynamic rendering with dynamic viewport and scissor.
-    pub fn graphics(ctx: &Arc<GpuContext>, layout: &PipelineLayout, desc: &PipelineDesc) -> Result<Pipeline> {
+    pub fn graphics(
+        ctx: &Arc<GpuContext>,
+        layout: &PipelineLayout,
+        desc: &PipelineDesc,
+    ) -> Result<Pipeline> {
         let vert = shaders::module(ctx, desc.name, desc.vert)?;
         let frag = match desc.frag {
             Some(f) => match shaders::module(ctx, desc.name, f) {
@@ -172,7 +196,11 @@ impl Pipeline {
             .attributes
             .iter()
             .map(|&(location, format, offset)| {
-                vk::VertexInputAttributeDescription::default().binding(0).location(location).format(format).offset(offset)
+                vk::VertexInputAttributeDescription::default()
+                    .binding(0)
+                    .location(location)
+                    .format(format)
+                    .offset(offset)
             })
             .collect();
         let vertex_input = if desc.attributes.is_empty() {
@@ -182,9 +210,11 @@ impl Pipeline {
                 .vertex_binding_descriptions(&bindings)
                 .vertex_attribute_descriptions(&attributes)
         };
-        let input_assembly =
-            vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
-        let viewport = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
+        let input_assembly = vk::PipelineInputAssemblyStateCreateInfo::default()
+            .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+        let viewport = vk::PipelineViewportStateCreateInfo::default()
+            .viewport_count(1)
+            .scissor_count(1);
         let raster = vk::PipelineRasterizationStateCreateInfo::default()
             .polygon_mode(vk::PolygonMode::FILL)
             .cull_mode(desc.cull)
@@ -193,20 +223,25 @@ impl Pipeline {
             .depth_bias_enable(desc.depth_bias != (0.0, 0.0))
             .depth_bias_constant_factor(desc.depth_bias.0)
             .depth_bias_slope_factor(desc.depth_bias.1);
-        let multisample =
-            vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
+        let multisample = vk::PipelineMultisampleStateCreateInfo::default()
+            .rasterization_samples(vk::SampleCountFlags::TYPE_1);
         let has_depth = desc.depth_format != vk::Format::UNDEFINED;
         let depth = vk::PipelineDepthStencilStateCreateInfo::default()
             .depth_test_enable(has_depth)
             .depth_write_enable(has_depth && desc.depth_write)
             .depth_compare_op(desc.depth_compare);
-        let mask = if desc.color_write { vk::ColorComponentFlags::RGBA } else { vk::ColorComponentFlags::empty() };
+        let mask = if desc.color_write {
+            vk::ColorComponentFlags::RGBA
+        } else {
+            vk::ColorComponentFlags::empty()
+        };
         let blend_attachments: Vec<_> = desc
             .color_formats
             .iter()
             .map(|_| vk::PipelineColorBlendAttachmentState::default().color_write_mask(mask))
             .collect();
-        let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_attachments);
+        let blend =
+            vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_attachments);
         let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
         let dynamic = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
         let mut rendering = vk::PipelineRenderingCreateInfo::default()
@@ -225,9 +260,19 @@ impl Pipeline {
             .layout(layout.handle)
             .push_next(&mut rendering);
         // SAFETY: all referenced state outlives the call; modules are valid.
-        let handle = unsafe { ctx.device.create_graphics_pipelines(vk::PipelineCache::null(), &[info], None) }
-            .map_err(|(_, e)| crate::Error::Vulkan { call: "vkCreateGraphicsPipelines", result: e })?[0];
-        Ok(Pipeline { ctx: ctx.clone(), handle, kind: desc.kind })
+        let handle = unsafe {
+            ctx.device
+                .create_graphics_pipelines(vk::PipelineCache::null(), &[info], None)
+        }
+        .map_err(|(_, e)| crate::Error::Vulkan {
+            call: "vkCreateGraphicsPipelines",
+            result: e,
+        })?[0];
+        Ok(Pipeline {
+            ctx: ctx.clone(),
+            handle,
+            kind: desc.kind,
+        })
     }
 }
 

@@ -20,15 +20,24 @@ pub struct QueryPools {
 impl QueryPools {
     /// Pools of `ty` holding `chunk` queries each; one pool is created now.
     pub fn new(ctx: &Arc<GpuContext>, ty: vk::QueryType, chunk: u32) -> Result<QueryPools> {
-        let mut q = QueryPools { ctx: ctx.clone(), ty, chunk: chunk.max(1), pools: Vec::new(), used: 0 };
+        let mut q = QueryPools {
+            ctx: ctx.clone(),
+            ty,
+            chunk: chunk.max(1),
+            pools: Vec::new(),
+            used: 0,
+        };
         q.grow()?;
         Ok(q)
     }
 
     fn grow(&mut self) -> Result<()> {
-        let info = vk::QueryPoolCreateInfo::default().query_type(self.ty).query_count(self.chunk);
+        let info = vk::QueryPoolCreateInfo::default()
+            .query_type(self.ty)
+            .query_count(self.chunk);
         // SAFETY: valid device and create info.
-        let pool = unsafe { self.ctx.device.create_query_pool(&info, None) }.vk("vkCreateQueryPool")?;
+        let pool =
+            unsafe { self.ctx.device.create_query_pool(&info, None) }.vk("vkCreateQueryPool")?;
         // SAFETY: hostQueryReset is enabled; the pool is new and unused.
         unsafe { self.ctx.device.reset_query_pool(pool, 0, self.chunk) };
         self.pools.push(pool);
@@ -88,7 +97,11 @@ impl QueryPools {
             )
         };
         match r {
-            Ok(()) => Ok(if data[0][1] != 0 { Some(data[0][0]) } else { None }),
+            Ok(()) => Ok(if data[0][1] != 0 {
+                Some(data[0][0])
+            } else {
+                None
+            }),
             Err(vk::Result::NOT_READY) => Ok(None),
             Err(e) => Err(e).vk("vkGetQueryPoolResults"),
         }

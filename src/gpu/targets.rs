@@ -31,7 +31,9 @@ impl Target {
     /// Creates a target of `width`x`height` (both 1..=16384).
     pub fn new(ctx: &Arc<GpuContext>, width: u32, height: u32) -> Result<Target> {
         if width == 0 || height == 0 || width > 16384 || height > 16384 {
-            return Err(Error::Input(format!("image size {width}x{height} is out of range (1..16384)")));
+            return Err(Error::Input(format!(
+                "image size {width}x{height} is out of range (1..16384)"
+            )));
         }
         let extent = vk::Extent2D { width, height };
         let color = Image::new(
@@ -50,7 +52,11 @@ impl Target {
             1,
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::SAMPLED,
         )?;
-        Ok(Target { color, depth, extent })
+        Ok(Target {
+            color,
+            depth,
+            extent,
+        })
     }
 }
 
@@ -66,15 +72,28 @@ pub fn read_image(
     access: vk::AccessFlags2,
 ) -> Result<Vec<u8>> {
     let size = image.extent.width as u64 * image.extent.height as u64 * 4;
-    let buffer = Buffer::new(ctx, "readback", size, vk::BufferUsageFlags::TRANSFER_DST, MemoryLocation::GpuToCpu)?;
-    let range = vk::ImageSubresourceRange { layer_count: 1, ..image.full_range() };
+    let buffer = Buffer::new(
+        ctx,
+        "readback",
+        size,
+        vk::BufferUsageFlags::TRANSFER_DST,
+        MemoryLocation::GpuToCpu,
+    )?;
+    let range = vk::ImageSubresourceRange {
+        layer_count: 1,
+        ..image.full_range()
+    };
     oneshot.run(recorder, |rec| {
         rec.barrier(
             &[image_barrier(
                 image.handle,
                 range,
                 (layout, stage, access),
-                (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::PipelineStageFlags2::COPY, vk::AccessFlags2::TRANSFER_READ),
+                (
+                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                    vk::PipelineStageFlags2::COPY,
+                    vk::AccessFlags2::TRANSFER_READ,
+                ),
             )],
             &[],
         );
@@ -85,7 +104,11 @@ pub fn read_image(
                 base_array_layer: 0,
                 layer_count: 1,
             })
-            .image_extent(vk::Extent3D { width: image.extent.width, height: image.extent.height, depth: 1 });
+            .image_extent(vk::Extent3D {
+                width: image.extent.width,
+                height: image.extent.height,
+                depth: 1,
+            });
         rec.copy_image_to_buffer(image.handle, buffer.handle, region);
         rec.barrier(
             &[],
@@ -98,6 +121,8 @@ pub fn read_image(
                 .dst_access_mask(vk::AccessFlags2::HOST_READ)],
         );
     })?;
-    let bytes = buffer.mapped().ok_or_else(|| Error::Alloc("readback buffer is not mapped".into()))?;
+    let bytes = buffer
+        .mapped()
+        .ok_or_else(|| Error::Alloc("readback buffer is not mapped".into()))?;
     Ok(bytes[..size as usize].to_vec())
 }

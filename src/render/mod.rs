@@ -94,7 +94,10 @@ impl Renderer {
         let target = Target::new(ctx, width, height)?;
         let uploaded = upload::upload_scene(ctx, scene)?;
         let layout = PipelineLayout::new(ctx, &[vk::DescriptorType::STORAGE_BUFFER], PUSH_SIZE)?;
-        let scene_attrs = [(0, vk::Format::R32G32B32_SFLOAT, 0), (1, vk::Format::R32G32B32_SFLOAT, 12)];
+        let scene_attrs = [
+            (0, vk::Format::R32G32B32_SFLOAT, 0),
+            (1, vk::Format::R32G32B32_SFLOAT, 12),
+        ];
         let render_pipeline = Pipeline::graphics(
             ctx,
             &layout,
@@ -165,13 +168,20 @@ impl Renderer {
             vk::BufferUsageFlags::VERTEX_BUFFER,
             MemoryLocation::CpuToGpu,
         )?;
-        let pool_sizes = [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: 1 }];
-        let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes);
+        let pool_sizes = [vk::DescriptorPoolSize {
+            ty: vk::DescriptorType::STORAGE_BUFFER,
+            descriptor_count: 1,
+        }];
+        let pool_info = vk::DescriptorPoolCreateInfo::default()
+            .max_sets(1)
+            .pool_sizes(&pool_sizes);
         // SAFETY: valid device and create info.
-        let descriptor_pool =
-            unsafe { ctx.device.create_descriptor_pool(&pool_info, None) }.vk("vkCreateDescriptorPool")?;
+        let descriptor_pool = unsafe { ctx.device.create_descriptor_pool(&pool_info, None) }
+            .vk("vkCreateDescriptorPool")?;
         let layouts = [layout.set_layout];
-        let alloc = vk::DescriptorSetAllocateInfo::default().descriptor_pool(descriptor_pool).set_layouts(&layouts);
+        let alloc = vk::DescriptorSetAllocateInfo::default()
+            .descriptor_pool(descriptor_pool)
+            .set_layouts(&layouts);
         // SAFETY: pool has room for one set.
         let sets = unsafe { ctx.device.allocate_descriptor_sets(&alloc) };
         let descriptor_set = match sets {
@@ -179,7 +189,10 @@ impl Renderer {
             Err(e) => {
                 // SAFETY: created above, unused.
                 unsafe { ctx.device.destroy_descriptor_pool(descriptor_pool, None) };
-                return Err(Error::Vulkan { call: "vkAllocateDescriptorSets", result: e });
+                return Err(Error::Vulkan {
+                    call: "vkAllocateDescriptorSets",
+                    result: e,
+                });
             }
         };
         let buffer_info = [vk::DescriptorBufferInfo {
@@ -201,11 +214,16 @@ impl Renderer {
             Err(e) => {
                 // SAFETY: created above, unused.
                 unsafe { ctx.device.destroy_descriptor_pool(descriptor_pool, None) };
-                return Err(Error::Vulkan { call: "vkCreateCommandPool", result: e });
+                return Err(Error::Vulkan {
+                    call: "vkCreateCommandPool",
+                    result: e,
+                });
             }
         };
         let mut sun = [0u8; 16];
-        sun[..12].copy_from_slice(&upload::as_bytes(&scene.sun_dir.normalize_or(glam::Vec3::Y).to_array()));
+        sun[..12].copy_from_slice(&upload::as_bytes(
+            &scene.sun_dir.normalize_or(glam::Vec3::Y).to_array(),
+        ));
         let mut push = [0u8; PUSH_SIZE as usize];
         push[64..80].copy_from_slice(&sun);
         let renderer = Renderer {
@@ -289,10 +307,19 @@ impl Renderer {
         camera: &Camera,
         frame: u64,
     ) -> Result<FrameResult> {
-        let exact = if culler.needs_exact_visibility() { Some(self.exact_visible(bvh, camera)?) } else { None };
+        let exact = if culler.needs_exact_visibility() {
+            Some(self.exact_visible(bvh, camera)?)
+        } else {
+            None
+        };
         self.begin_frame(camera)?;
         let start = Instant::now();
-        let input = FrameInput { bvh, camera, frame, exact_visible: exact.as_deref() };
+        let input = FrameInput {
+            bvh,
+            camera,
+            frame,
+            exact_visible: exact.as_deref(),
+        };
         let cull = culler.cull_frame(&input, self);
         let finished = self.finish();
         let frame_time = start.elapsed();
@@ -343,7 +370,10 @@ impl Renderer {
                 .device
                 .reset_command_pool(self.command_pool, vk::CommandPoolResetFlags::empty())
                 .vk("vkResetCommandPool")?;
-            let fences: Vec<_> = self.segments[..self.segments_used].iter().map(|s| s.fence).collect();
+            let fences: Vec<_> = self.segments[..self.segments_used]
+                .iter()
+                .map(|s| s.fence)
+                .collect();
             if !fences.is_empty() {
                 self.ctx.device.reset_fences(&fences).vk("vkResetFences")?;
             }
@@ -374,9 +404,11 @@ impl Renderer {
                 .level(vk::CommandBufferLevel::PRIMARY)
                 .command_buffer_count(1);
             // SAFETY: valid pool; the buffer is owned by it.
-            let cmd = unsafe { d.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
+            let cmd =
+                unsafe { d.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
             // SAFETY: valid device.
-            let fence = unsafe { d.create_fence(&vk::FenceCreateInfo::default(), None) }.vk("vkCreateFence")?;
+            let fence = unsafe { d.create_fence(&vk::FenceCreateInfo::default(), None) }
+                .vk("vkCreateFence")?;
             self.segments.push(Segment { cmd, fence });
         }
         let first = self.segments_used == 0;
@@ -386,7 +418,8 @@ impl Renderer {
         unsafe {
             d.begin_command_buffer(
                 cmd,
-                &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+                &vk::CommandBufferBeginInfo::default()
+                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
             )
             .vk("vkBeginCommandBuffer")?;
         }
@@ -402,14 +435,24 @@ impl Renderer {
             vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT,
             vk::AccessFlags2::COLOR_ATTACHMENT_WRITE | vk::AccessFlags2::COLOR_ATTACHMENT_READ,
         );
-        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
+        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
+            | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
         let depth_state = (
             vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
             depth_stages,
-            vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
+            vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE
+                | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
         );
-        let undefined = (vk::ImageLayout::UNDEFINED, vk::PipelineStageFlags2::NONE, vk::AccessFlags2::NONE);
-        let (cfrom, dfrom) = if first { (undefined, undefined) } else { (color_state, depth_state) };
+        let undefined = (
+            vk::ImageLayout::UNDEFINED,
+            vk::PipelineStageFlags2::NONE,
+            vk::AccessFlags2::NONE,
+        );
+        let (cfrom, dfrom) = if first {
+            (undefined, undefined)
+        } else {
+            (color_state, depth_state)
+        };
         self.recorder.barrier(
             &[
                 image_barrier(color.handle, color.full_range(), cfrom, color_state),
@@ -417,30 +460,52 @@ impl Renderer {
             ],
             &[],
         );
-        let load = if first { vk::AttachmentLoadOp::CLEAR } else { vk::AttachmentLoadOp::LOAD };
+        let load = if first {
+            vk::AttachmentLoadOp::CLEAR
+        } else {
+            vk::AttachmentLoadOp::LOAD
+        };
         let color_att = [vk::RenderingAttachmentInfo::default()
             .image_view(color.view)
             .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
             .load_op(load)
             .store_op(vk::AttachmentStoreOp::STORE)
-            .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [0.62, 0.74, 0.86, 1.0] } })];
+            .clear_value(vk::ClearValue {
+                color: vk::ClearColorValue {
+                    float32: [0.62, 0.74, 0.86, 1.0],
+                },
+            })];
         let depth_att = vk::RenderingAttachmentInfo::default()
             .image_view(depth.view)
             .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
             .load_op(load)
             .store_op(vk::AttachmentStoreOp::STORE)
-            .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+            .clear_value(vk::ClearValue {
+                depth_stencil: vk::ClearDepthStencilValue {
+                    depth: 1.0,
+                    stencil: 0,
+                },
+            });
         let info = vk::RenderingInfo::default()
-            .render_area(vk::Rect2D { offset: vk::Offset2D::default(), extent: self.target.extent })
+            .render_area(vk::Rect2D {
+                offset: vk::Offset2D::default(),
+                extent: self.target.extent,
+            })
             .layer_count(1)
             .color_attachments(&color_att)
             .depth_attachment(&depth_att);
         self.recorder.begin_rendering(&info);
         self.recorder.set_viewport(self.target.extent);
-        self.recorder.bind_descriptor_set(vk::PipelineBindPoint::GRAPHICS, self.layout.handle, self.descriptor_set);
+        self.recorder.bind_descriptor_set(
+            vk::PipelineBindPoint::GRAPHICS,
+            self.layout.handle,
+            self.descriptor_set,
+        );
         self.recorder.push_constants(
             self.layout.handle,
-            vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT | vk::ShaderStageFlags::COMPUTE,
+            vk::ShaderStageFlags::VERTEX
+                | vk::ShaderStageFlags::FRAGMENT
+                | vk::ShaderStageFlags::COMPUTE,
             &self.push,
         );
         self.recording = true;
@@ -460,8 +525,14 @@ impl Renderer {
         let submit = vk::SubmitInfo::default().command_buffers(&cmds);
         // SAFETY: recorded completely above; the fence is unsignaled (reset at frame start).
         unsafe {
-            self.ctx.device.end_command_buffer(seg.cmd).vk("vkEndCommandBuffer")?;
-            self.ctx.device.queue_submit(self.ctx.queue, &[submit], seg.fence).vk("vkQueueSubmit")?;
+            self.ctx
+                .device
+                .end_command_buffer(seg.cmd)
+                .vk("vkEndCommandBuffer")?;
+            self.ctx
+                .device
+                .queue_submit(self.ctx.queue, &[submit], seg.fence)
+                .vk("vkQueueSubmit")?;
         }
         self.recorder.note_submit();
         self.recording = false;
@@ -482,7 +553,11 @@ impl Renderer {
     }
 
     fn use_pipeline(&mut self, kind: PipelineKind) {
-        let p = if kind == PipelineKind::Query { &self.query_pipeline } else { &self.render_pipeline };
+        let p = if kind == PipelineKind::Query {
+            &self.query_pipeline
+        } else {
+            &self.render_pipeline
+        };
         self.recorder.bind_pipeline(p);
     }
 
@@ -510,14 +585,24 @@ impl Renderer {
         });
         let mut push = self.push;
         push[..64].copy_from_slice(&upload::as_bytes(&camera.view_proj().to_cols_array()));
-        let Some(ids) = self.id_image.as_ref() else { return Ok(Vec::new()) };
+        let Some(ids) = self.id_image.as_ref() else {
+            return Ok(Vec::new());
+        };
         let depth = &self.target.depth;
         let extent = self.target.extent;
         let (layout, set) = (self.layout.handle, self.descriptor_set);
-        let (pipeline, vb, ib) = (&self.id_pipeline, self.vertex_buffer.handle, self.index_buffer.handle);
+        let (pipeline, vb, ib) = (
+            &self.id_pipeline,
+            self.vertex_buffer.handle,
+            self.index_buffer.handle,
+        );
         let objects = &self.objects;
         self.oneshot.run(&mut self.recorder, |rec| {
-            let undefined = (vk::ImageLayout::UNDEFINED, vk::PipelineStageFlags2::NONE, vk::AccessFlags2::NONE);
+            let undefined = (
+                vk::ImageLayout::UNDEFINED,
+                vk::PipelineStageFlags2::NONE,
+                vk::AccessFlags2::NONE,
+            );
             rec.barrier(
                 &[
                     image_barrier(
@@ -536,8 +621,10 @@ impl Renderer {
                         undefined,
                         (
                             vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
-                            vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS,
-                            vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
+                            vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
+                                | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS,
+                            vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE
+                                | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
                         ),
                     ),
                 ],
@@ -548,15 +635,25 @@ impl Renderer {
                 .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
                 .load_op(vk::AttachmentLoadOp::CLEAR)
                 .store_op(vk::AttachmentStoreOp::STORE)
-                .clear_value(vk::ClearValue { color: vk::ClearColorValue { uint32: [0; 4] } })];
+                .clear_value(vk::ClearValue {
+                    color: vk::ClearColorValue { uint32: [0; 4] },
+                })];
             let depth_att = vk::RenderingAttachmentInfo::default()
                 .image_view(depth.view)
                 .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
                 .load_op(vk::AttachmentLoadOp::CLEAR)
                 .store_op(vk::AttachmentStoreOp::DONT_CARE)
-                .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+                .clear_value(vk::ClearValue {
+                    depth_stencil: vk::ClearDepthStencilValue {
+                        depth: 1.0,
+                        stencil: 0,
+                    },
+                });
             let info = vk::RenderingInfo::default()
-                .render_area(vk::Rect2D { offset: vk::Offset2D::default(), extent })
+                .render_area(vk::Rect2D {
+                    offset: vk::Offset2D::default(),
+                    extent,
+                })
                 .layer_count(1)
                 .color_attachments(&color_att)
                 .depth_attachment(&depth_att);
@@ -566,7 +663,9 @@ impl Renderer {
             rec.bind_descriptor_set(vk::PipelineBindPoint::GRAPHICS, layout, set);
             rec.push_constants(
                 layout,
-                vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT | vk::ShaderStageFlags::COMPUTE,
+                vk::ShaderStageFlags::VERTEX
+                    | vk::ShaderStageFlags::FRAGMENT
+                    | vk::ShaderStageFlags::COMPUTE,
                 &push,
             );
             rec.bind_buffers(vb, 0, Some(ib));
@@ -595,7 +694,10 @@ impl Renderer {
             }
         }
         // Keep front-to-back order for the draw.
-        Ok(candidates.into_iter().filter(|&o| seen[o as usize]).collect())
+        Ok(candidates
+            .into_iter()
+            .filter(|&o| seen[o as usize])
+            .collect())
     }
 }
 
@@ -607,15 +709,23 @@ impl OcclusionBackend for Renderer {
         self.ensure_recording()?;
         self.use_pipeline(PipelineKind::Render);
         if self.bound != Some(Bound::Scene) {
-            self.recorder.bind_buffers(self.vertex_buffer.handle, 0, Some(self.index_buffer.handle));
+            self.recorder.bind_buffers(
+                self.vertex_buffer.handle,
+                0,
+                Some(self.index_buffer.handle),
+            );
             self.bound = Some(Bound::Scene);
         }
         for &o in objects {
             let d = *self.objects.get(o as usize).ok_or_else(|| {
-                Error::Input(format!("object {o} does not exist (scene has {})", self.objects.len()))
+                Error::Input(format!(
+                    "object {o} does not exist (scene has {})",
+                    self.objects.len()
+                ))
             })?;
             if d.index_count > 0 {
-                self.recorder.draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
+                self.recorder
+                    .draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
             }
         }
         Ok(())
@@ -649,10 +759,12 @@ impl OcclusionBackend for Renderer {
             let chunk = &mut self.box_chunks[self.box_chunk];
             chunk.write(self.box_used as usize * 96, &upload::as_bytes(&corners))?;
             if self.bound != Some(Bound::Boxes(self.box_chunk)) {
-                self.recorder.bind_buffers(chunk.handle, 0, Some(self.box_index_buffer.handle));
+                self.recorder
+                    .bind_buffers(chunk.handle, 0, Some(self.box_index_buffer.handle));
                 self.bound = Some(Bound::Boxes(self.box_chunk));
             }
-            self.recorder.draw_indexed(36 * n, 1, 0, (self.box_used * 8) as i32, 0);
+            self.recorder
+                .draw_indexed(36 * n, 1, 0, (self.box_used * 8) as i32, 0);
             self.box_used += n;
             rest = &rest[n as usize..];
         }
@@ -675,7 +787,8 @@ impl OcclusionBackend for Renderer {
         let seg = *self
             .query_segment
             .get(query as usize)
-            .ok_or_else(|| Error::Input(format!("query {query} was not issued this frame")))? as usize;
+            .ok_or_else(|| Error::Input(format!("query {query} was not issued this frame")))?
+            as usize;
         if self.recording && seg == self.segments_used - 1 {
             return Ok(None);
         }
@@ -700,7 +813,8 @@ impl OcclusionBackend for Renderer {
         let start = Instant::now();
         let fence = self.segments[seg].fence;
         // SAFETY: the segment holding the query was submitted with this fence.
-        unsafe { self.ctx.device.wait_for_fences(&[fence], true, u64::MAX) }.vk("vkWaitForFences")?;
+        unsafe { self.ctx.device.wait_for_fences(&[fence], true, u64::MAX) }
+            .vk("vkWaitForFences")?;
         let value = loop {
             if let Some(v) = self.query_result(query)? {
                 break v;
@@ -717,9 +831,13 @@ impl OcclusionBackend for Renderer {
             self.ensure_recording()?;
         }
         self.submit_segment()?;
-        let fences: Vec<_> = self.segments[..self.segments_used].iter().map(|s| s.fence).collect();
+        let fences: Vec<_> = self.segments[..self.segments_used]
+            .iter()
+            .map(|s| s.fence)
+            .collect();
         // SAFETY: every used segment was submitted with its fence.
-        unsafe { self.ctx.device.wait_for_fences(&fences, true, u64::MAX) }.vk("vkWaitForFences")?;
+        unsafe { self.ctx.device.wait_for_fences(&fences, true, u64::MAX) }
+            .vk("vkWaitForFences")?;
         Ok(())
     }
 }
@@ -732,8 +850,12 @@ impl Drop for Renderer {
             for s in &self.segments {
                 self.ctx.device.destroy_fence(s.fence, None);
             }
-            self.ctx.device.destroy_command_pool(self.command_pool, None);
-            self.ctx.device.destroy_descriptor_pool(self.descriptor_pool, None);
+            self.ctx
+                .device
+                .destroy_command_pool(self.command_pool, None);
+            self.ctx
+                .device
+                .destroy_descriptor_pool(self.descriptor_pool, None);
         }
     }
 }
@@ -743,5 +865,6 @@ impl Drop for Renderer {
 pub fn save_rgba_png(path: &std::path::Path, w: u32, h: u32, pixels: Vec<u8>) -> Result<()> {
     let img = image::RgbaImage::from_raw(w, h, pixels)
         .ok_or_else(|| Error::Input("pixel buffer does not match the image size".into()))?;
-    img.save(path).map_err(|e| Error::Input(format!("{}: cannot write PNG: {e}", path.display())))
+    img.save(path)
+        .map_err(|e| Error::Input(format!("{}: cannot write PNG: {e}", path.display())))
 }

@@ -31,13 +31,24 @@ impl Pod for crate::scene::Vertex {}
 /// The bytes of a slice of plain data.
 pub fn as_bytes<T: Pod>(data: &[T]) -> Vec<u8> {
     // SAFETY: T is Pod (repr(C) floats/ints without padding), so every byte is initialized.
-    unsafe { std::slice::from_raw_parts(data.as_ptr() as *const u8, std::mem::size_of_val(data)) }.to_vec()
+    unsafe { std::slice::from_raw_parts(data.as_ptr() as *const u8, std::mem::size_of_val(data)) }
+        .to_vec()
 }
 
 /// Uploads vertices, indices and per-object data.
 pub fn upload_scene(ctx: &Arc<GpuContext>, scene: &Scene) -> Result<UploadedScene> {
-    let vertices = Buffer::with_data(ctx, "scene vertices", &as_bytes(&scene.vertices), vk::BufferUsageFlags::VERTEX_BUFFER)?;
-    let indices = Buffer::with_data(ctx, "scene indices", &as_bytes(&scene.indices), vk::BufferUsageFlags::INDEX_BUFFER)?;
+    let vertices = Buffer::with_data(
+        ctx,
+        "scene vertices",
+        &as_bytes(&scene.vertices),
+        vk::BufferUsageFlags::VERTEX_BUFFER,
+    )?;
+    let indices = Buffer::with_data(
+        ctx,
+        "scene indices",
+        &as_bytes(&scene.indices),
+        vk::BufferUsageFlags::INDEX_BUFFER,
+    )?;
     let mut data: Vec<f32> = Vec::with_capacity(scene.objects.len() * 36);
     for o in &scene.objects {
         data.extend_from_slice(&o.transform.to_cols_array());
@@ -47,8 +58,17 @@ pub fn upload_scene(ctx: &Arc<GpuContext>, scene: &Scene) -> Result<UploadedScen
     if data.is_empty() {
         data.resize(36, 0.0);
     }
-    let objects = Buffer::with_data(ctx, "scene objects", &as_bytes(&data), vk::BufferUsageFlags::STORAGE_BUFFER)?;
-    Ok(UploadedScene { vertices, indices, objects })
+    let objects = Buffer::with_data(
+        ctx,
+        "scene objects",
+        &as_bytes(&data),
+        vk::BufferUsageFlags::STORAGE_BUFFER,
+    )?;
+    Ok(UploadedScene {
+        vertices,
+        indices,
+        objects,
+    })
 }
 
 /// Indices for `n` boxes of 8 corners each (corner c = x | y << 1 | z << 2), 12 triangles each.
@@ -61,7 +81,9 @@ pub fn box_indices(n: u32) -> Vec<u32> {
         0, 4, 2, 2, 4, 6, // -x
         1, 3, 5, 3, 7, 5, // +x
     ];
-    (0..n).flat_map(|b| FACES.iter().map(move |i| i + 8 * b)).collect()
+    (0..n)
+        .flat_map(|b| FACES.iter().map(move |i| i + 8 * b))
+        .collect()
 }
 
 /// World-space corners of boxes, 8 per box.

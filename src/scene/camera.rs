@@ -27,12 +27,23 @@ pub struct Camera {
 impl Camera {
     /// A camera at `pose` with a 60° field of view.
     pub fn from_pose(pose: CameraPose, aspect: f32, far: f32) -> Camera {
-        Camera { eye: pose.eye, target: pose.target, fov_y: 60f32.to_radians(), aspect, near: 0.1, far }
+        Camera {
+            eye: pose.eye,
+            target: pose.target,
+            fov_y: 60f32.to_radians(),
+            aspect,
+            near: 0.1,
+            far,
+        }
     }
     /// World to view.
     pub fn view(&self) -> Mat4 {
         let dir = (self.target - self.eye).normalize_or(Vec3::NEG_Z);
-        let up = if dir.cross(Vec3::Y).length_squared() < 1e-6 { Vec3::Z } else { Vec3::Y };
+        let up = if dir.cross(Vec3::Y).length_squared() < 1e-6 {
+            Vec3::Z
+        } else {
+            Vec3::Y
+        };
         look_to_rh(self.eye, dir, up)
     }
     /// View to clip (depth 0..1).
@@ -71,7 +82,9 @@ impl Frustum {
         let r2 = m.row(2);
         let r3 = m.row(3);
         let planes = [r3 + r0, r3 - r0, r3 + r1, r3 - r1, r2, r3 - r2];
-        Frustum { planes: planes.map(|p| p / p.truncate().length().max(1e-20)) }
+        Frustum {
+            planes: planes.map(|p| p / p.truncate().length().max(1e-20)),
+        }
     }
     /// Conservative box test: false only if the box is entirely outside one plane.
     pub fn intersects(&self, b: &Aabb) -> bool {
@@ -92,7 +105,10 @@ impl CameraPath {
     pub fn pose_at(&self, frame: f32) -> CameraPose {
         let n = self.keys.len();
         if n == 0 {
-            return CameraPose { eye: Vec3::new(0.0, 1.0, 5.0), target: Vec3::ZERO };
+            return CameraPose {
+                eye: Vec3::new(0.0, 1.0, 5.0),
+                target: Vec3::ZERO,
+            };
         }
         if n == 1 {
             return self.keys[0];
@@ -101,7 +117,12 @@ impl CameraPath {
         let i = (t.floor() as usize).min(n - 2);
         let f = t - i as f32;
         let get = |k: isize| self.keys[k.clamp(0, n as isize - 1) as usize];
-        let (p0, p1, p2, p3) = (get(i as isize - 1), get(i as isize), get(i as isize + 1), get(i as isize + 2));
+        let (p0, p1, p2, p3) = (
+            get(i as isize - 1),
+            get(i as isize),
+            get(i as isize + 1),
+            get(i as isize + 2),
+        );
         CameraPose {
             eye: catmull_rom(p0.eye, p1.eye, p2.eye, p3.eye, f),
             target: catmull_rom(p0.target, p1.target, p2.target, p3.target, f),
@@ -110,7 +131,11 @@ impl CameraPath {
     /// The pose of frame `i` of a walk of `count` frames covering the whole path once.
     pub fn sample(&self, i: u32, count: u32) -> CameraPose {
         let len = self.natural_frames() as f32;
-        let f = if count <= 1 { 0.0 } else { i as f32 * len / (count - 1) as f32 };
+        let f = if count <= 1 {
+            0.0
+        } else {
+            i as f32 * len / (count - 1) as f32
+        };
         self.pose_at(f)
     }
 }
@@ -118,7 +143,10 @@ impl CameraPath {
 fn catmull_rom(p0: Vec3, p1: Vec3, p2: Vec3, p3: Vec3, t: f32) -> Vec3 {
     let t2 = t * t;
     let t3 = t2 * t;
-    0.5 * ((2.0 * p1) + (-p0 + p2) * t + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2 + (-p0 + 3.0 * p1 - 3.0 * p2 + p3) * t3)
+    0.5 * ((2.0 * p1)
+        + (-p0 + p2) * t
+        + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2
+        + (-p0 + 3.0 * p1 - 3.0 * p2 + p3) * t3)
 }
 
 /// Right-handed view matrix looking along `dir`.

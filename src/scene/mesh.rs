@@ -21,8 +21,13 @@ impl Mesh {
         let nm = m.inverse().transpose();
         for v in &other.vertices {
             let p = m.transform_point3(Vec3::from(v.position));
-            let n = nm.transform_vector3(Vec3::from(v.normal)).normalize_or(Vec3::Y);
-            self.vertices.push(Vertex { position: p.to_array(), normal: n.to_array() });
+            let n = nm
+                .transform_vector3(Vec3::from(v.normal))
+                .normalize_or(Vec3::Y);
+            self.vertices.push(Vertex {
+                position: p.to_array(),
+                normal: n.to_array(),
+            });
         }
         self.indices.extend(other.indices.iter().map(|i| i + base));
     }
@@ -44,9 +49,13 @@ impl Mesh {
     fn quad(&mut self, corners: [Vec3; 4], n: Vec3) {
         let base = self.vertices.len() as u32;
         for c in corners {
-            self.vertices.push(Vertex { position: c.to_array(), normal: n.to_array() });
+            self.vertices.push(Vertex {
+                position: c.to_array(),
+                normal: n.to_array(),
+            });
         }
-        self.indices.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+        self.indices
+            .extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
     }
 
     /// The unit cube [-0.5, 0.5]³ with outward faces (counter-clockwise seen from outside).
@@ -55,11 +64,26 @@ impl Mesh {
         let h = 0.5;
         for axis in 0..3 {
             for sign in [-1.0f32, 1.0] {
-                let n = Vec3::from_array(std::array::from_fn(|i| if i == axis { sign } else { 0.0 }));
-                let u = Vec3::from_array(std::array::from_fn(|i| if i == (axis + 1) % 3 { 1.0 } else { 0.0 }));
+                let n =
+                    Vec3::from_array(std::array::from_fn(|i| if i == axis { sign } else { 0.0 }));
+                let u = Vec3::from_array(std::array::from_fn(|i| {
+                    if i == (axis + 1) % 3 {
+                        1.0
+                    } else {
+                        0.0
+                    }
+                }));
                 let v = n.cross(u);
                 let c = n * h;
-                m.quad([c - u * h - v * h, c + u * h - v * h, c + u * h + v * h, c - u * h + v * h], n);
+                m.quad(
+                    [
+                        c - u * h - v * h,
+                        c + u * h - v * h,
+                        c + u * h + v * h,
+                        c - u * h + v * h,
+                    ],
+                    n,
+                );
             }
         }
         m
@@ -68,7 +92,10 @@ impl Mesh {
     /// A box from `min` to `max`.
     pub fn cuboid(min: Vec3, max: Vec3) -> Mesh {
         let mut m = Mesh::default();
-        m.append(&Mesh::cube(), Mat4::from_translation((min + max) * 0.5) * Mat4::from_scale(max - min));
+        m.append(
+            &Mesh::cube(),
+            Mat4::from_translation((min + max) * 0.5) * Mat4::from_scale(max - min),
+        );
         m
     }
 
@@ -86,18 +113,28 @@ impl Mesh {
             let base = m.vertices.len() as u32;
             for (p, nn) in [(a, a), (b, b), (b + Vec3::Y, b), (a + Vec3::Y, a)] {
                 let _ = n;
-                m.vertices.push(Vertex { position: p.to_array(), normal: nn.to_array() });
+                m.vertices.push(Vertex {
+                    position: p.to_array(),
+                    normal: nn.to_array(),
+                });
             }
-            m.indices.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+            m.indices
+                .extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
             // caps
             let top = m.vertices.len() as u32;
             for p in [Vec3::Y, a + Vec3::Y, b + Vec3::Y] {
-                m.vertices.push(Vertex { position: p.to_array(), normal: [0.0, 1.0, 0.0] });
+                m.vertices.push(Vertex {
+                    position: p.to_array(),
+                    normal: [0.0, 1.0, 0.0],
+                });
             }
             m.indices.extend_from_slice(&[top, top + 1, top + 2]);
             let bot = m.vertices.len() as u32;
             for p in [Vec3::ZERO, b, a] {
-                m.vertices.push(Vertex { position: p.to_array(), normal: [0.0, -1.0, 0.0] });
+                m.vertices.push(Vertex {
+                    position: p.to_array(),
+                    normal: [0.0, -1.0, 0.0],
+                });
             }
             m.indices.extend_from_slice(&[bot, bot + 1, bot + 2]);
         }
@@ -113,7 +150,10 @@ impl Mesh {
             for i in 0..=lon {
                 let p = i as f32 / lon as f32 * std::f32::consts::TAU;
                 let n = Vec3::new(t.sin() * p.cos(), t.cos(), -t.sin() * p.sin());
-                m.vertices.push(Vertex { position: n.to_array(), normal: n.to_array() });
+                m.vertices.push(Vertex {
+                    position: n.to_array(),
+                    normal: n.to_array(),
+                });
             }
         }
         for j in 0..lat {
@@ -200,7 +240,10 @@ impl SceneBuilder {
     pub fn path(&mut self, name: &str, keys: &[(Vec3, Vec3)]) {
         self.scene.paths.push(CameraPath {
             name: name.to_string(),
-            keys: keys.iter().map(|&(eye, target)| super::CameraPose { eye, target }).collect(),
+            keys: keys
+                .iter()
+                .map(|&(eye, target)| super::CameraPose { eye, target })
+                .collect(),
         });
     }
 

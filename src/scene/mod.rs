@@ -20,7 +20,10 @@ pub struct Aabb {
 
 impl Aabb {
     /// The empty box (min = +inf, max = -inf); growing it with any point makes it valid.
-    pub const EMPTY: Aabb = Aabb { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
+    pub const EMPTY: Aabb = Aabb {
+        min: Vec3::splat(f32::INFINITY),
+        max: Vec3::splat(f32::NEG_INFINITY),
+    };
 
     pub fn new(min: Vec3, max: Vec3) -> Self {
         Aabb { min, max }
@@ -30,7 +33,10 @@ impl Aabb {
         self.max = self.max.max(p);
     }
     pub fn union(&self, o: &Aabb) -> Aabb {
-        Aabb { min: self.min.min(o.min), max: self.max.max(o.max) }
+        Aabb {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
     }
     pub fn is_valid(&self) -> bool {
         self.min.cmple(self.max).all() && self.min.is_finite() && self.max.is_finite()
@@ -54,7 +60,10 @@ impl Aabb {
         d.length_squared()
     }
     pub fn enlarged(&self, by: f32) -> Aabb {
-        Aabb { min: self.min - Vec3::splat(by), max: self.max + Vec3::splat(by) }
+        Aabb {
+            min: self.min - Vec3::splat(by),
+            max: self.max + Vec3::splat(by),
+        }
     }
     /// The box around this box transformed by `m`.
     pub fn transformed(&self, m: &Mat4) -> Aabb {
@@ -134,14 +143,20 @@ impl Scene {
             crate::Error::Input(format!(
                 "scene \"{}\" has no path \"{name}\" (paths: {})",
                 self.name,
-                self.paths.iter().map(|p| p.name.as_str()).collect::<Vec<_>>().join(", ")
+                self.paths
+                    .iter()
+                    .map(|p| p.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ))
         })
     }
 
     /// The first (default) path.
     pub fn default_path(&self) -> crate::Result<&CameraPath> {
-        self.paths.first().ok_or_else(|| crate::Error::Input(format!("scene \"{}\" has no paths", self.name)))
+        self.paths
+            .first()
+            .ok_or_else(|| crate::Error::Input(format!("scene \"{}\" has no paths", self.name)))
     }
 
     /// Loads a built-in scene by name or a .gltf/.glb file by path (large meshes are split into

@@ -56,7 +56,10 @@ pub fn frame(
 
 /// Number of pixels that differ.
 pub fn diff_pixels(a: &[u8], b: &[u8]) -> usize {
-    a.chunks_exact(4).zip(b.chunks_exact(4)).filter(|(x, y)| x != y).count()
+    a.chunks_exact(4)
+        .zip(b.chunks_exact(4))
+        .filter(|(x, y)| x != y)
+        .count()
 }
 
 /// A path's pose at frame `f`.
