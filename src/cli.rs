@@ -9,6 +9,7 @@ use clap::Args;
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{self, ChcppParams};
 use coherent::gpu::{ContextOptions, GpuContext};
+use coherent::render::walk::{self, WalkConfig};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 
@@ -59,6 +60,70 @@ pub struct RenderArgs {
 pub struct WalkArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
+    /// Camera path (default: the scene's first path).
+    #[arg(long)]
+    pub path: Option<String>,
+    /// Recorded frames along the path.
+    #[arg(long, default_value_t = 300)]
+    pub frames: u32,
+    /// Warm-up frames before recording (excluded from the report).
+    #[arg(long, default_value_t = 10)]
+    pub warmup: u32,
+    /// Image size WxH.
+    #[arg(long, default_value = "1280x720")]
+    pub size: String,
+    /// Algorithms to compare, comma separated.
+    #[arg(long, default_value = "vfc,stop-and-wait,chc,chcpp,oracle", value_delimiter = ',')]
+    pub algorithms: Vec<String>,
+    /// Output directory.
+    #[arg(long, default_value = "out/walk")]
+    pub out: PathBuf,
+    /// Scene scales to run, comma separated (adds a scaling table), e.g. 1,4,16.
+    #[arg(long = "scales", value_delimiter = ',')]
+    pub scales: Vec<f32>,
+    /// Turn the validation layer on (off by default: it slows everything down).
+    #[arg(long)]
+    pub validation: bool,
+    #[command(flatten)]
+    pub chcpp: ChcppArgs,
+}
+
+/// CHC++ parameters.
+#[derive(Args, Debug, Clone)]
+pub struct ChcppArgs {
+    /// CHC++ batch size b.
+    #[arg(long, default_value_t = 50)]
+    pub batch_size: usize,
+    /// CHC++ visible interval n_av.
+    #[arg(long, default_value_t = 5)]
+    pub visible_interval: u32,
+    /// Visibility threshold in pixels.
+    #[arg(long, default_value_t = 0)]
+    pub pixel_threshold: u64,
+    /// Turn CHC++ parts off: any of batching, interval, multiqueries, tight (comma separated).
+    #[arg(long, value_delimiter = ',')]
+    pub disable: Vec<String>,
+}
+
+impl ChcppArgs {
+    fn params(&self) -> Result<ChcppParams> {
+        let mut p = ChcppParams {
+            batch_size: self.batch_size.max(1),
+            visible_interval: self.visible_interval.max(1),
+            pixel_threshold: self.pixel_threshold,
+            ..ChcppParams::default()
+        };
+        for d in &self.disable {
+            match d.as_str() {
+                "batching" => p.batching = false,
+                "interval" => p.randomized_interval = false,
+                "multiqueries" => p.multiqueries = false,
+                "tight" => p.tight_bounds = false,
+                other => bail!("unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight)"),
+            }
+        }
+        Ok(p)
+    }
 }
 
 /// Parses "WxH".
@@ -166,6 +231,102 @@ pub fn render(a: &RenderArgs) -> Result<()> {
 }
 
 /// `coherent walk`.
-pub fn walk(_a: &WalkArgs) -> Result<()> {
-    bail!("walk is not implemented yet")
+pub fn walk(a: &WalkArgs) -> Result<()> {
+    let (w, h) = parse_size(&a.size)?;
+    if a.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    let params = a.chcpp.params()?;
+    for alg in &a.algorithms {
+        culling::create(alg, &params)?;
+    }
+    let cfg = WalkConfig { algorithms: a.algorithms.clone(), frames: a.frames, warmup: a.warmup, params };
+    let scales = if a.scales.is_empty() { vec![a.scene.scale] } else { a.scales.clone() };
+    let ctx = context(a.validation)?;
+    let mut summaries = Vec::new();
+    for &scale in &scales {
+        let scene = load_scene(&SceneArgs { scale, ..a.scene.clone() })?;
+        let path = match &a.path {
+            Some(p) => scene.path(p)?.clone(),
+            None => scene.default_path()?.clone(),
+        };
+        let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
+        let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+        let dir = if scales.len() > 1 { a.out.join(format!("scale_{scale}")) } else { a.out.clone() };
+        println!(
+            "walk: {} (scale {scale}: {} objects, {} triangles), path {}, {} frames + {} warm-up, {w}x{h}, {} on {}",
+            scene.name,
+            scene.objects.len(),
+            scene.triangle_count(),
+            path.name,
+            a.frames,
+            a.warmup,
+            a.algorithms.join(", "),
+            ctx.info.name
+        );
+        let records = {
+            let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
+            let bar = progress_bar();
+            let records = walk::run(&mut renderer, &bvh, &path, &cfg, |done, total| bar.tick(done, total))?;
+            bar.finish();
+            records
+        };
+        let summary = walk::write_report(&dir, &scene, &path.name, &ctx.info.name, (w, h), &records, &a.algorithms)?;
+        let reference = a.algorithms.iter().any(|x| x == "oracle").then_some("oracle");
+        println!("{}", summary.table(reference));
+        println!(
+            "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
+            dir.display()
+        );
+        summaries.push((scale, summary));
+    }
+    if summaries.len() > 1 {
+        let rows: Vec<(f32, &coherent::report::WalkSummary)> = summaries.iter().map(|(s, m)| (*s, m)).collect();
+        let table = coherent::report::scaling_table(&rows);
+        println!("{table}");
+        std::fs::create_dir_all(&a.out)?;
+        std::fs::write(a.out.join("scaling.txt"), &table)?;
+    }
+    check_validation(&ctx)
+}
+
+/// A progress bar on a terminal, plain lines otherwise.
+struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+    last: std::cell::Cell<u64>,
+}
+
+fn progress_bar() -> Progress {
+    use std::io::IsTerminal;
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let b = indicatif::ProgressBar::new(1);
+        if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {elapsed} (eta {eta})") {
+            b.set_style(style);
+        }
+        b
+    });
+    Progress { bar, last: std::cell::Cell::new(0) }
+}
+
+impl Progress {
+    fn tick(&self, done: u64, total: u64) {
+        match &self.bar {
+            Some(b) => {
+                b.set_length(total);
+                b.set_position(done);
+            }
+            None => {
+                let pct = done * 10 / total.max(1);
+                if pct > self.last.get() {
+                    self.last.set(pct);
+                    eprintln!("walk: {done}/{total} frames");
+                }
+            }
+        }
+    }
+    fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
 }

@@ -4,6 +4,7 @@
 
 pub mod frame;
 pub mod upload;
+pub mod walk;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
