@@ -73,7 +73,11 @@ pub struct WalkArgs {
     #[arg(long, default_value = "1280x720")]
     pub size: String,
     /// Algorithms to compare, comma separated.
-    #[arg(long, default_value = "vfc,stop-and-wait,chc,chcpp,oracle", value_delimiter = ',')]
+    #[arg(
+        long,
+        default_value = "vfc,stop-and-wait,chc,chcpp,oracle",
+        value_delimiter = ','
+    )]
     pub algorithms: Vec<String>,
     /// Output directory.
     #[arg(long, default_value = "out/walk")]
@@ -119,7 +123,9 @@ impl ChcppArgs {
                 "interval" => p.randomized_interval = false,
                 "multiqueries" => p.multiqueries = false,
                 "tight" => p.tight_bounds = false,
-                other => bail!("unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight)"),
+                other => bail!(
+                    "unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight)"
+                ),
             }
         }
         Ok(p)
@@ -240,19 +246,35 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     for alg in &a.algorithms {
         culling::create(alg, &params)?;
     }
-    let cfg = WalkConfig { algorithms: a.algorithms.clone(), frames: a.frames, warmup: a.warmup, params };
-    let scales = if a.scales.is_empty() { vec![a.scene.scale] } else { a.scales.clone() };
+    let cfg = WalkConfig {
+        algorithms: a.algorithms.clone(),
+        frames: a.frames,
+        warmup: a.warmup,
+        params,
+    };
+    let scales = if a.scales.is_empty() {
+        vec![a.scene.scale]
+    } else {
+        a.scales.clone()
+    };
     let ctx = context(a.validation)?;
     let mut summaries = Vec::new();
     for &scale in &scales {
-        let scene = load_scene(&SceneArgs { scale, ..a.scene.clone() })?;
+        let scene = load_scene(&SceneArgs {
+            scale,
+            ..a.scene.clone()
+        })?;
         let path = match &a.path {
             Some(p) => scene.path(p)?.clone(),
             None => scene.default_path()?.clone(),
         };
         let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
         let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
-        let dir = if scales.len() > 1 { a.out.join(format!("scale_{scale}")) } else { a.out.clone() };
+        let dir = if scales.len() > 1 {
+            a.out.join(format!("scale_{scale}"))
+        } else {
+            a.out.clone()
+        };
         println!(
             "walk: {} (scale {scale}: {} objects, {} triangles), path {}, {} frames + {} warm-up, {w}x{h}, {} on {}",
             scene.name,
@@ -267,12 +289,26 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         let records = {
             let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
             let bar = progress_bar();
-            let records = walk::run(&mut renderer, &bvh, &path, &cfg, |done, total| bar.tick(done, total))?;
+            let records = walk::run(&mut renderer, &bvh, &path, &cfg, |done, total| {
+                bar.tick(done, total)
+            })?;
             bar.finish();
             records
         };
-        let summary = walk::write_report(&dir, &scene, &path.name, &ctx.info.name, (w, h), &records, &a.algorithms)?;
-        let reference = a.algorithms.iter().any(|x| x == "oracle").then_some("oracle");
+        let summary = walk::write_report(
+            &dir,
+            &scene,
+            &path.name,
+            &ctx.info.name,
+            (w, h),
+            &records,
+            &a.algorithms,
+        )?;
+        let reference = a
+            .algorithms
+            .iter()
+            .any(|x| x == "oracle")
+            .then_some("oracle");
         println!("{}", summary.table(reference));
         println!(
             "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
@@ -281,7 +317,8 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         summaries.push((scale, summary));
     }
     if summaries.len() > 1 {
-        let rows: Vec<(f32, &coherent::report::WalkSummary)> = summaries.iter().map(|(s, m)| (*s, m)).collect();
+        let rows: Vec<(f32, &coherent::report::WalkSummary)> =
+            summaries.iter().map(|(s, m)| (*s, m)).collect();
         let table = coherent::report::scaling_table(&rows);
         println!("{table}");
         std::fs::create_dir_all(&a.out)?;
@@ -300,12 +337,17 @@ fn progress_bar() -> Progress {
     use std::io::IsTerminal;
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = indicatif::ProgressBar::new(1);
-        if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {elapsed} (eta {eta})") {
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} frames {elapsed} (eta {eta})",
+        ) {
             b.set_style(style);
         }
         b
     });
-    Progress { bar, last: std::cell::Cell::new(0) }
+    Progress {
+        bar,
+        last: std::cell::Cell::new(0),
+    }
 }
 
 impl Progress {

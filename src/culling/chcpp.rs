@@ -75,7 +75,8 @@ impl ChcppParams {
     }
 
     /// CHC++ with only the named parts on (for measuring each part alone): any of `batching`,
-    /// `interval`, `multiqueries`, `tight`.
+    /// `interval`, `multiqueries`, `tight`. Multiqueries group the i-queue, so `multiqueries`
+    /// turns batching on too.
     pub fn only(parts: &[&str]) -> ChcppParams {
         let mut p = ChcppParams::chc();
         for part in parts {
@@ -88,7 +89,11 @@ impl ChcppParams {
                     p.randomized_interval = true;
                     p.visible_interval = 5;
                 }
-                "multiqueries" => p.multiqueries = true,
+                // Multiqueries group the i-queue, so they need it.
+                "multiqueries" => {
+                    p.multiqueries = true;
+                    p.batching = true;
+                }
                 "tight" => p.tight_bounds = true,
                 _ => {}
             }
@@ -133,6 +138,8 @@ pub struct Chcpp {
     traversal: DistanceQueue,
     query_queue: VecDeque<Pending>,
     i_queue: Vec<u32>,
+    /// Nodes of failed multiqueries, queried one by one in the next i-queue batch.
+    requery: Vec<u32>,
     v_queue: Vec<u32>,
     render_queue: Vec<u32>,
     unsubmitted: usize,
@@ -157,6 +164,7 @@ impl Chcpp {
             traversal: DistanceQueue::default(),
             query_queue: VecDeque::new(),
             i_queue: Vec::new(),
+            requery: Vec::new(),
             v_queue: Vec::new(),
             render_queue: Vec::new(),
             unsubmitted: 0,
@@ -287,11 +295,14 @@ impl Chcpp {
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
-        if self.i_queue.is_empty() {
+        if self.i_queue.is_empty() && self.requery.is_empty() {
             return Ok(());
         }
         self.flush_render_queue(backend)?;
         stats.query_batches += 1;
+        for n in std::mem::take(&mut self.requery) {
+            self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
+        }
         let mut nodes = std::mem::take(&mut self.i_queue);
         if self.params.multiqueries && nodes.len() > 1 {
             // Highest probability of staying invisible first.
@@ -369,15 +380,12 @@ impl Chcpp {
             stats.visible_results += 1;
         }
         if visible && q.nodes.len() > 1 {
-            // A failed multiquery: query each node on its own.
+            // A failed multiquery: each node is queried on its own in the next batch.
             stats.failed_multiqueries += 1;
-            self.flush_render_queue(backend)?;
-            stats.query_batches += 1;
-            for n in q.nodes {
-                self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
+            self.requery.extend_from_slice(&q.nodes);
+            if self.requery.len() + self.i_queue.len() >= self.params.batch_size.max(1) {
+                self.issue_i_queue(bvh, backend, stats)?;
             }
-            backend.flush()?;
-            self.unsubmitted = 0;
             return Ok(());
         }
         let node = q.nodes[0];
@@ -455,6 +463,7 @@ impl Culler for Chcpp {
         self.traversal.clear();
         self.query_queue.clear();
         self.i_queue.clear();
+        self.requery.clear();
         self.v_queue.clear();
         self.render_queue.clear();
         self.unsubmitted = 0;
@@ -513,7 +522,7 @@ impl Culler for Chcpp {
                     self.state[node as usize].last_visited = self.frame;
                     if self.params.batching {
                         self.i_queue.push(node);
-                        if self.i_queue.len() >= batch {
+                        if self.i_queue.len() + self.requery.len() >= batch {
                             self.issue_i_queue(bvh, backend, &mut stats)?;
                         }
                     } else {

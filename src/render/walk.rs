@@ -33,8 +33,11 @@ pub fn run(
     cfg: &WalkConfig,
     mut progress: impl FnMut(u64, u64),
 ) -> Result<Vec<FrameRecord>> {
-    let mut cullers: Vec<Box<dyn Culler>> =
-        cfg.algorithms.iter().map(|a| culling::create(a, &cfg.params)).collect::<Result<_>>()?;
+    let mut cullers: Vec<Box<dyn Culler>> = cfg
+        .algorithms
+        .iter()
+        .map(|a| culling::create(a, &cfg.params))
+        .collect::<Result<_>>()?;
     let total = cfg.warmup + cfg.frames;
     let mut records = Vec::with_capacity((cfg.frames as usize) * cullers.len());
     let steps = total as u64 * cullers.len() as u64;
@@ -86,9 +89,22 @@ pub fn write_report(
     );
     let series: Vec<(String, Vec<(u32, f64)>)> = algorithms
         .iter()
-        .map(|a| (a.clone(), records.iter().filter(|r| &r.algorithm == a).map(|r| (r.frame, r.frame_ms)).collect()))
+        .map(|a| {
+            (
+                a.clone(),
+                records
+                    .iter()
+                    .filter(|r| &r.algorithm == a)
+                    .map(|r| (r.frame, r.frame_ms))
+                    .collect(),
+            )
+        })
         .collect();
-    report::plot_frametime(&dir.join("frametime.png"), &format!("Frame time: {title}"), &series)?;
+    report::plot_frametime(
+        &dir.join("frametime.png"),
+        &format!("Frame time: {title}"),
+        &series,
+    )?;
     let counts: Vec<report::CountSeries> = algorithms
         .iter()
         .map(|a| {
@@ -102,6 +118,10 @@ pub fn write_report(
             )
         })
         .collect();
-    report::plot_counts(&dir.join("counts.png"), &format!("Queries and state changes: {title}"), &counts)?;
+    report::plot_counts(
+        &dir.join("counts.png"),
+        &format!("Queries and state changes: {title}"),
+        &counts,
+    )?;
     Ok(summary)
 }
