@@ -1,0 +1,911 @@
+//! A host engine that owns its Vulkan instance, device, memory, pipelines and command buffers,
+//! written with raw ash, and uses coherent's CHC++ culler only through the `OcclusionBackend`
+//! trait: "draw these objects", "draw these boxes inside a query", "submit", "is it ready".
+//!
+//! Run: `cargo run --release --example embed` (validation on; exits non-zero on any message).
+
+use std::ffi::c_void;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use anyhow::{bail, Context, Result};
+use ash::{ext, vk};
+use coherent::bvh::ObjectBvh;
+use coherent::culling::{ChcppParams, Culler, FrameInput, OcclusionBackend, QueryId};
+use coherent::scene::camera::Camera;
+use coherent::scene::{Aabb, Scene};
+
+const WIDTH: u32 = 320;
+const HEIGHT: u32 = 180;
+const MAX_QUERIES: u32 = 8192;
+const MAX_BOXES: u64 = 65536;
+
+static MESSAGES: AtomicUsize = AtomicUsize::new(0);
+
+unsafe extern "system" fn on_message(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    _: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    _: *mut c_void,
+) -> vk::Bool32 {
+    if severity.intersects(
+        vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+            | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+    ) {
+        MESSAGES.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: the layer passes a valid callback data struct for the duration of the call.
+        if let Some(msg) = unsafe { data.as_ref() }.and_then(|d| unsafe { d.message_as_c_str() }) {
+            eprintln!("validation: {}", msg.to_string_lossy());
+        }
+    }
+    vk::FALSE
+}
+
+/// A buffer or image allocation in host-visible memory (the host keeps things simple).
+struct Memory {
+    memory: vk::DeviceMemory,
+    ptr: *mut u8,
+}
+
+/// The host engine's renderer.
+struct Host {
+    _entry: ash::Entry,
+    instance: ash::Instance,
+    debug: ext::debug_utils::Instance,
+    messenger: vk::DebugUtilsMessengerEXT,
+    device: ash::Device,
+    queue: vk::Queue,
+    memory_types: vk::PhysicalDeviceMemoryProperties,
+    buffers: Vec<(vk::Buffer, Memory)>,
+    images: Vec<(vk::Image, vk::ImageView, vk::DeviceMemory)>,
+    set_layout: vk::DescriptorSetLayout,
+    layout: vk::PipelineLayout,
+    descriptor_pool: vk::DescriptorPool,
+    set: vk::DescriptorSet,
+    render_pipeline: vk::Pipeline,
+    query_pipeline: vk::Pipeline,
+    command_pool: vk::CommandPool,
+    segments: Vec<(vk::CommandBuffer, vk::Fence)>,
+    used: usize,
+    recording: bool,
+    query_pool: vk::QueryPool,
+    queries: u32,
+    query_segment: Vec<usize>,
+    objects: Vec<(u32, u32, i32)>,
+    bound_query_state: Option<bool>,
+    boxes_used: u64,
+    push: [f32; 20],
+    // Host statistics.
+    draws: u32,
+    submits: u32,
+    switches: u32,
+}
+
+impl Host {
+    fn new(scene: &Scene) -> Result<Host> {
+        // SAFETY: loads the system loader once.
+        let entry = unsafe { ash::Entry::load() }.context("loading Vulkan")?;
+        let layers = [c"VK_LAYER_KHRONOS_validation".as_ptr()];
+        let exts = [ext::debug_utils::NAME.as_ptr()];
+        let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_3);
+        let info = vk::InstanceCreateInfo::default()
+            .application_info(&app)
+            .enabled_layer_names(&layers)
+            .enabled_extension_names(&exts);
+        // SAFETY: valid create info.
+        let instance = unsafe { entry.create_instance(&info, None) }
+            .context("instance (is vulkan-validationlayers installed?)")?;
+        let debug = ext::debug_utils::Instance::new(&entry, &instance);
+        let messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+            .message_severity(
+                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+                    | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+            )
+            .message_type(
+                vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+            )
+            .pfn_user_callback(Some(on_message));
+        // SAFETY: valid instance.
+        let messenger = unsafe { debug.create_debug_utils_messenger(&messenger_info, None) }?;
+        // SAFETY: valid instance.
+        let physical = unsafe { instance.enumerate_physical_devices() }?
+            .into_iter()
+            .next()
+            .context("no Vulkan device")?;
+        // SAFETY: valid physical device.
+        let memory_types = unsafe { instance.get_physical_device_memory_properties(physical) };
+        let priorities = [1.0];
+        let queues = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(0)
+            .queue_priorities(&priorities)];
+        let f10 = vk::PhysicalDeviceFeatures::default().occlusion_query_precise(true);
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default().host_query_reset(true);
+        let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
+            .dynamic_rendering(true)
+            .synchronization2(true)
+            .maintenance4(true);
+        let info = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queues)
+            .enabled_features(&f10)
+            .push_next(&mut f12)
+            .push_next(&mut f13);
+        // SAFETY: valid physical device and create info.
+        let device = unsafe { instance.create_device(physical, &info, None) }?;
+        // SAFETY: family 0 was created with one queue.
+        let queue = unsafe { device.get_device_queue(0, 0) };
+        let mut host = Host {
+            _entry: entry,
+            instance,
+            debug,
+            messenger,
+            device,
+            queue,
+            memory_types,
+            buffers: Vec::new(),
+            images: Vec::new(),
+            set_layout: vk::DescriptorSetLayout::null(),
+            layout: vk::PipelineLayout::null(),
+            descriptor_pool: vk::DescriptorPool::null(),
+            set: vk::DescriptorSet::null(),
+            render_pipeline: vk::Pipeline::null(),
+            query_pipeline: vk::Pipeline::null(),
+            command_pool: vk::CommandPool::null(),
+            segments: Vec::new(),
+            used: 0,
+            recording: false,
+            query_pool: vk::QueryPool::null(),
+            queries: 0,
+            query_segment: Vec::new(),
+            objects: scene
+                .objects
+                .iter()
+                .map(|o| (o.index_count, o.first_index, o.vertex_offset as i32))
+                .collect(),
+            bound_query_state: None,
+            boxes_used: 0,
+            push: [0.0; 20],
+            draws: 0,
+            submits: 0,
+            switches: 0,
+        };
+        host.create_resources(scene)?;
+        Ok(host)
+    }
+
+    fn memory_type(&self, bits: u32, flags: vk::MemoryPropertyFlags) -> Result<u32> {
+        (0..self.memory_types.memory_type_count)
+            .find(|&i| {
+                bits & (1 << i) != 0
+                    && self.memory_types.memory_types[i as usize]
+                        .property_flags
+                        .contains(flags)
+            })
+            .context("no suitable memory type")
+    }
+
+    fn buffer(
+        &mut self,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        data: &[u8],
+    ) -> Result<vk::Buffer> {
+        let info = vk::BufferCreateInfo::default()
+            .size(size.max(16))
+            .usage(usage);
+        // SAFETY: valid device and create info; memory is bound right after.
+        unsafe {
+            let buffer = self.device.create_buffer(&info, None)?;
+            let req = self.device.get_buffer_memory_requirements(buffer);
+            let kind = self.memory_type(
+                req.memory_type_bits,
+                vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
+            )?;
+            let memory = self.device.allocate_memory(
+                &vk::MemoryAllocateInfo::default()
+                    .allocation_size(req.size)
+                    .memory_type_index(kind),
+                None,
+            )?;
+            self.device.bind_buffer_memory(buffer, memory, 0)?;
+            let ptr =
+                self.device
+                    .map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty())?
+                    as *mut u8;
+            std::ptr::copy_nonoverlapping(data.as_ptr(), ptr, data.len().min(req.size as usize));
+            self.buffers.push((buffer, Memory { memory, ptr }));
+            Ok(buffer)
+        }
+    }
+
+    fn image(
+        &mut self,
+        format: vk::Format,
+        usage: vk::ImageUsageFlags,
+        aspect: vk::ImageAspectFlags,
+    ) -> Result<vk::ImageView> {
+        let info = vk::ImageCreateInfo::default()
+            .image_type(vk::ImageType::TYPE_2D)
+            .format(format)
+            .extent(vk::Extent3D {
+                width: WIDTH,
+                height: HEIGHT,
+                depth: 1,
+            })
+            .mip_levels(1)
+            .array_layers(1)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .usage(usage);
+        // SAFETY: valid device and create infos; memory bound before the view is created.
+        unsafe {
+            let image = self.device.create_image(&info, None)?;
+            let req = self.device.get_image_memory_requirements(image);
+            let kind =
+                self.memory_type(req.memory_type_bits, vk::MemoryPropertyFlags::DEVICE_LOCAL)?;
+            let memory = self.device.allocate_memory(
+                &vk::MemoryAllocateInfo::default()
+                    .allocation_size(req.size)
+                    .memory_type_index(kind),
+                None,
+            )?;
+            self.device.bind_image_memory(image, memory, 0)?;
+            let view = self.device.create_image_view(
+                &vk::ImageViewCreateInfo::default()
+                    .image(image)
+                    .view_type(vk::ImageViewType::TYPE_2D)
+                    .format(format)
+                    .subresource_range(
+                        vk::ImageSubresourceRange::default()
+                            .aspect_mask(aspect)
+                            .level_count(1)
+                            .layer_count(1),
+                    ),
+                None,
+            )?;
+            self.images.push((image, view, memory));
+            Ok(view)
+        }
+    }
+
+    fn pipeline(&self, vert: &[u8], frag: Option<&[u8]>, query: bool) -> Result<vk::Pipeline> {
+        let module = |bytes: &[u8]| -> Result<vk::ShaderModule> {
+            let words = ash::util::read_spv(&mut std::io::Cursor::new(bytes))?;
+            // SAFETY: valid SPIR-V from coherent's build.
+            Ok(unsafe {
+                self.device
+                    .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None)
+            }?)
+        };
+        let vs = module(vert)?;
+        let fs = frag.map(module).transpose()?;
+        let mut stages = vec![vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::VERTEX)
+            .module(vs)
+            .name(c"main")];
+        if let Some(fs) = fs {
+            stages.push(
+                vk::PipelineShaderStageCreateInfo::default()
+                    .stage(vk::ShaderStageFlags::FRAGMENT)
+                    .module(fs)
+                    .name(c"main"),
+            );
+        }
+        let stride = if query { 12 } else { 24 };
+        let bindings = [vk::VertexInputBindingDescription::default().stride(stride)];
+        let attrs_scene = [
+            vk::VertexInputAttributeDescription::default()
+                .location(0)
+                .format(vk::Format::R32G32B32_SFLOAT),
+            vk::VertexInputAttributeDescription::default()
+                .location(1)
+                .format(vk::Format::R32G32B32_SFLOAT)
+                .offset(12),
+        ];
+        let attrs = if query {
+            &attrs_scene[..1]
+        } else {
+            &attrs_scene[..]
+        };
+        let vertex = vk::PipelineVertexInputStateCreateInfo::default()
+            .vertex_binding_descriptions(&bindings)
+            .vertex_attribute_descriptions(attrs);
+        let assembly = vk::PipelineInputAssemblyStateCreateInfo::default()
+            .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+        let viewport = vk::PipelineViewportStateCreateInfo::default()
+            .viewport_count(1)
+            .scissor_count(1);
+        let raster = vk::PipelineRasterizationStateCreateInfo::default()
+            .cull_mode(if query {
+                vk::CullModeFlags::NONE
+            } else {
+                vk::CullModeFlags::BACK
+            })
+            .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+            .line_width(1.0);
+        let ms = vk::PipelineMultisampleStateCreateInfo::default()
+            .rasterization_samples(vk::SampleCountFlags::TYPE_1);
+        let depth = vk::PipelineDepthStencilStateCreateInfo::default()
+            .depth_test_enable(true)
+            .depth_write_enable(!query)
+            .depth_compare_op(if query {
+                vk::CompareOp::LESS_OR_EQUAL
+            } else {
+                vk::CompareOp::LESS
+            });
+        let mask = if query {
+            vk::ColorComponentFlags::empty()
+        } else {
+            vk::ColorComponentFlags::RGBA
+        };
+        let blend_att = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(mask)];
+        let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_att);
+        let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+        let dynamic = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
+        let formats = [vk::Format::R8G8B8A8_UNORM];
+        let mut rendering = vk::PipelineRenderingCreateInfo::default()
+            .color_attachment_formats(&formats)
+            .depth_attachment_format(vk::Format::D32_SFLOAT);
+        let info = vk::GraphicsPipelineCreateInfo::default()
+            .stages(&stages)
+            .vertex_input_state(&vertex)
+            .input_assembly_state(&assembly)
+            .viewport_state(&viewport)
+            .rasterization_state(&raster)
+            .multisample_state(&ms)
+            .depth_stencil_state(&depth)
+            .color_blend_state(&blend)
+            .dynamic_state(&dynamic)
+            .layout(self.layout)
+            .push_next(&mut rendering);
+        // SAFETY: all state outlives the call; modules are destroyed after creation.
+        let pipeline = unsafe {
+            self.device
+                .create_graphics_pipelines(vk::PipelineCache::null(), &[info], None)
+        }
+        .map_err(|(_, e)| e)?[0];
+        // SAFETY: no longer needed once the pipeline exists.
+        unsafe {
+            self.device.destroy_shader_module(vs, None);
+            if let Some(fs) = fs {
+                self.device.destroy_shader_module(fs, None);
+            }
+        }
+        Ok(pipeline)
+    }
+
+    fn create_resources(&mut self, scene: &Scene) -> Result<()> {
+        let bytes = |v: &[f32]| v.iter().flat_map(|f| f.to_le_bytes()).collect::<Vec<u8>>();
+        let verts: Vec<f32> = scene
+            .vertices
+            .iter()
+            .flat_map(|v| v.position.into_iter().chain(v.normal))
+            .collect();
+        let vdata = bytes(&verts);
+        self.buffer(
+            vdata.len() as u64,
+            vk::BufferUsageFlags::VERTEX_BUFFER,
+            &vdata,
+        )?;
+        let idata: Vec<u8> = scene.indices.iter().flat_map(|i| i.to_le_bytes()).collect();
+        self.buffer(
+            idata.len() as u64,
+            vk::BufferUsageFlags::INDEX_BUFFER,
+            &idata,
+        )?;
+        let mut objects = Vec::new();
+        for o in &scene.objects {
+            objects.extend(o.transform.to_cols_array());
+            objects.extend(o.transform.inverse().transpose().to_cols_array());
+            objects.extend(o.color.to_array());
+        }
+        let odata = bytes(&objects);
+        let object_buffer = self.buffer(
+            odata.len() as u64,
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            &odata,
+        )?;
+        self.buffer(MAX_BOXES * 96, vk::BufferUsageFlags::VERTEX_BUFFER, &[])?;
+        let faces: [u32; 36] = [
+            0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4,
+            6, 1, 3, 5, 3, 7, 5,
+        ];
+        let box_indices: Vec<u8> = (0..1024u32)
+            .flat_map(|b| faces.map(|i| i + 8 * b))
+            .flat_map(|i| i.to_le_bytes())
+            .collect();
+        self.buffer(
+            box_indices.len() as u64,
+            vk::BufferUsageFlags::INDEX_BUFFER,
+            &box_indices,
+        )?;
+        self.image(
+            vk::Format::R8G8B8A8_UNORM,
+            vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
+            vk::ImageAspectFlags::COLOR,
+        )?;
+        self.image(
+            vk::Format::D32_SFLOAT,
+            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+            vk::ImageAspectFlags::DEPTH,
+        )?;
+        let all = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
+        let binding = [vk::DescriptorSetLayoutBinding::default()
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .descriptor_count(1)
+            .stage_flags(all | vk::ShaderStageFlags::COMPUTE)];
+        let ranges = [vk::PushConstantRange::default()
+            .stage_flags(all | vk::ShaderStageFlags::COMPUTE)
+            .size(80)];
+        // SAFETY: valid device and create infos; everything is destroyed in Drop.
+        unsafe {
+            self.set_layout = self.device.create_descriptor_set_layout(
+                &vk::DescriptorSetLayoutCreateInfo::default().bindings(&binding),
+                None,
+            )?;
+            let set_layouts = [self.set_layout];
+            self.layout = self.device.create_pipeline_layout(
+                &vk::PipelineLayoutCreateInfo::default()
+                    .set_layouts(&set_layouts)
+                    .push_constant_ranges(&ranges),
+                None,
+            )?;
+            let sizes = [vk::DescriptorPoolSize {
+                ty: vk::DescriptorType::STORAGE_BUFFER,
+                descriptor_count: 1,
+            }];
+            self.descriptor_pool = self.device.create_descriptor_pool(
+                &vk::DescriptorPoolCreateInfo::default()
+                    .max_sets(1)
+                    .pool_sizes(&sizes),
+                None,
+            )?;
+            self.set = self.device.allocate_descriptor_sets(
+                &vk::DescriptorSetAllocateInfo::default()
+                    .descriptor_pool(self.descriptor_pool)
+                    .set_layouts(&set_layouts),
+            )?[0];
+            let info = [vk::DescriptorBufferInfo {
+                buffer: object_buffer,
+                offset: 0,
+                range: vk::WHOLE_SIZE,
+            }];
+            let write = vk::WriteDescriptorSet::default()
+                .dst_set(self.set)
+                .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                .buffer_info(&info);
+            self.device.update_descriptor_sets(&[write], &[]);
+            self.command_pool = self
+                .device
+                .create_command_pool(&vk::CommandPoolCreateInfo::default(), None)?;
+            self.query_pool = self.device.create_query_pool(
+                &vk::QueryPoolCreateInfo::default()
+                    .query_type(vk::QueryType::OCCLUSION)
+                    .query_count(MAX_QUERIES),
+                None,
+            )?;
+            self.device
+                .reset_query_pool(self.query_pool, 0, MAX_QUERIES);
+        }
+        self.render_pipeline = self.pipeline(
+            coherent::gpu::shaders::SCENE_VERT,
+            Some(coherent::gpu::shaders::SCENE_FRAG),
+            false,
+        )?;
+        self.query_pipeline = self.pipeline(coherent::gpu::shaders::BOX_VERT, None, true)?;
+        Ok(())
+    }
+
+    fn begin_frame(&mut self, camera: &Camera, sun: glam::Vec3) -> Result<()> {
+        // SAFETY: the previous frame waited for all its fences.
+        unsafe {
+            self.device
+                .reset_command_pool(self.command_pool, vk::CommandPoolResetFlags::empty())?;
+            let fences: Vec<_> = self.segments[..self.used].iter().map(|s| s.1).collect();
+            if !fences.is_empty() {
+                self.device.reset_fences(&fences)?;
+            }
+            if self.queries > 0 {
+                self.device
+                    .reset_query_pool(self.query_pool, 0, self.queries);
+            }
+        }
+        self.used = 0;
+        self.queries = 0;
+        self.query_segment.clear();
+        self.boxes_used = 0;
+        self.draws = 0;
+        self.submits = 0;
+        self.switches = 0;
+        self.push[..16].copy_from_slice(&camera.view_proj().to_cols_array());
+        self.push[16..19].copy_from_slice(&sun.to_array());
+        Ok(())
+    }
+
+    /// Starts a new command buffer that resumes rendering (clears on the frame's first one).
+    fn ensure_recording(&mut self) -> Result<()> {
+        if self.recording {
+            return Ok(());
+        }
+        if self.used == self.segments.len() {
+            // SAFETY: valid pool and device.
+            unsafe {
+                let cmd = self.device.allocate_command_buffers(
+                    &vk::CommandBufferAllocateInfo::default()
+                        .command_pool(self.command_pool)
+                        .command_buffer_count(1),
+                )?[0];
+                let fence = self
+                    .device
+                    .create_fence(&vk::FenceCreateInfo::default(), None)?;
+                self.segments.push((cmd, fence));
+            }
+        }
+        let first = self.used == 0;
+        let cmd = self.segments[self.used].0;
+        self.used += 1;
+        let (color, color_view) = (self.images[0].0, self.images[0].1);
+        let (depth, depth_view) = (self.images[1].0, self.images[1].1);
+        let barrier = |image, aspect, layout, stage, access| {
+            vk::ImageMemoryBarrier2::default()
+                .image(image)
+                .subresource_range(
+                    vk::ImageSubresourceRange::default()
+                        .aspect_mask(aspect)
+                        .level_count(1)
+                        .layer_count(1),
+                )
+                .old_layout(if first {
+                    vk::ImageLayout::UNDEFINED
+                } else {
+                    layout
+                })
+                .new_layout(layout)
+                .src_stage_mask(stage)
+                .src_access_mask(access)
+                .dst_stage_mask(stage)
+                .dst_access_mask(access)
+        };
+        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
+            | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
+        let barriers = [
+            barrier(
+                color,
+                vk::ImageAspectFlags::COLOR,
+                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT,
+                vk::AccessFlags2::COLOR_ATTACHMENT_WRITE | vk::AccessFlags2::COLOR_ATTACHMENT_READ,
+            ),
+            barrier(
+                depth,
+                vk::ImageAspectFlags::DEPTH,
+                vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
+                depth_stages,
+                vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE
+                    | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
+            ),
+        ];
+        let load = if first {
+            vk::AttachmentLoadOp::CLEAR
+        } else {
+            vk::AttachmentLoadOp::LOAD
+        };
+        let color_att = [vk::RenderingAttachmentInfo::default()
+            .image_view(color_view)
+            .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+            .load_op(load)
+            .store_op(vk::AttachmentStoreOp::STORE)
+            .clear_value(vk::ClearValue {
+                color: vk::ClearColorValue {
+                    float32: [0.1, 0.1, 0.15, 1.0],
+                },
+            })];
+        let depth_att = vk::RenderingAttachmentInfo::default()
+            .image_view(depth_view)
+            .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+            .load_op(load)
+            .store_op(vk::AttachmentStoreOp::STORE)
+            .clear_value(vk::ClearValue {
+                depth_stencil: vk::ClearDepthStencilValue {
+                    depth: 1.0,
+                    stencil: 0,
+                },
+            });
+        let extent = vk::Extent2D {
+            width: WIDTH,
+            height: HEIGHT,
+        };
+        let rendering = vk::RenderingInfo::default()
+            .render_area(extent.into())
+            .layer_count(1)
+            .color_attachments(&color_att)
+            .depth_attachment(&depth_att);
+        let push: Vec<u8> = self.push.iter().flat_map(|f| f.to_le_bytes()).collect();
+        // SAFETY: the buffer was reset with its pool; attachments are in the right layouts.
+        unsafe {
+            self.device
+                .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())?;
+            self.device.cmd_pipeline_barrier2(
+                cmd,
+                &vk::DependencyInfo::default().image_memory_barriers(&barriers),
+            );
+            self.device.cmd_begin_rendering(cmd, &rendering);
+            let viewport = vk::Viewport {
+                x: 0.0,
+                y: HEIGHT as f32,
+                width: WIDTH as f32,
+                height: -(HEIGHT as f32),
+                min_depth: 0.0,
+                max_depth: 1.0,
+            };
+            self.device.cmd_set_viewport(cmd, 0, &[viewport]);
+            self.device.cmd_set_scissor(cmd, 0, &[extent.into()]);
+            self.device.cmd_bind_descriptor_sets(
+                cmd,
+                vk::PipelineBindPoint::GRAPHICS,
+                self.layout,
+                0,
+                &[self.set],
+                &[],
+            );
+            self.device.cmd_push_constants(
+                cmd,
+                self.layout,
+                vk::ShaderStageFlags::VERTEX
+                    | vk::ShaderStageFlags::FRAGMENT
+                    | vk::ShaderStageFlags::COMPUTE,
+                0,
+                &push,
+            );
+        }
+        self.recording = true;
+        self.bound_query_state = None;
+        Ok(())
+    }
+
+    fn set_state(&mut self, query: bool) {
+        if self.bound_query_state == Some(query) {
+            return;
+        }
+        let cmd = self.segments[self.used - 1].0;
+        let (pipeline, vb, ib) = if query {
+            (self.query_pipeline, self.buffers[3].0, self.buffers[4].0)
+        } else {
+            (self.render_pipeline, self.buffers[0].0, self.buffers[1].0)
+        };
+        // SAFETY: recording inside rendering; buffers and pipeline are valid.
+        unsafe {
+            self.device
+                .cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+            self.device.cmd_bind_vertex_buffers(cmd, 0, &[vb], &[0]);
+            self.device
+                .cmd_bind_index_buffer(cmd, ib, 0, vk::IndexType::UINT32);
+        }
+        if self.bound_query_state.is_some() {
+            self.switches += 1;
+        }
+        self.bound_query_state = Some(query);
+    }
+}
+
+type CullResult<T> = coherent::Result<T>;
+
+fn host_error(e: impl std::fmt::Display) -> coherent::Error {
+    coherent::Error::Input(format!("host renderer: {e}"))
+}
+
+impl OcclusionBackend for Host {
+    fn draw_objects(&mut self, objects: &[u32]) -> CullResult<()> {
+        if objects.is_empty() {
+            return Ok(());
+        }
+        self.ensure_recording().map_err(host_error)?;
+        self.set_state(false);
+        let cmd = self.segments[self.used - 1].0;
+        for &o in objects {
+            let (count, first, offset) = self.objects[o as usize];
+            // SAFETY: recording inside rendering with the render pipeline bound.
+            unsafe {
+                self.device
+                    .cmd_draw_indexed(cmd, count, 1, first, offset, o)
+            };
+            self.draws += 1;
+        }
+        Ok(())
+    }
+
+    fn issue_query(&mut self, boxes: &[Aabb]) -> CullResult<QueryId> {
+        if self.queries == MAX_QUERIES
+            || self.boxes_used + boxes.len() as u64 > MAX_BOXES
+            || boxes.len() > 1024
+        {
+            return Err(host_error("query budget of this simple host exceeded"));
+        }
+        self.ensure_recording().map_err(host_error)?;
+        self.set_state(true);
+        let cmd = self.segments[self.used - 1].0;
+        let corners: Vec<f32> = boxes
+            .iter()
+            .flat_map(|b| {
+                (0..8).flat_map(move |c| {
+                    [
+                        if c & 1 == 0 { b.min.x } else { b.max.x },
+                        if c & 2 == 0 { b.min.y } else { b.max.y },
+                        if c & 4 == 0 { b.min.z } else { b.max.z },
+                    ]
+                })
+            })
+            .collect();
+        let ptr = self.buffers[3].1.ptr;
+        // SAFETY: the box buffer is mapped, large enough (checked above) and this range is unused
+        // by submitted work (ranges only grow within a frame).
+        unsafe {
+            std::ptr::copy_nonoverlapping(
+                corners.as_ptr() as *const u8,
+                ptr.add((self.boxes_used * 96) as usize),
+                corners.len() * 4,
+            );
+        }
+        let id = self.queries;
+        // SAFETY: the query was reset at frame start; recording inside rendering.
+        unsafe {
+            self.device
+                .cmd_begin_query(cmd, self.query_pool, id, vk::QueryControlFlags::PRECISE);
+            self.device.cmd_draw_indexed(
+                cmd,
+                36 * boxes.len() as u32,
+                1,
+                0,
+                (self.boxes_used * 8) as i32,
+                0,
+            );
+            self.device.cmd_end_query(cmd, self.query_pool, id);
+        }
+        self.boxes_used += boxes.len() as u64;
+        self.queries += 1;
+        self.query_segment.push(self.used - 1);
+        Ok(id)
+    }
+
+    fn flush(&mut self) -> CullResult<()> {
+        if !self.recording {
+            return Ok(());
+        }
+        let (cmd, fence) = self.segments[self.used - 1];
+        let cmds = [cmd];
+        // SAFETY: recording inside rendering; the fence is unsignaled.
+        unsafe {
+            self.device.cmd_end_rendering(cmd);
+            self.device.end_command_buffer(cmd).map_err(host_error)?;
+            self.device
+                .queue_submit(
+                    self.queue,
+                    &[vk::SubmitInfo::default().command_buffers(&cmds)],
+                    fence,
+                )
+                .map_err(host_error)?;
+        }
+        self.recording = false;
+        self.submits += 1;
+        Ok(())
+    }
+
+    fn query_result(&mut self, query: QueryId) -> CullResult<Option<u64>> {
+        if self.recording && self.query_segment[query as usize] == self.used - 1 {
+            return Ok(None);
+        }
+        let mut data = [[0u64; 2]];
+        // SAFETY: the query's command buffer was submitted; no WAIT flag.
+        let r = unsafe {
+            self.device.get_query_pool_results(
+                self.query_pool,
+                query,
+                &mut data,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WITH_AVAILABILITY,
+            )
+        };
+        match r {
+            Ok(()) if data[0][1] != 0 => Ok(Some(data[0][0])),
+            Ok(()) | Err(vk::Result::NOT_READY) => Ok(None),
+            Err(e) => Err(host_error(e)),
+        }
+    }
+
+    fn wait_query(&mut self, query: QueryId) -> CullResult<u64> {
+        if self.recording && self.query_segment[query as usize] == self.used - 1 {
+            self.flush()?;
+        }
+        let fence = self.segments[self.query_segment[query as usize]].1;
+        // SAFETY: the segment was submitted with this fence.
+        unsafe { self.device.wait_for_fences(&[fence], true, u64::MAX) }.map_err(host_error)?;
+        loop {
+            if let Some(v) = self.query_result(query)? {
+                return Ok(v);
+            }
+        }
+    }
+
+    fn finish(&mut self) -> CullResult<()> {
+        if self.used == 0 {
+            self.ensure_recording().map_err(host_error)?;
+        }
+        self.flush()?;
+        let fences: Vec<_> = self.segments[..self.used].iter().map(|s| s.1).collect();
+        // SAFETY: every used segment was submitted.
+        unsafe { self.device.wait_for_fences(&fences, true, u64::MAX) }.map_err(host_error)
+    }
+}
+
+impl Drop for Host {
+    fn drop(&mut self) {
+        // SAFETY: the device is idle; every object is destroyed once, children before parents.
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            for (_, fence) in &self.segments {
+                self.device.destroy_fence(*fence, None);
+            }
+            self.device.destroy_command_pool(self.command_pool, None);
+            self.device.destroy_query_pool(self.query_pool, None);
+            self.device.destroy_pipeline(self.render_pipeline, None);
+            self.device.destroy_pipeline(self.query_pipeline, None);
+            self.device
+                .destroy_descriptor_pool(self.descriptor_pool, None);
+            self.device.destroy_pipeline_layout(self.layout, None);
+            self.device
+                .destroy_descriptor_set_layout(self.set_layout, None);
+            for (image, view, memory) in self.images.drain(..) {
+                self.device.destroy_image_view(view, None);
+                self.device.destroy_image(image, None);
+                self.device.free_memory(memory, None);
+            }
+            for (buffer, memory) in self.buffers.drain(..) {
+                self.device.destroy_buffer(buffer, None);
+                self.device.free_memory(memory.memory, None);
+            }
+            self.device.destroy_device(None);
+            self.debug
+                .destroy_debug_utils_messenger(self.messenger, None);
+            self.instance.destroy_instance(None);
+        }
+    }
+}
+
+fn main() -> Result<()> {
+    let scene = Scene::load("city", 0.25, 4096)?;
+    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
+    let bvh = ObjectBvh::build(&bounds, 1);
+    let path = scene.path("street")?.clone();
+    let mut host = Host::new(&scene)?;
+    let mut culler = coherent::culling::chcpp::Chcpp::new(ChcppParams::default());
+    println!(
+        "host engine: {} objects, {} triangles; culling with {}",
+        scene.objects.len(),
+        scene.triangle_count(),
+        culler.name()
+    );
+    println!("frame  ms      draws  queries  visible  state-switches  submits");
+    for frame in 0..12u32 {
+        let pose = path.pose_at(frame as f32 * 4.0);
+        let far = bvh.nodes[0].bounds.extent().length() * 2.0;
+        let camera = Camera::from_pose(pose, WIDTH as f32 / HEIGHT as f32, far);
+        host.begin_frame(&camera, scene.sun_dir)?;
+        let start = std::time::Instant::now();
+        let input = FrameInput {
+            bvh: &bvh,
+            camera: &camera,
+            frame: frame as u64,
+            exact_visible: None,
+        };
+        let stats = culler.cull_frame(&input, &mut host)?;
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        println!(
+            "{frame:5}  {ms:6.1}  {:5}  {:7}  {:7}  {:14}  {:7}",
+            host.draws, stats.queries, stats.visible_results, host.switches, host.submits
+        );
+    }
+    drop(host);
+    let n = MESSAGES.load(Ordering::SeqCst);
+    if n > 0 {
+        bail!("{n} validation messages");
+    }
+    println!("validation: no messages");
+    Ok(())
+}
