@@ -19,9 +19,10 @@ pub struct SceneArgs {
     /// Built-in scene (city, parking, powerplant, cornell, hall) or a .gltf/.glb path.
     #[arg(long)]
     pub scene: String,
-    /// Size multiplier of a built-in scene (1 = default).
-    #[arg(long, default_value_t = 1.0)]
-    pub scale: f32,
+    /// Size multiplier of a built-in scene (1 = default). `walk` takes a list (e.g. 1,4,16) and
+    /// adds a scaling table.
+    #[arg(long, default_value = "1", value_delimiter = ',')]
+    pub scale: Vec<f32>,
     /// Split glTF meshes into chunks of at most this many triangles (0: don't split).
     #[arg(long, default_value_t = 4096)]
     pub chunk_triangles: u32,
@@ -82,9 +83,6 @@ pub struct WalkArgs {
     /// Output directory.
     #[arg(long, default_value = "out/walk")]
     pub out: PathBuf,
-    /// Scene scales to run, comma separated (adds a scaling table), e.g. 1,4,16.
-    #[arg(long = "scales", value_delimiter = ',')]
-    pub scales: Vec<f32>,
     /// Turn the validation layer on (off by default: it slows everything down).
     #[arg(long)]
     pub validation: bool,
@@ -159,8 +157,15 @@ fn context(validation: bool) -> Result<Arc<GpuContext>> {
     })?)
 }
 
-fn load_scene(a: &SceneArgs) -> Result<Scene> {
-    Ok(Scene::load(&a.scene, a.scale, a.chunk_triangles)?)
+fn load_scene(a: &SceneArgs, scale: f32) -> Result<Scene> {
+    Ok(Scene::load(&a.scene, scale, a.chunk_triangles)?)
+}
+
+fn single_scale(a: &SceneArgs) -> Result<f32> {
+    match a.scale.as_slice() {
+        [s] => Ok(*s),
+        _ => bail!("this command takes one --scale value"),
+    }
 }
 
 fn check_validation(ctx: &GpuContext) -> Result<()> {
@@ -194,7 +199,7 @@ pub fn info() -> Result<()> {
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
     let mut culler = culling::create(&a.algorithm, &ChcppParams::default())?;
-    let scene = load_scene(&a.scene)?;
+    let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),
@@ -252,18 +257,11 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         warmup: a.warmup,
         params,
     };
-    let scales = if a.scales.is_empty() {
-        vec![a.scene.scale]
-    } else {
-        a.scales.clone()
-    };
+    let scales = a.scene.scale.clone();
     let ctx = context(a.validation)?;
     let mut summaries = Vec::new();
     for &scale in &scales {
-        let scene = load_scene(&SceneArgs {
-            scale,
-            ..a.scene.clone()
-        })?;
+        let scene = load_scene(&a.scene, scale)?;
         let path = match &a.path {
             Some(p) => scene.path(p)?.clone(),
             None => scene.default_path()?.clone(),
