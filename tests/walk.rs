@@ -1,0 +1,147 @@
+//! `coherent walk`: the report files, their fields, the scaling table, with validation on.
+
+use std::process::Command;
+
+fn tempdir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("coherent-walk-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn walk_writes_csv_json_and_plots() {
+    let dir = tempdir("files");
+    let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
+        .args([
+            "walk", "--scene", "city", "--scale", "0.05", "--path", "street", "--frames", "6",
+            "--warmup", "2",
+        ])
+        .args([
+            "--size",
+            "96x64",
+            "--validation",
+            "--out",
+            dir.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("x oracle"),
+        "summary table printed: {stdout}"
+    );
+
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let keys: Vec<&str> = json
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(|k| k.as_str())
+        .collect();
+    for k in [
+        "scene",
+        "objects",
+        "triangles",
+        "device",
+        "size",
+        "frames",
+        "algorithms",
+    ] {
+        assert!(keys.contains(&k), "summary.json has {k}: {keys:?}");
+    }
+    assert_eq!(json["frames"], 6);
+    assert_eq!(json["size"], "96x64");
+    let algs = json["algorithms"].as_object().unwrap();
+    let mut names: Vec<&str> = algs.keys().map(|k| k.as_str()).collect();
+    names.sort();
+    assert_eq!(names, ["chc", "chcpp", "oracle", "stop-and-wait", "vfc"]);
+    let fields = [
+        "frame_ms_median",
+        "frame_ms_p95",
+        "gpu_ms_median",
+        "stall_ms_median",
+        "queries_median",
+        "wasted_queries_median",
+        "state_changes_median",
+        "pipeline_binds_median",
+        "draw_calls_median",
+        "triangles_median",
+        "submits_median",
+    ];
+    for (name, a) in algs {
+        let mut got: Vec<&str> = a.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+        got.sort();
+        let mut want = fields.to_vec();
+        want.sort();
+        assert_eq!(got, want, "{name}");
+    }
+    assert_eq!(algs["vfc"]["queries_median"], 0.0);
+    assert!(algs["chcpp"]["queries_median"].as_f64().unwrap() > 0.0);
+
+    let csv = std::fs::read_to_string(dir.join("frames.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "algorithm,frame,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,triangles,objects,submits"
+    );
+    assert_eq!(lines.count(), 6 * 5);
+    for png in ["frametime.png", "counts.png"] {
+        let len = std::fs::metadata(dir.join(png)).unwrap().len();
+        assert!(len > 20_000, "{png} is a real plot ({len} bytes)");
+    }
+}
+
+#[test]
+fn walk_scaling_table_and_bad_flags() {
+    let dir = tempdir("scale");
+    let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
+        .args([
+            "walk", "--scene", "parking", "--scale", "0.1,0.3", "--frames", "3", "--warmup", "0",
+        ])
+        .args([
+            "--size",
+            "64x48",
+            "--algorithms",
+            "vfc,chcpp",
+            "--out",
+            dir.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = std::fs::read_to_string(dir.join("scaling.txt")).unwrap();
+    assert!(table.contains("vfc") && table.contains("chcpp"), "{table}");
+    assert!(
+        dir.join("scale_0.1/summary.json").exists() && dir.join("scale_0.3/summary.json").exists()
+    );
+
+    for args in [
+        vec!["--algorithms", "vfc,warp"],
+        vec!["--frames", "0"],
+        vec!["--disable", "nothing"],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
+            .args(["walk", "--scene", "cornell", "--size", "32x32"])
+            .args(&args)
+            .arg("--out")
+            .arg(&dir)
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.starts_with("error:") && err.trim().lines().count() == 1,
+            "{args:?}: {err}"
+        );
+    }
+}
