@@ -338,6 +338,11 @@ impl Chcpp {
                 self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
             }
         }
+        // Due visible-leaf queries ride along while we are in query state anyway: no extra
+        // state change for them.
+        for n in std::mem::take(&mut self.v_queue) {
+            self.issue(bvh, vec![n], QueryKind::Visible, backend, stats)?;
+        }
         backend.flush()?;
         self.unsubmitted = 0;
         Ok(())
@@ -484,7 +489,8 @@ impl Culler for Chcpp {
                     Some(p) => p,
                     None if !self.traversal.is_empty() => break,
                     None if !self.v_queue.is_empty() => {
-                        self.issue_v_queue(bvh, batch, backend, &mut stats)?;
+                        let all = self.v_queue.len();
+                        self.issue_v_queue(bvh, all, backend, &mut stats)?;
                         continue;
                     }
                     None => {
