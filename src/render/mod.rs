@@ -3,7 +3,9 @@
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
 pub mod frame;
+pub mod overlay;
 pub mod upload;
+pub mod viewer;
 pub mod walk;
 
 use std::sync::Arc;
@@ -280,6 +282,12 @@ impl Renderer {
     /// Target size.
     pub fn size(&self) -> (u32, u32) {
         (self.target.extent.width, self.target.extent.height)
+    }
+
+    /// The offscreen color image; after [`Renderer::render_frame`] it is in
+    /// COLOR_ATTACHMENT_OPTIMAL (the viewer blits it to the window).
+    pub fn color_image(&self) -> &Image {
+        &self.target.color
     }
 
     /// Triangles in the scene.
