@@ -121,6 +121,9 @@ pub struct ViewArgs {
     /// Start with the query visualization (key V) on.
     #[arg(long)]
     pub visualize: bool,
+    /// Testing aid: before presented frame F, resize the window to WxH ("F:WxH").
+    #[arg(long, hide = true)]
+    pub resize_at: Option<String>,
     #[command(flatten)]
     pub chcpp: ChcppArgs,
 }
@@ -342,6 +345,18 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     };
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let resize_at = match &a.resize_at {
+        Some(s) => {
+            let (f, size) = s
+                .split_once(':')
+                .with_context(|| format!("--resize-at \"{s}\" is not F:WxH"))?;
+            let f: u32 = f
+                .parse()
+                .with_context(|| format!("--resize-at \"{s}\": bad frame"))?;
+            Some((f, parse_size(size)?))
+        }
+        None => None,
+    };
     let outcome = coherent::render::viewer::run(coherent::render::viewer::ViewerConfig {
         scene,
         bvh,
@@ -356,6 +371,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         validation: a.validation,
         vsync: !a.no_vsync,
         visualize: a.visualize,
+        resize_at,
     })?;
     if outcome.validation_messages > 0 {
         bail!(
@@ -366,7 +382,10 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     if let Some(n) = a.frames {
         println!("view: presented {} of {n} frames", outcome.frames_presented);
         if outcome.frames_presented < n {
-            bail!("the window closed after {} of {n} frames", outcome.frames_presented);
+            bail!(
+                "the window closed after {} of {n} frames",
+                outcome.frames_presented
+            );
         }
     }
     Ok(())

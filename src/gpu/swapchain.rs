@@ -87,10 +87,9 @@ impl Swapchain {
     ) -> Result<Swapchain> {
         // SAFETY: the handles come from a live window that outlives this swapchain (the viewer
         // drops the swapchain first); the instance has the surface extensions enabled.
-        let surface = unsafe {
-            ash_window::create_surface(&ctx.entry, &ctx.instance, display, window, None)
-        }
-        .vk("vkCreate*SurfaceKHR")?;
+        let surface =
+            unsafe { ash_window::create_surface(&ctx.entry, &ctx.instance, display, window, None) }
+                .vk("vkCreate*SurfaceKHR")?;
         let surface_fn = khr::surface::Instance::new(&ctx.entry, &ctx.instance);
         // SAFETY: valid physical device, family and surface.
         let supported = unsafe {
@@ -340,10 +339,11 @@ impl Swapchain {
         }
         if self.needs_recreate
             || self.swapchain == vk::SwapchainKHR::null()
-            || self.extent != (vk::Extent2D {
-                width: window_size.0,
-                height: window_size.1,
-            })
+            || self.extent
+                != (vk::Extent2D {
+                    width: window_size.0,
+                    height: window_size.1,
+                })
         {
             self.recreate(window_size.0, window_size.1)?;
             if self.swapchain == vk::SwapchainKHR::null() {
@@ -386,7 +386,10 @@ impl Swapchain {
         let mut bytes = Vec::new();
         let mut copies = Vec::new();
         for p in panels {
-            if p.x >= extent.width || p.y >= extent.height || p.rgba.len() < (p.width * p.height * 4) as usize {
+            if p.x >= extent.width
+                || p.y >= extent.height
+                || p.rgba.len() < (p.width * p.height * 4) as usize
+            {
                 continue;
             }
             let w = p.width.min(extent.width - p.x);

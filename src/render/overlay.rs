@@ -153,7 +153,9 @@ pub fn map_panel(
 ) -> Panel {
     let size = size.max(8);
     let mut rgba = [20u8, 20, 24, 255].repeat((size * size) as usize);
-    let span = (world.max.x - world.min.x).max(world.max.z - world.min.z).max(1e-3);
+    let span = (world.max.x - world.min.x)
+        .max(world.max.z - world.min.z)
+        .max(1e-3);
     let border = 2.0;
     let scale = (size as f32 - 2.0 * border) / span;
     let to_px = |wx: f32, wz: f32| -> (f32, f32) {
@@ -178,7 +180,13 @@ pub fn map_panel(
         fill(b.min.x, b.min.z, b.max.x, b.max.z, class_color(*c));
     }
     let r = 2.0 / scale;
-    fill(eye.x - r, eye.z - r, eye.x + r, eye.z + r, [255, 255, 255, 255]);
+    fill(
+        eye.x - r,
+        eye.z - r,
+        eye.x + r,
+        eye.z + r,
+        [255, 255, 255, 255],
+    );
     Panel {
         x,
         y,

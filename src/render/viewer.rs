@@ -21,9 +21,7 @@ use winit::window::{Window, WindowId};
 use super::overlay::{self, Class};
 use super::Renderer;
 use crate::bvh::ObjectBvh;
-use crate::culling::{
-    self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId,
-};
+use crate::culling::{self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId};
 use crate::error::{Error, Result};
 use crate::gpu::swapchain::{self, Presented, Swapchain};
 use crate::gpu::{CommandCounts, ContextOptions, GpuContext, Recorder, ValidationLog};
@@ -57,6 +55,8 @@ pub struct ViewerConfig {
     pub vsync: bool,
     /// Start with the query visualization on.
     pub visualize: bool,
+    /// Scripted resize for tests: before presented frame `.0`, ask for a window of `.1`.
+    pub resize_at: Option<(u32, (u32, u32))>,
 }
 
 /// What a viewer run did.
@@ -123,6 +123,7 @@ struct Running {
     visualize: bool,
     screenshot_requested: bool,
     screenshots: u32,
+    resized: bool,
     _ctx: Arc<GpuContext>,
     window: Window,
 }
@@ -168,11 +169,11 @@ impl ApplicationHandler for App {
                     event_loop.exit();
                 }
             }
-            WindowEvent::MouseInput { state, button, .. } => {
-                if button == MouseButton::Left {
-                    s.dragging = state == ElementState::Pressed;
-                }
-            }
+            WindowEvent::MouseInput {
+                state,
+                button: MouseButton::Left,
+                ..
+            } => s.dragging = state == ElementState::Pressed,
             WindowEvent::CursorMoved { position, .. } => {
                 if let (true, Some((x, y))) = (s.dragging, s.cursor) {
                     s.yaw += ((position.x - x) * 0.005) as f32;
@@ -245,14 +246,7 @@ impl App {
         })?;
         self.log = Some(ctx.validation_log());
         let size = window.inner_size();
-        let swapchain = Swapchain::new(
-            &ctx,
-            display,
-            handle,
-            size.width,
-            size.height,
-            cfg.vsync,
-        )?;
+        let swapchain = Swapchain::new(&ctx, display, handle, size.width, size.height, cfg.vsync)?;
         let mut renderer = Renderer::new(&ctx, &cfg.scene, cfg.width, cfg.height)?;
         renderer.visibility_threshold = cfg.params.pixel_threshold;
         let culler = culling::create(&cfg.algorithm, &cfg.params)?;
@@ -291,6 +285,7 @@ impl App {
             visualize: cfg.visualize,
             screenshot_requested: false,
             screenshots: 0,
+            resized: false,
             _ctx: ctx,
             window,
         })
@@ -352,8 +347,10 @@ impl Running {
             KeyCode::F12 | KeyCode::KeyK => self.screenshot_requested = true,
             _ => {}
         }
-        if matches!(code, KeyCode::KeyB | KeyCode::KeyI | KeyCode::KeyM | KeyCode::KeyT)
-            && self.algorithm == "chcpp"
+        if matches!(
+            code,
+            KeyCode::KeyB | KeyCode::KeyI | KeyCode::KeyM | KeyCode::KeyT
+        ) && self.algorithm == "chcpp"
         {
             rebuild = true;
         }
@@ -413,12 +410,21 @@ impl Running {
 
     /// Renders and presents one frame; `Ok(false)` when nothing could be shown.
     fn frame(&mut self, cfg: &ViewerConfig, presented: u32) -> Result<bool> {
+        if let Some((at, (w, h))) = cfg.resize_at {
+            if presented == at && !self.resized {
+                self.resized = true;
+                // The new size arrives with a Resized event or is already current.
+                let _ = self.window.request_inner_size(PhysicalSize::new(w, h));
+            }
+        }
         let size = self.window.inner_size();
         if size.width == 0 || size.height == 0 {
             return Ok(false);
         }
         let pose = self.pose(cfg, presented);
-        let camera = self.renderer.camera(pose, &cfg.bvh);
+        // The offscreen image is stretched to the window: give the camera the window's aspect.
+        let mut camera = self.renderer.camera(pose, &cfg.bvh);
+        camera.aspect = size.width as f32 / size.height as f32;
         let mut observed = Observed {
             inner: self.culler.as_mut(),
             log: FrameLog::default(),
@@ -437,7 +443,10 @@ impl Running {
                 self.algorithm, result.frame_ms, presented
             ),
             format!("QUERIES {}  WASTED {}", c.queries_begun, c.queries_visible),
-            format!("STATE CHANGES {}  BINDS {}", c.state_changes, c.pipeline_binds),
+            format!(
+                "STATE CHANGES {}  BINDS {}",
+                c.state_changes, c.pipeline_binds
+            ),
             format!("DRAWS {}  TRIANGLES {}", c.draw_calls, c.render_triangles),
         ];
         if self.algorithm == "chcpp" {
@@ -593,7 +602,11 @@ impl OcclusionBackend for Probe<'_> {
 
 /// The boxes of the query visualization, drawn in this order: objects outside the frustum,
 /// boxes of queries that came back invisible (one color per multi-box query), drawn objects.
-fn classify(scene: &Scene, camera: &crate::scene::camera::Camera, log: &FrameLog) -> Vec<(Aabb, Class)> {
+fn classify(
+    scene: &Scene,
+    camera: &crate::scene::camera::Camera,
+    log: &FrameLog,
+) -> Vec<(Aabb, Class)> {
     let frustum = camera.frustum();
     let mut out: Vec<(Aabb, Class)> = scene
         .objects
