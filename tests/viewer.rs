@@ -170,7 +170,13 @@ fn non_interactive_view_under_xvfb_with_validation() {
 /// `vkCmdDraw` and `draw_indexed` counts `vkCmdDrawIndexed`; our `draws` counts both.
 #[test]
 fn stats_match_mesa_overlay_layer() {
-    let dir = scratch("overlay");
+    for algorithm in ["vfc", "stop-and-wait", "chc", "chcpp", "oracle"] {
+        overlay_cross_check(algorithm);
+    }
+}
+
+fn overlay_cross_check(algorithm: &str) {
+    let dir = scratch(&format!("overlay-{algorithm}"));
     let overlay = dir.join("overlay.csv");
     let stats = dir.join("stats.csv");
     let config = format!(
@@ -188,7 +194,7 @@ fn stats_match_mesa_overlay_layer() {
             "--frames",
             "30",
             "--algorithm",
-            "chcpp",
+            algorithm,
             "--stats",
             stats.to_str().expect("utf-8 path"),
         ],
@@ -197,11 +203,15 @@ fn stats_match_mesa_overlay_layer() {
             ("VK_LAYER_MESA_OVERLAY_CONFIG", &config),
         ],
     );
-    assert!(out.status.success(), "viewer failed: {:?}", out.status);
+    assert!(
+        out.status.success(),
+        "{algorithm}: viewer failed: {:?}",
+        out.status
+    );
     let periods = read_csv(&overlay, ',');
     assert!(
         !periods.is_empty(),
-        "the overlay layer wrote no sampling period (is mesa-vulkan-drivers installed?)"
+        "{algorithm}: the overlay layer wrote no sampling period (is mesa-vulkan-drivers installed?)"
     );
     let (mut frames, mut binds, mut draws) = (0, 0, 0);
     for p in &periods {
@@ -211,14 +221,17 @@ fn stats_match_mesa_overlay_layer() {
     }
     let rows = read_csv(&stats, ',');
     assert_eq!(rows.len(), 30);
-    assert!(frames > 0 && frames <= 30, "overlay saw {frames} frames");
+    assert!(
+        frames > 0 && frames <= 30,
+        "{algorithm}: overlay saw {frames} frames"
+    );
     let ours = &rows[..frames as usize];
     let our_binds: u64 = ours.iter().map(|r| num(r, "pipeline_binds")).sum();
     let our_draws: u64 = ours.iter().map(|r| num(r, "draws")).sum();
     assert_eq!(
         (our_binds, our_draws),
         (binds, draws),
-        "pipeline binds and draws of the first {frames} frames: ours vs Mesa's overlay layer"
+        "{algorithm}: pipeline binds and draws of the first {frames} frames: ours vs Mesa's overlay layer"
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

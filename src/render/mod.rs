@@ -87,6 +87,7 @@ pub struct Renderer {
     push: [u8; PUSH_SIZE as usize],
     bound: Option<Bound>,
     stall: Duration,
+    prepass_counts: CommandCounts,
     /// Pixel count above which a query result means visible (for counting wasted queries).
     pub visibility_threshold: u64,
 }
@@ -269,6 +270,7 @@ impl Renderer {
             push,
             bound: None,
             stall: Duration::ZERO,
+            prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
         };
         Ok(renderer)
@@ -288,6 +290,14 @@ impl Renderer {
     /// COLOR_ATTACHMENT_OPTIMAL (the viewer blits it to the window).
     pub fn color_image(&self) -> &Image {
         &self.target.color
+    }
+
+    /// Binds, draws, triangles and submits of the exact-visibility pre-pass
+    /// ([`Renderer::exact_visible`], the oracle's) since the last call. They are not in
+    /// [`FrameResult::counts`] (the pass is a reference, not part of the algorithm) but are
+    /// submitted all the same, so the viewer adds them to its per-frame totals.
+    pub fn take_prepass_counts(&mut self) -> CommandCounts {
+        std::mem::take(&mut self.prepass_counts)
     }
 
     /// Triangles in the scene.
@@ -606,7 +616,9 @@ impl Renderer {
             self.index_buffer.handle,
         );
         let objects = &self.objects;
+        let mut pass = CommandCounts::default();
         self.oneshot.run(&mut self.recorder, |rec| {
+            let before = rec.counts;
             let undefined = (
                 vk::ImageLayout::UNDEFINED,
                 vk::PipelineStageFlags2::NONE,
@@ -685,7 +697,17 @@ impl Renderer {
                 }
             }
             rec.end_rendering();
+            pass.pipeline_binds = rec.counts.pipeline_binds - before.pipeline_binds;
+            pass.draw_calls = rec.counts.draw_calls - before.draw_calls;
+            pass.triangles = rec.counts.triangles - before.triangles;
         })?;
+        // The ID pass and its readback are two submissions.
+        pass.submits = 2;
+        let p = &mut self.prepass_counts;
+        p.pipeline_binds += pass.pipeline_binds;
+        p.draw_calls += pass.draw_calls;
+        p.triangles += pass.triangles;
+        p.submits += pass.submits;
         let bytes = targets::read_image(
             &self.ctx,
             &self.oneshot,

@@ -435,6 +435,7 @@ impl Running {
         let log = observed.log;
         self.frame += 1;
         add_counts(&mut self.pending, &result.counts);
+        add_counts(&mut self.pending, &self.renderer.take_prepass_counts());
 
         let c = &result.counts;
         let mut lines = vec![
