@@ -59,6 +59,8 @@ pub struct Swapchain {
     staging: Option<Buffer>,
     readback: Option<Buffer>,
     needs_recreate: bool,
+    /// The window size the swapchain was last made for.
+    made_for: (u32, u32),
     /// Present mode in use.
     pub present_mode: vk::PresentModeKHR,
 }
@@ -128,6 +130,7 @@ impl Swapchain {
             staging: None,
             readback: None,
             needs_recreate: false,
+            made_for: (width, height),
             present_mode: vk::PresentModeKHR::FIFO,
         };
         let d = &ctx.device;
@@ -202,6 +205,7 @@ impl Swapchain {
     /// the surface has no area.
     fn recreate(&mut self, width: u32, height: u32) -> Result<()> {
         self.ctx.wait_idle()?;
+        self.made_for = (width, height);
         let pd = self.ctx.physical_device;
         // SAFETY: valid physical device and surface.
         let caps = unsafe {
@@ -339,11 +343,7 @@ impl Swapchain {
         }
         if self.needs_recreate
             || self.swapchain == vk::SwapchainKHR::null()
-            || self.extent
-                != (vk::Extent2D {
-                    width: window_size.0,
-                    height: window_size.1,
-                })
+            || self.made_for != window_size
         {
             self.recreate(window_size.0, window_size.1)?;
             if self.swapchain == vk::SwapchainKHR::null() {
