@@ -180,7 +180,7 @@ fn overlay_cross_check(algorithm: &str) {
     let overlay = dir.join("overlay.csv");
     let stats = dir.join("stats.csv");
     let config = format!(
-        "output_file={},fps_sampling_period=150,pipeline_graphics,draw,draw_indexed,frame,no_display",
+        "output_file={},fps_sampling_period=50,pipeline_graphics,draw,draw_indexed,frame,no_display",
         overlay.display()
     );
     let out = run_viewer(

@@ -459,6 +459,10 @@ impl Running {
                 on_off(self.params.tight_bounds)
             ));
         }
+        if self.visualize {
+            lines.push("MAP: GREEN DRAWN  RED QUERY-CULLED".into());
+            lines.push("GRAY FRUSTUM  OTHER: MULTI-BOX QUERY".into());
+        }
         if cfg.frames.is_none() {
             lines.push("1-5 ALG  BIMT PARTS  V VIS  P PATH".into());
         }
