@@ -90,6 +90,46 @@ pub struct WalkArgs {
     pub chcpp: ChcppArgs,
 }
 
+/// `coherent view`.
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Camera path played back (default: the scene's first path).
+    #[arg(long)]
+    pub path: Option<String>,
+    /// Window size WxH.
+    #[arg(long, default_value = "1280x720")]
+    pub size: String,
+    /// Starting culling algorithm (keys 1-5 switch: vfc, stop-and-wait, chc, chcpp, oracle).
+    #[arg(long, default_value = "chcpp")]
+    pub algorithm: String,
+    /// Non-interactive: play the path for N presented frames, then exit.
+    #[arg(long)]
+    pub frames: Option<u32>,
+    /// Save the last frame (with its overlay) as this PNG (non-interactive), or the F12/K
+    /// screenshot (interactive).
+    #[arg(long)]
+    pub screenshot: Option<PathBuf>,
+    /// Write one CSV row per presented frame (frame,algorithm,frame_ms,pipeline_binds,draws,..).
+    #[arg(long)]
+    pub stats: Option<PathBuf>,
+    /// Turn the validation layer on (any message makes the run fail).
+    #[arg(long)]
+    pub validation: bool,
+    /// Present without vsync (MAILBOX or IMMEDIATE where available).
+    #[arg(long)]
+    pub no_vsync: bool,
+    /// Start with the query visualization (key V) on.
+    #[arg(long)]
+    pub visualize: bool,
+    /// Testing aid: before presented frame F, resize the window to WxH ("F:WxH").
+    #[arg(long, hide = true)]
+    pub resize_at: Option<String>,
+    #[command(flatten)]
+    pub chcpp: ChcppArgs,
+}
+
 /// CHC++ parameters.
 #[derive(Args, Debug, Clone)]
 pub struct ChcppArgs {
@@ -323,6 +363,67 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         std::fs::write(a.out.join("scaling.txt"), &table)?;
     }
     check_validation(&ctx)
+}
+
+/// `coherent view`.
+pub fn view(a: &ViewArgs) -> Result<()> {
+    let (w, h) = parse_size(&a.size)?;
+    if a.frames == Some(0) {
+        bail!("--frames must be at least 1");
+    }
+    let params = a.chcpp.params()?;
+    culling::create(&a.algorithm, &params)?;
+    let scene = load_scene(&a.scene)?;
+    let path = match &a.path {
+        Some(p) => scene.path(p)?.clone(),
+        None => scene.default_path()?.clone(),
+    };
+    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
+    let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let resize_at = match &a.resize_at {
+        Some(s) => {
+            let (f, size) = s
+                .split_once(':')
+                .with_context(|| format!("--resize-at \"{s}\" is not F:WxH"))?;
+            let f: u32 = f
+                .parse()
+                .with_context(|| format!("--resize-at \"{s}\": bad frame"))?;
+            Some((f, parse_size(size)?))
+        }
+        None => None,
+    };
+    let outcome = coherent::render::viewer::run(coherent::render::viewer::ViewerConfig {
+        scene,
+        bvh,
+        path,
+        width: w,
+        height: h,
+        algorithm: a.algorithm.clone(),
+        params,
+        frames: a.frames,
+        screenshot: a.screenshot.clone(),
+        stats: a.stats.clone(),
+        validation: a.validation,
+        vsync: !a.no_vsync,
+        visualize: a.visualize,
+        resize_at,
+    })?;
+    if outcome.validation_messages > 0 {
+        bail!(
+            "the validation layer reported {} messages (printed above)",
+            outcome.validation_messages
+        );
+    }
+    if let Some(n) = a.frames {
+        println!("view: presented {} of {n} frames", outcome.frames_presented);
+        if outcome.frames_presented < n {
+            bail!(
+                "the window closed after {} of {n} frames",
+                outcome.frames_presented
+            );
+        }
+    }
+    Ok(())
 }
 
 /// A progress bar on a terminal, plain lines otherwise.

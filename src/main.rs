@@ -25,6 +25,8 @@ enum Command {
     Render(cli::RenderArgs),
     /// Walk a camera path with several culling algorithms side by side; write a report and plots.
     Walk(cli::WalkArgs),
+    /// Open a window: fly camera, path playback, live algorithm switching, stats overlay.
+    View(cli::ViewArgs),
 }
 
 fn main() -> ExitCode {
@@ -33,6 +35,7 @@ fn main() -> ExitCode {
         Command::Info => cli::info(),
         Command::Render(a) => cli::render(&a),
         Command::Walk(a) => cli::walk(&a),
+        Command::View(a) => cli::view(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

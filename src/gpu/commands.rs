@@ -287,6 +287,42 @@ impl Recorder {
         };
     }
 
+    /// Blits layer 0 of `src` (TRANSFER_SRC_OPTIMAL) to `dst` (TRANSFER_DST_OPTIMAL), scaling
+    /// with nearest filtering (viewer presentation).
+    pub fn blit_image(&mut self, src: vk::Image, dst: vk::Image, region: vk::ImageBlit) {
+        // SAFETY: recording outside rendering; images in the stated layouts with blit usage.
+        unsafe {
+            self.device.cmd_blit_image(
+                self.cmd,
+                src,
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                dst,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &[region],
+                vk::Filter::NEAREST,
+            )
+        };
+    }
+
+    /// Copies buffer regions into `image` (TRANSFER_DST_OPTIMAL) (viewer overlay).
+    pub fn copy_buffer_to_image(
+        &mut self,
+        buffer: vk::Buffer,
+        image: vk::Image,
+        regions: &[vk::BufferImageCopy],
+    ) {
+        // SAFETY: recording outside rendering; regions inside both (checked by the caller).
+        unsafe {
+            self.device.cmd_copy_buffer_to_image(
+                self.cmd,
+                buffer,
+                image,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                regions,
+            )
+        };
+    }
+
     /// Dispatches a compute shader.
     pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {
         // SAFETY: compute pipeline bound.

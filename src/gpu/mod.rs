@@ -7,6 +7,7 @@ pub mod memory;
 pub mod pipelines;
 pub mod queries;
 pub mod shaders;
+pub mod swapchain;
 pub mod targets;
 
 use std::sync::Arc;

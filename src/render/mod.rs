@@ -3,7 +3,9 @@
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
 pub mod frame;
+pub mod overlay;
 pub mod upload;
+pub mod viewer;
 pub mod walk;
 
 use std::sync::Arc;
@@ -85,6 +87,7 @@ pub struct Renderer {
     push: [u8; PUSH_SIZE as usize],
     bound: Option<Bound>,
     stall: Duration,
+    prepass_counts: CommandCounts,
     /// Pixel count above which a query result means visible (for counting wasted queries).
     pub visibility_threshold: u64,
 }
@@ -270,6 +273,7 @@ impl Renderer {
             push,
             bound: None,
             stall: Duration::ZERO,
+            prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
         };
         Ok(renderer)
@@ -283,6 +287,20 @@ impl Renderer {
     /// Target size.
     pub fn size(&self) -> (u32, u32) {
         (self.target.extent.width, self.target.extent.height)
+    }
+
+    /// The offscreen color image; after [`Renderer::render_frame`] it is in
+    /// COLOR_ATTACHMENT_OPTIMAL (the viewer blits it to the window).
+    pub fn color_image(&self) -> &Image {
+        &self.target.color
+    }
+
+    /// Binds, draws, triangles and submits of the exact-visibility pre-pass
+    /// ([`Renderer::exact_visible`], the oracle's) since the last call. They are not in
+    /// [`FrameResult::counts`] (the pass is a reference, not part of the algorithm) but are
+    /// submitted all the same, so the viewer adds them to its per-frame totals.
+    pub fn take_prepass_counts(&mut self) -> CommandCounts {
+        std::mem::take(&mut self.prepass_counts)
     }
 
     /// Triangles in the scene.
@@ -601,7 +619,9 @@ impl Renderer {
             self.index_buffer.handle,
         );
         let objects = &self.objects;
+        let mut pass = CommandCounts::default();
         self.oneshot.run(&mut self.recorder, |rec| {
+            let before = rec.counts;
             let undefined = (
                 vk::ImageLayout::UNDEFINED,
                 vk::PipelineStageFlags2::NONE,
@@ -680,7 +700,17 @@ impl Renderer {
                 }
             }
             rec.end_rendering();
+            pass.pipeline_binds = rec.counts.pipeline_binds - before.pipeline_binds;
+            pass.draw_calls = rec.counts.draw_calls - before.draw_calls;
+            pass.triangles = rec.counts.triangles - before.triangles;
         })?;
+        // The ID pass and its readback are two submissions.
+        pass.submits = 2;
+        let p = &mut self.prepass_counts;
+        p.pipeline_binds += pass.pipeline_binds;
+        p.draw_calls += pass.draw_calls;
+        p.triangles += pass.triangles;
+        p.submits += pass.submits;
         let bytes = targets::read_image(
             &self.ctx,
             &self.oneshot,

@@ -1,0 +1,646 @@
+//! The windowed viewer (`coherent view`): a winit window presented through
+//! [`crate::gpu::swapchain`], a fly camera and path playback, live switching of culling
+//! algorithms and CHC++ parts, the stats overlay and the query visualization, and a
+//! non-interactive mode (N frames, screenshot, per-frame CSV) for tests and scripts.
+
+use std::collections::HashSet;
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::Vec3;
+use raw_window_handle::{HasDisplayHandle, HasWindowHandle};
+use winit::application::ApplicationHandler;
+use winit::dpi::PhysicalSize;
+use winit::event::{ElementState, MouseButton, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
+use winit::keyboard::{KeyCode, PhysicalKey};
+use winit::window::{Window, WindowId};
+
+use super::overlay::{self, Class};
+use super::Renderer;
+use crate::bvh::ObjectBvh;
+use crate::culling::{self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId};
+use crate::error::{Error, Result};
+use crate::gpu::swapchain::{self, Presented, Swapchain};
+use crate::gpu::{CommandCounts, ContextOptions, GpuContext, Recorder, ValidationLog};
+use crate::scene::{Aabb, CameraPath, CameraPose, Scene};
+
+/// What `coherent view` was asked to do.
+pub struct ViewerConfig {
+    /// The scene.
+    pub scene: Scene,
+    /// Its object hierarchy.
+    pub bvh: ObjectBvh,
+    /// The path played back.
+    pub path: CameraPath,
+    /// Window (and offscreen target) size.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Starting algorithm.
+    pub algorithm: String,
+    /// CHC++ parameters (the keys B, I, M, T toggle its parts).
+    pub params: ChcppParams,
+    /// Non-interactive: present this many frames of the path, then exit.
+    pub frames: Option<u32>,
+    /// Where to save the last frame (non-interactive) or the F12 screenshot.
+    pub screenshot: Option<PathBuf>,
+    /// CSV with one row per presented frame.
+    pub stats: Option<PathBuf>,
+    /// Validation layer on.
+    pub validation: bool,
+    /// FIFO present mode (else MAILBOX/IMMEDIATE where available).
+    pub vsync: bool,
+    /// Start with the query visualization on.
+    pub visualize: bool,
+    /// Scripted resize for tests: before presented frame `.0`, ask for a window of `.1`.
+    pub resize_at: Option<(u32, (u32, u32))>,
+}
+
+/// What a viewer run did.
+pub struct ViewerOutcome {
+    /// Frames presented.
+    pub frames_presented: u32,
+    /// Validation messages captured (teardown included).
+    pub validation_messages: usize,
+}
+
+/// Runs the viewer until the window is closed (or, non-interactive, until the frames are done).
+pub fn run(cfg: ViewerConfig) -> Result<ViewerOutcome> {
+    let event_loop =
+        EventLoop::new().map_err(|e| Error::Input(format!("cannot open a window: {e}")))?;
+    event_loop.set_control_flow(ControlFlow::Poll);
+    let mut app = App {
+        cfg,
+        state: None,
+        log: None,
+        error: None,
+        presented: 0,
+    };
+    let ran = event_loop.run_app(&mut app);
+    app.state = None;
+    if let Some(e) = app.error.take() {
+        return Err(e);
+    }
+    ran.map_err(|e| Error::Input(format!("window event loop: {e}")))?;
+    Ok(ViewerOutcome {
+        frames_presented: app.presented,
+        validation_messages: app.log.map(|l| l.count()).unwrap_or(0),
+    })
+}
+
+struct App {
+    cfg: ViewerConfig,
+    state: Option<Running>,
+    log: Option<Arc<ValidationLog>>,
+    error: Option<Error>,
+    presented: u32,
+}
+
+/// Everything that lives while the window is open. Fields drop in order: the swapchain before
+/// the renderer and context, the window last.
+struct Running {
+    swapchain: Swapchain,
+    renderer: Renderer,
+    recorder: Recorder,
+    culler: Box<dyn Culler>,
+    algorithm: String,
+    params: ChcppParams,
+    stats: Option<std::io::BufWriter<std::fs::File>>,
+    pending: CommandCounts,
+    frame: u64,
+    path_t: f32,
+    playing: bool,
+    eye: Vec3,
+    yaw: f32,
+    pitch: f32,
+    held: HashSet<KeyCode>,
+    dragging: bool,
+    cursor: Option<(f64, f64)>,
+    last_tick: Instant,
+    visualize: bool,
+    screenshot_requested: bool,
+    screenshots: u32,
+    resized: bool,
+    _ctx: Arc<GpuContext>,
+    window: Window,
+}
+
+impl ApplicationHandler for App {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.state.is_some() {
+            return;
+        }
+        match self.start(event_loop) {
+            Ok(s) => self.state = Some(s),
+            Err(e) => {
+                self.error = Some(e);
+                event_loop.exit();
+            }
+        }
+    }
+
+    fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        let Some(s) = self.state.as_mut() else {
+            return;
+        };
+        match event {
+            WindowEvent::CloseRequested => event_loop.exit(),
+            WindowEvent::Resized(_) => s.swapchain.invalidate(),
+            WindowEvent::KeyboardInput { event, .. } => {
+                let PhysicalKey::Code(code) = event.physical_key else {
+                    return;
+                };
+                if event.state == ElementState::Released {
+                    s.held.remove(&code);
+                    return;
+                }
+                if event.repeat {
+                    return;
+                }
+                s.held.insert(code);
+                if let Err(e) = s.key(code, &self.cfg) {
+                    self.error = Some(e);
+                    event_loop.exit();
+                }
+                if code == KeyCode::Escape {
+                    event_loop.exit();
+                }
+            }
+            WindowEvent::MouseInput {
+                state,
+                button: MouseButton::Left,
+                ..
+            } => s.dragging = state == ElementState::Pressed,
+            WindowEvent::CursorMoved { position, .. } => {
+                if let (true, Some((x, y))) = (s.dragging, s.cursor) {
+                    s.yaw += ((position.x - x) * 0.005) as f32;
+                    s.pitch = (s.pitch - ((position.y - y) * 0.005) as f32).clamp(-1.5, 1.5);
+                    s.playing = false;
+                }
+                s.cursor = Some((position.x, position.y));
+            }
+            _ => {}
+        }
+    }
+
+    fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
+        if self.error.is_some() {
+            return;
+        }
+        let Some(s) = self.state.as_mut() else {
+            return;
+        };
+        match s.frame(&self.cfg, self.presented) {
+            Ok(true) => {
+                self.presented += 1;
+                if self.cfg.frames.is_some_and(|n| self.presented >= n) {
+                    event_loop.exit();
+                }
+            }
+            Ok(false) => std::thread::sleep(std::time::Duration::from_millis(10)),
+            Err(e) => {
+                self.error = Some(e);
+                event_loop.exit();
+            }
+        }
+    }
+
+    fn exiting(&mut self, _event_loop: &ActiveEventLoop) {
+        if let Some(s) = self.state.as_mut() {
+            if let Some(w) = s.stats.as_mut() {
+                if let Err(e) = w.flush() {
+                    self.error.get_or_insert(Error::Io(e));
+                }
+            }
+        }
+        self.state = None;
+    }
+}
+
+impl App {
+    fn start(&mut self, event_loop: &ActiveEventLoop) -> Result<Running> {
+        let cfg = &self.cfg;
+        let attrs = Window::default_attributes()
+            .with_title(format!("coherent: {}", cfg.scene.name))
+            .with_inner_size(PhysicalSize::new(cfg.width, cfg.height));
+        let window = event_loop
+            .create_window(attrs)
+            .map_err(|e| Error::Input(format!("cannot create a window: {e}")))?;
+        let display = window
+            .display_handle()
+            .map_err(|e| Error::Input(format!("no display handle: {e}")))?
+            .as_raw();
+        let handle = window
+            .window_handle()
+            .map_err(|e| Error::Input(format!("no window handle: {e}")))?
+            .as_raw();
+        let ctx = GpuContext::new(&ContextOptions {
+            validation: cfg.validation,
+            echo_validation: true,
+            instance_extensions: swapchain::required_instance_extensions(display)?,
+            device_extensions: vec![ash::khr::swapchain::NAME.to_owned()],
+            ..Default::default()
+        })?;
+        self.log = Some(ctx.validation_log());
+        let size = window.inner_size();
+        let swapchain = Swapchain::new(&ctx, display, handle, size.width, size.height, cfg.vsync)?;
+        let mut renderer = Renderer::new(&ctx, &cfg.scene, cfg.width, cfg.height)?;
+        renderer.visibility_threshold = cfg.params.pixel_threshold;
+        let culler = culling::create(&cfg.algorithm, &cfg.params)?;
+        let stats = match &cfg.stats {
+            Some(p) => {
+                let mut w = std::io::BufWriter::new(std::fs::File::create(p)?);
+                writeln!(
+                    w,
+                    "frame,algorithm,frame_ms,pipeline_binds,draws,queries,wasted_queries,state_changes,triangles,submits"
+                )?;
+                Some(w)
+            }
+            None => None,
+        };
+        let pose = cfg.path.pose_at(0.0);
+        let dir = (pose.target - pose.eye).normalize_or(Vec3::NEG_Z);
+        Ok(Running {
+            swapchain,
+            renderer,
+            recorder: Recorder::new(ctx.device.clone()),
+            culler,
+            algorithm: cfg.algorithm.clone(),
+            params: cfg.params.clone(),
+            stats,
+            pending: CommandCounts::default(),
+            frame: 0,
+            path_t: 0.0,
+            playing: true,
+            eye: pose.eye,
+            yaw: dir.z.atan2(dir.x),
+            pitch: dir.y.clamp(-1.0, 1.0).asin(),
+            held: HashSet::new(),
+            dragging: false,
+            cursor: None,
+            last_tick: Instant::now(),
+            visualize: cfg.visualize,
+            screenshot_requested: false,
+            screenshots: 0,
+            resized: false,
+            _ctx: ctx,
+            window,
+        })
+    }
+}
+
+fn add_counts(a: &mut CommandCounts, b: &CommandCounts) {
+    a.pipeline_binds += b.pipeline_binds;
+    a.state_changes += b.state_changes;
+    a.draw_calls += b.draw_calls;
+    a.triangles += b.triangles;
+    a.render_triangles += b.render_triangles;
+    a.queries_begun += b.queries_begun;
+    a.queries_read += b.queries_read;
+    a.queries_visible += b.queries_visible;
+    a.submits += b.submits;
+    a.descriptor_binds += b.descriptor_binds;
+    a.buffer_binds += b.buffer_binds;
+}
+
+fn on_off(b: bool) -> &'static str {
+    if b {
+        "ON"
+    } else {
+        "OFF"
+    }
+}
+
+impl Running {
+    fn key(&mut self, code: KeyCode, cfg: &ViewerConfig) -> Result<()> {
+        let algorithm = match code {
+            KeyCode::Digit1 => Some("vfc"),
+            KeyCode::Digit2 => Some("stop-and-wait"),
+            KeyCode::Digit3 => Some("chc"),
+            KeyCode::Digit4 => Some("chcpp"),
+            KeyCode::Digit5 => Some("oracle"),
+            _ => None,
+        };
+        let mut rebuild = algorithm.is_some();
+        if let Some(a) = algorithm {
+            self.algorithm = a.to_string();
+        }
+        match code {
+            KeyCode::KeyB => self.params.batching = !self.params.batching,
+            KeyCode::KeyI => self.params.randomized_interval = !self.params.randomized_interval,
+            KeyCode::KeyM => self.params.multiqueries = !self.params.multiqueries,
+            KeyCode::KeyT => self.params.tight_bounds = !self.params.tight_bounds,
+            KeyCode::KeyV => self.visualize = !self.visualize,
+            KeyCode::KeyP => {
+                self.playing = !self.playing;
+                if !self.playing {
+                    let pose = cfg.path.pose_at(self.path_t);
+                    let dir = (pose.target - pose.eye).normalize_or(Vec3::NEG_Z);
+                    self.eye = pose.eye;
+                    self.yaw = dir.z.atan2(dir.x);
+                    self.pitch = dir.y.clamp(-1.0, 1.0).asin();
+                }
+            }
+            KeyCode::F12 | KeyCode::KeyK => self.screenshot_requested = true,
+            _ => {}
+        }
+        if matches!(
+            code,
+            KeyCode::KeyB | KeyCode::KeyI | KeyCode::KeyM | KeyCode::KeyT
+        ) && self.algorithm == "chcpp"
+        {
+            rebuild = true;
+        }
+        if rebuild {
+            self.culler = culling::create(&self.algorithm, &self.params)?;
+        }
+        Ok(())
+    }
+
+    fn pose(&mut self, cfg: &ViewerConfig, presented: u32) -> CameraPose {
+        let now = Instant::now();
+        let dt = (now - self.last_tick).as_secs_f32().min(0.1);
+        self.last_tick = now;
+        if cfg.frames.is_some() {
+            self.path_t = presented as f32;
+            return cfg.path.pose_at(self.path_t);
+        }
+        let dir = Vec3::new(
+            self.yaw.cos() * self.pitch.cos(),
+            self.pitch.sin(),
+            self.yaw.sin() * self.pitch.cos(),
+        );
+        let right = dir.cross(Vec3::Y).normalize_or(Vec3::X);
+        let world = cfg.bvh.nodes[0].bounds;
+        let speed = world.extent().length().max(1.0) * 0.08 * dt;
+        let mut step = Vec3::ZERO;
+        for (k, v) in [
+            (KeyCode::KeyW, dir),
+            (KeyCode::KeyS, -dir),
+            (KeyCode::KeyD, right),
+            (KeyCode::KeyA, -right),
+            (KeyCode::KeyE, Vec3::Y),
+            (KeyCode::KeyQ, -Vec3::Y),
+        ] {
+            if self.held.contains(&k) {
+                step += v;
+            }
+        }
+        if step != Vec3::ZERO {
+            self.playing = false;
+        }
+        if self.playing {
+            self.path_t = (self.path_t + dt * 30.0) % cfg.path.natural_frames().max(1) as f32;
+            let pose = cfg.path.pose_at(self.path_t);
+            let d = (pose.target - pose.eye).normalize_or(Vec3::NEG_Z);
+            self.eye = pose.eye;
+            self.yaw = d.z.atan2(d.x);
+            self.pitch = d.y.clamp(-1.0, 1.0).asin();
+            return pose;
+        }
+        self.eye += step * speed;
+        CameraPose {
+            eye: self.eye,
+            target: self.eye + dir,
+        }
+    }
+
+    /// Renders and presents one frame; `Ok(false)` when nothing could be shown.
+    fn frame(&mut self, cfg: &ViewerConfig, presented: u32) -> Result<bool> {
+        if let Some((at, (w, h))) = cfg.resize_at {
+            if presented == at && !self.resized {
+                self.resized = true;
+                // The new size arrives with a Resized event or is already current.
+                let _ = self.window.request_inner_size(PhysicalSize::new(w, h));
+            }
+        }
+        let size = self.window.inner_size();
+        if size.width == 0 || size.height == 0 {
+            return Ok(false);
+        }
+        let pose = self.pose(cfg, presented);
+        // The offscreen image is stretched to the window: give the camera the window's aspect.
+        let mut camera = self.renderer.camera(pose, &cfg.bvh);
+        camera.aspect = size.width as f32 / size.height as f32;
+        let mut observed = Observed {
+            inner: self.culler.as_mut(),
+            log: FrameLog::default(),
+        };
+        let result = self
+            .renderer
+            .render_frame(&mut observed, &cfg.bvh, &camera, self.frame)?;
+        let log = observed.log;
+        self.frame += 1;
+        add_counts(&mut self.pending, &result.counts);
+        add_counts(&mut self.pending, &self.renderer.take_prepass_counts());
+
+        let c = &result.counts;
+        let mut lines = vec![
+            format!(
+                "{}  {:.1} MS  FRAME {}",
+                self.algorithm, result.frame_ms, presented
+            ),
+            format!("QUERIES {}  WASTED {}", c.queries_begun, c.queries_visible),
+            format!(
+                "STATE CHANGES {}  BINDS {}",
+                c.state_changes, c.pipeline_binds
+            ),
+            format!("DRAWS {}  TRIANGLES {}", c.draw_calls, c.render_triangles),
+        ];
+        if self.algorithm == "chcpp" {
+            lines.push(format!(
+                "B {} I {} M {} T {}",
+                on_off(self.params.batching),
+                on_off(self.params.randomized_interval),
+                on_off(self.params.multiqueries),
+                on_off(self.params.tight_bounds)
+            ));
+        }
+        if self.visualize {
+            lines.push("MAP: GREEN DRAWN  RED QUERY-CULLED".into());
+            lines.push("GRAY FRUSTUM  OTHER: MULTI-BOX QUERY".into());
+        }
+        if cfg.frames.is_none() {
+            lines.push("1-5 ALG  BIMT PARTS  V VIS  P PATH".into());
+        }
+        let scale = if size.width >= 800 { 2 } else { 1 };
+        let mut panels = vec![overlay::text_panel(&lines, 4, 4, scale)];
+        if self.visualize {
+            let side = size.width.min(size.height) / 3;
+            let boxes = classify(&cfg.scene, &camera, &log);
+            panels.push(overlay::map_panel(
+                &cfg.bvh.nodes[0].bounds,
+                &boxes,
+                camera.eye,
+                size.width.saturating_sub(side + 4),
+                size.height.saturating_sub(side + 4),
+                side,
+            ));
+        }
+        let last = cfg.frames.is_some_and(|n| presented + 1 >= n);
+        let want_shot = self.screenshot_requested || (last && cfg.screenshot.is_some());
+        let shown = self.swapchain.present(
+            &mut self.recorder,
+            self.renderer.color_image(),
+            &panels,
+            (size.width, size.height),
+            want_shot,
+        )?;
+        let Presented::Shown { pixels } = shown else {
+            return Ok(false);
+        };
+        let present_counts = self.recorder.take_counts();
+        let mut total = std::mem::take(&mut self.pending);
+        add_counts(&mut total, &present_counts);
+        if let Some(w) = self.stats.as_mut() {
+            writeln!(
+                w,
+                "{},{},{:.3},{},{},{},{},{},{},{}",
+                presented,
+                self.algorithm,
+                result.frame_ms,
+                total.pipeline_binds,
+                total.draw_calls,
+                total.queries_begun,
+                total.queries_visible,
+                total.state_changes,
+                total.render_triangles,
+                total.submits
+            )?;
+        }
+        if let Some((w, h, px)) = pixels {
+            let path = match (&cfg.screenshot, self.screenshot_requested) {
+                (Some(p), false) => p.clone(),
+                (Some(p), true) if cfg.frames.is_some() => p.clone(),
+                _ => {
+                    self.screenshots += 1;
+                    PathBuf::from(format!("coherent-{}.png", self.screenshots))
+                }
+            };
+            super::save_rgba_png(&path, w, h, px)?;
+            if cfg.frames.is_none() {
+                eprintln!("view: saved {}", path.display());
+            }
+        }
+        self.screenshot_requested = false;
+        Ok(true)
+    }
+}
+
+/// Draws, queries and their results of one frame, seen between a culler and the renderer.
+#[derive(Default)]
+struct FrameLog {
+    drawn: Vec<u32>,
+    queries: Vec<(QueryId, Vec<Aabb>)>,
+    results: std::collections::HashMap<QueryId, u64>,
+}
+
+/// A culler wrapped so that the backend it talks to is logged.
+struct Observed<'a> {
+    inner: &'a mut dyn Culler,
+    log: FrameLog,
+}
+
+struct Probe<'a> {
+    inner: &'a mut dyn OcclusionBackend,
+    log: &'a mut FrameLog,
+}
+
+impl Culler for Observed<'_> {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn needs_exact_visibility(&self) -> bool {
+        self.inner.needs_exact_visibility()
+    }
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats> {
+        let mut probe = Probe {
+            inner: backend,
+            log: &mut self.log,
+        };
+        self.inner.cull_frame(input, &mut probe)
+    }
+    fn reset(&mut self) {
+        self.inner.reset()
+    }
+}
+
+impl OcclusionBackend for Probe<'_> {
+    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
+        self.log.drawn.extend_from_slice(objects);
+        self.inner.draw_objects(objects)
+    }
+    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+        let id = self.inner.issue_query(boxes)?;
+        self.log.queries.push((id, boxes.to_vec()));
+        Ok(id)
+    }
+    fn restore_render_state(&mut self) -> Result<()> {
+        self.inner.restore_render_state()
+    }
+    fn flush(&mut self) -> Result<()> {
+        self.inner.flush()
+    }
+    fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+        let r = self.inner.query_result(query)?;
+        if let Some(v) = r {
+            self.log.results.insert(query, v);
+        }
+        Ok(r)
+    }
+    fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+        let v = self.inner.wait_query(query)?;
+        self.log.results.insert(query, v);
+        Ok(v)
+    }
+    fn finish(&mut self) -> Result<()> {
+        self.inner.finish()
+    }
+}
+
+/// The boxes of the query visualization, drawn in this order: objects outside the frustum,
+/// boxes of queries that came back invisible (one color per multi-box query), drawn objects.
+fn classify(
+    scene: &Scene,
+    camera: &crate::scene::camera::Camera,
+    log: &FrameLog,
+) -> Vec<(Aabb, Class)> {
+    let frustum = camera.frustum();
+    let mut out: Vec<(Aabb, Class)> = scene
+        .objects
+        .iter()
+        .filter(|o| !frustum.intersects(&o.bounds))
+        .map(|o| (o.bounds, Class::FrustumCulled))
+        .collect();
+    let mut multi = 0;
+    for (id, boxes) in &log.queries {
+        let visible = log.results.get(id).is_some_and(|&v| v > 0);
+        if visible {
+            continue;
+        }
+        let class = if boxes.len() > 1 {
+            multi += 1;
+            Class::Multiquery(multi - 1)
+        } else {
+            Class::QueryCulled
+        };
+        out.extend(boxes.iter().map(|b| (*b, class)));
+    }
+    out.extend(log.drawn.iter().filter_map(|&o| {
+        scene
+            .objects
+            .get(o as usize)
+            .map(|ob| (ob.bounds, Class::Rendered))
+    }));
+    // Large boxes (the ground) first, so that they don't hide the small ones.
+    let footprint = |b: &Aabb| (b.max.x - b.min.x) * (b.max.z - b.min.z);
+    out.sort_by(|a, b| footprint(&b.0).total_cmp(&footprint(&a.0)));
+    out
+}

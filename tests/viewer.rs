@@ -1,0 +1,272 @@
+//! The windowed viewer under Xvfb on lavapipe: the non-interactive mode with validation on
+//! (screenshot pixels: scene, stats overlay, query map), and its per-frame counts cross-checked
+//! against Mesa's overlay layer (`VK_LAYER_MESA_overlay`), a counter that is not ours.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::Mutex;
+
+/// `xvfb-run -a` picks a free display number racily; run one viewer at a time.
+static XVFB: Mutex<()> = Mutex::new(());
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("coherent-viewer-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn run_viewer(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let _guard = XVFB.lock().unwrap_or_else(|p| p.into_inner());
+    let mut cmd = Command::new("xvfb-run");
+    cmd.args([
+        "-a",
+        "-s",
+        "-screen 0 640x480x24",
+        env!("CARGO_BIN_EXE_coherent"),
+        "view",
+    ])
+    .args(args);
+    if std::env::var_os("COHERENT_DEVICE").is_none() {
+        cmd.env("COHERENT_DEVICE", "llvmpipe");
+    }
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = cmd
+        .output()
+        .expect("xvfb-run must be installed (scripts/setup.sh installs xvfb)");
+    eprintln!(
+        "viewer stdout:\n{}\nviewer stderr:\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// Rows of a CSV with a header, as maps from column name to value.
+fn read_csv(path: &Path, sep: char) -> Vec<HashMap<String, String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+    let header: Vec<String> = lines
+        .next()
+        .expect("header")
+        .split(sep)
+        .map(|s| s.trim().to_string())
+        .collect();
+    lines
+        .map(|l| {
+            header
+                .iter()
+                .cloned()
+                .zip(l.split(sep).map(|s| s.trim().to_string()))
+                .collect()
+        })
+        .collect()
+}
+
+fn num(row: &HashMap<String, String>, col: &str) -> u64 {
+    row.get(col)
+        .unwrap_or_else(|| panic!("column {col} missing in {row:?}"))
+        .parse()
+        .unwrap_or_else(|e| panic!("column {col}: {e}"))
+}
+
+#[test]
+fn non_interactive_view_under_xvfb_with_validation() {
+    let dir = scratch("shot");
+    let shot = dir.join("v.png");
+    let stats = dir.join("stats.csv");
+    let out = run_viewer(
+        &[
+            "--scene",
+            "city",
+            "--scale",
+            "0.1",
+            "--size",
+            "320x240",
+            "--frames",
+            "20",
+            "--validation",
+            "--visualize",
+            "--screenshot",
+            shot.to_str().expect("utf-8 path"),
+            "--stats",
+            stats.to_str().expect("utf-8 path"),
+        ],
+        &[],
+    );
+    assert!(out.status.success(), "viewer failed: {:?}", out.status);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !stderr.contains("validation"),
+        "validation messages were printed:\n{stderr}"
+    );
+
+    let img = image::open(&shot).expect("screenshot PNG").to_rgba8();
+    assert_eq!(img.dimensions(), (320, 240));
+    let px = |x: u32, y: u32| img.get_pixel(x, y).0;
+
+    // The stats panel in the top-left corner: white text on black.
+    let (mut white, mut black) = (0, 0);
+    for y in 4..40 {
+        for x in 4..120 {
+            match px(x, y) {
+                [255, 255, 255, _] => white += 1,
+                [0, 0, 0, _] => black += 1,
+                _ => {}
+            }
+        }
+    }
+    assert!(
+        white > 300,
+        "too few text pixels in the stats panel: {white}"
+    );
+    assert!(black > 1000, "too few panel background pixels: {black}");
+
+    // The scene: the middle band (below the panel, left of the map) has many colors, sky and more.
+    let mut colors = std::collections::HashSet::new();
+    for y in 60..230 {
+        for x in 0..200 {
+            colors.insert(px(x, y));
+        }
+    }
+    assert!(
+        colors.len() > 50,
+        "the scene looks flat: {} colors",
+        colors.len()
+    );
+    let sky = [158u8, 189, 219];
+    let skyish = (0..320)
+        .flat_map(|x| (40..120).map(move |y| (x, y)))
+        .filter(|&(x, y)| {
+            let p = px(x, y);
+            (0..3).all(|i| (p[i] as i32 - sky[i] as i32).abs() < 12)
+        })
+        .count();
+    assert!(skyish > 0, "no sky visible");
+
+    // The query map in the bottom-right corner shows rendered (green) boxes.
+    let side = 240 / 3;
+    let green = (320 - side - 4..316)
+        .flat_map(|x| (240 - side - 4..236).map(move |y| (x, y)))
+        .filter(|&(x, y)| px(x, y) == [40, 210, 60, 255])
+        .count();
+    assert!(green > 20, "no rendered boxes on the query map");
+
+    let rows = read_csv(&stats, ',');
+    assert_eq!(rows.len(), 20, "one stats row per presented frame");
+    for (i, r) in rows.iter().enumerate() {
+        assert_eq!(num(r, "frame"), i as u64);
+        assert!(num(r, "draws") > 0);
+        assert!(num(r, "pipeline_binds") > 0);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Mesa's overlay layer counts, per sampling period, the frames presented and the pipeline binds
+/// and draws of every command buffer submitted between presents. It does not flush its last
+/// period, so compare the sums over the periods it wrote with our first rows. Its `draw` counts
+/// `vkCmdDraw` and `draw_indexed` counts `vkCmdDrawIndexed`; our `draws` counts both.
+#[test]
+fn stats_match_mesa_overlay_layer() {
+    for algorithm in ["vfc", "stop-and-wait", "chc", "chcpp", "oracle"] {
+        overlay_cross_check(algorithm);
+    }
+}
+
+fn overlay_cross_check(algorithm: &str) {
+    let dir = scratch(&format!("overlay-{algorithm}"));
+    let overlay = dir.join("overlay.csv");
+    let stats = dir.join("stats.csv");
+    let config = format!(
+        "output_file={},fps_sampling_period=50,pipeline_graphics,draw,draw_indexed,frame,no_display",
+        overlay.display()
+    );
+    let out = run_viewer(
+        &[
+            "--scene",
+            "city",
+            "--scale",
+            "0.1",
+            "--size",
+            "320x240",
+            "--frames",
+            "30",
+            "--algorithm",
+            algorithm,
+            "--stats",
+            stats.to_str().expect("utf-8 path"),
+        ],
+        &[
+            ("VK_INSTANCE_LAYERS", "VK_LAYER_MESA_overlay"),
+            ("VK_LAYER_MESA_OVERLAY_CONFIG", &config),
+        ],
+    );
+    assert!(
+        out.status.success(),
+        "{algorithm}: viewer failed: {:?}",
+        out.status
+    );
+    let periods = read_csv(&overlay, ',');
+    assert!(
+        !periods.is_empty(),
+        "{algorithm}: the overlay layer wrote no sampling period (is mesa-vulkan-drivers installed?)"
+    );
+    let (mut frames, mut binds, mut draws) = (0, 0, 0);
+    for p in &periods {
+        frames += num(p, "frame");
+        binds += num(p, "pipeline_graphics");
+        draws += num(p, "draw") + num(p, "draw_indexed");
+    }
+    let rows = read_csv(&stats, ',');
+    assert_eq!(rows.len(), 30);
+    assert!(
+        frames > 0 && frames <= 30,
+        "{algorithm}: overlay saw {frames} frames"
+    );
+    let ours = &rows[..frames as usize];
+    let our_binds: u64 = ours.iter().map(|r| num(r, "pipeline_binds")).sum();
+    let our_draws: u64 = ours.iter().map(|r| num(r, "draws")).sum();
+    assert_eq!(
+        (our_binds, our_draws),
+        (binds, draws),
+        "{algorithm}: pipeline binds and draws of the first {frames} frames: ours vs Mesa's overlay layer"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A resize in the middle of the run recreates the swapchain without validation messages, and
+/// the last frame is presented at the new size.
+#[test]
+fn resize_recreates_the_swapchain_under_validation() {
+    let dir = scratch("resize");
+    let shot = dir.join("r.png");
+    let out = run_viewer(
+        &[
+            "--scene",
+            "city",
+            "--scale",
+            "0.1",
+            "--size",
+            "320x240",
+            "--frames",
+            "16",
+            "--validation",
+            "--resize-at",
+            "6:200x150",
+            "--screenshot",
+            shot.to_str().expect("utf-8 path"),
+        ],
+        &[],
+    );
+    assert!(out.status.success(), "viewer failed: {:?}", out.status);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !stderr.contains("validation"),
+        "validation messages:\n{stderr}"
+    );
+    let img = image::open(&shot).expect("screenshot PNG").to_rgba8();
+    assert_eq!(img.dimensions(), (200, 150));
+    let _ = std::fs::remove_dir_all(&dir);
+}
