@@ -373,7 +373,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     }
     let params = a.chcpp.params()?;
     culling::create(&a.algorithm, &params)?;
-    let scene = load_scene(&a.scene)?;
+    let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),

@@ -300,8 +300,8 @@ pub fn city(scale: f32) -> Scene {
     }
     // street: walk along a street, turn, walk another; eye height 1.7 m.
     let s0 = block + street / 2.0; // centre line of the first street
-    // The paths are laid out on the default-size city (14 blocks), so that larger scales grow
-    // the city around the same walk (for scaling measurements).
+                                   // The paths are laid out on the default-size city (14 blocks), so that larger scales grow
+                                   // the city around the same walk (for scaling measurements).
     let path_blocks = blocks.min(14);
     let path_extent = path_blocks as f32 * pitch;
     let mid = (path_blocks / 2) as f32 * pitch - street / 2.0;
