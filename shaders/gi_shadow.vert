@@ -1,0 +1,66 @@
+#version 450
+#extension GL_ARB_shader_viewport_layer_array : require
+// Layered paraboloid shadow maps (incremental instant radiosity): one instance per shadow slot
+// (a VPL, or the spotlight), each writing its own layer of one 2D-array depth image via gl_Layer.
+// Vertices are pulled from a storage buffer of world-space triangles (non-indexed draw), so each
+// vertex can see its whole triangle and cull triangles entirely behind the hemisphere.
+//
+// Projection: in the slot's frame (tangent, bitangent, normal), a point at offset l with length
+// len maps to p = l.xy / (len + l.z), the unit disk for the hemisphere l.z >= 0 (Brabec et al.'s
+// paraboloid map); depth = len / far, linear in distance. The map is non-linear: the rasterizer
+// interpolates straight edges and linear depth in paraboloid space, while the true images of long
+// edges are curves. Scenes here are made of moderately sized triangles, so we accept the error and
+// cover it with the depth bias of the lookup (see gi_gather.comp), rather than tessellating.
+// Triangles straddling the base plane keep their behind-vertices on the rim (the horizon) with a
+// negative clip-space depth, so depth clipping cuts them near the plane (approximately).
+
+struct GiVertex { vec4 position; vec4 normal; vec4 albedo; };
+layout(std430, set = 0, binding = 0) readonly buffer Vertices { GiVertex verts[]; };
+struct Slot { vec4 position_layer; vec4 normal; };
+layout(std430, set = 0, binding = 1) readonly buffer Slots { Slot slots[]; };
+
+layout(push_constant) uniform Push {
+    mat4 view_proj;
+    vec4 eye;
+    vec4 params; // x: first slot of this draw, y: far distance
+} pc;
+
+// Duff et al. 2017 branchless orthonormal basis; must match gi_gather.comp and gi_resolve.comp.
+void basis(vec3 n, out vec3 t, out vec3 b) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float k = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * k, -s * n.x);
+    b = vec3(k, s + n.y * n.y * a, -n.y);
+}
+
+void main() {
+    Slot s = slots[int(pc.params.x) + gl_InstanceIndex];
+    gl_Layer = int(s.position_layer.w);
+    vec3 origin = s.position_layer.xyz;
+    vec3 n = normalize(s.normal.xyz);
+    int tri = gl_VertexIndex / 3;
+    bool all_behind = true;
+    for (int i = 0; i < 3; i++) {
+        if (dot(verts[tri * 3 + i].position.xyz - origin, n) >= 0.0) {
+            all_behind = false;
+        }
+    }
+    if (all_behind) {
+        // Degenerate and outside the clip volume: the whole triangle is dropped.
+        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+        return;
+    }
+    vec3 t, b;
+    basis(n, t, b);
+    vec3 d = verts[gl_VertexIndex].position.xyz - origin;
+    vec3 l = vec3(dot(d, t), dot(d, b), dot(d, n));
+    float len = length(l);
+    float far = pc.params.y;
+    if (l.z < 0.0) {
+        vec2 rim = dot(l.xy, l.xy) > 0.0 ? normalize(l.xy) : vec2(1.0, 0.0);
+        gl_Position = vec4(rim, l.z / max(len, 1e-6), 1.0);
+    } else {
+        gl_Position = vec4(l.xy / max(len + l.z, 1e-9), len / far, 1.0);
+    }
+}
