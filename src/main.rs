@@ -21,6 +21,8 @@ enum Command {
     Render(cli::RenderArgs),
     /// Walk a camera path with several culling algorithms side by side; write a report and plots.
     Walk(cli::WalkArgs),
+    /// Incremental instant radiosity vs full recompute along a moving spotlight; PNGs and a report.
+    Gi(cli::GiArgs),
 }
 
 fn main() -> ExitCode {
@@ -29,6 +31,7 @@ fn main() -> ExitCode {
         Command::Info => cli::info(),
         Command::Render(a) => cli::render(&a),
         Command::Walk(a) => cli::walk(&a),
+        Command::Gi(a) => cli::gi(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

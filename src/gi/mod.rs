@@ -10,3 +10,4 @@ pub mod renderer;
 pub mod shadow;
 
 pub use renderer::{GiFrame, GiOptions, GiRenderer, OutputMode};
+pub mod session;
