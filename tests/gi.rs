@@ -43,13 +43,21 @@ fn cornell_indirect_light_bleeds_wall_colors() {
         let mut renderer = GiRenderer::new(
             &ctx,
             &geometry,
-            GiOptions { width: w, height: h, vpl_layers: 64, max_vpls: 64, shadow_size: 128 },
+            GiOptions {
+                width: w,
+                height: h,
+                vpl_layers: 64,
+                max_vpls: 64,
+                shadow_size: 128,
+            },
         )
         .expect("renderer");
         renderer.output = OutputMode::IndirectOnly;
         let mut set = VplSet::new(64, 64);
         let stats = set.recompute_all(&light, &rays);
-        renderer.frame(&light, set.vpls(), &stats.new_layers, &camera).expect("frame");
+        renderer
+            .frame(&light, set.vpls(), &stats.new_layers, &camera)
+            .expect("frame");
         let pixels = renderer.read_output().expect("readback");
         let vp = camera.view_proj();
         let near_red = red_green_ratio(&pixels, w, h, vp, Vec3::new(0.4, 0.0, 4.8));
@@ -76,19 +84,31 @@ fn incremental_renders_at_most_budget_shadow_maps_full_renders_all() {
         let (w, h) = (64, 48);
         let camera = default_camera(&scene, &geometry, w as f32 / h as f32);
         let (n, b) = (32usize, 4usize);
-        let options = GiOptions { width: w, height: h, vpl_layers: n as u32, max_vpls: n as u32, shadow_size: 64 };
+        let options = GiOptions {
+            width: w,
+            height: h,
+            vpl_layers: n as u32,
+            max_vpls: n as u32,
+            shadow_size: 64,
+        };
         let frames = 8;
         let mut incremental = GiRenderer::new(&ctx, &geometry, options).expect("renderer");
         let mut set = VplSet::new(n, b);
         for f in 0..frames {
             let light = path.at(f as f32 / (frames - 1) as f32);
             let stats = set.update(&light, &rays);
-            let frame = incremental.frame(&light, set.vpls(), &stats.new_layers, &camera).expect("frame");
+            let frame = incremental
+                .frame(&light, set.vpls(), &stats.new_layers, &camera)
+                .expect("frame");
             assert_eq!(frame.shadow_maps_rendered as usize, stats.new_layers.len());
             if f == 0 {
                 assert_eq!(frame.shadow_maps_rendered as usize, set.vpls().len());
             } else {
-                assert!(frame.shadow_maps_rendered as usize <= b, "frame {f}: {} maps", frame.shadow_maps_rendered);
+                assert!(
+                    frame.shadow_maps_rendered as usize <= b,
+                    "frame {f}: {} maps",
+                    frame.shadow_maps_rendered
+                );
             }
         }
         drop(incremental);
@@ -97,8 +117,13 @@ fn incremental_renders_at_most_budget_shadow_maps_full_renders_all() {
         for f in 0..3 {
             let light = path.at(f as f32 / 2.0);
             let stats = set.recompute_all(&light, &rays);
-            let frame = full.frame(&light, set.vpls(), &stats.new_layers, &camera).expect("frame");
-            assert!(set.vpls().len() > n / 2, "most of the {n} rays should hit the box");
+            let frame = full
+                .frame(&light, set.vpls(), &stats.new_layers, &camera)
+                .expect("frame");
+            assert!(
+                set.vpls().len() > n / 2,
+                "most of the {n} rays should hit the box"
+            );
             assert_eq!(frame.shadow_maps_rendered as usize, set.vpls().len());
         }
         drop(full);
@@ -106,12 +131,20 @@ fn incremental_renders_at_most_budget_shadow_maps_full_renders_all() {
         let mut chunked = GiRenderer::new(
             &ctx,
             &geometry,
-            GiOptions { width: w, height: h, vpl_layers: 8, max_vpls: n as u32, shadow_size: 64 },
+            GiOptions {
+                width: w,
+                height: h,
+                vpl_layers: 8,
+                max_vpls: n as u32,
+                shadow_size: 64,
+            },
         )
         .expect("renderer");
         let light = path.at(0.5);
         let stats = set.recompute_all(&light, &rays);
-        let frame = chunked.frame(&light, set.vpls(), &stats.new_layers, &camera).expect("frame");
+        let frame = chunked
+            .frame(&light, set.vpls(), &stats.new_layers, &camera)
+            .expect("frame");
         assert!(frame.chunks > 1);
         assert_eq!(frame.shadow_maps_rendered as usize, set.vpls().len());
     }

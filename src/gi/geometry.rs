@@ -31,7 +31,8 @@ impl WorldGeometry {
         for o in &scene.objects {
             let normal_matrix = Mat3::from_mat4(o.transform.inverse().transpose());
             let color = o.color.truncate();
-            let indices = &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
+            let indices =
+                &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
             for tri in indices.chunks_exact(3) {
                 let mut p = [Vec3::ZERO; 3];
                 let mut n = [Vec3::ZERO; 3];
@@ -46,7 +47,12 @@ impl WorldGeometry {
                 albedo.push(color);
             }
         }
-        WorldGeometry { triangles, normals, albedo, bounds }
+        WorldGeometry {
+            triangles,
+            normals,
+            albedo,
+            bounds,
+        }
     }
 
     /// The CPU ray-casting scene (BVH over the same triangles).

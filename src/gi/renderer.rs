@@ -117,9 +117,15 @@ pub struct GiRenderer {
 
 impl GiRenderer {
     /// Uploads `geometry` and creates everything for `options`.
-    pub fn new(ctx: &Arc<GpuContext>, geometry: &WorldGeometry, options: GiOptions) -> Result<GiRenderer> {
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        geometry: &WorldGeometry,
+        options: GiOptions,
+    ) -> Result<GiRenderer> {
         if options.vpl_layers == 0 || options.shadow_size == 0 {
-            return Err(Error::Input("GI needs at least one VPL layer and a non-empty shadow map".into()));
+            return Err(Error::Input(
+                "GI needs at least one VPL layer and a non-empty shadow map".into(),
+            ));
         }
         let vertex_data = geometry.gpu_vertices();
         let vertex_count = u32::try_from(vertex_data.len() / VERTEX_FLOATS)
@@ -129,14 +135,32 @@ impl GiRenderer {
         let graphics_layout = PipelineLayout::new(ctx, &[storage, storage], GRAPHICS_PUSH)?;
         let compute_layout = PipelineLayout::new(
             ctx,
-            &[image, image, image, storage, vk::DescriptorType::COMBINED_IMAGE_SAMPLER, image, image],
+            &[
+                image,
+                image,
+                image,
+                storage,
+                vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+                image,
+                image,
+            ],
             COMPUTE_PUSH,
         )?;
-        let shadow = ShadowMaps::new(ctx, &graphics_layout, options.vpl_layers, options.shadow_size)?;
+        let shadow = ShadowMaps::new(
+            ctx,
+            &graphics_layout,
+            options.vpl_layers,
+            options.shadow_size,
+        )?;
         let gbuffer = GBuffer::new(ctx, &graphics_layout, options.width, options.height)?;
         let gather = ComputePipeline::new(ctx, &compute_layout, "gi gather", GATHER_COMP)?;
         let resolve = ComputePipeline::new(ctx, &compute_layout, "gi resolve", RESOLVE_COMP)?;
-        let vertices = Buffer::with_data(ctx, "gi vertices", &as_bytes(&vertex_data), vk::BufferUsageFlags::STORAGE_BUFFER)?;
+        let vertices = Buffer::with_data(
+            ctx,
+            "gi vertices",
+            &as_bytes(&vertex_data),
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+        )?;
         let max_vpls = options.max_vpls.max(options.vpl_layers);
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
         let slots = Buffer::new(
@@ -204,23 +228,55 @@ impl GiRenderer {
         // SAFETY: valid device and create info.
         self.sampler = unsafe { d.create_sampler(&sampler_info, None) }.vk("vkCreateSampler")?;
         let sizes = [
-            vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: 3 },
-            vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 5 },
-            vk::DescriptorPoolSize { ty: vk::DescriptorType::COMBINED_IMAGE_SAMPLER, descriptor_count: 1 },
+            vk::DescriptorPoolSize {
+                ty: vk::DescriptorType::STORAGE_BUFFER,
+                descriptor_count: 3,
+            },
+            vk::DescriptorPoolSize {
+                ty: vk::DescriptorType::STORAGE_IMAGE,
+                descriptor_count: 5,
+            },
+            vk::DescriptorPoolSize {
+                ty: vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+                descriptor_count: 1,
+            },
         ];
-        let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(2).pool_sizes(&sizes);
+        let pool_info = vk::DescriptorPoolCreateInfo::default()
+            .max_sets(2)
+            .pool_sizes(&sizes);
         // SAFETY: valid device and create info.
-        self.descriptor_pool = unsafe { d.create_descriptor_pool(&pool_info, None) }.vk("vkCreateDescriptorPool")?;
-        let layouts = [self.graphics_layout.set_layout, self.compute_layout.set_layout];
-        let alloc = vk::DescriptorSetAllocateInfo::default().descriptor_pool(self.descriptor_pool).set_layouts(&layouts);
+        self.descriptor_pool =
+            unsafe { d.create_descriptor_pool(&pool_info, None) }.vk("vkCreateDescriptorPool")?;
+        let layouts = [
+            self.graphics_layout.set_layout,
+            self.compute_layout.set_layout,
+        ];
+        let alloc = vk::DescriptorSetAllocateInfo::default()
+            .descriptor_pool(self.descriptor_pool)
+            .set_layouts(&layouts);
         // SAFETY: the pool has room for both sets.
         let sets = unsafe { d.allocate_descriptor_sets(&alloc) }.vk("vkAllocateDescriptorSets")?;
         self.graphics_set = sets[0];
         self.compute_set = sets[1];
-        let buffer = |b: &Buffer| [vk::DescriptorBufferInfo { buffer: b.handle, offset: 0, range: vk::WHOLE_SIZE }];
-        let storage_image =
-            |view: vk::ImageView| [vk::DescriptorImageInfo { sampler: vk::Sampler::null(), image_view: view, image_layout: vk::ImageLayout::GENERAL }];
-        let (vb, sb, pb) = (buffer(&self.vertices), buffer(&self.slots), buffer(&self.vpl_buffer));
+        let buffer = |b: &Buffer| {
+            [vk::DescriptorBufferInfo {
+                buffer: b.handle,
+                offset: 0,
+                range: vk::WHOLE_SIZE,
+            }]
+        };
+        let storage_image = |view: vk::ImageView| {
+            [vk::DescriptorImageInfo {
+                sampler: vk::Sampler::null(),
+                image_view: view,
+                image_layout: vk::ImageLayout::GENERAL,
+            }]
+        };
+        let (vb, sb, pb) = (
+            buffer(&self.vertices),
+            buffer(&self.slots),
+            buffer(&self.vpl_buffer),
+        );
         let g = &self.gbuffer;
         let imgs = [
             storage_image(g.position.view),
@@ -255,7 +311,8 @@ impl GiRenderer {
             .queue_family_index(self.ctx.queue_family)
             .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
         // SAFETY: valid device.
-        self.command_pool = unsafe { d.create_command_pool(&pool_info, None) }.vk("vkCreateCommandPool")?;
+        self.command_pool =
+            unsafe { d.create_command_pool(&pool_info, None) }.vk("vkCreateCommandPool")?;
         let alloc = vk::CommandBufferAllocateInfo::default()
             .command_pool(self.command_pool)
             .level(vk::CommandBufferLevel::PRIMARY)
@@ -263,7 +320,8 @@ impl GiRenderer {
         // SAFETY: valid pool.
         self.cmd = unsafe { d.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
         // SAFETY: valid device.
-        self.fence = unsafe { d.create_fence(&vk::FenceCreateInfo::default(), None) }.vk("vkCreateFence")?;
+        self.fence =
+            unsafe { d.create_fence(&vk::FenceCreateInfo::default(), None) }.vk("vkCreateFence")?;
         Ok(())
     }
 
@@ -280,22 +338,39 @@ impl GiRenderer {
     /// Renders one frame: G-buffer from `camera`; shadow maps for the spotlight and for the VPLs
     /// whose layer is in `new_layers` (all VPLs' maps when they span several chunks); gather of
     /// every VPL in `vpls`; resolve. Blocks until the GPU is done.
-    pub fn frame(&mut self, light: &Spotlight, vpls: &[Vpl], new_layers: &[u32], camera: &Camera) -> Result<GiFrame> {
+    pub fn frame(
+        &mut self,
+        light: &Spotlight,
+        vpls: &[Vpl],
+        new_layers: &[u32],
+        camera: &Camera,
+    ) -> Result<GiFrame> {
         let start = Instant::now();
         if vpls.len() > self.max_vpls as usize {
-            return Err(Error::Input(format!("{} VPLs exceed this renderer's {}", vpls.len(), self.max_vpls)));
+            return Err(Error::Input(format!(
+                "{} VPLs exceed this renderer's {}",
+                vpls.len(),
+                self.max_vpls
+            )));
         }
         let cap = self.shadow.vpl_layers;
         let max_layer = vpls.iter().map(|v| v.layer).max().unwrap_or(0);
         let chunks = max_layer / cap + 1;
         if vpls.len() as u32 + chunks > self.max_slots {
-            return Err(Error::Input(format!("VPL layers up to {max_layer} need too many chunks")));
+            return Err(Error::Input(format!(
+                "VPL layers up to {max_layer} need too many chunks"
+            )));
         }
         let new: HashSet<u32> = new_layers.iter().copied().collect();
         let dir = light.direction.try_normalize().unwrap_or(Vec3::NEG_Y);
-        let spot = ShadowSlot { position: light.position, normal: dir, layer: cap };
+        let spot = ShadowSlot {
+            position: light.position,
+            normal: dir,
+            layer: cap,
+        };
         let mut vpl_data: Vec<f32> = Vec::with_capacity(vpls.len() * VPL_FLOATS);
-        let mut slot_data: Vec<f32> = Vec::with_capacity((vpls.len() + chunks as usize) * SLOT_FLOATS);
+        let mut slot_data: Vec<f32> =
+            Vec::with_capacity((vpls.len() + chunks as usize) * SLOT_FLOATS);
         // Per chunk: (first VPL, VPL count, first slot, layers to render).
         let mut plan = Vec::new();
         for c in 0..chunks {
@@ -306,11 +381,20 @@ impl GiRenderer {
             for v in vpls.iter().filter(|v| v.layer / cap == c) {
                 let local = v.layer - c * cap;
                 let flux = light.power * v.weight * v.albedo;
-                vpl_data.extend_from_slice(&[v.position.x, v.position.y, v.position.z, local as f32]);
+                vpl_data.extend_from_slice(&[
+                    v.position.x,
+                    v.position.y,
+                    v.position.z,
+                    local as f32,
+                ]);
                 vpl_data.extend_from_slice(&[v.normal.x, v.normal.y, v.normal.z, 0.0]);
                 vpl_data.extend_from_slice(&[flux.x, flux.y, flux.z, 0.0]);
                 if chunks > 1 || new.contains(&v.layer) {
-                    let slot = ShadowSlot { position: v.position, normal: v.normal, layer: local };
+                    let slot = ShadowSlot {
+                        position: v.position,
+                        normal: v.normal,
+                        layer: local,
+                    };
                     slot_data.extend_from_slice(&slot.to_floats());
                     layers.push(local);
                 }
@@ -326,10 +410,12 @@ impl GiRenderer {
         let d = &self.ctx.device;
         // SAFETY: the previous frame waited for its fence, so the buffer is not in flight.
         unsafe {
-            d.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty()).vk("vkResetCommandBuffer")?;
+            d.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty())
+                .vk("vkResetCommandBuffer")?;
             d.begin_command_buffer(
                 self.cmd,
-                &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+                &vk::CommandBufferBeginInfo::default()
+                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
             )
             .vk("vkBeginCommandBuffer")?;
         }
@@ -338,18 +424,36 @@ impl GiRenderer {
         let mut gpush = [0f32; 24];
         gpush[..16].copy_from_slice(&camera.view_proj().to_cols_array());
         gpush[16..19].copy_from_slice(&camera.eye.to_array());
-        self.gbuffer.record_gbuffer(&mut self.recorder, &self.graphics_layout, self.graphics_set, &gpush, self.vertex_count);
+        self.gbuffer.record_gbuffer(
+            &mut self.recorder,
+            &self.graphics_layout,
+            self.graphics_set,
+            &gpush,
+            self.vertex_count,
+        );
         let mode = match self.output {
             OutputMode::Full => 0.0,
             OutputMode::IndirectOnly => 1.0,
             OutputMode::DirectOnly => 2.0,
         };
         let mut cpush = [0f32; 20];
-        cpush[..4].copy_from_slice(&[light.position.x, light.position.y, light.position.z, cap as f32]);
+        cpush[..4].copy_from_slice(&[
+            light.position.x,
+            light.position.y,
+            light.position.z,
+            cap as f32,
+        ]);
         cpush[4..8].copy_from_slice(&[dir.x, dir.y, dir.z, self.far]);
         cpush[8..12].copy_from_slice(&[light.power.x, light.power.y, light.power.z, mode]);
-        cpush[16..20].copy_from_slice(&[self.shadow_bias, self.exposure, self.normal_offset, self.blur_threshold]);
-        let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT | vk::ShaderStageFlags::COMPUTE;
+        cpush[16..20].copy_from_slice(&[
+            self.shadow_bias,
+            self.exposure,
+            self.normal_offset,
+            self.blur_threshold,
+        ]);
+        let stages = vk::ShaderStageFlags::VERTEX
+            | vk::ShaderStageFlags::FRAGMENT
+            | vk::ShaderStageFlags::COMPUTE;
         let mut maps = 0;
         for (c, (first_vpl, count, first_slot, layers)) in plan.iter().enumerate() {
             maps += self.shadow.record(
@@ -362,24 +466,38 @@ impl GiRenderer {
                 self.vertex_count,
                 self.far,
             )?;
-            self.recorder.bind_descriptor_set(vk::PipelineBindPoint::COMPUTE, self.compute_layout.handle, self.compute_set);
-            cpush[12..16].copy_from_slice(&[*first_vpl as f32, *count as f32, if c > 0 { 1.0 } else { 0.0 }, self.clamp_distance]);
-            self.recorder.push_constants(self.compute_layout.handle, stages, &as_bytes(&cpush));
-            self.gbuffer.record_dispatch(&mut self.recorder, &self.gather);
+            self.recorder.bind_descriptor_set(
+                vk::PipelineBindPoint::COMPUTE,
+                self.compute_layout.handle,
+                self.compute_set,
+            );
+            cpush[12..16].copy_from_slice(&[
+                *first_vpl as f32,
+                *count as f32,
+                if c > 0 { 1.0 } else { 0.0 },
+                self.clamp_distance,
+            ]);
+            self.recorder
+                .push_constants(self.compute_layout.handle, stages, &as_bytes(&cpush));
+            self.gbuffer
+                .record_dispatch(&mut self.recorder, &self.gather);
             self.gbuffer.record_compute_barrier(&mut self.recorder);
         }
-        self.gbuffer.record_dispatch(&mut self.recorder, &self.resolve);
+        self.gbuffer
+            .record_dispatch(&mut self.recorder, &self.resolve);
         let cmds = [self.cmd];
         let submit = vk::SubmitInfo::default().command_buffers(&cmds);
         // SAFETY: recorded completely above; the fence is unsignaled.
         unsafe {
             d.end_command_buffer(self.cmd).vk("vkEndCommandBuffer")?;
-            d.queue_submit(self.ctx.queue, &[submit], self.fence).vk("vkQueueSubmit")?;
+            d.queue_submit(self.ctx.queue, &[submit], self.fence)
+                .vk("vkQueueSubmit")?;
         }
         self.recorder.note_submit();
         // SAFETY: submitted with this fence just above.
         unsafe {
-            d.wait_for_fences(&[self.fence], true, u64::MAX).vk("vkWaitForFences")?;
+            d.wait_for_fences(&[self.fence], true, u64::MAX)
+                .vk("vkWaitForFences")?;
             d.reset_fences(&[self.fence]).vk("vkResetFences")?;
         }
         let frame_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -395,7 +513,15 @@ impl GiRenderer {
     /// Reads the last frame's tone-mapped image as RGBA8 rows, top row first.
     pub fn read_output(&mut self) -> Result<Vec<u8>> {
         let (layout, stage, access) = GBuffer::output_state();
-        targets::read_image(&self.ctx, &self.oneshot, &mut self.recorder, &self.gbuffer.output, layout, stage, access)
+        targets::read_image(
+            &self.ctx,
+            &self.oneshot,
+            &mut self.recorder,
+            &self.gbuffer.output,
+            layout,
+            stage,
+            access,
+        )
     }
 }
 
@@ -405,14 +531,22 @@ impl Drop for GiRenderer {
         unsafe {
             let _ = self.ctx.device.device_wait_idle();
             self.ctx.device.destroy_fence(self.fence, None);
-            self.ctx.device.destroy_command_pool(self.command_pool, None);
-            self.ctx.device.destroy_descriptor_pool(self.descriptor_pool, None);
+            self.ctx
+                .device
+                .destroy_command_pool(self.command_pool, None);
+            self.ctx
+                .device
+                .destroy_descriptor_pool(self.descriptor_pool, None);
             self.ctx.device.destroy_sampler(self.sampler, None);
         }
     }
 }
 
-fn buf_write<'a>(set: vk::DescriptorSet, binding: u32, info: &'a [vk::DescriptorBufferInfo; 1]) -> vk::WriteDescriptorSet<'a> {
+fn buf_write<'a>(
+    set: vk::DescriptorSet,
+    binding: u32,
+    info: &'a [vk::DescriptorBufferInfo; 1],
+) -> vk::WriteDescriptorSet<'a> {
     vk::WriteDescriptorSet::default()
         .dst_set(set)
         .dst_binding(binding)
@@ -420,7 +554,11 @@ fn buf_write<'a>(set: vk::DescriptorSet, binding: u32, info: &'a [vk::Descriptor
         .buffer_info(info)
 }
 
-fn img_write<'a>(set: vk::DescriptorSet, binding: u32, info: &'a [vk::DescriptorImageInfo; 1]) -> vk::WriteDescriptorSet<'a> {
+fn img_write<'a>(
+    set: vk::DescriptorSet,
+    binding: u32,
+    info: &'a [vk::DescriptorImageInfo; 1],
+) -> vk::WriteDescriptorSet<'a> {
     vk::WriteDescriptorSet::default()
         .dst_set(set)
         .dst_binding(binding)

@@ -43,7 +43,9 @@ impl GiMode {
             "incremental" => Ok(vec![GiMode::Incremental]),
             "full" => Ok(vec![GiMode::Full]),
             "both" => Ok(vec![GiMode::Incremental, GiMode::Full]),
-            other => Err(Error::Input(format!("unknown GI mode \"{other}\" (incremental, full, both)"))),
+            other => Err(Error::Input(format!(
+                "unknown GI mode \"{other}\" (incremental, full, both)"
+            ))),
         }
     }
 }
@@ -63,7 +65,10 @@ impl LightPath {
         let s = 0.5 - 0.5 * (std::f32::consts::PI * t.clamp(0.0, 1.0)).cos();
         Spotlight::new(
             self.start.position.lerp(self.end.position, s),
-            self.start.direction.lerp(self.end.direction, s).normalize_or(Vec3::NEG_Y),
+            self.start
+                .direction
+                .lerp(self.end.direction, s)
+                .normalize_or(Vec3::NEG_Y),
             self.start.power.lerp(self.end.power, s),
         )
     }
@@ -74,7 +79,11 @@ impl LightPath {
     /// distance d the light looks across).
     pub fn for_scene(name: &str, geometry: &WorldGeometry, rays: &RayScene) -> LightPath {
         let b = geometry.bounds;
-        let (c, e) = if b.is_valid() { (b.center(), b.extent()) } else { (Vec3::ZERO, Vec3::ONE) };
+        let (c, e) = if b.is_valid() {
+            (b.center(), b.extent())
+        } else {
+            (Vec3::ZERO, Vec3::ONE)
+        };
         let (p0, d0, p1, d1) = match name {
             "cornell" => (
                 Vec3::new(1.4, 5.25, 2.2),
@@ -82,17 +91,37 @@ impl LightPath {
                 Vec3::new(4.1, 5.25, 3.2),
                 Vec3::new(0.45, -1.0, 0.25),
             ),
-            "hall" => (Vec3::new(-2.0, 9.0, 4.0), Vec3::new(0.1, -1.0, 0.5), Vec3::new(2.0, 9.0, 44.0), Vec3::new(-0.1, -1.0, 0.5)),
+            "hall" => (
+                Vec3::new(-2.0, 9.0, 4.0),
+                Vec3::new(0.1, -1.0, 0.5),
+                Vec3::new(2.0, 9.0, 44.0),
+                Vec3::new(-0.1, -1.0, 0.5),
+            ),
             _ => {
-                let axis = if e.x >= e.z { Vec3::X * e.x } else { Vec3::Z * e.z };
+                let axis = if e.x >= e.z {
+                    Vec3::X * e.x
+                } else {
+                    Vec3::Z * e.z
+                };
                 let top = c + Vec3::Y * (0.3 * e.y);
-                (top - 0.3 * axis, Vec3::NEG_Y + 0.3 * axis.normalize(), top + 0.3 * axis, Vec3::NEG_Y + 0.3 * axis.normalize())
+                (
+                    top - 0.3 * axis,
+                    Vec3::NEG_Y + 0.3 * axis.normalize(),
+                    top + 0.3 * axis,
+                    Vec3::NEG_Y + 0.3 * axis.normalize(),
+                )
             }
         };
         let d0 = d0.normalize();
-        let reach = rays.intersect(p0, d0, f32::INFINITY).map(|h| h.t).unwrap_or(geometry.diagonal() * 0.5);
+        let reach = rays
+            .intersect(p0, d0, f32::INFINITY)
+            .map(|h| h.t)
+            .unwrap_or(geometry.diagonal() * 0.5);
         let power = Vec3::splat(25.0 * reach * reach);
-        LightPath { start: Spotlight::new(p0, d0, power), end: Spotlight::new(p1, d1.normalize(), power) }
+        LightPath {
+            start: Spotlight::new(p0, d0, power),
+            end: Spotlight::new(p1, d1.normalize(), power),
+        }
     }
 }
 
@@ -102,8 +131,15 @@ pub fn default_camera(scene: &Scene, geometry: &WorldGeometry, aspect: f32) -> C
     let pose = match scene.default_path() {
         Ok(p) => p.pose_at(0.0),
         Err(_) => {
-            let (c, e) = if b.is_valid() { (b.center(), b.extent()) } else { (Vec3::ZERO, Vec3::ONE) };
-            CameraPose { eye: c + Vec3::new(0.0, 0.1 * e.y, -0.45 * e.z), target: c + Vec3::Z * e.z * 0.2 }
+            let (c, e) = if b.is_valid() {
+                (b.center(), b.extent())
+            } else {
+                (Vec3::ZERO, Vec3::ONE)
+            };
+            CameraPose {
+                eye: c + Vec3::new(0.0, 0.1 * e.y, -0.45 * e.z),
+                target: c + Vec3::Z * e.z * 0.2,
+            }
         }
     };
     let far = geometry.diagonal() * 2.0 + (pose.eye - b.center()).length();
@@ -170,7 +206,10 @@ pub struct GiSummary {
     pub algorithms: Vec<(String, ModeSummary)>,
 }
 
-fn ordered<S: serde::Serializer>(pairs: &[(String, ModeSummary)], s: S) -> std::result::Result<S::Ok, S::Error> {
+fn ordered<S: serde::Serializer>(
+    pairs: &[(String, ModeSummary)],
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
     use serde::ser::SerializeMap;
     let mut map = s.serialize_map(Some(pairs.len()))?;
     for (k, v) in pairs {
@@ -225,7 +264,9 @@ pub fn sample_frames(frames: u32, n: u32) -> Vec<u32> {
     if n == 1 {
         return vec![frames - 1];
     }
-    let mut v: Vec<u32> = (0..n).map(|i| ((i as u64 * (frames - 1) as u64) / (n - 1) as u64) as u32).collect();
+    let mut v: Vec<u32> = (0..n)
+        .map(|i| ((i as u64 * (frames - 1) as u64) / (n - 1) as u64) as u32)
+        .collect();
     v.dedup();
     v
 }
@@ -269,7 +310,9 @@ fn reference_images(
     frames: &[u32],
 ) -> Result<Vec<Vec<u8>>> {
     let n = opts.vpls * 4;
-    let layers = (n as u32).min(ctx.info.max_image_array_layers.saturating_sub(1)).max(1);
+    let layers = (n as u32)
+        .min(ctx.info.max_image_array_layers.saturating_sub(1))
+        .max(1);
     let mut renderer = GiRenderer::new(
         ctx,
         geometry,
@@ -330,7 +373,13 @@ fn run_mode(
         },
     )?;
     let mut set = VplSet::new(opts.vpls, opts.budget);
-    let mut run = ModeRun { mode, frames: Vec::new(), update_ms: Vec::new(), samples: Vec::new(), last: Vec::new() };
+    let mut run = ModeRun {
+        mode,
+        frames: Vec::new(),
+        update_ms: Vec::new(),
+        samples: Vec::new(),
+        last: Vec::new(),
+    };
     for f in 0..opts.frames {
         let light = path.at(f as f32 / (opts.frames.max(2) - 1) as f32);
         let start = Instant::now();
@@ -357,9 +406,16 @@ fn run_mode(
 }
 
 /// Runs every mode of `opts` on `scene`, writing PNGs and `summary.json` to `out` if given.
-pub fn run(ctx: &Arc<GpuContext>, scene: &Scene, opts: &GiRunOptions, out: Option<&Path>) -> Result<GiSummary> {
+pub fn run(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    opts: &GiRunOptions,
+    out: Option<&Path>,
+) -> Result<GiSummary> {
     if opts.vpls == 0 || opts.frames == 0 {
-        return Err(Error::Input("gi needs at least one VPL and one frame".into()));
+        return Err(Error::Input(
+            "gi needs at least one VPL and one frame".into(),
+        ));
     }
     let geometry = WorldGeometry::from_scene(scene);
     let rays = geometry.ray_scene();
@@ -369,7 +425,12 @@ pub fn run(ctx: &Arc<GpuContext>, scene: &Scene, opts: &GiRunOptions, out: Optio
     let reference = reference_images(ctx, &geometry, &rays, &path, &camera, opts, &sampled)?;
     if let Some(dir) = out {
         std::fs::create_dir_all(dir)?;
-        save_strip(&dir.join("reference_strip.png"), opts.width, opts.height, &reference)?;
+        save_strip(
+            &dir.join("reference_strip.png"),
+            opts.width,
+            opts.height,
+            &reference,
+        )?;
     }
     let mut summary = GiSummary {
         scene: scene.name.clone(),
@@ -382,26 +443,55 @@ pub fn run(ctx: &Arc<GpuContext>, scene: &Scene, opts: &GiRunOptions, out: Optio
     };
     for &mode in &opts.modes {
         let r = run_mode(ctx, &geometry, &rays, &path, &camera, opts, mode, &sampled)?;
-        let totals: Vec<f64> = r.frames.iter().zip(&r.update_ms).map(|(f, u)| f.frame_ms + u).collect();
-        let maps: Vec<f64> = r.frames.iter().map(|f| f.shadow_maps_rendered as f64).collect();
-        let errors: Vec<f64> = r.samples.iter().zip(&reference).map(|(a, b)| rmse(a, b)).collect();
+        let totals: Vec<f64> = r
+            .frames
+            .iter()
+            .zip(&r.update_ms)
+            .map(|(f, u)| f.frame_ms + u)
+            .collect();
+        let maps: Vec<f64> = r
+            .frames
+            .iter()
+            .map(|f| f.shadow_maps_rendered as f64)
+            .collect();
+        let errors: Vec<f64> = r
+            .samples
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| rmse(a, b))
+            .collect();
         let m = ModeSummary {
             frame_ms_median: percentile(&totals, 0.5),
             frame_ms_p95: percentile(&totals, 0.95),
             update_ms_median: percentile(&r.update_ms, 0.5),
             shadow_maps_rendered_median: percentile(&maps, 0.5),
             vpls: opts.vpls,
-            budget: if mode == GiMode::Full { opts.vpls } else { opts.budget },
+            budget: if mode == GiMode::Full {
+                opts.vpls
+            } else {
+                opts.budget
+            },
             rmse_vs_reference: errors.iter().sum::<f64>() / errors.len().max(1) as f64,
         };
         if let Some(dir) = out {
-            crate::render::save_rgba_png(&dir.join(format!("{}.png", mode.name())), opts.width, opts.height, r.last.clone())?;
-            save_strip(&dir.join(format!("{}_strip.png", mode.name())), opts.width, opts.height, &r.samples)?;
+            crate::render::save_rgba_png(
+                &dir.join(format!("{}.png", mode.name())),
+                opts.width,
+                opts.height,
+                r.last.clone(),
+            )?;
+            save_strip(
+                &dir.join(format!("{}_strip.png", mode.name())),
+                opts.width,
+                opts.height,
+                &r.samples,
+            )?;
         }
         summary.algorithms.push((mode.name().to_string(), m));
     }
     if let Some(dir) = out {
-        let json = serde_json::to_string_pretty(&summary).map_err(|e| Error::Input(format!("summary.json: {e}")))?;
+        let json = serde_json::to_string_pretty(&summary)
+            .map_err(|e| Error::Input(format!("summary.json: {e}")))?;
         std::fs::write(dir.join("summary.json"), json)?;
     }
     Ok(summary)
@@ -420,5 +510,7 @@ pub fn save_strip(path: &Path, width: u32, height: u32, images: &[Vec<u8>]) -> R
         let small = image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
         image::imageops::replace(&mut strip, &small, (i as u32 * w) as i64, 0);
     }
-    strip.save(path).map_err(|e| Error::Input(format!("{}: cannot write PNG: {e}", path.display())))
+    strip
+        .save(path)
+        .map_err(|e| Error::Input(format!("{}: cannot write PNG: {e}", path.display())))
 }

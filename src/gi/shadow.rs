@@ -52,7 +52,12 @@ pub struct ShadowMaps {
 
 impl ShadowMaps {
     /// Creates `vpl_layers + 1` layers of `size`² texels and the layered pipeline.
-    pub fn new(ctx: &Arc<GpuContext>, layout: &PipelineLayout, vpl_layers: u32, size: u32) -> Result<ShadowMaps> {
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        layout: &PipelineLayout,
+        vpl_layers: u32,
+        size: u32,
+    ) -> Result<ShadowMaps> {
         let layers = vpl_layers + 1;
         if layers > ctx.info.max_image_array_layers {
             return Err(Error::Input(format!(
@@ -64,7 +69,10 @@ impl ShadowMaps {
             ctx,
             "vpl shadow maps",
             SHADOW_FORMAT,
-            vk::Extent2D { width: size, height: size },
+            vk::Extent2D {
+                width: size,
+                height: size,
+            },
             layers,
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::SAMPLED,
         )?;
@@ -89,7 +97,13 @@ impl ShadowMaps {
                 depth_bias: (0.0, 0.0),
             },
         )?;
-        Ok(ShadowMaps { pipeline, image, size, vpl_layers, initialized: false })
+        Ok(ShadowMaps {
+            pipeline,
+            image,
+            size,
+            vpl_layers,
+            initialized: false,
+        })
     }
 
     /// The spotlight's layer.
@@ -124,13 +138,18 @@ impl ShadowMaps {
             )));
         }
         if let Some(&bad) = vpl_layers.iter().find(|&&l| l >= self.vpl_layers) {
-            return Err(Error::Input(format!("VPL layer {bad} is outside 0..{}", self.vpl_layers)));
+            return Err(Error::Input(format!(
+                "VPL layer {bad} is outside 0..{}",
+                self.vpl_layers
+            )));
         }
-        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
+        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
+            | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
         let attachment = (
             vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
             depth_stages,
-            vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
+            vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE
+                | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
         );
         let sampled = (
             vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
@@ -140,18 +159,36 @@ impl ShadowMaps {
         let from = if self.initialized {
             sampled
         } else {
-            (vk::ImageLayout::UNDEFINED, vk::PipelineStageFlags2::NONE, vk::AccessFlags2::NONE)
+            (
+                vk::ImageLayout::UNDEFINED,
+                vk::PipelineStageFlags2::NONE,
+                vk::AccessFlags2::NONE,
+            )
         };
-        rec.barrier(&[image_barrier(self.image.handle, self.image.full_range(), from, attachment)], &[]);
+        rec.barrier(
+            &[image_barrier(
+                self.image.handle,
+                self.image.full_range(),
+                from,
+                attachment,
+            )],
+            &[],
+        );
         self.initialized = true;
-        let extent = vk::Extent2D { width: self.size, height: self.size };
+        let extent = vk::Extent2D {
+            width: self.size,
+            height: self.size,
+        };
         let depth_att = vk::RenderingAttachmentInfo::default()
             .image_view(self.image.view)
             .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
             .load_op(vk::AttachmentLoadOp::LOAD)
             .store_op(vk::AttachmentStoreOp::STORE);
         let info = vk::RenderingInfo::default()
-            .render_area(vk::Rect2D { offset: vk::Offset2D::default(), extent })
+            .render_area(vk::Rect2D {
+                offset: vk::Offset2D::default(),
+                extent,
+            })
             .layer_count(layer_count)
             .depth_attachment(&depth_att);
         rec.begin_rendering(&info);
@@ -160,13 +197,21 @@ impl ShadowMaps {
         let clear = [vk::ClearAttachment {
             aspect_mask: vk::ImageAspectFlags::DEPTH,
             color_attachment: 0,
-            clear_value: vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } },
+            clear_value: vk::ClearValue {
+                depth_stencil: vk::ClearDepthStencilValue {
+                    depth: 1.0,
+                    stencil: 0,
+                },
+            },
         }];
         let rects: Vec<vk::ClearRect> = vpl_layers
             .iter()
             .chain(std::iter::once(&self.vpl_layers))
             .map(|&l| vk::ClearRect {
-                rect: vk::Rect2D { offset: vk::Offset2D::default(), extent },
+                rect: vk::Rect2D {
+                    offset: vk::Offset2D::default(),
+                    extent,
+                },
                 base_array_layer: l,
                 layer_count: 1,
             })
@@ -174,20 +219,38 @@ impl ShadowMaps {
         rec.clear_attachments(&clear, &rects);
         rec.bind_pipeline(&self.pipeline);
         rec.bind_descriptor_set(vk::PipelineBindPoint::GRAPHICS, layout.handle, set);
-        let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT | vk::ShaderStageFlags::COMPUTE;
+        let stages = vk::ShaderStageFlags::VERTEX
+            | vk::ShaderStageFlags::FRAGMENT
+            | vk::ShaderStageFlags::COMPUTE;
         push[20] = first_slot as f32;
         push[21] = far;
-        rec.push_constants(layout.handle, stages, &crate::render::upload::as_bytes(&push[..]));
+        rec.push_constants(
+            layout.handle,
+            stages,
+            &crate::render::upload::as_bytes(&push[..]),
+        );
         rec.draw(vertex_count, 1);
         let before = rec.counts.triangles;
         if !vpl_layers.is_empty() {
             push[20] = (first_slot + 1) as f32;
-            rec.push_constants(layout.handle, stages, &crate::render::upload::as_bytes(&push[..]));
+            rec.push_constants(
+                layout.handle,
+                stages,
+                &crate::render::upload::as_bytes(&push[..]),
+            );
             rec.draw(vertex_count, vpl_layers.len() as u32);
         }
         let maps = (rec.counts.triangles - before) / (vertex_count as u64 / 3).max(1);
         rec.end_rendering();
-        rec.barrier(&[image_barrier(self.image.handle, self.image.full_range(), attachment, sampled)], &[]);
+        rec.barrier(
+            &[image_barrier(
+                self.image.handle,
+                self.image.full_range(),
+                attachment,
+                sampled,
+            )],
+            &[],
+        );
         Ok(maps as u32)
     }
 }
