@@ -11,8 +11,8 @@
 // interpolates straight edges and linear depth in paraboloid space, while the true images of long
 // edges are curves. Scenes here are made of moderately sized triangles, so we accept the error and
 // cover it with the depth bias of the lookup (see gi_gather.comp), rather than tessellating.
-// Triangles straddling the base plane keep their behind-vertices on the rim (the horizon) with a
-// negative clip-space depth, so depth clipping cuts them near the plane (approximately).
+// Triangles entirely behind the base plane (l.z < 0) are culled; straddling ones are clipped to
+// the plane in the shader (each vertex sees its whole triangle).
 
 struct GiVertex { vec4 position; vec4 normal; vec4 albedo; };
 layout(std430, set = 0, binding = 0) readonly buffer Vertices { GiVertex verts[]; };
@@ -39,28 +39,38 @@ void main() {
     gl_Layer = int(s.position_layer.w);
     vec3 origin = s.position_layer.xyz;
     vec3 n = normalize(s.normal.xyz);
+    vec3 t, b;
+    basis(n, t, b);
     int tri = gl_VertexIndex / 3;
-    bool all_behind = true;
+    int own = gl_VertexIndex - tri * 3;
+    vec3 l[3];
     for (int i = 0; i < 3; i++) {
-        if (dot(verts[tri * 3 + i].position.xyz - origin, n) >= 0.0) {
-            all_behind = false;
-        }
+        vec3 d = verts[tri * 3 + i].position.xyz - origin;
+        l[i] = vec3(dot(d, t), dot(d, b), dot(d, n));
     }
-    if (all_behind) {
+    if (l[0].z < 0.0 && l[1].z < 0.0 && l[2].z < 0.0) {
         // Degenerate and outside the clip volume: the whole triangle is dropped.
         gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
         return;
     }
-    vec3 t, b;
-    basis(n, t, b);
-    vec3 d = verts[gl_VertexIndex].position.xyz - origin;
-    vec3 l = vec3(dot(d, t), dot(d, b), dot(d, n));
-    float len = length(l);
     float far = pc.params.y;
-    if (l.z < 0.0) {
-        vec2 rim = dot(l.xy, l.xy) > 0.0 ? normalize(l.xy) : vec2(1.0, 0.0);
-        gl_Position = vec4(rim, l.z / max(len, 1e-6), 1.0);
-    } else {
-        gl_Position = vec4(l.xy / max(len + l.z, 1e-9), len / far, 1.0);
+    float eps = 1e-5 * far;
+    vec3 p = l[own];
+    if (p.z < eps) {
+        // A corner behind the base plane slides along its edges onto the plane: exact when one
+        // corner is in front (the clipped triangle), and the midpoint of the two crossings when
+        // two are (the clipped quad loses two slivers; triangles are short, see geometry.rs).
+        vec3 sum = vec3(0.0);
+        float count = 0.0;
+        for (int i = 0; i < 3; i++) {
+            if (i != own && l[i].z >= eps) {
+                float f = (eps - p.z) / (l[i].z - p.z);
+                sum += mix(p, l[i], f);
+                count += 1.0;
+            }
+        }
+        p = count > 0.0 ? sum / count : vec3(p.xy, eps);
     }
+    float len = length(p);
+    gl_Position = vec4(p.xy / max(len + p.z, 1e-9), len / far, 1.0);
 }

@@ -55,6 +55,57 @@ impl WorldGeometry {
         }
     }
 
+    /// A copy whose triangles have no edge longer than `max_edge` (longest-edge bisection, at
+    /// most 2^12 pieces per triangle). The paraboloid shadow maps interpolate straight edges in a
+    /// non-linear projection, so long triangles cast visibly wrong shadows; short ones don't.
+    pub fn tessellated(&self, max_edge: f32) -> WorldGeometry {
+        let mut out = WorldGeometry {
+            triangles: Vec::with_capacity(self.triangles.len()),
+            normals: Vec::with_capacity(self.triangles.len()),
+            albedo: Vec::with_capacity(self.triangles.len()),
+            bounds: self.bounds,
+        };
+        let max2 = max_edge * max_edge;
+        let mut stack = Vec::new();
+        for ((t, n), a) in self.triangles.iter().zip(&self.normals).zip(&self.albedo) {
+            stack.push((*t, *n, 0u32));
+            while let Some((p, m, depth)) = stack.pop() {
+                let lens = [
+                    p[0].distance_squared(p[1]),
+                    p[1].distance_squared(p[2]),
+                    p[2].distance_squared(p[0]),
+                ];
+                let (k, longest) =
+                    lens.iter()
+                        .copied()
+                        .enumerate()
+                        .fold(
+                            (0, 0.0),
+                            |best, (i, l)| if l > best.1 { (i, l) } else { best },
+                        );
+                if longest <= max2 || depth >= 12 || !longest.is_finite() {
+                    out.triangles.push(p);
+                    out.normals.push(m);
+                    out.albedo.push(*a);
+                    continue;
+                }
+                // Split edge (k, k+1) at its midpoint; the opposite corner is k+2.
+                let (i, j) = (k, (k + 1) % 3);
+                let mid = (p[i] + p[j]) * 0.5;
+                let mid_n = (m[i] + m[j]).normalize_or(m[i]);
+                let mut first = (p, m, depth + 1);
+                first.0[j] = mid;
+                first.1[j] = mid_n;
+                let mut second = (p, m, depth + 1);
+                second.0[i] = mid;
+                second.1[i] = mid_n;
+                stack.push(first);
+                stack.push(second);
+            }
+        }
+        out
+    }
+
     /// The CPU ray-casting scene (BVH over the same triangles).
     pub fn ray_scene(&self) -> RayScene {
         RayScene::new(self.triangles.clone(), self.albedo.clone())

@@ -30,6 +30,8 @@ const VPL_FLOATS: usize = 12;
 const SLOT_FLOATS: usize = 8;
 /// Graphics push block: view_proj, eye, params.
 const GRAPHICS_PUSH: u32 = 96;
+/// Longest triangle edge uploaded, as a fraction of the scene's diagonal.
+const MAX_EDGE_FRACTION: f32 = 1.0 / 16.0;
 /// Compute push block: five vec4.
 const COMPUTE_PUSH: u32 = 80;
 
@@ -127,7 +129,10 @@ impl GiRenderer {
                 "GI needs at least one VPL layer and a non-empty shadow map".into(),
             ));
         }
-        let vertex_data = geometry.gpu_vertices();
+        // Long triangles are split so the paraboloid maps' straight-edge error stays small.
+        let vertex_data = geometry
+            .tessellated(geometry.diagonal() * MAX_EDGE_FRACTION)
+            .gpu_vertices();
         let vertex_count = u32::try_from(vertex_data.len() / VERTEX_FLOATS)
             .map_err(|_| Error::Input("scene has too many triangles for GI".into()))?;
         let storage = vk::DescriptorType::STORAGE_BUFFER;
