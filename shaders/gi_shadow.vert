@@ -48,13 +48,16 @@ void main() {
         vec3 d = verts[tri * 3 + i].position.xyz - origin;
         l[i] = vec3(dot(d, t), dot(d, b), dot(d, n));
     }
-    if (l[0].z < 0.0 && l[1].z < 0.0 && l[2].z < 0.0) {
+    float far = pc.params.y;
+    // Triangles with no corner clearly in front of the base plane are culled. The margin also
+    // drops triangles coplanar with the VPL's own surface, whose corners would otherwise land
+    // on the rim and span the whole disk at a tiny depth.
+    float eps = 1e-4 * far;
+    if (l[0].z < eps && l[1].z < eps && l[2].z < eps) {
         // Degenerate and outside the clip volume: the whole triangle is dropped.
         gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
         return;
     }
-    float far = pc.params.y;
-    float eps = 1e-5 * far;
     vec3 p = l[own];
     if (p.z < eps) {
         // A corner behind the base plane slides along its edges onto the plane: exact when one
