@@ -471,3 +471,62 @@ impl Progress {
         }
     }
 }
+
+/// `coherent gi`.
+#[derive(Args, Debug)]
+pub struct GiArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Number of VPLs (N).
+    #[arg(long, default_value_t = 256)]
+    pub vpls: usize,
+    /// New VPLs (and shadow maps) per frame in incremental mode (B).
+    #[arg(long, default_value_t = 8)]
+    pub budget: usize,
+    /// Frames along the light path.
+    #[arg(long, default_value_t = 100)]
+    pub frames: u32,
+    /// Image size WxH.
+    #[arg(long, default_value = "640x480")]
+    pub size: String,
+    /// incremental, full or both.
+    #[arg(long, default_value = "both")]
+    pub mode: String,
+    /// Shadow-map resolution (per VPL layer).
+    #[arg(long, default_value_t = 256)]
+    pub shadow_size: u32,
+    /// Output directory (PNGs and summary.json).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Turn the validation layer on.
+    #[arg(long)]
+    pub validation: bool,
+}
+
+/// `coherent gi`.
+pub fn gi(a: &GiArgs) -> Result<()> {
+    use coherent::gi::session::{self, GiMode, GiRunOptions};
+    let (width, height) = parse_size(&a.size)?;
+    let modes = GiMode::parse_list(&a.mode)?;
+    if a.vpls == 0 || a.budget == 0 || a.frames == 0 || a.shadow_size == 0 {
+        bail!("--vpls, --budget, --frames and --shadow-size must be positive");
+    }
+    let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let ctx = context(a.validation)?;
+    let opts = GiRunOptions {
+        vpls: a.vpls,
+        budget: a.budget,
+        frames: a.frames,
+        width,
+        height,
+        modes,
+        shadow_size: a.shadow_size,
+        sample_frames: 5,
+    };
+    let summary = session::run(&ctx, &scene, &opts, a.out.as_deref())?;
+    print!("{}", summary.table());
+    if let Some(dir) = &a.out {
+        println!("wrote {}", dir.display());
+    }
+    check_validation(&ctx)
+}

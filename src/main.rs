@@ -25,6 +25,8 @@ enum Command {
     Render(cli::RenderArgs),
     /// Walk a camera path with several culling algorithms side by side; write a report and plots.
     Walk(cli::WalkArgs),
+    /// Incremental instant radiosity vs full recompute along a moving spotlight; PNGs and a report.
+    Gi(cli::GiArgs),
     /// Open a window: fly camera, path playback, live algorithm switching, stats overlay.
     View(cli::ViewArgs),
 }
@@ -35,6 +37,7 @@ fn main() -> ExitCode {
         Command::Info => cli::info(),
         Command::Render(a) => cli::render(&a),
         Command::Walk(a) => cli::walk(&a),
+        Command::Gi(a) => cli::gi(&a),
         Command::View(a) => cli::view(&a),
     };
     match result {

@@ -4,3 +4,11 @@
 pub mod light;
 pub mod raycast;
 pub mod vpl;
+
+pub mod deferred;
+pub mod geometry;
+pub mod renderer;
+pub mod session;
+pub mod shadow;
+
+pub use renderer::{GiFrame, GiOptions, GiRenderer, OutputMode};

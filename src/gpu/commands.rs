@@ -234,6 +234,22 @@ impl Recorder {
         unsafe { self.device.cmd_end_rendering(self.cmd) };
     }
 
+    /// Clears regions (and array layers) of the current rendering's attachments.
+    pub fn clear_attachments(
+        &mut self,
+        attachments: &[vk::ClearAttachment],
+        rects: &[vk::ClearRect],
+    ) {
+        if attachments.is_empty() || rects.is_empty() {
+            return;
+        }
+        // SAFETY: inside rendering; the rects lie within the render area and its layers.
+        unsafe {
+            self.device
+                .cmd_clear_attachments(self.cmd, attachments, rects)
+        };
+    }
+
     /// Viewport (flipped so +y is up, GL style) and scissor covering `extent`.
     pub fn set_viewport(&mut self, extent: vk::Extent2D) {
         let vp = vk::Viewport {

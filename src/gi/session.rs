@@ -1,0 +1,516 @@
+//! A GI run: the spotlight moves along a path, each mode (incremental, full recompute) renders
+//! every frame, a full recompute with 4x the VPLs is the reference on a few frames, and the
+//! results become PNGs, a light-path strip and `summary.json`.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::Vec3;
+use serde::Serialize;
+
+use super::geometry::WorldGeometry;
+use super::light::Spotlight;
+use super::raycast::RayScene;
+use super::renderer::{GiFrame, GiOptions, GiRenderer};
+use super::vpl::VplSet;
+use crate::error::{Error, Result};
+use crate::gpu::GpuContext;
+use crate::scene::camera::Camera;
+use crate::scene::{CameraPose, Scene};
+
+/// How VPLs are maintained from frame to frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GiMode {
+    /// Incremental instant radiosity: at most B new VPLs (and shadow maps) per frame.
+    Incremental,
+    /// Keller's instant radiosity: all N VPLs and shadow maps every frame.
+    Full,
+}
+
+impl GiMode {
+    /// The mode's name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            GiMode::Incremental => "incremental",
+            GiMode::Full => "full",
+        }
+    }
+
+    /// Parses `incremental`, `full` or `both`.
+    pub fn parse_list(s: &str) -> Result<Vec<GiMode>> {
+        match s {
+            "incremental" => Ok(vec![GiMode::Incremental]),
+            "full" => Ok(vec![GiMode::Full]),
+            "both" => Ok(vec![GiMode::Incremental, GiMode::Full]),
+            other => Err(Error::Input(format!(
+                "unknown GI mode \"{other}\" (incremental, full, both)"
+            ))),
+        }
+    }
+}
+
+/// The spotlight's path over a run: an eased sweep between two placements.
+#[derive(Clone, Copy, Debug)]
+pub struct LightPath {
+    /// Placement at the first frame.
+    pub start: Spotlight,
+    /// Placement at the last frame.
+    pub end: Spotlight,
+}
+
+impl LightPath {
+    /// The light at `t` in 0..=1 (smooth start and stop).
+    pub fn at(&self, t: f32) -> Spotlight {
+        let s = 0.5 - 0.5 * (std::f32::consts::PI * t.clamp(0.0, 1.0)).cos();
+        Spotlight::new(
+            self.start.position.lerp(self.end.position, s),
+            self.start
+                .direction
+                .lerp(self.end.direction, s)
+                .normalize_or(Vec3::NEG_Y),
+            self.start.power.lerp(self.end.power, s),
+        )
+    }
+
+    /// The default path of a scene: `cornell` swings a light under the ceiling, `hall` moves one
+    /// along the nave looking down and forward, anything else sweeps over its longest
+    /// horizontal axis. Power is set so the lit floor is well exposed (about 25 d² for the
+    /// distance d the light looks across).
+    pub fn for_scene(name: &str, geometry: &WorldGeometry, rays: &RayScene) -> LightPath {
+        let b = geometry.bounds;
+        let (c, e) = if b.is_valid() {
+            (b.center(), b.extent())
+        } else {
+            (Vec3::ZERO, Vec3::ONE)
+        };
+        let (p0, d0, p1, d1) = match name {
+            "cornell" => (
+                Vec3::new(1.4, 5.25, 2.2),
+                Vec3::new(-0.45, -1.0, 0.15),
+                Vec3::new(4.1, 5.25, 3.2),
+                Vec3::new(0.45, -1.0, 0.25),
+            ),
+            "hall" => (
+                Vec3::new(-2.0, 9.0, 4.0),
+                Vec3::new(0.1, -1.0, 0.5),
+                Vec3::new(2.0, 9.0, 44.0),
+                Vec3::new(-0.1, -1.0, 0.5),
+            ),
+            _ => {
+                let axis = if e.x >= e.z {
+                    Vec3::X * e.x
+                } else {
+                    Vec3::Z * e.z
+                };
+                let top = c + Vec3::Y * (0.3 * e.y);
+                (
+                    top - 0.3 * axis,
+                    Vec3::NEG_Y + 0.3 * axis.normalize(),
+                    top + 0.3 * axis,
+                    Vec3::NEG_Y + 0.3 * axis.normalize(),
+                )
+            }
+        };
+        let d0 = d0.normalize();
+        let reach = rays
+            .intersect(p0, d0, f32::INFINITY)
+            .map(|h| h.t)
+            .unwrap_or(geometry.diagonal() * 0.5);
+        let power = Vec3::splat(25.0 * reach * reach);
+        LightPath {
+            start: Spotlight::new(p0, d0, power),
+            end: Spotlight::new(p1, d1.normalize(), power),
+        }
+    }
+}
+
+/// The camera of a GI run: the scene's first path pose (or a view of the bounds).
+pub fn default_camera(scene: &Scene, geometry: &WorldGeometry, aspect: f32) -> Camera {
+    let b = geometry.bounds;
+    let pose = match scene.default_path() {
+        Ok(p) => p.pose_at(0.0),
+        Err(_) => {
+            let (c, e) = if b.is_valid() {
+                (b.center(), b.extent())
+            } else {
+                (Vec3::ZERO, Vec3::ONE)
+            };
+            CameraPose {
+                eye: c + Vec3::new(0.0, 0.1 * e.y, -0.45 * e.z),
+                target: c + Vec3::Z * e.z * 0.2,
+            }
+        }
+    };
+    let far = geometry.diagonal() * 2.0 + (pose.eye - b.center()).length();
+    Camera::from_pose(pose, aspect, far.max(10.0))
+}
+
+/// Settings of a run.
+#[derive(Clone, Debug)]
+pub struct GiRunOptions {
+    /// VPLs (N).
+    pub vpls: usize,
+    /// New VPLs per frame (B).
+    pub budget: usize,
+    /// Frames per mode.
+    pub frames: u32,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Modes to run, in order.
+    pub modes: Vec<GiMode>,
+    /// Shadow-map resolution.
+    pub shadow_size: u32,
+    /// Frames compared with the reference (and shown in the strip).
+    pub sample_frames: u32,
+}
+
+/// One mode's summary, in `summary.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModeSummary {
+    /// Median frame time (VPL update + GPU frame), ms.
+    pub frame_ms_median: f64,
+    /// 95th percentile frame time, ms.
+    pub frame_ms_p95: f64,
+    /// Median of the VPL update alone, ms.
+    pub update_ms_median: f64,
+    /// Median VPL shadow maps rendered per frame.
+    pub shadow_maps_rendered_median: f64,
+    /// N.
+    pub vpls: usize,
+    /// B.
+    pub budget: usize,
+    /// Mean RMSE (tone-mapped RGB in 0..1) against the 4N-VPL full-recompute reference.
+    pub rmse_vs_reference: f64,
+}
+
+/// The report of a run.
+#[derive(Clone, Debug, Serialize)]
+pub struct GiSummary {
+    /// Scene name.
+    pub scene: String,
+    /// Objects in the scene.
+    pub objects: usize,
+    /// Triangles in the scene.
+    pub triangles: u64,
+    /// Device name.
+    pub device: String,
+    /// "WxH".
+    pub size: String,
+    /// Frames per mode.
+    pub frames: u32,
+    /// Per mode, in run order.
+    #[serde(serialize_with = "ordered")]
+    pub algorithms: Vec<(String, ModeSummary)>,
+}
+
+fn ordered<S: serde::Serializer>(
+    pairs: &[(String, ModeSummary)],
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    use serde::ser::SerializeMap;
+    let mut map = s.serialize_map(Some(pairs.len()))?;
+    for (k, v) in pairs {
+        map.serialize_entry(k, v)?;
+    }
+    map.end()
+}
+
+impl GiSummary {
+    /// A short table for the terminal.
+    pub fn table(&self) -> String {
+        let mut out = format!(
+            "{} ({} objects, {} triangles) on {}, {}, {} frames\n{:<12} {:>10} {:>10} {:>10} {:>8} {:>6} {:>6} {:>8}\n",
+            self.scene,
+            self.objects,
+            self.triangles,
+            self.device,
+            self.size,
+            self.frames,
+            "mode",
+            "median ms",
+            "p95 ms",
+            "update ms",
+            "maps",
+            "N",
+            "B",
+            "rmse"
+        );
+        for (name, m) in &self.algorithms {
+            out += &format!(
+                "{:<12} {:>10.2} {:>10.2} {:>10.2} {:>8.1} {:>6} {:>6} {:>8.4}\n",
+                name,
+                m.frame_ms_median,
+                m.frame_ms_p95,
+                m.update_ms_median,
+                m.shadow_maps_rendered_median,
+                m.vpls,
+                m.budget,
+                m.rmse_vs_reference
+            );
+        }
+        out
+    }
+}
+
+/// Frames sampled for the reference and the strip: `n` evenly spaced in `0..frames`.
+pub fn sample_frames(frames: u32, n: u32) -> Vec<u32> {
+    if frames == 0 || n == 0 {
+        return Vec::new();
+    }
+    let n = n.min(frames);
+    if n == 1 {
+        return vec![frames - 1];
+    }
+    let mut v: Vec<u32> = (0..n)
+        .map(|i| ((i as u64 * (frames - 1) as u64) / (n - 1) as u64) as u32)
+        .collect();
+    v.dedup();
+    v
+}
+
+/// RMSE of two RGBA8 images over RGB in 0..1.
+pub fn rmse(a: &[u8], b: &[u8]) -> f64 {
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    for (pa, pb) in a.chunks_exact(4).zip(b.chunks_exact(4)) {
+        for k in 0..3 {
+            let d = (pa[k] as f64 - pb[k] as f64) / 255.0;
+            sum += d * d;
+            n += 1;
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sum / n as f64).sqrt()
+    }
+}
+
+fn percentile(values: &[f64], p: f64) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    let i = ((v.len() - 1) as f64 * p).round() as usize;
+    v[i.min(v.len() - 1)]
+}
+
+/// Renders the full-recompute reference with `4 * vpls` VPLs on `frames`.
+fn reference_images(
+    ctx: &Arc<GpuContext>,
+    geometry: &WorldGeometry,
+    rays: &RayScene,
+    path: &LightPath,
+    camera: &Camera,
+    opts: &GiRunOptions,
+    frames: &[u32],
+) -> Result<Vec<Vec<u8>>> {
+    let n = opts.vpls * 4;
+    let layers = (n as u32)
+        .min(ctx.info.max_image_array_layers.saturating_sub(1))
+        .max(1);
+    let mut renderer = GiRenderer::new(
+        ctx,
+        geometry,
+        GiOptions {
+            width: opts.width,
+            height: opts.height,
+            vpl_layers: layers,
+            max_vpls: n as u32,
+            shadow_size: opts.shadow_size,
+        },
+    )?;
+    let mut set = VplSet::new(n, n);
+    let mut out = Vec::new();
+    for &f in frames {
+        let light = path.at(f as f32 / (opts.frames.max(2) - 1) as f32);
+        let stats = set.recompute_all(&light, rays);
+        renderer.frame(&light, set.vpls(), &stats.new_layers, camera)?;
+        out.push(renderer.read_output()?);
+    }
+    Ok(out)
+}
+
+/// What a mode produced.
+pub struct ModeRun {
+    /// The mode.
+    pub mode: GiMode,
+    /// Per-frame GPU results.
+    pub frames: Vec<GiFrame>,
+    /// Per-frame VPL update times, ms.
+    pub update_ms: Vec<f64>,
+    /// The sampled frames' images (RGBA8).
+    pub samples: Vec<Vec<u8>>,
+    /// The last frame's image.
+    pub last: Vec<u8>,
+}
+
+/// Runs one mode over all frames.
+#[allow(clippy::too_many_arguments)]
+fn run_mode(
+    ctx: &Arc<GpuContext>,
+    geometry: &WorldGeometry,
+    rays: &RayScene,
+    path: &LightPath,
+    camera: &Camera,
+    opts: &GiRunOptions,
+    mode: GiMode,
+    sampled: &[u32],
+) -> Result<ModeRun> {
+    let mut renderer = GiRenderer::new(
+        ctx,
+        geometry,
+        GiOptions {
+            width: opts.width,
+            height: opts.height,
+            vpl_layers: opts.vpls as u32,
+            max_vpls: opts.vpls as u32,
+            shadow_size: opts.shadow_size,
+        },
+    )?;
+    let mut set = VplSet::new(opts.vpls, opts.budget);
+    let mut run = ModeRun {
+        mode,
+        frames: Vec::new(),
+        update_ms: Vec::new(),
+        samples: Vec::new(),
+        last: Vec::new(),
+    };
+    for f in 0..opts.frames {
+        let light = path.at(f as f32 / (opts.frames.max(2) - 1) as f32);
+        let start = Instant::now();
+        let stats = match mode {
+            GiMode::Incremental => set.update(&light, rays),
+            GiMode::Full => set.recompute_all(&light, rays),
+        };
+        let update = start.elapsed().as_secs_f64() * 1e3;
+        let frame = renderer.frame(&light, set.vpls(), &stats.new_layers, camera)?;
+        run.update_ms.push(update);
+        run.frames.push(frame);
+        let is_last = f + 1 == opts.frames;
+        if sampled.contains(&f) || is_last {
+            let img = renderer.read_output()?;
+            if sampled.contains(&f) {
+                run.samples.push(img.clone());
+            }
+            if is_last {
+                run.last = img;
+            }
+        }
+    }
+    Ok(run)
+}
+
+/// Runs every mode of `opts` on `scene`, writing PNGs and `summary.json` to `out` if given.
+pub fn run(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    opts: &GiRunOptions,
+    out: Option<&Path>,
+) -> Result<GiSummary> {
+    if opts.vpls == 0 || opts.frames == 0 {
+        return Err(Error::Input(
+            "gi needs at least one VPL and one frame".into(),
+        ));
+    }
+    let geometry = WorldGeometry::from_scene(scene);
+    let rays = geometry.ray_scene();
+    let path = LightPath::for_scene(&scene.name, &geometry, &rays);
+    let camera = default_camera(scene, &geometry, opts.width as f32 / opts.height as f32);
+    let sampled = sample_frames(opts.frames, opts.sample_frames);
+    let reference = reference_images(ctx, &geometry, &rays, &path, &camera, opts, &sampled)?;
+    if let Some(dir) = out {
+        std::fs::create_dir_all(dir)?;
+        save_strip(
+            &dir.join("reference_strip.png"),
+            opts.width,
+            opts.height,
+            &reference,
+        )?;
+    }
+    let mut summary = GiSummary {
+        scene: scene.name.clone(),
+        objects: scene.objects.len(),
+        triangles: scene.triangle_count(),
+        device: ctx.info.name.clone(),
+        size: format!("{}x{}", opts.width, opts.height),
+        frames: opts.frames,
+        algorithms: Vec::new(),
+    };
+    for &mode in &opts.modes {
+        let r = run_mode(ctx, &geometry, &rays, &path, &camera, opts, mode, &sampled)?;
+        let totals: Vec<f64> = r
+            .frames
+            .iter()
+            .zip(&r.update_ms)
+            .map(|(f, u)| f.frame_ms + u)
+            .collect();
+        let maps: Vec<f64> = r
+            .frames
+            .iter()
+            .map(|f| f.shadow_maps_rendered as f64)
+            .collect();
+        let errors: Vec<f64> = r
+            .samples
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| rmse(a, b))
+            .collect();
+        let m = ModeSummary {
+            frame_ms_median: percentile(&totals, 0.5),
+            frame_ms_p95: percentile(&totals, 0.95),
+            update_ms_median: percentile(&r.update_ms, 0.5),
+            shadow_maps_rendered_median: percentile(&maps, 0.5),
+            vpls: opts.vpls,
+            budget: if mode == GiMode::Full {
+                opts.vpls
+            } else {
+                opts.budget
+            },
+            rmse_vs_reference: errors.iter().sum::<f64>() / errors.len().max(1) as f64,
+        };
+        if let Some(dir) = out {
+            crate::render::save_rgba_png(
+                &dir.join(format!("{}.png", mode.name())),
+                opts.width,
+                opts.height,
+                r.last.clone(),
+            )?;
+            save_strip(
+                &dir.join(format!("{}_strip.png", mode.name())),
+                opts.width,
+                opts.height,
+                &r.samples,
+            )?;
+        }
+        summary.algorithms.push((mode.name().to_string(), m));
+    }
+    if let Some(dir) = out {
+        let json = serde_json::to_string_pretty(&summary)
+            .map_err(|e| Error::Input(format!("summary.json: {e}")))?;
+        std::fs::write(dir.join("summary.json"), json)?;
+    }
+    Ok(summary)
+}
+
+/// Writes images side by side, each downscaled to half size.
+pub fn save_strip(path: &Path, width: u32, height: u32, images: &[Vec<u8>]) -> Result<()> {
+    if images.is_empty() {
+        return Ok(());
+    }
+    let (w, h) = ((width / 2).max(1), (height / 2).max(1));
+    let mut strip = image::RgbaImage::new(w * images.len() as u32, h);
+    for (i, px) in images.iter().enumerate() {
+        let img = image::RgbaImage::from_raw(width, height, px.clone())
+            .ok_or_else(|| Error::Input("pixel buffer does not match the image size".into()))?;
+        let small = image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
+        image::imageops::replace(&mut strip, &small, (i as u32 * w) as i64, 0);
+    }
+    strip
+        .save(path)
+        .map_err(|e| Error::Input(format!("{}: cannot write PNG: {e}", path.display())))
+}
