@@ -1,0 +1,59 @@
+//! Measures what multiqueries save on `parking`: queries for previously invisible nodes per
+//! frame, CHC++ with and without multiqueries, on the same path (validation off).
+//!
+//! Run: `cargo run --release --example multiquery -- [frames] [WxH]`
+
+use anyhow::Result;
+use coherent::bvh::ObjectBvh;
+use coherent::culling::chcpp::{Chcpp, ChcppParams};
+use coherent::gpu::{ContextOptions, GpuContext};
+use coherent::render::Renderer;
+use coherent::scene::Scene;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        0.0
+    } else {
+        v[v.len() / 2]
+    }
+}
+
+fn main() -> Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let frames: u32 = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(300);
+    let (w, h) = args
+        .get(2)
+        .and_then(|s| s.split_once('x'))
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+        .unwrap_or((1280, 720));
+    let ctx = GpuContext::new(&ContextOptions::default())?;
+    let scene = Scene::load("parking", 1.0, 4096)?;
+    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
+    let bvh = ObjectBvh::build(&bounds, 1);
+    let path = scene.default_path()?.clone();
+    let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
+    let mut with = Chcpp::new(ChcppParams::default());
+    let mut without = Chcpp::new(ChcppParams { multiqueries: false, ..ChcppParams::default() });
+    let (mut a, mut b, mut ta, mut tb, mut qa, mut qb) = (vec![], vec![], vec![], vec![], vec![], vec![]);
+    for i in 0..frames + 10 {
+        let cam = renderer.camera(path.sample(i, frames + 10), &bvh);
+        let ra = renderer.render_frame(&mut with, &bvh, &cam, i as u64)?;
+        let rb = renderer.render_frame(&mut without, &bvh, &cam, i as u64)?;
+        if i >= 10 {
+            a.push(ra.cull.invisible_node_queries as f64);
+            b.push(rb.cull.invisible_node_queries as f64);
+            qa.push(ra.counts.queries_begun as f64);
+            qb.push(rb.counts.queries_begun as f64);
+            ta.push(ra.frame_ms);
+            tb.push(rb.frame_ms);
+        }
+    }
+    let (sa, sb): (f64, f64) = (a.iter().sum(), b.iter().sum());
+    println!("parking, {} objects, {frames} frames, {w}x{h}, {}", scene.objects.len(), ctx.info.name);
+    println!("                      invisible-node queries (median / total)   all queries (median)   frame ms (median)");
+    println!("chcpp                   {:8.1} / {:8.0}                         {:8.1}             {:8.2}", median(a), sa, median(qa), median(ta));
+    println!("chcpp, no multiqueries  {:8.1} / {:8.0}                         {:8.1}             {:8.2}", median(b), sb, median(qb), median(tb));
+    println!("reduction of invisible-node queries: {:.2}x (totals)", sb / sa.max(1.0));
+    Ok(())
+}
