@@ -4,7 +4,7 @@
 set -euo pipefail
 
 PACKAGES=(mesa-vulkan-drivers vulkan-validationlayers libvulkan-dev libshaderc-dev vulkan-tools
-          xvfb libxkbcommon-x11-0 libxcursor1 libxi6 fonts-dejavu-core pkg-config)
+          xvfb xauth libxkbcommon-x11-0 libxcursor1 libxi6 fonts-dejavu-core pkg-config)
 
 missing=()
 for p in "${PACKAGES[@]}"; do
