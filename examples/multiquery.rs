@@ -34,8 +34,12 @@ fn main() -> Result<()> {
     let path = scene.default_path()?.clone();
     let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
     let mut with = Chcpp::new(ChcppParams::default());
-    let mut without = Chcpp::new(ChcppParams { multiqueries: false, ..ChcppParams::default() });
-    let (mut a, mut b, mut ta, mut tb, mut qa, mut qb) = (vec![], vec![], vec![], vec![], vec![], vec![]);
+    let mut without = Chcpp::new(ChcppParams {
+        multiqueries: false,
+        ..ChcppParams::default()
+    });
+    let (mut a, mut b, mut ta, mut tb, mut qa, mut qb) =
+        (vec![], vec![], vec![], vec![], vec![], vec![]);
     for i in 0..frames + 10 {
         let cam = renderer.camera(path.sample(i, frames + 10), &bvh);
         let ra = renderer.render_frame(&mut with, &bvh, &cam, i as u64)?;
@@ -50,10 +54,29 @@ fn main() -> Result<()> {
         }
     }
     let (sa, sb): (f64, f64) = (a.iter().sum(), b.iter().sum());
-    println!("parking, {} objects, {frames} frames, {w}x{h}, {}", scene.objects.len(), ctx.info.name);
+    println!(
+        "parking, {} objects, {frames} frames, {w}x{h}, {}",
+        scene.objects.len(),
+        ctx.info.name
+    );
     println!("                      invisible-node queries (median / total)   all queries (median)   frame ms (median)");
-    println!("chcpp                   {:8.1} / {:8.0}                         {:8.1}             {:8.2}", median(a), sa, median(qa), median(ta));
-    println!("chcpp, no multiqueries  {:8.1} / {:8.0}                         {:8.1}             {:8.2}", median(b), sb, median(qb), median(tb));
-    println!("reduction of invisible-node queries: {:.2}x (totals)", sb / sa.max(1.0));
+    println!(
+        "chcpp                   {:8.1} / {:8.0}                         {:8.1}             {:8.2}",
+        median(a),
+        sa,
+        median(qa),
+        median(ta)
+    );
+    println!(
+        "chcpp, no multiqueries  {:8.1} / {:8.0}                         {:8.1}             {:8.2}",
+        median(b),
+        sb,
+        median(qb),
+        median(tb)
+    );
+    println!(
+        "reduction of invisible-node queries: {:.2}x (totals)",
+        sb / sa.max(1.0)
+    );
     Ok(())
 }
