@@ -10,7 +10,7 @@ use crate::error::{Result, VkContext};
 use crate::gpu::commands::image_barrier;
 use crate::gpu::memory::Image;
 use crate::gpu::pipelines::{Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
-use crate::gpu::{shaders, GpuContext, Recorder};
+use crate::gpu::{shaders, targets, GpuContext, Recorder};
 
 const GBUFFER_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gi_gbuffer.vert.spv"));
 const GBUFFER_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gi_gbuffer.frag.spv"));
@@ -239,17 +239,11 @@ impl GBuffer {
                     .clear_value(clear)
             })
             .collect();
-        let depth_att = vk::RenderingAttachmentInfo::default()
-            .image_view(self.depth.view)
-            .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-            .load_op(vk::AttachmentLoadOp::CLEAR)
-            .store_op(vk::AttachmentStoreOp::DONT_CARE)
-            .clear_value(vk::ClearValue {
-                depth_stencil: vk::ClearDepthStencilValue {
-                    depth: 1.0,
-                    stencil: 0,
-                },
-            });
+        let depth_att = targets::depth_attachment(
+            self.depth.view,
+            vk::AttachmentLoadOp::CLEAR,
+            vk::AttachmentStoreOp::DONT_CARE,
+        );
         let info = vk::RenderingInfo::default()
             .render_area(vk::Rect2D {
                 offset: vk::Offset2D::default(),

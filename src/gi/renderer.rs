@@ -20,7 +20,7 @@ use super::vpl::Vpl;
 use crate::error::{Error, Result, VkContext};
 use crate::gpu::memory::Buffer;
 use crate::gpu::pipelines::PipelineLayout;
-use crate::gpu::{targets, CommandCounts, GpuContext, OneShot, Recorder};
+use crate::gpu::{commands, targets, CommandCounts, GpuContext, OneShot, Recorder};
 use crate::render::upload::as_bytes;
 use crate::scene::camera::Camera;
 
@@ -412,18 +412,9 @@ impl GiRenderer {
         }
         self.slots.write(0, &as_bytes(&slot_data))?;
 
+        // Not in flight: the previous frame waited for its fence.
+        commands::begin_one_time(&self.ctx.device, self.cmd, true)?;
         let d = &self.ctx.device;
-        // SAFETY: the previous frame waited for its fence, so the buffer is not in flight.
-        unsafe {
-            d.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty())
-                .vk("vkResetCommandBuffer")?;
-            d.begin_command_buffer(
-                self.cmd,
-                &vk::CommandBufferBeginInfo::default()
-                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
-            )
-            .vk("vkBeginCommandBuffer")?;
-        }
         self.recorder.take_counts();
         self.recorder.set_command_buffer(self.cmd);
         let mut gpush = [0f32; 24];

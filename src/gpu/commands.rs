@@ -359,6 +359,31 @@ impl Recorder {
     }
 }
 
+/// Resets `cmd` (when `reset`; buffers from a pool reset as a whole pass `false`) and begins it
+/// for one submission. The caller guarantees the buffer is not in flight.
+pub fn begin_one_time(
+    device: &ash::Device,
+    cmd: vk::CommandBuffer,
+    reset: bool,
+) -> crate::Result<()> {
+    use crate::error::VkContext;
+    // SAFETY: the caller guarantees `cmd` is not pending execution.
+    unsafe {
+        if reset {
+            device
+                .reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty())
+                .vk("vkResetCommandBuffer")?;
+        }
+        device
+            .begin_command_buffer(
+                cmd,
+                &vk::CommandBufferBeginInfo::default()
+                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+            )
+            .vk("vkBeginCommandBuffer")
+    }
+}
+
 /// Layout-transition barrier for a whole image.
 pub fn image_barrier(
     image: vk::Image,

@@ -62,18 +62,9 @@ impl OneShot {
 
     /// Records with `f`, submits and waits. The recorder's counts are not changed.
     pub fn run(&self, recorder: &mut Recorder, f: impl FnOnce(&mut Recorder)) -> Result<()> {
+        // Not in flight: every run waits for its fence.
+        commands::begin_one_time(&self.ctx.device, self.cmd, true)?;
         let d = &self.ctx.device;
-        // SAFETY: the buffer is not in flight (every run waits for its fence).
-        unsafe {
-            d.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty())
-                .vk("vkResetCommandBuffer")?;
-            d.begin_command_buffer(
-                self.cmd,
-                &vk::CommandBufferBeginInfo::default()
-                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
-            )
-            .vk("vkBeginCommandBuffer")?;
-        }
         let saved = recorder.counts;
         let prev = recorder.command_buffer();
         recorder.set_command_buffer(self.cmd);

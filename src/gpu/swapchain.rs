@@ -9,7 +9,7 @@ use ash::{khr, vk};
 use gpu_allocator::MemoryLocation;
 use raw_window_handle::{RawDisplayHandle, RawWindowHandle};
 
-use super::commands::{image_barrier, Recorder};
+use super::commands::{self, image_barrier, Recorder};
 use super::memory::{Buffer, Image};
 use super::GpuContext;
 use crate::error::{Error, Result, VkContext};
@@ -462,18 +462,9 @@ impl Swapchain {
             }
         }
 
+        // Not in flight: every present waits for its fence.
+        commands::begin_one_time(&self.ctx.device, self.cmd, true)?;
         let d = &self.ctx.device;
-        // SAFETY: the buffer is idle (every present waits for its fence).
-        unsafe {
-            d.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty())
-                .vk("vkResetCommandBuffer")?;
-            d.begin_command_buffer(
-                self.cmd,
-                &vk::CommandBufferBeginInfo::default()
-                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
-            )
-            .vk("vkBeginCommandBuffer")?;
-        }
         let prev = recorder.command_buffer();
         recorder.set_command_buffer(self.cmd);
         let range = vk::ImageSubresourceRange {

@@ -17,6 +17,25 @@ pub const DEPTH_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
 /// Object-ID format (oracle pass).
 pub const ID_FORMAT: vk::Format = vk::Format::R32_UINT;
 
+/// A depth attachment for dynamic rendering that clears to 1.0 when `load` is CLEAR.
+pub fn depth_attachment(
+    view: vk::ImageView,
+    load: vk::AttachmentLoadOp,
+    store: vk::AttachmentStoreOp,
+) -> vk::RenderingAttachmentInfo<'static> {
+    vk::RenderingAttachmentInfo::default()
+        .image_view(view)
+        .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+        .load_op(load)
+        .store_op(store)
+        .clear_value(vk::ClearValue {
+            depth_stencil: vk::ClearDepthStencilValue {
+                depth: 1.0,
+                stencil: 0,
+            },
+        })
+}
+
 /// A color + depth target of one size.
 pub struct Target {
     /// Color image (RGBA8).

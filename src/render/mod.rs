@@ -17,7 +17,7 @@ use gpu_allocator::MemoryLocation;
 use crate::bvh::ObjectBvh;
 use crate::culling::{CullStats, Culler, FrameInput, OcclusionBackend, QueryId};
 use crate::error::{Error, Result, VkContext};
-use crate::gpu::commands::image_barrier;
+use crate::gpu::commands::{begin_one_time, image_barrier};
 use crate::gpu::memory::{Buffer, Image};
 use crate::gpu::pipelines::{Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
 use crate::gpu::queries::QueryPools;
@@ -436,15 +436,8 @@ impl Renderer {
         let first = self.segments_used == 0;
         let cmd = self.segments[self.segments_used].cmd;
         self.segments_used += 1;
-        // SAFETY: the pool was reset at frame start; this buffer is not in flight.
-        unsafe {
-            d.begin_command_buffer(
-                cmd,
-                &vk::CommandBufferBeginInfo::default()
-                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
-            )
-            .vk("vkBeginCommandBuffer")?;
-        }
+        // The pool was reset at frame start; this buffer is not in flight.
+        begin_one_time(d, cmd, false)?;
         self.recorder.set_command_buffer(cmd);
         self.bound = None;
         let ts = self.timestamps.allocate()?;
@@ -497,17 +490,7 @@ impl Renderer {
                     float32: [0.62, 0.74, 0.86, 1.0],
                 },
             })];
-        let depth_att = vk::RenderingAttachmentInfo::default()
-            .image_view(depth.view)
-            .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-            .load_op(load)
-            .store_op(vk::AttachmentStoreOp::STORE)
-            .clear_value(vk::ClearValue {
-                depth_stencil: vk::ClearDepthStencilValue {
-                    depth: 1.0,
-                    stencil: 0,
-                },
-            });
+        let depth_att = targets::depth_attachment(depth.view, load, vk::AttachmentStoreOp::STORE);
         let info = vk::RenderingInfo::default()
             .render_area(vk::Rect2D {
                 offset: vk::Offset2D::default(),
@@ -662,17 +645,11 @@ impl Renderer {
                 .clear_value(vk::ClearValue {
                     color: vk::ClearColorValue { uint32: [0; 4] },
                 })];
-            let depth_att = vk::RenderingAttachmentInfo::default()
-                .image_view(depth.view)
-                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-                .load_op(vk::AttachmentLoadOp::CLEAR)
-                .store_op(vk::AttachmentStoreOp::DONT_CARE)
-                .clear_value(vk::ClearValue {
-                    depth_stencil: vk::ClearDepthStencilValue {
-                        depth: 1.0,
-                        stencil: 0,
-                    },
-                });
+            let depth_att = targets::depth_attachment(
+                depth.view,
+                vk::AttachmentLoadOp::CLEAR,
+                vk::AttachmentStoreOp::DONT_CARE,
+            );
             let info = vk::RenderingInfo::default()
                 .render_area(vk::Rect2D {
                     offset: vk::Offset2D::default(),
