@@ -12,16 +12,16 @@ use ash::vk;
 use glam::Vec3;
 use gpu_allocator::MemoryLocation;
 
-use super::deferred::{ComputePipeline, GBuffer, GATHER_COMP, RESOLVE_COMP};
+use super::deferred::GBuffer;
 use super::geometry::{WorldGeometry, VERTEX_FLOATS};
 use super::light::Spotlight;
-use super::shadow::{ShadowMaps, ShadowSlot};
+use super::shadow::{ShadowMaps, ShadowPass, ShadowSlot};
 use super::vpl::Vpl;
-use crate::error::{Error, Result, VkContext};
-use crate::gpu::memory::Buffer;
-use crate::gpu::pipelines::PipelineLayout;
-use crate::gpu::{commands, targets, CommandCounts, GpuContext, OneShot, Recorder};
-use crate::render::upload::as_bytes;
+use crate::error::{Error, Result};
+use crate::gpu::{
+    as_bytes, shaders, targets, Binding, Buffer, CommandCounts, CommandPool, ComputePipeline,
+    DescriptorSets, GpuContext, OneShot, PipelineLayout, Recorder, Sampler, Timeline,
+};
 use crate::scene::camera::Camera;
 
 /// Floats per VPL in the gather's storage buffer (three vec4).
@@ -32,6 +32,9 @@ const SLOT_FLOATS: usize = 8;
 const GRAPHICS_PUSH: u32 = 96;
 /// Longest triangle edge uploaded, as a fraction of the scene's diagonal.
 const MAX_EDGE_FRACTION: f32 = 1.0 / 16.0;
+/// The compute passes.
+const GATHER: &[u8] = shaders::GI_GATHER_COMP;
+const RESOLVE: &[u8] = shaders::GI_RESOLVE_COMP;
 /// Compute push block: five vec4.
 const COMPUTE_PUSH: u32 = 80;
 
@@ -80,23 +83,23 @@ pub struct GiFrame {
 /// The GI renderer (see the module docs).
 pub struct GiRenderer {
     ctx: Arc<GpuContext>,
-    // Pipelines and images first: they are dropped before the layouts and after Drop::drop waited.
+    // The timeline is dropped first: it waits for the last frame.
+    timeline: Timeline,
+    commands: CommandPool,
+    // Sets before the pipelines, pipelines and images before the layouts.
+    descriptors: DescriptorSets,
     gather: ComputePipeline,
     resolve: ComputePipeline,
     shadow: ShadowMaps,
     gbuffer: GBuffer,
     graphics_layout: PipelineLayout,
     compute_layout: PipelineLayout,
+    #[allow(dead_code)] // owned here; the descriptor sets point at them
+    sampler: Sampler,
+    #[allow(dead_code)]
     vertices: Buffer,
     slots: Buffer,
     vpl_buffer: Buffer,
-    sampler: vk::Sampler,
-    descriptor_pool: vk::DescriptorPool,
-    graphics_set: vk::DescriptorSet,
-    compute_set: vk::DescriptorSet,
-    command_pool: vk::CommandPool,
-    cmd: vk::CommandBuffer,
-    fence: vk::Fence,
     recorder: Recorder,
     oneshot: OneShot,
     vertex_count: u32,
@@ -117,6 +120,15 @@ pub struct GiRenderer {
     pub blur_threshold: f32,
 }
 
+/// One chunk of a frame: the VPLs it gathers and the shadow maps it renders first.
+struct Chunk {
+    first_vpl: u32,
+    vpl_count: u32,
+    first_slot: u32,
+    /// Layers (within the chunk) whose maps are rendered.
+    layers: Vec<u32>,
+}
+
 impl GiRenderer {
     /// Uploads `geometry` and creates everything for `options`.
     pub fn new(
@@ -129,28 +141,8 @@ impl GiRenderer {
                 "GI needs at least one VPL layer and a non-empty shadow map".into(),
             ));
         }
-        // Long triangles are split so the paraboloid maps' straight-edge error stays small.
-        let vertex_data = geometry
-            .tessellated(geometry.diagonal() * MAX_EDGE_FRACTION)
-            .gpu_vertices();
-        let vertex_count = u32::try_from(vertex_data.len() / VERTEX_FLOATS)
-            .map_err(|_| Error::Input("scene has too many triangles for GI".into()))?;
-        let storage = vk::DescriptorType::STORAGE_BUFFER;
-        let image = vk::DescriptorType::STORAGE_IMAGE;
-        let graphics_layout = PipelineLayout::new(ctx, &[storage, storage], GRAPHICS_PUSH)?;
-        let compute_layout = PipelineLayout::new(
-            ctx,
-            &[
-                image,
-                image,
-                image,
-                storage,
-                vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-                image,
-                image,
-            ],
-            COMPUTE_PUSH,
-        )?;
+        let (vertex_data, vertex_count) = gpu_vertices(geometry)?;
+        let (graphics_layout, compute_layout) = create_layouts(ctx)?;
         let shadow = ShadowMaps::new(
             ctx,
             &graphics_layout,
@@ -158,176 +150,58 @@ impl GiRenderer {
             options.shadow_size,
         )?;
         let gbuffer = GBuffer::new(ctx, &graphics_layout, options.width, options.height)?;
-        let gather = ComputePipeline::new(ctx, &compute_layout, "gi gather", GATHER_COMP)?;
-        let resolve = ComputePipeline::new(ctx, &compute_layout, "gi resolve", RESOLVE_COMP)?;
-        let vertices = Buffer::with_data(
-            ctx,
-            "gi vertices",
-            &as_bytes(&vertex_data),
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-        )?;
+        let mut vertices = host_storage(ctx, "gi vertices", vertex_data.len())?;
+        vertices.write(0, &as_bytes(&vertex_data))?;
         let max_vpls = options.max_vpls.max(options.vpl_layers);
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
-        let slots = Buffer::new(
+        let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
+        let vpl_buffer = host_storage(ctx, "gi vpls", max_vpls as usize * VPL_FLOATS)?;
+        let sampler = Sampler::nearest_clamp(ctx)?;
+        let descriptors = DescriptorSets::new(
             ctx,
-            "gi shadow slots",
-            max_slots as u64 * SLOT_FLOATS as u64 * 4,
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-            MemoryLocation::CpuToGpu,
+            &[
+                (
+                    &graphics_layout,
+                    &[
+                        Binding::StorageBuffer(&vertices),
+                        Binding::StorageBuffer(&slots),
+                    ],
+                ),
+                (
+                    &compute_layout,
+                    &compute_bindings(&gbuffer, &vpl_buffer, &shadow, &sampler),
+                ),
+            ],
         )?;
-        let vpl_buffer = Buffer::new(
-            ctx,
-            "gi vpls",
-            max_vpls as u64 * VPL_FLOATS as u64 * 4,
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-            MemoryLocation::CpuToGpu,
-        )?;
-        let far = geometry.diagonal() * 1.5;
         let diag = geometry.diagonal();
-        let mut me = GiRenderer {
+        Ok(GiRenderer {
             ctx: ctx.clone(),
-            gather,
-            resolve,
+            timeline: Timeline::new(ctx)?,
+            commands: CommandPool::new(ctx)?,
+            descriptors,
+            gather: ComputePipeline::new(ctx, &compute_layout, "gi gather", GATHER)?,
+            resolve: ComputePipeline::new(ctx, &compute_layout, "gi resolve", RESOLVE)?,
             shadow,
             gbuffer,
             graphics_layout,
             compute_layout,
+            sampler,
             vertices,
             slots,
             vpl_buffer,
-            sampler: vk::Sampler::null(),
-            descriptor_pool: vk::DescriptorPool::null(),
-            graphics_set: vk::DescriptorSet::null(),
-            compute_set: vk::DescriptorSet::null(),
-            command_pool: vk::CommandPool::null(),
-            cmd: vk::CommandBuffer::null(),
-            fence: vk::Fence::null(),
             recorder: Recorder::new(ctx.device.clone()),
             oneshot: OneShot::new(ctx)?,
             vertex_count,
             max_vpls,
             max_slots,
-            far,
+            far: diag * 1.5,
             output: OutputMode::Full,
             exposure: 1.0,
             clamp_distance: 0.02 * diag,
             shadow_bias: 0.004 * diag,
             normal_offset: 0.002 * diag,
             blur_threshold: 0.01 * diag,
-        };
-        me.create_vulkan_objects()?;
-        Ok(me)
-    }
-
-    /// Sampler, descriptor sets, command buffer and fence; on error, Drop frees what exists.
-    fn create_vulkan_objects(&mut self) -> Result<()> {
-        let d = &self.ctx.device;
-        let sampler_info = vk::SamplerCreateInfo::default()
-            .mag_filter(vk::Filter::NEAREST)
-            .min_filter(vk::Filter::NEAREST)
-            .mipmap_mode(vk::SamplerMipmapMode::NEAREST)
-            .address_mode_u(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-            .address_mode_v(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-            .address_mode_w(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-            .max_lod(0.0);
-        // SAFETY: valid device and create info.
-        self.sampler = unsafe { d.create_sampler(&sampler_info, None) }.vk("vkCreateSampler")?;
-        let sizes = [
-            vk::DescriptorPoolSize {
-                ty: vk::DescriptorType::STORAGE_BUFFER,
-                descriptor_count: 3,
-            },
-            vk::DescriptorPoolSize {
-                ty: vk::DescriptorType::STORAGE_IMAGE,
-                descriptor_count: 5,
-            },
-            vk::DescriptorPoolSize {
-                ty: vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-                descriptor_count: 1,
-            },
-        ];
-        let pool_info = vk::DescriptorPoolCreateInfo::default()
-            .max_sets(2)
-            .pool_sizes(&sizes);
-        // SAFETY: valid device and create info.
-        self.descriptor_pool =
-            unsafe { d.create_descriptor_pool(&pool_info, None) }.vk("vkCreateDescriptorPool")?;
-        let layouts = [
-            self.graphics_layout.set_layout,
-            self.compute_layout.set_layout,
-        ];
-        let alloc = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(self.descriptor_pool)
-            .set_layouts(&layouts);
-        // SAFETY: the pool has room for both sets.
-        let sets = unsafe { d.allocate_descriptor_sets(&alloc) }.vk("vkAllocateDescriptorSets")?;
-        self.graphics_set = sets[0];
-        self.compute_set = sets[1];
-        let buffer = |b: &Buffer| {
-            [vk::DescriptorBufferInfo {
-                buffer: b.handle,
-                offset: 0,
-                range: vk::WHOLE_SIZE,
-            }]
-        };
-        let storage_image = |view: vk::ImageView| {
-            [vk::DescriptorImageInfo {
-                sampler: vk::Sampler::null(),
-                image_view: view,
-                image_layout: vk::ImageLayout::GENERAL,
-            }]
-        };
-        let (vb, sb, pb) = (
-            buffer(&self.vertices),
-            buffer(&self.slots),
-            buffer(&self.vpl_buffer),
-        );
-        let g = &self.gbuffer;
-        let imgs = [
-            storage_image(g.position.view),
-            storage_image(g.normal.view),
-            storage_image(g.albedo.view),
-            storage_image(g.indirect.view),
-            storage_image(g.output.view),
-        ];
-        let shadow_info = [vk::DescriptorImageInfo {
-            sampler: self.sampler,
-            image_view: self.shadow.image.view,
-            image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
-        }];
-        let writes = [
-            buf_write(self.graphics_set, 0, &vb),
-            buf_write(self.graphics_set, 1, &sb),
-            img_write(self.compute_set, 0, &imgs[0]),
-            img_write(self.compute_set, 1, &imgs[1]),
-            img_write(self.compute_set, 2, &imgs[2]),
-            buf_write(self.compute_set, 3, &pb),
-            vk::WriteDescriptorSet::default()
-                .dst_set(self.compute_set)
-                .dst_binding(4)
-                .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
-                .image_info(&shadow_info),
-            img_write(self.compute_set, 5, &imgs[3]),
-            img_write(self.compute_set, 6, &imgs[4]),
-        ];
-        // SAFETY: the sets, buffers, views and sampler are valid and not in use.
-        unsafe { d.update_descriptor_sets(&writes, &[]) };
-        let pool_info = vk::CommandPoolCreateInfo::default()
-            .queue_family_index(self.ctx.queue_family)
-            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
-        // SAFETY: valid device.
-        self.command_pool =
-            unsafe { d.create_command_pool(&pool_info, None) }.vk("vkCreateCommandPool")?;
-        let alloc = vk::CommandBufferAllocateInfo::default()
-            .command_pool(self.command_pool)
-            .level(vk::CommandBufferLevel::PRIMARY)
-            .command_buffer_count(1);
-        // SAFETY: valid pool.
-        self.cmd = unsafe { d.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
-        // SAFETY: valid device.
-        self.fence =
-            unsafe { d.create_fence(&vk::FenceCreateInfo::default(), None) }.vk("vkCreateFence")?;
-        Ok(())
+        })
     }
 
     /// VPL layers of the shadow array.
@@ -337,7 +211,7 @@ impl GiRenderer {
 
     /// Output size.
     pub fn size(&self) -> (u32, u32) {
-        (self.gbuffer.extent.width, self.gbuffer.extent.height)
+        self.gbuffer.size
     }
 
     /// Renders one frame: G-buffer from `camera`; shadow maps for the spotlight and for the VPLs
@@ -351,6 +225,47 @@ impl GiRenderer {
         camera: &Camera,
     ) -> Result<GiFrame> {
         let start = Instant::now();
+        let chunks = self.upload_chunks(light, vpls, new_layers)?;
+        self.commands.reset(&self.timeline)?;
+        self.recorder.take_counts();
+        self.recorder
+            .set_command_buffer(self.commands.begin_next()?);
+        let mut gpush = [0f32; 24];
+        gpush[..16].copy_from_slice(&camera.view_proj().to_cols_array());
+        gpush[16..19].copy_from_slice(&camera.eye.to_array());
+        self.gbuffer.record_gbuffer(
+            &mut self.recorder,
+            &self.graphics_layout,
+            self.descriptors.get(0),
+            &gpush,
+            self.vertex_count,
+        )?;
+        let mut cpush = self.compute_push(light);
+        let mut maps = 0;
+        for (c, chunk) in chunks.iter().enumerate() {
+            maps += self.record_chunk(chunk, c > 0, &mut gpush, &mut cpush)?;
+        }
+        self.gbuffer
+            .record_dispatch(&mut self.recorder, &self.resolve);
+        let submitted = self.timeline.submit(&mut self.recorder)?;
+        self.timeline.wait(submitted)?;
+        Ok(GiFrame {
+            frame_ms: start.elapsed().as_secs_f64() * 1e3,
+            shadow_maps_rendered: maps,
+            chunks: chunks.len() as u32,
+            vpls: vpls.len() as u32,
+            counts: self.recorder.take_counts(),
+        })
+    }
+
+    /// Checks the VPLs against this renderer's capacity, splits them into chunks of at most
+    /// `vpl_layers` layers, and writes their data and the shadow slots to the GPU buffers.
+    fn upload_chunks(
+        &mut self,
+        light: &Spotlight,
+        vpls: &[Vpl],
+        new_layers: &[u32],
+    ) -> Result<Vec<Chunk>> {
         if vpls.len() > self.max_vpls as usize {
             return Err(Error::Input(format!(
                 "{} VPLs exceed this renderer's {}",
@@ -360,41 +275,31 @@ impl GiRenderer {
         }
         let cap = self.shadow.vpl_layers;
         let max_layer = vpls.iter().map(|v| v.layer).max().unwrap_or(0);
-        let chunks = max_layer / cap + 1;
-        if vpls.len() as u32 + chunks > self.max_slots {
+        let chunk_count = max_layer / cap + 1;
+        if vpls.len() as u32 + chunk_count > self.max_slots {
             return Err(Error::Input(format!(
                 "VPL layers up to {max_layer} need too many chunks"
             )));
         }
         let new: HashSet<u32> = new_layers.iter().copied().collect();
-        let dir = light.direction.try_normalize().unwrap_or(Vec3::NEG_Y);
         let spot = ShadowSlot {
             position: light.position,
-            normal: dir,
+            normal: light.direction.try_normalize().unwrap_or(Vec3::NEG_Y),
             layer: cap,
         };
         let mut vpl_data: Vec<f32> = Vec::with_capacity(vpls.len() * VPL_FLOATS);
         let mut slot_data: Vec<f32> =
-            Vec::with_capacity((vpls.len() + chunks as usize) * SLOT_FLOATS);
-        // Per chunk: (first VPL, VPL count, first slot, layers to render).
-        let mut plan = Vec::new();
-        for c in 0..chunks {
+            Vec::with_capacity((vpls.len() + chunk_count as usize) * SLOT_FLOATS);
+        let mut chunks = Vec::with_capacity(chunk_count as usize);
+        for c in 0..chunk_count {
             let first_vpl = (vpl_data.len() / VPL_FLOATS) as u32;
             let first_slot = (slot_data.len() / SLOT_FLOATS) as u32;
             slot_data.extend_from_slice(&spot.to_floats());
             let mut layers = Vec::new();
             for v in vpls.iter().filter(|v| v.layer / cap == c) {
                 let local = v.layer - c * cap;
-                let flux = light.power * v.weight * v.albedo;
-                vpl_data.extend_from_slice(&[
-                    v.position.x,
-                    v.position.y,
-                    v.position.z,
-                    local as f32,
-                ]);
-                vpl_data.extend_from_slice(&[v.normal.x, v.normal.y, v.normal.z, 0.0]);
-                vpl_data.extend_from_slice(&[flux.x, flux.y, flux.z, 0.0]);
-                if chunks > 1 || new.contains(&v.layer) {
+                vpl_data.extend_from_slice(&vpl_floats(light, v, local));
+                if chunk_count > 1 || new.contains(&v.layer) {
                     let slot = ShadowSlot {
                         position: v.position,
                         normal: v.normal,
@@ -404,41 +309,32 @@ impl GiRenderer {
                     layers.push(local);
                 }
             }
-            let count = (vpl_data.len() / VPL_FLOATS) as u32 - first_vpl;
-            plan.push((first_vpl, count, first_slot, layers));
+            chunks.push(Chunk {
+                first_vpl,
+                vpl_count: (vpl_data.len() / VPL_FLOATS) as u32 - first_vpl,
+                first_slot,
+                layers,
+            });
         }
         if !vpl_data.is_empty() {
             self.vpl_buffer.write(0, &as_bytes(&vpl_data))?;
         }
         self.slots.write(0, &as_bytes(&slot_data))?;
+        Ok(chunks)
+    }
 
-        // Not in flight: the previous frame waited for its fence.
-        commands::begin_one_time(&self.ctx.device, self.cmd, true)?;
-        let d = &self.ctx.device;
-        self.recorder.take_counts();
-        self.recorder.set_command_buffer(self.cmd);
-        let mut gpush = [0f32; 24];
-        gpush[..16].copy_from_slice(&camera.view_proj().to_cols_array());
-        gpush[16..19].copy_from_slice(&camera.eye.to_array());
-        self.gbuffer.record_gbuffer(
-            &mut self.recorder,
-            &self.graphics_layout,
-            self.graphics_set,
-            &gpush,
-            self.vertex_count,
-        );
+    /// The compute push block: spotlight, far distance, power, output mode and the biases;
+    /// floats 12..16 (the chunk) are set per chunk.
+    fn compute_push(&self, light: &Spotlight) -> [f32; 20] {
+        let dir = light.direction.try_normalize().unwrap_or(Vec3::NEG_Y);
         let mode = match self.output {
             OutputMode::Full => 0.0,
             OutputMode::IndirectOnly => 1.0,
             OutputMode::DirectOnly => 2.0,
         };
+        let p = light.position;
         let mut cpush = [0f32; 20];
-        cpush[..4].copy_from_slice(&[
-            light.position.x,
-            light.position.y,
-            light.position.z,
-            cap as f32,
-        ]);
+        cpush[..4].copy_from_slice(&[p.x, p.y, p.z, self.shadow.vpl_layers as f32]);
         cpush[4..8].copy_from_slice(&[dir.x, dir.y, dir.z, self.far]);
         cpush[8..12].copy_from_slice(&[light.power.x, light.power.y, light.power.z, mode]);
         cpush[16..20].copy_from_slice(&[
@@ -447,117 +343,136 @@ impl GiRenderer {
             self.normal_offset,
             self.blur_threshold,
         ]);
-        let stages = vk::ShaderStageFlags::VERTEX
-            | vk::ShaderStageFlags::FRAGMENT
-            | vk::ShaderStageFlags::COMPUTE;
-        let mut maps = 0;
-        for (c, (first_vpl, count, first_slot, layers)) in plan.iter().enumerate() {
-            maps += self.shadow.record(
-                &mut self.recorder,
-                &self.graphics_layout,
-                self.graphics_set,
-                &mut gpush,
-                *first_slot,
-                layers,
-                self.vertex_count,
-                self.far,
-            )?;
-            self.recorder.bind_descriptor_set(
-                vk::PipelineBindPoint::COMPUTE,
-                self.compute_layout.handle,
-                self.compute_set,
-            );
-            cpush[12..16].copy_from_slice(&[
-                *first_vpl as f32,
-                *count as f32,
-                if c > 0 { 1.0 } else { 0.0 },
-                self.clamp_distance,
-            ]);
-            self.recorder
-                .push_constants(self.compute_layout.handle, stages, &as_bytes(&cpush));
-            self.gbuffer
-                .record_dispatch(&mut self.recorder, &self.gather);
-            self.gbuffer.record_compute_barrier(&mut self.recorder);
-        }
+        cpush
+    }
+
+    /// Records one chunk: its shadow maps, then the gather of its VPLs (accumulating onto the
+    /// previous chunks' result when `accumulate`). Returns the VPL shadow maps rendered.
+    fn record_chunk(
+        &mut self,
+        chunk: &Chunk,
+        accumulate: bool,
+        gpush: &mut [f32; 24],
+        cpush: &mut [f32; 20],
+    ) -> Result<u32> {
+        let pass = ShadowPass {
+            layout: &self.graphics_layout,
+            set: self.descriptors.get(0),
+            vertex_count: self.vertex_count,
+            far: self.far,
+        };
+        let maps = self.shadow.record(
+            &mut self.recorder,
+            &pass,
+            gpush,
+            chunk.first_slot,
+            &chunk.layers,
+        )?;
+        self.recorder
+            .bind_compute_set(&self.compute_layout, self.descriptors.get(1));
+        cpush[12..16].copy_from_slice(&[
+            chunk.first_vpl as f32,
+            chunk.vpl_count as f32,
+            if accumulate { 1.0 } else { 0.0 },
+            self.clamp_distance,
+        ]);
+        self.recorder
+            .push_constants(&self.compute_layout, &as_bytes(&cpush[..]));
         self.gbuffer
-            .record_dispatch(&mut self.recorder, &self.resolve);
-        let cmds = [self.cmd];
-        let submit = vk::SubmitInfo::default().command_buffers(&cmds);
-        // SAFETY: recorded completely above; the fence is unsignaled.
-        unsafe {
-            d.end_command_buffer(self.cmd).vk("vkEndCommandBuffer")?;
-            d.queue_submit(self.ctx.queue, &[submit], self.fence)
-                .vk("vkQueueSubmit")?;
-        }
-        self.recorder.note_submit();
-        // SAFETY: submitted with this fence just above.
-        unsafe {
-            d.wait_for_fences(&[self.fence], true, u64::MAX)
-                .vk("vkWaitForFences")?;
-            d.reset_fences(&[self.fence]).vk("vkResetFences")?;
-        }
-        let frame_ms = start.elapsed().as_secs_f64() * 1e3;
-        Ok(GiFrame {
-            frame_ms,
-            shadow_maps_rendered: maps,
-            chunks,
-            vpls: vpls.len() as u32,
-            counts: self.recorder.take_counts(),
-        })
+            .record_dispatch(&mut self.recorder, &self.gather);
+        self.gbuffer.record_compute_barrier(&mut self.recorder);
+        Ok(maps)
     }
 
     /// Reads the last frame's tone-mapped image as RGBA8 rows, top row first.
     pub fn read_output(&mut self) -> Result<Vec<u8>> {
-        let (layout, stage, access) = GBuffer::output_state();
         targets::read_image(
             &self.ctx,
-            &self.oneshot,
+            &mut self.oneshot,
             &mut self.recorder,
             &self.gbuffer.output,
-            layout,
-            stage,
-            access,
         )
     }
 }
 
+/// The gather's three vec4 for one VPL: position and chunk-local layer, normal, flux.
+fn vpl_floats(light: &Spotlight, v: &Vpl, local_layer: u32) -> [f32; VPL_FLOATS] {
+    let flux = light.power * v.weight * v.albedo;
+    let (p, n) = (v.position, v.normal);
+    [
+        p.x,
+        p.y,
+        p.z,
+        local_layer as f32,
+        n.x,
+        n.y,
+        n.z,
+        0.0,
+        flux.x,
+        flux.y,
+        flux.z,
+        0.0,
+    ]
+}
+
+/// The graphics layout (set 0: world-space vertices, shadow slots) and the compute layout
+/// (G-buffer position, normal, albedo; VPLs; shadow maps; indirect; output).
+fn create_layouts(ctx: &Arc<GpuContext>) -> Result<(PipelineLayout, PipelineLayout)> {
+    let storage = vk::DescriptorType::STORAGE_BUFFER;
+    let image = vk::DescriptorType::STORAGE_IMAGE;
+    let sampled = vk::DescriptorType::COMBINED_IMAGE_SAMPLER;
+    let graphics = PipelineLayout::new(ctx, &[storage, storage], GRAPHICS_PUSH)?;
+    let compute = PipelineLayout::new(
+        ctx,
+        &[image, image, image, storage, sampled, image, image],
+        COMPUTE_PUSH,
+    )?;
+    Ok((graphics, compute))
+}
+
+/// The compute set's bindings, in the order of [`create_layouts`].
+fn compute_bindings<'a>(
+    gbuffer: &'a GBuffer,
+    vpls: &'a Buffer,
+    shadow: &'a ShadowMaps,
+    sampler: &'a Sampler,
+) -> [Binding<'a>; 7] {
+    [
+        Binding::StorageImage(&gbuffer.position),
+        Binding::StorageImage(&gbuffer.normal),
+        Binding::StorageImage(&gbuffer.albedo),
+        Binding::StorageBuffer(vpls),
+        Binding::Sampled(&shadow.image, sampler),
+        Binding::StorageImage(&gbuffer.indirect),
+        Binding::StorageImage(&gbuffer.output),
+    ]
+}
+
+/// The geometry's triangles as the shaders' vertex floats, long triangles split so the
+/// paraboloid maps' straight-edge error stays small; and the vertex count.
+fn gpu_vertices(geometry: &WorldGeometry) -> Result<(Vec<f32>, u32)> {
+    let data = geometry
+        .tessellated(geometry.diagonal() * MAX_EDGE_FRACTION)
+        .gpu_vertices();
+    let count = u32::try_from(data.len() / VERTEX_FLOATS)
+        .map_err(|_| Error::Input("scene has too many triangles for GI".into()))?;
+    Ok((data, count))
+}
+
+/// A host-visible storage buffer of `floats` f32.
+fn host_storage(ctx: &Arc<GpuContext>, name: &str, floats: usize) -> Result<Buffer> {
+    Buffer::new(
+        ctx,
+        name,
+        floats as u64 * 4,
+        vk::BufferUsageFlags::STORAGE_BUFFER,
+        MemoryLocation::CpuToGpu,
+    )
+}
+
 impl Drop for GiRenderer {
     fn drop(&mut self) {
-        // SAFETY: after the device is idle nothing uses these objects; null handles are ignored.
-        unsafe {
-            let _ = self.ctx.device.device_wait_idle();
-            self.ctx.device.destroy_fence(self.fence, None);
-            self.ctx
-                .device
-                .destroy_command_pool(self.command_pool, None);
-            self.ctx
-                .device
-                .destroy_descriptor_pool(self.descriptor_pool, None);
-            self.ctx.device.destroy_sampler(self.sampler, None);
-        }
+        // Nothing may be in flight when the fields (pools, sets, images) are destroyed.
+        let _ = self.ctx.wait_idle();
     }
-}
-
-fn buf_write<'a>(
-    set: vk::DescriptorSet,
-    binding: u32,
-    info: &'a [vk::DescriptorBufferInfo; 1],
-) -> vk::WriteDescriptorSet<'a> {
-    vk::WriteDescriptorSet::default()
-        .dst_set(set)
-        .dst_binding(binding)
-        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-        .buffer_info(info)
-}
-
-fn img_write<'a>(
-    set: vk::DescriptorSet,
-    binding: u32,
-    info: &'a [vk::DescriptorImageInfo; 1],
-) -> vk::WriteDescriptorSet<'a> {
-    vk::WriteDescriptorSet::default()
-        .dst_set(set)
-        .dst_binding(binding)
-        .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
-        .image_info(info)
 }

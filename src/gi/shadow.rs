@@ -7,15 +7,13 @@ use std::sync::Arc;
 use ash::vk;
 
 use crate::error::{Error, Result};
-use crate::gpu::commands::image_barrier;
-use crate::gpu::memory::Image;
-use crate::gpu::pipelines::{Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
-use crate::gpu::{GpuContext, Recorder};
+use crate::gpu::{
+    as_bytes, shaders, Attachment, DescriptorSet, GpuContext, Image, ImageUse, Load, Pipeline,
+    PipelineDesc, PipelineKind, PipelineLayout, Recorder,
+};
 
 /// Shadow-map depth format.
 pub const SHADOW_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
-
-const SHADOW_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gi_shadow.vert.spv"));
 
 /// One shadow map to render this pass: an origin, the hemisphere's axis and its layer.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -46,8 +44,6 @@ pub struct ShadowMaps {
     pub size: u32,
     /// Layers available to VPLs.
     pub vpl_layers: u32,
-    /// Whether the image has left the UNDEFINED layout.
-    initialized: bool,
 }
 
 impl ShadowMaps {
@@ -69,10 +65,7 @@ impl ShadowMaps {
             ctx,
             "vpl shadow maps",
             SHADOW_FORMAT,
-            vk::Extent2D {
-                width: size,
-                height: size,
-            },
+            (size, size),
             layers,
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::SAMPLED,
         )?;
@@ -81,7 +74,7 @@ impl ShadowMaps {
             layout,
             &PipelineDesc {
                 name: "gi shadow",
-                vert: SHADOW_VERT,
+                vert: shaders::GI_SHADOW_VERT,
                 frag: None,
                 vertex_stride: 0,
                 attributes: &[],
@@ -102,7 +95,6 @@ impl ShadowMaps {
             image,
             size,
             vpl_layers,
-            initialized: false,
         })
     }
 
@@ -114,143 +106,68 @@ impl ShadowMaps {
     /// Records one layered pass that clears and renders the spotlight's layer and the layers of
     /// `vpl_slots` (slots `first_slot + 1 ..` of the bound slot buffer; slot `first_slot` is the
     /// spotlight). `push` is the graphics push block whose params.x/y this sets. Leaves the array
-    /// in SHADER_READ_ONLY_OPTIMAL for the gather passes. Returns the number of VPL shadow maps
-    /// drawn, counted from the triangles the recorder saw.
-    #[allow(clippy::too_many_arguments)]
+    /// sampled by compute for the gather passes. Returns the number of VPL shadow maps drawn,
+    /// counted from the triangles the recorder saw.
     pub fn record(
         &mut self,
         rec: &mut Recorder,
-        layout: &PipelineLayout,
-        set: vk::DescriptorSet,
+        pass: &ShadowPass,
         push: &mut [f32; 24],
         first_slot: u32,
         vpl_layers: &[u32],
-        vertex_count: u32,
-        far: f32,
     ) -> Result<u32> {
-        let layer_count = self.vpl_layers + 1;
-        // Lavapipe crashes instead of reporting a render whose layerCount exceeds an attachment's
-        // layers, so check it here.
-        if layer_count > self.image.layers {
-            return Err(Error::Input(format!(
-                "layered shadow pass over {layer_count} layers, but the attachment has {}",
-                self.image.layers
-            )));
-        }
         if let Some(&bad) = vpl_layers.iter().find(|&&l| l >= self.vpl_layers) {
             return Err(Error::Input(format!(
                 "VPL layer {bad} is outside 0..{}",
                 self.vpl_layers
             )));
         }
-        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
-            | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
-        let attachment = (
-            vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
-            depth_stages,
-            vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE
-                | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
-        );
-        let sampled = (
-            vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
-            vk::PipelineStageFlags2::COMPUTE_SHADER,
-            vk::AccessFlags2::SHADER_SAMPLED_READ,
-        );
-        let from = if self.initialized {
-            sampled
-        } else {
-            (
-                vk::ImageLayout::UNDEFINED,
-                vk::PipelineStageFlags2::NONE,
-                vk::AccessFlags2::NONE,
-            )
-        };
-        rec.barrier(
-            &[image_barrier(
-                self.image.handle,
-                self.image.full_range(),
-                from,
-                attachment,
-            )],
-            &[],
-        );
-        self.initialized = true;
-        let extent = vk::Extent2D {
-            width: self.size,
-            height: self.size,
-        };
-        let depth_att = vk::RenderingAttachmentInfo::default()
-            .image_view(self.image.view)
-            .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-            .load_op(vk::AttachmentLoadOp::LOAD)
-            .store_op(vk::AttachmentStoreOp::STORE);
-        let info = vk::RenderingInfo::default()
-            .render_area(vk::Rect2D {
-                offset: vk::Offset2D::default(),
-                extent,
-            })
-            .layer_count(layer_count)
-            .depth_attachment(&depth_att);
-        rec.begin_rendering(&info);
-        rec.set_viewport(extent);
-        // Clear only the layers drawn now; the others keep their maps from earlier frames.
-        let clear = [vk::ClearAttachment {
-            aspect_mask: vk::ImageAspectFlags::DEPTH,
-            color_attachment: 0,
-            clear_value: vk::ClearValue {
-                depth_stencil: vk::ClearDepthStencilValue {
-                    depth: 1.0,
-                    stencil: 0,
-                },
-            },
-        }];
-        let rects: Vec<vk::ClearRect> = vpl_layers
-            .iter()
-            .chain(std::iter::once(&self.vpl_layers))
-            .map(|&l| vk::ClearRect {
-                rect: vk::Rect2D {
-                    offset: vk::Offset2D::default(),
-                    extent,
-                },
-                base_array_layer: l,
-                layer_count: 1,
-            })
-            .collect();
-        rec.clear_attachments(&clear, &rects);
+        self.begin(rec, vpl_layers)?;
         rec.bind_pipeline(&self.pipeline);
-        rec.bind_descriptor_set(vk::PipelineBindPoint::GRAPHICS, layout.handle, set);
-        let stages = vk::ShaderStageFlags::VERTEX
-            | vk::ShaderStageFlags::FRAGMENT
-            | vk::ShaderStageFlags::COMPUTE;
+        rec.bind_graphics_set(pass.layout, pass.set);
+        // The spotlight's map: one instance.
         push[20] = first_slot as f32;
-        push[21] = far;
-        rec.push_constants(
-            layout.handle,
-            stages,
-            &crate::render::upload::as_bytes(&push[..]),
-        );
-        rec.draw(vertex_count, 1);
+        push[21] = pass.far;
+        rec.push_constants(pass.layout, &as_bytes(&push[..]));
+        rec.draw(pass.vertex_count, 1);
+        // The VPLs' maps: one instance per slot, gl_Layer from the slot.
         let before = rec.counts.triangles;
         if !vpl_layers.is_empty() {
             push[20] = (first_slot + 1) as f32;
-            rec.push_constants(
-                layout.handle,
-                stages,
-                &crate::render::upload::as_bytes(&push[..]),
-            );
-            rec.draw(vertex_count, vpl_layers.len() as u32);
+            rec.push_constants(pass.layout, &as_bytes(&push[..]));
+            rec.draw(pass.vertex_count, vpl_layers.len() as u32);
         }
-        let maps = (rec.counts.triangles - before) / (vertex_count as u64 / 3).max(1);
+        let maps = (rec.counts.triangles - before) / (pass.vertex_count as u64 / 3).max(1);
         rec.end_rendering();
-        rec.barrier(
-            &[image_barrier(
-                self.image.handle,
-                self.image.full_range(),
-                attachment,
-                sampled,
-            )],
-            &[],
-        );
+        rec.transition(&self.image, ImageUse::SampledByCompute);
         Ok(maps as u32)
     }
+
+    /// Starts the layered rendering over every layer and clears the layers drawn now (the
+    /// others keep their maps from earlier frames).
+    fn begin(&self, rec: &mut Recorder, vpl_layers: &[u32]) -> Result<()> {
+        rec.transition(&self.image, ImageUse::DepthAttachment);
+        let depth = Attachment {
+            image: &self.image,
+            load: Load::Keep,
+            store: true,
+        };
+        rec.begin_rendering(&[], Some(depth), self.vpl_layers + 1)?;
+        let spot = std::iter::once(self.spot_layer());
+        rec.clear_depth_layers(vpl_layers.iter().copied().chain(spot), 1.0);
+        Ok(())
+    }
+}
+
+/// What a shadow pass draws with: the graphics layout and set (world-space vertices and the
+/// slot buffer), the vertex count and the far distance of the paraboloid depth.
+pub struct ShadowPass<'a> {
+    /// The graphics pipeline layout.
+    pub layout: &'a PipelineLayout,
+    /// Its descriptor set.
+    pub set: DescriptorSet,
+    /// World-space vertices to draw (pulled from the storage buffer).
+    pub vertex_count: u32,
+    /// Depth normalization distance.
+    pub far: f32,
 }

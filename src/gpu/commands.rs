@@ -2,9 +2,17 @@
 //! binds (dirty tracking) and counts every bind, render/query state switch, draw, triangle,
 //! query and submit, so frame statistics come from what was really recorded.
 
+use std::sync::Arc;
+
 use ash::vk;
 
-use super::pipelines::{Pipeline, PipelineKind};
+use super::descriptors::DescriptorSet;
+use super::memory::{Buffer, Image, ImageUse};
+use super::pipelines::{ComputePipeline, Pipeline, PipelineKind, PipelineLayout};
+use super::queries::QueryPools;
+use super::sync::Timeline;
+use super::GpuContext;
+use crate::error::{Error, Result, VkContext};
 
 /// What the recorder saw.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -33,12 +41,166 @@ pub struct CommandCounts {
     pub buffer_binds: u32,
 }
 
+/// A command buffer handed out by a [`CommandPool`], begun and ready to record.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CommandBuffer(pub(crate) vk::CommandBuffer);
+
+/// A command pool and the buffers allocated from it. Buffers are handed out in order by
+/// [`CommandPool::begin_next`] and all recycled together by [`CommandPool::reset`].
+pub struct CommandPool {
+    ctx: Arc<GpuContext>,
+    pool: vk::CommandPool,
+    buffers: Vec<vk::CommandBuffer>,
+    used: usize,
+}
+
+impl CommandPool {
+    /// Creates an empty pool on the context's queue family.
+    pub fn new(ctx: &Arc<GpuContext>) -> Result<CommandPool> {
+        let info = vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family);
+        // SAFETY: valid device and create info.
+        let pool =
+            unsafe { ctx.device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
+        Ok(CommandPool {
+            ctx: ctx.clone(),
+            pool,
+            buffers: Vec::new(),
+            used: 0,
+        })
+    }
+
+    /// The next free buffer (allocated when all are used), begun for one submission.
+    pub fn begin_next(&mut self) -> Result<CommandBuffer> {
+        let d = &self.ctx.device;
+        if self.used == self.buffers.len() {
+            let alloc = vk::CommandBufferAllocateInfo::default()
+                .command_pool(self.pool)
+                .level(vk::CommandBufferLevel::PRIMARY)
+                .command_buffer_count(1);
+            // SAFETY: valid pool; the buffer is owned by it.
+            let cmd =
+                unsafe { d.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
+            self.buffers.push(cmd);
+        }
+        let cmd = self.buffers[self.used];
+        let begin = vk::CommandBufferBeginInfo::default()
+            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        // SAFETY: the buffer is in the initial state: new, or recycled by `reset` after its
+        // submission completed.
+        unsafe { d.begin_command_buffer(cmd, &begin) }.vk("vkBeginCommandBuffer")?;
+        self.used += 1;
+        Ok(CommandBuffer(cmd))
+    }
+
+    /// Buffers handed out since the last reset.
+    pub fn used(&self) -> usize {
+        self.used
+    }
+
+    /// Waits until everything submitted on `timeline` has completed (the pool's buffers are
+    /// only ever submitted there), then recycles every buffer.
+    pub fn reset(&mut self, timeline: &Timeline) -> Result<()> {
+        timeline.wait_all()?;
+        // SAFETY: no buffer of this pool is pending: all were submitted on `timeline`, which
+        // has completed, or never submitted.
+        unsafe {
+            self.ctx
+                .device
+                .reset_command_pool(self.pool, vk::CommandPoolResetFlags::empty())
+        }
+        .vk("vkResetCommandPool")?;
+        self.used = 0;
+        Ok(())
+    }
+}
+
+impl Drop for CommandPool {
+    fn drop(&mut self) {
+        // SAFETY: owners drop the pool after the timeline its buffers were submitted on has
+        // completed (Timeline::drop and the owners' Drop wait for it); freeing the pool frees
+        // its buffers.
+        unsafe {
+            let _ = self.ctx.device.device_wait_idle();
+            self.ctx.device.destroy_command_pool(self.pool, None);
+        }
+    }
+}
+
+/// What to do with an attachment's contents at the start of a rendering.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Load {
+    /// Keep what is there.
+    Keep,
+    /// Contents are not needed.
+    DontCare,
+    /// Clear a float/unorm color attachment.
+    ClearColor([f32; 4]),
+    /// Clear an integer color attachment.
+    ClearUint([u32; 4]),
+    /// Clear a depth attachment.
+    ClearDepth(f32),
+}
+
+/// One attachment of a rendering: the image (in [`ImageUse::ColorAttachment`] or
+/// [`ImageUse::DepthAttachment`]), its load op and whether its results are stored.
+#[derive(Clone, Copy)]
+pub struct Attachment<'a> {
+    /// The image (its view over all layers is attached).
+    pub image: &'a Image,
+    /// Load op.
+    pub load: Load,
+    /// Store the results (false: DONT_CARE).
+    pub store: bool,
+}
+
+impl Attachment<'_> {
+    fn info(&self, layout: vk::ImageLayout) -> vk::RenderingAttachmentInfo<'static> {
+        let (load, clear) = match self.load {
+            Load::Keep => (vk::AttachmentLoadOp::LOAD, vk::ClearValue::default()),
+            Load::DontCare => (vk::AttachmentLoadOp::DONT_CARE, vk::ClearValue::default()),
+            Load::ClearColor(c) => (
+                vk::AttachmentLoadOp::CLEAR,
+                vk::ClearValue {
+                    color: vk::ClearColorValue { float32: c },
+                },
+            ),
+            Load::ClearUint(c) => (
+                vk::AttachmentLoadOp::CLEAR,
+                vk::ClearValue {
+                    color: vk::ClearColorValue { uint32: c },
+                },
+            ),
+            Load::ClearDepth(depth) => (
+                vk::AttachmentLoadOp::CLEAR,
+                vk::ClearValue {
+                    depth_stencil: vk::ClearDepthStencilValue { depth, stencil: 0 },
+                },
+            ),
+        };
+        let store = if self.store {
+            vk::AttachmentStoreOp::STORE
+        } else {
+            vk::AttachmentStoreOp::DONT_CARE
+        };
+        vk::RenderingAttachmentInfo::default()
+            .image_view(self.image.view)
+            .image_layout(layout)
+            .load_op(load)
+            .store_op(store)
+            .clear_value(clear)
+    }
+}
+
+/// Most color attachments of one rendering.
+const MAX_COLOR_ATTACHMENTS: usize = 4;
+
 /// Records into one command buffer at a time and counts.
 pub struct Recorder {
     device: ash::Device,
     cmd: vk::CommandBuffer,
     bound: Option<vk::Pipeline>,
     last_kind: Option<PipelineKind>,
+    render_extent: vk::Extent2D,
     /// Counts since the last [`Recorder::take_counts`].
     pub counts: CommandCounts,
 }
@@ -51,19 +213,20 @@ impl Recorder {
             cmd: vk::CommandBuffer::null(),
             bound: None,
             last_kind: None,
+            render_extent: vk::Extent2D::default(),
             counts: CommandCounts::default(),
         }
     }
 
     /// Starts recording into a new command buffer (already begun): bound state is forgotten.
-    pub fn set_command_buffer(&mut self, cmd: vk::CommandBuffer) {
-        self.cmd = cmd;
+    pub fn set_command_buffer(&mut self, cmd: CommandBuffer) {
+        self.cmd = cmd.0;
         self.bound = None;
     }
 
     /// The current command buffer.
-    pub fn command_buffer(&self) -> vk::CommandBuffer {
-        self.cmd
+    pub fn command_buffer(&self) -> CommandBuffer {
+        CommandBuffer(self.cmd)
     }
 
     /// Returns the counts and starts a new frame (no kind is current).
@@ -97,63 +260,72 @@ impl Recorder {
     }
 
     /// Binds a compute pipeline.
-    pub fn bind_compute_pipeline(&mut self, p: vk::Pipeline) {
+    pub fn bind_compute_pipeline(&mut self, p: &ComputePipeline) {
         // SAFETY: recording command buffer and valid pipeline.
         unsafe {
             self.device
-                .cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, p)
+                .cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, p.handle)
         };
         self.counts.pipeline_binds += 1;
     }
 
-    /// Binds descriptor set 0.
-    pub fn bind_descriptor_set(
+    /// Binds `set` as set 0 of `layout` for graphics pipelines.
+    pub fn bind_graphics_set(&mut self, layout: &PipelineLayout, set: DescriptorSet) {
+        self.bind_set(vk::PipelineBindPoint::GRAPHICS, layout, set);
+    }
+
+    /// Binds `set` as set 0 of `layout` for compute pipelines.
+    pub fn bind_compute_set(&mut self, layout: &PipelineLayout, set: DescriptorSet) {
+        self.bind_set(vk::PipelineBindPoint::COMPUTE, layout, set);
+    }
+
+    fn bind_set(
         &mut self,
-        bind_point: vk::PipelineBindPoint,
-        layout: vk::PipelineLayout,
-        set: vk::DescriptorSet,
+        point: vk::PipelineBindPoint,
+        layout: &PipelineLayout,
+        set: DescriptorSet,
     ) {
-        // SAFETY: recording command buffer; set compatible with layout.
+        // SAFETY: recording command buffer; the set was allocated for this layout's set 0.
         unsafe {
             self.device
-                .cmd_bind_descriptor_sets(self.cmd, bind_point, layout, 0, &[set], &[])
+                .cmd_bind_descriptor_sets(self.cmd, point, layout.handle, 0, &[set.0], &[])
         };
         self.counts.descriptor_binds += 1;
     }
 
-    /// Binds vertex buffer 0 and, if given, a u32 index buffer.
+    /// Binds vertex buffer 0 at `vertex_offset` and, if given, a u32 index buffer.
     pub fn bind_buffers(
         &mut self,
-        vertices: vk::Buffer,
+        vertices: &Buffer,
         vertex_offset: u64,
-        indices: Option<vk::Buffer>,
+        indices: Option<&Buffer>,
     ) {
         // SAFETY: recording command buffer and valid buffers.
         unsafe {
             self.device
-                .cmd_bind_vertex_buffers(self.cmd, 0, &[vertices], &[vertex_offset]);
+                .cmd_bind_vertex_buffers(self.cmd, 0, &[vertices.handle], &[vertex_offset]);
             if let Some(ib) = indices {
                 self.device
-                    .cmd_bind_index_buffer(self.cmd, ib, 0, vk::IndexType::UINT32);
+                    .cmd_bind_index_buffer(self.cmd, ib.handle, 0, vk::IndexType::UINT32);
             }
         }
         self.counts.buffer_binds += 1;
     }
 
-    /// Push constants for vertex+fragment(+compute) stages.
-    pub fn push_constants(
-        &mut self,
-        layout: vk::PipelineLayout,
-        stages: vk::ShaderStageFlags,
-        bytes: &[u8],
-    ) {
-        // SAFETY: recording command buffer; range declared in the layout.
+    /// Push constants at offset 0 for every stage of `layout` (at most its push size).
+    pub fn push_constants(&mut self, layout: &PipelineLayout, bytes: &[u8]) {
+        let len = bytes.len().min(layout.push_size as usize);
+        // SAFETY: recording command buffer; the range lies in the layout's push range.
         unsafe {
-            self.device
-                .cmd_push_constants(self.cmd, layout, stages, 0, bytes)
+            self.device.cmd_push_constants(
+                self.cmd,
+                layout.handle,
+                PipelineLayout::STAGES,
+                0,
+                &bytes[..len],
+            )
         };
     }
-
     /// Indexed draw; counts the draw and its triangles.
     pub fn draw_indexed(
         &mut self,
@@ -193,8 +365,9 @@ impl Recorder {
         self.counts.triangles += (vertex_count / 3) as u64 * instances as u64;
     }
 
-    /// Begins a precise occlusion query.
-    pub fn begin_occlusion_query(&mut self, pool: vk::QueryPool, index: u32) {
+    /// Begins precise occlusion query `id` of `pools`.
+    pub fn begin_occlusion_query(&mut self, pools: &QueryPools, id: u32) {
+        let (pool, index) = pools.location(id);
         // SAFETY: the query was reset and is not active.
         unsafe {
             self.device
@@ -203,14 +376,16 @@ impl Recorder {
         self.counts.queries_begun += 1;
     }
 
-    /// Ends a query.
-    pub fn end_query(&mut self, pool: vk::QueryPool, index: u32) {
+    /// Ends query `id` of `pools`.
+    pub fn end_query(&mut self, pools: &QueryPools, id: u32) {
+        let (pool, index) = pools.location(id);
         // SAFETY: the query is active in this command buffer.
         unsafe { self.device.cmd_end_query(self.cmd, pool, index) };
     }
 
-    /// Writes a timestamp after all previous work.
-    pub fn write_timestamp(&mut self, pool: vk::QueryPool, index: u32) {
+    /// Writes timestamp `id` of `pools` after all previous work.
+    pub fn write_timestamp(&mut self, pools: &QueryPools, id: u32) {
+        let (pool, index) = pools.location(id);
         // SAFETY: the query was reset.
         unsafe {
             self.device.cmd_write_timestamp2(
@@ -222,10 +397,59 @@ impl Recorder {
         };
     }
 
-    /// Begins dynamic rendering.
-    pub fn begin_rendering(&mut self, info: &vk::RenderingInfo) {
-        // SAFETY: recording outside rendering; attachments in the right layouts.
-        unsafe { self.device.cmd_begin_rendering(self.cmd, info) };
+    /// Begins dynamic rendering into `colors` and `depth` over `layers` array layers, with a
+    /// viewport and scissor covering the attachments (flipped so +y is up, GL style). The
+    /// attachments must be in their attachment use (see [`Recorder::transition`]), of one size,
+    /// and have at least `layers` layers (checked here: lavapipe crashes instead of reporting it).
+    pub fn begin_rendering(
+        &mut self,
+        colors: &[Attachment],
+        depth: Option<Attachment>,
+        layers: u32,
+    ) -> Result<()> {
+        let first = colors
+            .first()
+            .or(depth.as_ref())
+            .ok_or_else(|| Error::Input("a rendering needs an attachment".into()))?;
+        let extent = first.image.extent;
+        if colors.len() > MAX_COLOR_ATTACHMENTS {
+            return Err(Error::Input(format!(
+                "{} color attachments (at most {MAX_COLOR_ATTACHMENTS})",
+                colors.len()
+            )));
+        }
+        for a in colors.iter().chain(depth.as_ref()) {
+            if a.image.extent != extent || a.image.layers < layers.max(1) {
+                return Err(Error::Input(format!(
+                    "rendering of {}x{}x{layers}: an attachment is {}x{}x{}",
+                    extent.width,
+                    extent.height,
+                    a.image.extent.width,
+                    a.image.extent.height,
+                    a.image.layers
+                )));
+            }
+        }
+        let mut color_infos = [vk::RenderingAttachmentInfo::default(); MAX_COLOR_ATTACHMENTS];
+        for (info, a) in color_infos.iter_mut().zip(colors) {
+            *info = a.info(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+        }
+        let depth_info = depth.map(|d| d.info(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL));
+        let mut info = vk::RenderingInfo::default()
+            .render_area(vk::Rect2D {
+                offset: vk::Offset2D::default(),
+                extent,
+            })
+            .layer_count(layers.max(1))
+            .color_attachments(&color_infos[..colors.len()]);
+        if let Some(d) = depth_info.as_ref() {
+            info = info.depth_attachment(d);
+        }
+        // SAFETY: recording outside rendering; attachments checked above, in attachment layouts.
+        unsafe { self.device.cmd_begin_rendering(self.cmd, &info) };
+        self.render_extent = extent;
+        self.set_viewport(extent);
+        Ok(())
     }
 
     /// Ends dynamic rendering.
@@ -234,24 +458,33 @@ impl Recorder {
         unsafe { self.device.cmd_end_rendering(self.cmd) };
     }
 
-    /// Clears regions (and array layers) of the current rendering's attachments.
-    pub fn clear_attachments(
-        &mut self,
-        attachments: &[vk::ClearAttachment],
-        rects: &[vk::ClearRect],
-    ) {
-        if attachments.is_empty() || rects.is_empty() {
-            return;
-        }
-        // SAFETY: inside rendering; the rects lie within the render area and its layers.
-        unsafe {
-            self.device
-                .cmd_clear_attachments(self.cmd, attachments, rects)
+    /// Clears the depth attachment of the current rendering to `depth` in each of `layers`
+    /// (whole render area). Layers must lie within the rendering's layer count.
+    pub fn clear_depth_layers(&mut self, layers: impl Iterator<Item = u32>, depth: f32) {
+        let clear = [vk::ClearAttachment {
+            aspect_mask: vk::ImageAspectFlags::DEPTH,
+            color_attachment: 0,
+            clear_value: vk::ClearValue {
+                depth_stencil: vk::ClearDepthStencilValue { depth, stencil: 0 },
+            },
+        }];
+        let rect = vk::Rect2D {
+            offset: vk::Offset2D::default(),
+            extent: self.render_extent,
         };
+        for layer in layers {
+            let rects = [vk::ClearRect {
+                rect,
+                base_array_layer: layer,
+                layer_count: 1,
+            }];
+            // SAFETY: inside rendering; the rect is the render area; the caller keeps the layer
+            // within the rendering's layers.
+            unsafe { self.device.cmd_clear_attachments(self.cmd, &clear, &rects) };
+        }
     }
 
-    /// Viewport (flipped so +y is up, GL style) and scissor covering `extent`.
-    pub fn set_viewport(&mut self, extent: vk::Extent2D) {
+    fn set_viewport(&mut self, extent: vk::Extent2D) {
         let vp = vk::Viewport {
             x: 0.0,
             y: extent.height as f32,
@@ -271,8 +504,34 @@ impl Recorder {
         }
     }
 
+    /// Moves `image` from its current use to `to` (layout transition and memory dependency;
+    /// recorded even when the use does not change, e.g. between two segments of one frame).
+    pub fn transition(&mut self, image: &Image, to: ImageUse) {
+        let from = image.state().access();
+        self.image_barrier(image, from, to);
+    }
+
+    /// Like [`Recorder::transition`], but the old contents are discarded (old layout
+    /// UNDEFINED; earlier accesses are still waited for).
+    pub fn discard(&mut self, image: &Image, to: ImageUse) {
+        let (_, stage, _) = image.state().access();
+        let from = (vk::ImageLayout::UNDEFINED, stage, vk::AccessFlags2::NONE);
+        self.image_barrier(image, from, to);
+    }
+
+    fn image_barrier(
+        &mut self,
+        image: &Image,
+        from: (vk::ImageLayout, vk::PipelineStageFlags2, vk::AccessFlags2),
+        to: ImageUse,
+    ) {
+        let b = image_barrier(image.handle, image.full_range(), from, to.access());
+        self.barrier(&[b], &[]);
+        image.set_state(to);
+    }
+
     /// A synchronization2 barrier.
-    pub fn barrier(
+    pub(crate) fn barrier(
         &mut self,
         images: &[vk::ImageMemoryBarrier2],
         buffers: &[vk::BufferMemoryBarrier2],
@@ -284,8 +543,20 @@ impl Recorder {
         unsafe { self.device.cmd_pipeline_barrier2(self.cmd, &dep) };
     }
 
+    /// Makes transfer writes to `buffer` visible to host reads.
+    pub(crate) fn host_read_barrier(&mut self, buffer: &Buffer) {
+        let b = vk::BufferMemoryBarrier2::default()
+            .buffer(buffer.handle)
+            .size(vk::WHOLE_SIZE)
+            .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+            .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+            .dst_access_mask(vk::AccessFlags2::HOST_READ);
+        self.barrier(&[], &[b]);
+    }
+
     /// Copies an image layer to a buffer.
-    pub fn copy_image_to_buffer(
+    pub(crate) fn copy_image_to_buffer(
         &mut self,
         image: vk::Image,
         buffer: vk::Buffer,
@@ -305,7 +576,7 @@ impl Recorder {
 
     /// Blits layer 0 of `src` (TRANSFER_SRC_OPTIMAL) to `dst` (TRANSFER_DST_OPTIMAL), scaling
     /// with nearest filtering (viewer presentation).
-    pub fn blit_image(&mut self, src: vk::Image, dst: vk::Image, region: vk::ImageBlit) {
+    pub(crate) fn blit_image(&mut self, src: vk::Image, dst: vk::Image, region: vk::ImageBlit) {
         // SAFETY: recording outside rendering; images in the stated layouts with blit usage.
         unsafe {
             self.device.cmd_blit_image(
@@ -321,7 +592,7 @@ impl Recorder {
     }
 
     /// Copies buffer regions into `image` (TRANSFER_DST_OPTIMAL) (viewer overlay).
-    pub fn copy_buffer_to_image(
+    pub(crate) fn copy_buffer_to_image(
         &mut self,
         buffer: vk::Buffer,
         image: vk::Image,
@@ -339,14 +610,14 @@ impl Recorder {
         };
     }
 
-    /// Dispatches a compute shader.
+    /// Dispatches the bound compute pipeline.
     pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {
         // SAFETY: compute pipeline bound.
         unsafe { self.device.cmd_dispatch(self.cmd, x, y, z) };
     }
 
     /// Counts a queue submission made by the owner of this recorder.
-    pub fn note_submit(&mut self) {
+    pub(crate) fn note_submit(&mut self) {
         self.counts.submits += 1;
     }
 
@@ -359,33 +630,8 @@ impl Recorder {
     }
 }
 
-/// Resets `cmd` (when `reset`; buffers from a pool reset as a whole pass `false`) and begins it
-/// for one submission. The caller guarantees the buffer is not in flight.
-pub fn begin_one_time(
-    device: &ash::Device,
-    cmd: vk::CommandBuffer,
-    reset: bool,
-) -> crate::Result<()> {
-    use crate::error::VkContext;
-    // SAFETY: the caller guarantees `cmd` is not pending execution.
-    unsafe {
-        if reset {
-            device
-                .reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty())
-                .vk("vkResetCommandBuffer")?;
-        }
-        device
-            .begin_command_buffer(
-                cmd,
-                &vk::CommandBufferBeginInfo::default()
-                    .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
-            )
-            .vk("vkBeginCommandBuffer")
-    }
-}
-
-/// Layout-transition barrier for a whole image.
-pub fn image_barrier(
+/// Layout-transition barrier for a whole image (or the given range).
+pub(crate) fn image_barrier(
     image: vk::Image,
     range: vk::ImageSubresourceRange,
     from: (vk::ImageLayout, vk::PipelineStageFlags2, vk::AccessFlags2),

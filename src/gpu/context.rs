@@ -131,6 +131,8 @@ pub struct DeviceInfo {
     pub validation: bool,
     /// Largest 2D-array layer count.
     pub max_image_array_layers: u32,
+    /// Largest layer count of a (layered) rendering.
+    pub max_framebuffer_layers: u32,
 }
 
 /// The features `coherent` relies on, for `coherent info`.
@@ -142,6 +144,7 @@ pub const REQUIRED_FEATURES: &[&str] = &[
     "hostQueryReset",
     "occlusionQueryPrecise",
     "shaderOutputLayer",
+    "timelineSemaphore",
 ];
 
 /// Instance, device, queue and allocator. Create it with [`GpuContext::headless`] (tests,
@@ -210,65 +213,7 @@ impl GpuContext {
         log: Arc<ValidationLog>,
         log_raw: *const ValidationLog,
     ) -> Result<GpuContext> {
-        // SAFETY: plain query of the loader.
-        let version = unsafe { entry.try_enumerate_instance_version() }
-            .vk("vkEnumerateInstanceVersion")?
-            .unwrap_or(vk::API_VERSION_1_0);
-        if version < vk::API_VERSION_1_3 {
-            return Err(Error::Unsupported {
-                feature: "Vulkan 1.3 instance".into(),
-            });
-        }
-        let mut layers: Vec<*const i8> = Vec::new();
-        let mut extensions: Vec<*const i8> = options
-            .instance_extensions
-            .iter()
-            .map(|e| e.as_ptr())
-            .collect();
-        if options.validation {
-            // SAFETY: plain query of the loader.
-            let available = unsafe { entry.enumerate_instance_layer_properties() }
-                .vk("vkEnumerateInstanceLayerProperties")?;
-            let found = available.iter().any(|l| {
-                l.layer_name_as_c_str()
-                    .map(|n| n == VALIDATION_LAYER)
-                    .unwrap_or(false)
-            });
-            if !found {
-                return Err(Error::Unsupported {
-                    feature: "VK_LAYER_KHRONOS_validation (apt install vulkan-validationlayers)"
-                        .into(),
-                });
-            }
-            layers.push(VALIDATION_LAYER.as_ptr());
-            extensions.push(ext::debug_utils::NAME.as_ptr());
-        }
-        let app = vk::ApplicationInfo::default()
-            .application_name(c"coherent")
-            .engine_name(c"coherent")
-            .api_version(vk::API_VERSION_1_3);
-        let mut messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
-            .message_severity(
-                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
-                    | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-            )
-            .message_type(
-                vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
-                    | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
-            )
-            .pfn_user_callback(Some(debug_callback))
-            .user_data(log_raw as *mut c_void);
-        let mut create_info = vk::InstanceCreateInfo::default()
-            .application_info(&app)
-            .enabled_layer_names(&layers)
-            .enabled_extension_names(&extensions);
-        if options.validation {
-            create_info = create_info.push_next(&mut messenger_info);
-        }
-        // SAFETY: all pointers in create_info outlive the call.
-        let instance =
-            unsafe { entry.create_instance(&create_info, None) }.vk("vkCreateInstance")?;
+        let instance = create_instance(&entry, options, log_raw)?;
         let mut partial = Partial {
             instance: Some(instance.clone()),
             debug: None,
@@ -277,11 +222,11 @@ impl GpuContext {
         if options.validation {
             let du = ext::debug_utils::Instance::new(&entry, &instance);
             // SAFETY: valid instance; the user data outlives the messenger.
-            let messenger = unsafe { du.create_debug_utils_messenger(&messenger_info, None) }
-                .vk("vkCreateDebugUtilsMessengerEXT")?;
+            let messenger =
+                unsafe { du.create_debug_utils_messenger(&messenger_info(log_raw), None) }
+                    .vk("vkCreateDebugUtilsMessengerEXT")?;
             partial.debug = Some((du, messenger));
         }
-
         let filter = options.device_filter.clone().or_else(|| {
             std::env::var("COHERENT_DEVICE")
                 .ok()
@@ -290,33 +235,7 @@ impl GpuContext {
         let (physical_device, queue_family, mut info) = pick_device(&instance, filter.as_deref())?;
         info.validation = options.validation;
         check_features(&instance, physical_device)?;
-
-        let priorities = [1.0f32];
-        let queue_info = [vk::DeviceQueueCreateInfo::default()
-            .queue_family_index(queue_family)
-            .queue_priorities(&priorities)];
-        let features10 = vk::PhysicalDeviceFeatures::default().occlusion_query_precise(true);
-        let mut features12 = vk::PhysicalDeviceVulkan12Features::default()
-            .host_query_reset(true)
-            .shader_output_layer(true);
-        let mut features13 = vk::PhysicalDeviceVulkan13Features::default()
-            .dynamic_rendering(true)
-            .synchronization2(true)
-            .maintenance4(true);
-        let dev_ext: Vec<*const i8> = options
-            .device_extensions
-            .iter()
-            .map(|e| e.as_ptr())
-            .collect();
-        let device_info = vk::DeviceCreateInfo::default()
-            .queue_create_infos(&queue_info)
-            .enabled_features(&features10)
-            .enabled_extension_names(&dev_ext)
-            .push_next(&mut features12)
-            .push_next(&mut features13);
-        // SAFETY: physical device from this instance; pointers outlive the call.
-        let device = unsafe { instance.create_device(physical_device, &device_info, None) }
-            .vk("vkCreateDevice")?;
+        let device = create_device(&instance, physical_device, queue_family, options)?;
         partial.device = Some(device.clone());
         // SAFETY: the family was created with one queue.
         let queue = unsafe { device.get_device_queue(queue_family, 0) };
@@ -432,6 +351,122 @@ fn version_string(v: u32) -> String {
     )
 }
 
+/// The messenger that captures warnings and errors into the log behind `log_raw`.
+fn messenger_info(log_raw: *const ValidationLog) -> vk::DebugUtilsMessengerCreateInfoEXT<'static> {
+    vk::DebugUtilsMessengerCreateInfoEXT::default()
+        .message_severity(
+            vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+                | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+        )
+        .message_type(
+            vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+        )
+        .pfn_user_callback(Some(debug_callback))
+        .user_data(log_raw as *mut c_void)
+}
+
+/// A Vulkan 1.3 instance with the caller's extensions and, when asked, the validation layer
+/// (its messenger also covers instance creation and destruction).
+fn create_instance(
+    entry: &ash::Entry,
+    options: &ContextOptions,
+    log_raw: *const ValidationLog,
+) -> Result<ash::Instance> {
+    // SAFETY: plain query of the loader.
+    let version = unsafe { entry.try_enumerate_instance_version() }
+        .vk("vkEnumerateInstanceVersion")?
+        .unwrap_or(vk::API_VERSION_1_0);
+    if version < vk::API_VERSION_1_3 {
+        return Err(Error::Unsupported {
+            feature: "Vulkan 1.3 instance".into(),
+        });
+    }
+    let mut layers: Vec<*const i8> = Vec::new();
+    let mut extensions: Vec<*const i8> = options
+        .instance_extensions
+        .iter()
+        .map(|e| e.as_ptr())
+        .collect();
+    if options.validation {
+        require_validation_layer(entry)?;
+        layers.push(VALIDATION_LAYER.as_ptr());
+        extensions.push(ext::debug_utils::NAME.as_ptr());
+    }
+    let app = vk::ApplicationInfo::default()
+        .application_name(c"coherent")
+        .engine_name(c"coherent")
+        .api_version(vk::API_VERSION_1_3);
+    let mut messenger = messenger_info(log_raw);
+    let mut create_info = vk::InstanceCreateInfo::default()
+        .application_info(&app)
+        .enabled_layer_names(&layers)
+        .enabled_extension_names(&extensions);
+    if options.validation {
+        create_info = create_info.push_next(&mut messenger);
+    }
+    // SAFETY: all pointers in create_info outlive the call.
+    unsafe { entry.create_instance(&create_info, None) }.vk("vkCreateInstance")
+}
+
+/// An error naming the package when the Khronos validation layer is not installed.
+fn require_validation_layer(entry: &ash::Entry) -> Result<()> {
+    // SAFETY: plain query of the loader.
+    let available = unsafe { entry.enumerate_instance_layer_properties() }
+        .vk("vkEnumerateInstanceLayerProperties")?;
+    let found = available.iter().any(|l| {
+        l.layer_name_as_c_str()
+            .map(|n| n == VALIDATION_LAYER)
+            .unwrap_or(false)
+    });
+    if found {
+        Ok(())
+    } else {
+        Err(Error::Unsupported {
+            feature: "VK_LAYER_KHRONOS_validation (apt install vulkan-validationlayers)".into(),
+        })
+    }
+}
+
+/// The logical device with one queue of `family` and every feature of [`REQUIRED_FEATURES`].
+fn create_device(
+    instance: &ash::Instance,
+    physical_device: vk::PhysicalDevice,
+    family: u32,
+    options: &ContextOptions,
+) -> Result<ash::Device> {
+    let priorities = [1.0f32];
+    let queue_info = [vk::DeviceQueueCreateInfo::default()
+        .queue_family_index(family)
+        .queue_priorities(&priorities)];
+    let features10 = vk::PhysicalDeviceFeatures::default().occlusion_query_precise(true);
+    let mut features12 = vk::PhysicalDeviceVulkan12Features::default()
+        .host_query_reset(true)
+        .shader_output_layer(true)
+        .timeline_semaphore(true);
+    let mut features13 = vk::PhysicalDeviceVulkan13Features::default()
+        .dynamic_rendering(true)
+        .synchronization2(true)
+        .maintenance4(true);
+    let dev_ext: Vec<*const i8> = options
+        .device_extensions
+        .iter()
+        .map(|e| e.as_ptr())
+        .collect();
+    let device_info = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queue_info)
+        .enabled_features(&features10)
+        .enabled_extension_names(&dev_ext)
+        .push_next(&mut features12)
+        .push_next(&mut features13);
+    // SAFETY: physical device from this instance; pointers outlive the call.
+    unsafe { instance.create_device(physical_device, &device_info, None) }.vk("vkCreateDevice")
+}
+
+/// Chooses the device: the best type (discrete > integrated > virtual > CPU) among Vulkan 1.3
+/// devices with a graphics queue that has timestamps, or the first whose name contains
+/// `filter`. Returns it, its queue family and a description.
 fn pick_device(
     instance: &ash::Instance,
     filter: Option<&str>,
@@ -442,66 +477,24 @@ fn pick_device(
     let mut candidates = Vec::new();
     let mut best: Option<(i32, vk::PhysicalDevice, u32, DeviceInfo)> = None;
     for pd in devices {
-        // SAFETY: pd from this instance.
-        let props = unsafe { instance.get_physical_device_properties(pd) };
-        let mut driver = vk::PhysicalDeviceDriverProperties::default();
-        let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
-        // SAFETY: as above.
-        unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
-        let name = props
-            .device_name_as_c_str()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let driver_name = format!(
-            "{} {}",
-            driver
-                .driver_name_as_c_str()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            driver
-                .driver_info_as_c_str()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default()
-        );
-        candidates.push(format!("{name} ({:?})", props.device_type));
-        // SAFETY: as above.
-        let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
-        let Some(family) = families.iter().position(|f| {
-            f.queue_flags.contains(vk::QueueFlags::GRAPHICS) && f.timestamp_valid_bits > 0
-        }) else {
+        let (props, info) = describe(instance, pd);
+        candidates.push(format!("{} ({:?})", info.name, props.device_type));
+        let Some(family) = graphics_family(instance, pd) else {
             continue;
         };
-        let (score, why) = match props.device_type {
-            vk::PhysicalDeviceType::DISCRETE_GPU => (4, "a discrete GPU"),
-            vk::PhysicalDeviceType::INTEGRATED_GPU => (3, "an integrated GPU"),
-            vk::PhysicalDeviceType::VIRTUAL_GPU => (2, "a virtual GPU"),
-            vk::PhysicalDeviceType::CPU => (1, "the CPU device (no GPU present)"),
-            _ => (0, "the only device"),
-        };
-        let matches = filter.map(|f| name.to_lowercase().contains(&f.to_lowercase()));
-        if matches == Some(false) {
+        let (score, why) = type_score(props.device_type);
+        if filter.is_some_and(|f| !info.name.to_lowercase().contains(&f.to_lowercase())) {
+            continue;
+        }
+        if props.api_version < vk::API_VERSION_1_3 {
             continue;
         }
         let reason = match filter {
             Some(f) => format!("COHERENT_DEVICE/--device matched \"{f}\""),
             None => format!("preferred {why}"),
         };
-        if props.api_version < vk::API_VERSION_1_3 {
-            continue;
-        }
-        let info = DeviceInfo {
-            name: name.clone(),
-            device_type: format!("{:?}", props.device_type),
-            driver: driver_name.trim().to_string(),
-            api_version: version_string(props.api_version),
-            reason,
-            candidates: Vec::new(),
-            timestamp_period_ns: props.limits.timestamp_period,
-            validation: false,
-            max_image_array_layers: props.limits.max_image_array_layers,
-        };
         if best.as_ref().map(|b| score > b.0).unwrap_or(true) {
-            best = Some((score, pd, family as u32, info));
+            best = Some((score, pd, family, DeviceInfo { reason, ..info }));
         }
     }
     match best {
@@ -509,18 +502,84 @@ fn pick_device(
             info.candidates = candidates;
             Ok((pd, fam, info))
         }
-        None => Err(Error::Unsupported {
-            feature: match filter {
-                Some(f) => format!(
-                    "a Vulkan 1.3 device matching \"{f}\" with a graphics queue (seen: {})",
-                    candidates.join(", ")
-                ),
-                None => format!(
-                    "a Vulkan 1.3 device with a graphics queue (seen: {}); install mesa-vulkan-drivers",
-                    if candidates.is_empty() { "none".to_string() } else { candidates.join(", ") }
-                ),
-            },
-        }),
+        None => Err(no_device(filter, &candidates)),
+    }
+}
+
+/// A device's properties and its description (reason and candidates left empty).
+fn describe(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+) -> (vk::PhysicalDeviceProperties, DeviceInfo) {
+    // SAFETY: pd from this instance.
+    let props = unsafe { instance.get_physical_device_properties(pd) };
+    let mut driver = vk::PhysicalDeviceDriverProperties::default();
+    let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
+    // SAFETY: as above.
+    unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
+    let text = |s: std::result::Result<&CStr, _>| {
+        s.map(|s: &CStr| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let driver_name = format!(
+        "{} {}",
+        text(driver.driver_name_as_c_str()),
+        text(driver.driver_info_as_c_str())
+    );
+    let info = DeviceInfo {
+        name: text(props.device_name_as_c_str()),
+        device_type: format!("{:?}", props.device_type),
+        driver: driver_name.trim().to_string(),
+        api_version: version_string(props.api_version),
+        reason: String::new(),
+        candidates: Vec::new(),
+        timestamp_period_ns: props.limits.timestamp_period,
+        validation: false,
+        max_image_array_layers: props.limits.max_image_array_layers,
+        max_framebuffer_layers: props.limits.max_framebuffer_layers,
+    };
+    (props, info)
+}
+
+/// The first queue family with graphics and timestamps.
+fn graphics_family(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Option<u32> {
+    // SAFETY: pd from this instance.
+    let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
+    families
+        .iter()
+        .position(|f| {
+            f.queue_flags.contains(vk::QueueFlags::GRAPHICS) && f.timestamp_valid_bits > 0
+        })
+        .map(|i| i as u32)
+}
+
+/// Preference of a device type, and how to say it.
+fn type_score(ty: vk::PhysicalDeviceType) -> (i32, &'static str) {
+    match ty {
+        vk::PhysicalDeviceType::DISCRETE_GPU => (4, "a discrete GPU"),
+        vk::PhysicalDeviceType::INTEGRATED_GPU => (3, "an integrated GPU"),
+        vk::PhysicalDeviceType::VIRTUAL_GPU => (2, "a virtual GPU"),
+        vk::PhysicalDeviceType::CPU => (1, "the CPU device (no GPU present)"),
+        _ => (0, "the only device"),
+    }
+}
+
+/// The error when no device qualifies, listing what was seen.
+fn no_device(filter: Option<&str>, candidates: &[String]) -> Error {
+    let seen = if candidates.is_empty() {
+        "none".to_string()
+    } else {
+        candidates.join(", ")
+    };
+    Error::Unsupported {
+        feature: match filter {
+            Some(f) => format!(
+                "a Vulkan 1.3 device matching \"{f}\" with a graphics queue (seen: {seen})"
+            ),
+            None => format!(
+                "a Vulkan 1.3 device with a graphics queue (seen: {seen}); install mesa-vulkan-drivers"
+            ),
+        },
     }
 }
 
@@ -548,6 +607,9 @@ fn check_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Result<()
     }
     if f12.shader_output_layer == 0 {
         missing.push("shaderOutputLayer");
+    }
+    if f12.timeline_semaphore == 0 {
+        missing.push("timelineSemaphore");
     }
     if f10.occlusion_query_precise == 0 {
         missing.push("occlusionQueryPrecise");

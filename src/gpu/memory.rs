@@ -1,6 +1,7 @@
 //! GPU memory: buffers and images allocated through gpu-allocator. Each owns an `Arc` to the
 //! context and frees itself on drop (callers make sure the GPU is done with it first).
 
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::Arc;
 
 use ash::vk;
@@ -137,6 +138,8 @@ pub struct Image {
     pub extent: vk::Extent2D,
     /// Array layers.
     pub layers: u32,
+    /// How the last recorded command used it ([`ImageUse`] as u8), for layout transitions.
+    state: AtomicU8,
     allocation: Option<Allocation>,
 }
 
@@ -146,10 +149,11 @@ impl Image {
         ctx: &Arc<GpuContext>,
         name: &str,
         format: vk::Format,
-        extent: vk::Extent2D,
+        (width, height): (u32, u32),
         layers: u32,
         usage: vk::ImageUsageFlags,
     ) -> Result<Image> {
+        let extent = vk::Extent2D { width, height };
         if extent.width == 0 || extent.height == 0 || layers == 0 {
             return Err(Error::Input(format!(
                 "{name}: image size {}x{}x{layers} is empty",
@@ -202,29 +206,52 @@ impl Image {
             format,
             extent,
             layers,
+            state: AtomicU8::new(ImageUse::Undefined as u8),
             allocation: Some(allocation),
         };
+        image.bind_and_view()?;
+        Ok(image)
+    }
+
+    /// Binds the memory and creates the view over all layers.
+    fn bind_and_view(&mut self) -> Result<()> {
+        let d = &self.ctx.device;
         // SAFETY: the memory handle is only used to bind this image.
-        let a = image
+        let (memory, offset) = self
             .allocation
             .as_ref()
             .map(|a| (unsafe { a.memory() }, a.offset()))
             .unwrap_or_default();
         // SAFETY: the allocation satisfies the image's requirements.
-        unsafe { ctx.device.bind_image_memory(handle, a.0, a.1) }.vk("vkBindImageMemory")?;
+        unsafe { d.bind_image_memory(self.handle, memory, offset) }.vk("vkBindImageMemory")?;
         let view_info = vk::ImageViewCreateInfo::default()
-            .image(handle)
-            .view_type(if layers > 1 {
+            .image(self.handle)
+            .view_type(if self.layers > 1 {
                 vk::ImageViewType::TYPE_2D_ARRAY
             } else {
                 vk::ImageViewType::TYPE_2D
             })
-            .format(format)
-            .subresource_range(image.full_range());
+            .format(self.format)
+            .subresource_range(self.full_range());
         // SAFETY: valid image with bound memory.
-        image.view =
-            unsafe { ctx.device.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
-        Ok(image)
+        self.view = unsafe { d.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
+        Ok(())
+    }
+
+    /// Width and height.
+    pub fn size(&self) -> (u32, u32) {
+        (self.extent.width, self.extent.height)
+    }
+
+    /// How the last recorded command used the image (its layout after that command).
+    pub fn state(&self) -> ImageUse {
+        ImageUse::from_u8(self.state.load(Ordering::Relaxed))
+    }
+
+    /// Records that the image is now used as `state` (the recorder calls this with each
+    /// transition it records; recording order is submission order within the crate).
+    pub(crate) fn set_state(&self, state: ImageUse) {
+        self.state.store(state as u8, Ordering::Relaxed);
     }
 
     /// The aspect of this image's format.
@@ -242,6 +269,107 @@ impl Image {
             layer_count: self.layers,
         }
     }
+}
+
+/// How an image is used: each use implies a layout and the stages and accesses that touch it.
+/// [`super::Recorder::transition`] moves an image from its current use to another.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum ImageUse {
+    /// Contents undefined (new image, or discarded).
+    Undefined,
+    /// Color attachment of a rendering (read and written).
+    ColorAttachment,
+    /// Depth attachment of a rendering (tested and written).
+    DepthAttachment,
+    /// Storage image read and written by compute shaders (GENERAL).
+    ComputeReadWrite,
+    /// Storage image only read by compute shaders (GENERAL).
+    ComputeRead,
+    /// Sampled by compute shaders (SHADER_READ_ONLY_OPTIMAL).
+    SampledByCompute,
+    /// Source of copies and blits.
+    TransferSrc,
+    /// Destination of copies and blits.
+    TransferDst,
+    /// Handed to the presentation engine.
+    Present,
+}
+
+impl ImageUse {
+    const ALL: [ImageUse; 9] = [
+        ImageUse::Undefined,
+        ImageUse::ColorAttachment,
+        ImageUse::DepthAttachment,
+        ImageUse::ComputeReadWrite,
+        ImageUse::ComputeRead,
+        ImageUse::SampledByCompute,
+        ImageUse::TransferSrc,
+        ImageUse::TransferDst,
+        ImageUse::Present,
+    ];
+
+    fn from_u8(v: u8) -> ImageUse {
+        Self::ALL
+            .get(v as usize)
+            .copied()
+            .unwrap_or(ImageUse::Undefined)
+    }
+
+    /// Layout, stages and accesses of this use.
+    pub(crate) fn access(self) -> (vk::ImageLayout, vk::PipelineStageFlags2, vk::AccessFlags2) {
+        use vk::AccessFlags2 as A;
+        use vk::PipelineStageFlags2 as S;
+        let fragment_tests = S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS;
+        match self {
+            ImageUse::Undefined => (vk::ImageLayout::UNDEFINED, S::NONE, A::NONE),
+            ImageUse::ColorAttachment => (
+                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                S::COLOR_ATTACHMENT_OUTPUT,
+                A::COLOR_ATTACHMENT_WRITE | A::COLOR_ATTACHMENT_READ,
+            ),
+            ImageUse::DepthAttachment => (
+                vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
+                fragment_tests,
+                A::DEPTH_STENCIL_ATTACHMENT_WRITE | A::DEPTH_STENCIL_ATTACHMENT_READ,
+            ),
+            ImageUse::ComputeReadWrite => (
+                vk::ImageLayout::GENERAL,
+                S::COMPUTE_SHADER,
+                A::SHADER_STORAGE_READ | A::SHADER_STORAGE_WRITE,
+            ),
+            ImageUse::ComputeRead => (
+                vk::ImageLayout::GENERAL,
+                S::COMPUTE_SHADER,
+                A::SHADER_STORAGE_READ,
+            ),
+            ImageUse::SampledByCompute => (
+                vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+                S::COMPUTE_SHADER,
+                A::SHADER_SAMPLED_READ,
+            ),
+            ImageUse::TransferSrc => (
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                S::ALL_TRANSFER,
+                A::TRANSFER_READ,
+            ),
+            ImageUse::TransferDst => (
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                S::ALL_TRANSFER,
+                A::TRANSFER_WRITE,
+            ),
+            ImageUse::Present => (vk::ImageLayout::PRESENT_SRC_KHR, S::NONE, A::NONE),
+        }
+    }
+}
+
+/// Plain data whose bytes may be viewed and uploaded (`bytemuck::Pod`: no padding, any bit
+/// pattern valid), so [`as_bytes`] needs no `unsafe` from its callers.
+pub use bytemuck::Pod;
+
+/// The bytes of a slice of plain data, copied.
+pub fn as_bytes<T: Pod>(data: &[T]) -> Vec<u8> {
+    bytemuck::cast_slice(data).to_vec()
 }
 
 /// The aspect mask for a format.

@@ -1,97 +1,64 @@
-//! The only module that talks to ash: context, memory, pipelines, the counting command recorder,
-//! query pools, offscreen targets and embedded shaders.
+//! The only module that talks to ash. It owns every Vulkan object and every queue submission:
+//! the context, memory (buffers, images with tracked layouts), pipelines (graphics and compute),
+//! descriptor sets and samplers, command pools and the counting recorder, the timeline that every
+//! submission goes through, query pools, offscreen targets and the swapchain. `render/` and
+//! `gi/` compose these types and never call ash themselves.
 
 pub mod commands;
 pub mod context;
+pub mod descriptors;
 pub mod memory;
 pub mod pipelines;
 pub mod queries;
 pub mod shaders;
 pub mod swapchain;
+pub mod sync;
 pub mod targets;
 
 use std::sync::Arc;
 
-use ash::vk;
-
-pub use commands::{CommandCounts, Recorder};
+pub use commands::{Attachment, CommandBuffer, CommandCounts, CommandPool, Load, Recorder};
 pub use context::{
     ContextOptions, DeviceInfo, GpuContext, Severity, ValidationLog, ValidationMessage,
 };
+pub use descriptors::{Binding, DescriptorSet, DescriptorSets, Sampler};
+pub use memory::{as_bytes, Buffer, Image, ImageUse, Pod};
+pub use pipelines::{ComputePipeline, Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
+pub use sync::Timeline;
 
-use crate::error::{Result, VkContext};
+use crate::error::Result;
 
-/// A command pool with one command buffer and a fence, for one-off work (uploads, readback).
+/// A command pool and a timeline for one-off work (uploads, readback): record, submit, wait.
 pub struct OneShot {
-    ctx: Arc<GpuContext>,
-    pool: vk::CommandPool,
-    cmd: vk::CommandBuffer,
-    fence: vk::Fence,
+    // The timeline is declared first so that it is dropped (waiting for its work) before the pool.
+    timeline: Timeline,
+    pool: CommandPool,
 }
 
 impl OneShot {
-    /// Creates the pool, buffer and fence.
+    /// Creates the pool and the timeline.
     pub fn new(ctx: &Arc<GpuContext>) -> Result<OneShot> {
-        let info = vk::CommandPoolCreateInfo::default()
-            .queue_family_index(ctx.queue_family)
-            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
-        // SAFETY: valid device.
-        let pool =
-            unsafe { ctx.device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
-        let mut me = OneShot {
-            ctx: ctx.clone(),
-            pool,
-            cmd: vk::CommandBuffer::null(),
-            fence: vk::Fence::null(),
-        };
-        let alloc = vk::CommandBufferAllocateInfo::default()
-            .command_pool(pool)
-            .level(vk::CommandBufferLevel::PRIMARY)
-            .command_buffer_count(1);
-        // SAFETY: valid pool.
-        me.cmd = unsafe { ctx.device.allocate_command_buffers(&alloc) }
-            .vk("vkAllocateCommandBuffers")?[0];
-        // SAFETY: valid device.
-        me.fence = unsafe {
-            ctx.device
-                .create_fence(&vk::FenceCreateInfo::default(), None)
-        }
-        .vk("vkCreateFence")?;
-        Ok(me)
+        Ok(OneShot {
+            timeline: Timeline::new(ctx)?,
+            pool: CommandPool::new(ctx)?,
+        })
     }
 
-    /// Records with `f`, submits and waits. The recorder's counts are not changed.
-    pub fn run(&self, recorder: &mut Recorder, f: impl FnOnce(&mut Recorder)) -> Result<()> {
-        // Not in flight: every run waits for its fence.
-        commands::begin_one_time(&self.ctx.device, self.cmd, true)?;
-        let d = &self.ctx.device;
+    /// Records with `f` into a fresh command buffer, submits it and waits. The recorder's
+    /// counts and command buffer are as they were before. Nothing is submitted if `f` fails.
+    pub fn run(
+        &mut self,
+        recorder: &mut Recorder,
+        f: impl FnOnce(&mut Recorder) -> Result<()>,
+    ) -> Result<()> {
+        self.pool.reset(&self.timeline)?;
+        let cmd = self.pool.begin_next()?;
         let saved = recorder.counts;
         let prev = recorder.command_buffer();
-        recorder.set_command_buffer(self.cmd);
-        f(recorder);
+        recorder.set_command_buffer(cmd);
+        let submitted = f(recorder).and_then(|()| self.timeline.submit(recorder));
         recorder.set_command_buffer(prev);
         recorder.counts = saved;
-        let cmds = [self.cmd];
-        let submit = vk::SubmitInfo::default().command_buffers(&cmds);
-        // SAFETY: recorded above; fence unsignaled.
-        unsafe {
-            d.end_command_buffer(self.cmd).vk("vkEndCommandBuffer")?;
-            d.queue_submit(self.ctx.queue, &[submit], self.fence)
-                .vk("vkQueueSubmit")?;
-            d.wait_for_fences(&[self.fence], true, u64::MAX)
-                .vk("vkWaitForFences")?;
-            d.reset_fences(&[self.fence]).vk("vkResetFences")?;
-        }
-        Ok(())
-    }
-}
-
-impl Drop for OneShot {
-    fn drop(&mut self) {
-        // SAFETY: every run waited for completion, so nothing is in flight.
-        unsafe {
-            self.ctx.device.destroy_fence(self.fence, None);
-            self.ctx.device.destroy_command_pool(self.pool, None);
-        }
+        self.timeline.wait(submitted?)
     }
 }

@@ -57,9 +57,22 @@ pub struct PipelineLayout {
     pub set_layout: vk::DescriptorSetLayout,
     /// Push-constant bytes.
     pub push_size: u32,
+    bindings: Vec<vk::DescriptorType>,
 }
 
 impl PipelineLayout {
+    /// The stages every binding and the push-constant range are visible to.
+    pub(crate) const STAGES: vk::ShaderStageFlags = vk::ShaderStageFlags::from_raw(
+        vk::ShaderStageFlags::VERTEX.as_raw()
+            | vk::ShaderStageFlags::FRAGMENT.as_raw()
+            | vk::ShaderStageFlags::COMPUTE.as_raw(),
+    );
+
+    /// The descriptor types of set 0's bindings, in binding order.
+    pub fn bindings(&self) -> &[vk::DescriptorType] {
+        &self.bindings
+    }
+
     /// Set 0: `bindings` storage buffers (vertex+fragment) or combined image samplers given by
     /// kind; push constants of `push_size` bytes for vertex and fragment stages.
     pub fn new(
@@ -75,11 +88,7 @@ impl PipelineLayout {
                     .binding(i as u32)
                     .descriptor_type(t)
                     .descriptor_count(1)
-                    .stage_flags(
-                        vk::ShaderStageFlags::VERTEX
-                            | vk::ShaderStageFlags::FRAGMENT
-                            | vk::ShaderStageFlags::COMPUTE,
-                    )
+                    .stage_flags(Self::STAGES)
             })
             .collect();
         let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&b);
@@ -87,11 +96,7 @@ impl PipelineLayout {
         let set_layout = unsafe { ctx.device.create_descriptor_set_layout(&info, None) }
             .vk("vkCreateDescriptorSetLayout")?;
         let ranges = [vk::PushConstantRange::default()
-            .stage_flags(
-                vk::ShaderStageFlags::VERTEX
-                    | vk::ShaderStageFlags::FRAGMENT
-                    | vk::ShaderStageFlags::COMPUTE,
-            )
+            .stage_flags(Self::STAGES)
             .offset(0)
             .size(push_size)];
         let layouts = [set_layout];
@@ -105,6 +110,7 @@ impl PipelineLayout {
                 handle,
                 set_layout,
                 push_size,
+                bindings: bindings.to_vec(),
             }),
             Err(e) => {
                 // SAFETY: created above, unused.
@@ -192,17 +198,7 @@ impl Pipeline {
             .binding(0)
             .stride(desc.vertex_stride)
             .input_rate(vk::VertexInputRate::VERTEX)];
-        let attributes: Vec<_> = desc
-            .attributes
-            .iter()
-            .map(|&(location, format, offset)| {
-                vk::VertexInputAttributeDescription::default()
-                    .binding(0)
-                    .location(location)
-                    .format(format)
-                    .offset(offset)
-            })
-            .collect();
+        let attributes = vertex_attributes(desc);
         let vertex_input = if desc.attributes.is_empty() {
             vk::PipelineVertexInputStateCreateInfo::default()
         } else {
@@ -215,31 +211,11 @@ impl Pipeline {
         let viewport = vk::PipelineViewportStateCreateInfo::default()
             .viewport_count(1)
             .scissor_count(1);
-        let raster = vk::PipelineRasterizationStateCreateInfo::default()
-            .polygon_mode(vk::PolygonMode::FILL)
-            .cull_mode(desc.cull)
-            .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
-            .line_width(1.0)
-            .depth_bias_enable(desc.depth_bias != (0.0, 0.0))
-            .depth_bias_constant_factor(desc.depth_bias.0)
-            .depth_bias_slope_factor(desc.depth_bias.1);
+        let raster = rasterization(desc);
         let multisample = vk::PipelineMultisampleStateCreateInfo::default()
             .rasterization_samples(vk::SampleCountFlags::TYPE_1);
-        let has_depth = desc.depth_format != vk::Format::UNDEFINED;
-        let depth = vk::PipelineDepthStencilStateCreateInfo::default()
-            .depth_test_enable(has_depth)
-            .depth_write_enable(has_depth && desc.depth_write)
-            .depth_compare_op(desc.depth_compare);
-        let mask = if desc.color_write {
-            vk::ColorComponentFlags::RGBA
-        } else {
-            vk::ColorComponentFlags::empty()
-        };
-        let blend_attachments: Vec<_> = desc
-            .color_formats
-            .iter()
-            .map(|_| vk::PipelineColorBlendAttachmentState::default().color_write_mask(mask))
-            .collect();
+        let depth = depth_stencil(desc);
+        let blend_attachments = blend_attachments(desc);
         let blend =
             vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_attachments);
         let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
@@ -276,9 +252,98 @@ impl Pipeline {
     }
 }
 
+fn vertex_attributes(desc: &PipelineDesc) -> Vec<vk::VertexInputAttributeDescription> {
+    desc.attributes
+        .iter()
+        .map(|&(location, format, offset)| {
+            vk::VertexInputAttributeDescription::default()
+                .binding(0)
+                .location(location)
+                .format(format)
+                .offset(offset)
+        })
+        .collect()
+}
+
+fn rasterization(desc: &PipelineDesc) -> vk::PipelineRasterizationStateCreateInfo<'static> {
+    vk::PipelineRasterizationStateCreateInfo::default()
+        .polygon_mode(vk::PolygonMode::FILL)
+        .cull_mode(desc.cull)
+        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+        .line_width(1.0)
+        .depth_bias_enable(desc.depth_bias != (0.0, 0.0))
+        .depth_bias_constant_factor(desc.depth_bias.0)
+        .depth_bias_slope_factor(desc.depth_bias.1)
+}
+
+fn depth_stencil(desc: &PipelineDesc) -> vk::PipelineDepthStencilStateCreateInfo<'static> {
+    let has_depth = desc.depth_format != vk::Format::UNDEFINED;
+    vk::PipelineDepthStencilStateCreateInfo::default()
+        .depth_test_enable(has_depth)
+        .depth_write_enable(has_depth && desc.depth_write)
+        .depth_compare_op(desc.depth_compare)
+}
+
+fn blend_attachments(desc: &PipelineDesc) -> Vec<vk::PipelineColorBlendAttachmentState> {
+    let mask = if desc.color_write {
+        vk::ColorComponentFlags::RGBA
+    } else {
+        vk::ColorComponentFlags::empty()
+    };
+    desc.color_formats
+        .iter()
+        .map(|_| vk::PipelineColorBlendAttachmentState::default().color_write_mask(mask))
+        .collect()
+}
+
 impl Drop for Pipeline {
     fn drop(&mut self) {
         // SAFETY: the owner guarantees no command buffer in flight uses it.
+        unsafe { self.ctx.device.destroy_pipeline(self.handle, None) };
+    }
+}
+
+/// A compute pipeline (destroyed on drop).
+pub struct ComputePipeline {
+    ctx: Arc<GpuContext>,
+    /// The pipeline handle.
+    pub(crate) handle: vk::Pipeline,
+}
+
+impl ComputePipeline {
+    /// Builds a compute pipeline from SPIR-V with `layout`.
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        layout: &PipelineLayout,
+        name: &str,
+        spirv: &[u8],
+    ) -> Result<ComputePipeline> {
+        let module = shaders::module(ctx, name, spirv)?;
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(module)
+            .name(c"main");
+        let info = vk::ComputePipelineCreateInfo::default()
+            .stage(stage)
+            .layout(layout.handle);
+        // SAFETY: valid module and layout; the info outlives the call.
+        let result = unsafe {
+            ctx.device
+                .create_compute_pipelines(vk::PipelineCache::null(), &[info], None)
+        };
+        // SAFETY: the module is not needed once the pipeline exists (or failed).
+        unsafe { ctx.device.destroy_shader_module(module, None) };
+        let handle = result.map_err(|(_, e)| e).vk("vkCreateComputePipelines")?[0];
+        Ok(ComputePipeline {
+            ctx: ctx.clone(),
+            handle,
+        })
+    }
+}
+
+impl Drop for ComputePipeline {
+    fn drop(&mut self) {
+        // SAFETY: the owner waits for the device before dropping.
         unsafe { self.ctx.device.destroy_pipeline(self.handle, None) };
     }
 }

@@ -22,6 +22,17 @@ pub const ID_FRAG: &[u8] = spirv!("id.frag");
 /// Query box vertex shader.
 pub const BOX_VERT: &[u8] = spirv!("box.vert");
 
+/// GI G-buffer vertex shader (pulls world-space vertices from a storage buffer).
+pub const GI_GBUFFER_VERT: &[u8] = spirv!("gi_gbuffer.vert");
+/// GI G-buffer fragment shader.
+pub const GI_GBUFFER_FRAG: &[u8] = spirv!("gi_gbuffer.frag");
+/// GI layered paraboloid shadow-map vertex shader.
+pub const GI_SHADOW_VERT: &[u8] = spirv!("gi_shadow.vert");
+/// GI interleaved VPL gather (compute).
+pub const GI_GATHER_COMP: &[u8] = spirv!("gi_gather.comp");
+/// GI resolve: blur, direct light, tone mapping (compute).
+pub const GI_RESOLVE_COMP: &[u8] = spirv!("gi_resolve.comp");
+
 /// Creates a shader module from SPIR-V bytes.
 pub fn module(ctx: &GpuContext, name: &str, bytes: &[u8]) -> Result<vk::ShaderModule> {
     let words = ash::util::read_spv(&mut Cursor::new(bytes))

@@ -9,8 +9,9 @@ use ash::{khr, vk};
 use gpu_allocator::MemoryLocation;
 use raw_window_handle::{RawDisplayHandle, RawWindowHandle};
 
-use super::commands::{self, image_barrier, Recorder};
-use super::memory::{Buffer, Image};
+use super::commands::{image_barrier, CommandPool, Recorder};
+use super::memory::{Buffer, Image, ImageUse};
+use super::sync::{BinarySync, Timeline};
 use super::GpuContext;
 use crate::error::{Error, Result, VkContext};
 
@@ -53,9 +54,9 @@ pub struct Swapchain {
     can_read: bool,
     acquired: vk::Semaphore,
     finished: Vec<vk::Semaphore>,
-    fence: vk::Fence,
-    pool: vk::CommandPool,
-    cmd: vk::CommandBuffer,
+    // The timeline is declared before the pool so that it is dropped (waiting) first.
+    timeline: Timeline,
+    pool: CommandPool,
     staging: Option<Buffer>,
     readback: Option<Buffer>,
     needs_recreate: bool,
@@ -63,6 +64,12 @@ pub struct Swapchain {
     made_for: (u32, u32),
     /// Present mode in use.
     pub present_mode: vk::PresentModeKHR,
+}
+
+/// The device extensions presenting needs (pass them in
+/// [`super::ContextOptions::device_extensions`]).
+pub fn required_device_extensions() -> Vec<std::ffi::CString> {
+    vec![khr::swapchain::NAME.to_owned()]
 }
 
 /// The instance extensions a surface for this display needs (pass them in
@@ -124,41 +131,20 @@ impl Swapchain {
             can_read: false,
             acquired: vk::Semaphore::null(),
             finished: Vec::new(),
-            fence: vk::Fence::null(),
-            pool: vk::CommandPool::null(),
-            cmd: vk::CommandBuffer::null(),
+            timeline: Timeline::new(ctx)?,
+            pool: CommandPool::new(ctx)?,
             staging: None,
             readback: None,
             needs_recreate: false,
             made_for: (width, height),
             present_mode: vk::PresentModeKHR::FIFO,
         };
-        let d = &ctx.device;
-        // SAFETY: valid device; every object is destroyed in Drop (null handles are ignored).
-        unsafe {
-            me.acquired = d
+        // SAFETY: valid device; destroyed in Drop.
+        me.acquired = unsafe {
+            ctx.device
                 .create_semaphore(&vk::SemaphoreCreateInfo::default(), None)
-                .vk("vkCreateSemaphore")?;
-            me.fence = d
-                .create_fence(&vk::FenceCreateInfo::default(), None)
-                .vk("vkCreateFence")?;
-            me.pool = d
-                .create_command_pool(
-                    &vk::CommandPoolCreateInfo::default()
-                        .queue_family_index(ctx.queue_family)
-                        .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
-                    None,
-                )
-                .vk("vkCreateCommandPool")?;
-            me.cmd = d
-                .allocate_command_buffers(
-                    &vk::CommandBufferAllocateInfo::default()
-                        .command_pool(me.pool)
-                        .level(vk::CommandBufferLevel::PRIMARY)
-                        .command_buffer_count(1),
-                )
-                .vk("vkAllocateCommandBuffers")?[0];
         }
+        .vk("vkCreateSemaphore")?;
         // SAFETY: valid physical device and surface.
         let modes = unsafe {
             me.surface_fn
@@ -206,21 +192,13 @@ impl Swapchain {
     fn recreate(&mut self, width: u32, height: u32) -> Result<()> {
         self.ctx.wait_idle()?;
         self.made_for = (width, height);
-        let pd = self.ctx.physical_device;
         // SAFETY: valid physical device and surface.
         let caps = unsafe {
             self.surface_fn
-                .get_physical_device_surface_capabilities(pd, self.surface)
+                .get_physical_device_surface_capabilities(self.ctx.physical_device, self.surface)
         }
         .vk("vkGetPhysicalDeviceSurfaceCapabilitiesKHR")?;
-        let extent = if caps.current_extent.width != u32::MAX {
-            caps.current_extent
-        } else {
-            vk::Extent2D {
-                width: width.clamp(caps.min_image_extent.width, caps.max_image_extent.width),
-                height: height.clamp(caps.min_image_extent.height, caps.max_image_extent.height),
-            }
-        };
+        let extent = surface_extent(&caps, width, height);
         self.needs_recreate = false;
         if extent.width == 0 || extent.height == 0 {
             self.destroy_swapchain();
@@ -238,7 +216,32 @@ impl Swapchain {
         self.can_read = caps
             .supported_usage_flags
             .contains(vk::ImageUsageFlags::TRANSFER_SRC);
-        // SAFETY: as above.
+        let chosen = self.choose_format()?;
+        let swapchain = self.create_swapchain(&caps, chosen, extent);
+        self.destroy_swapchain();
+        self.swapchain = swapchain?;
+        // SAFETY: created above.
+        self.images = unsafe { self.swapchain_fn.get_swapchain_images(self.swapchain) }
+            .vk("vkGetSwapchainImagesKHR")?;
+        for _ in 0..self.images.len() {
+            // SAFETY: valid device; destroyed with the swapchain.
+            let s = unsafe {
+                self.ctx
+                    .device
+                    .create_semaphore(&vk::SemaphoreCreateInfo::default(), None)
+            }
+            .vk("vkCreateSemaphore")?;
+            self.finished.push(s);
+        }
+        self.format = chosen.format;
+        self.extent = extent;
+        Ok(())
+    }
+
+    /// An 8-bit RGBA/BGRA format (UNORM preferred) that can be blitted to.
+    fn choose_format(&self) -> Result<vk::SurfaceFormatKHR> {
+        let pd = self.ctx.physical_device;
+        // SAFETY: valid physical device and surface.
         let formats = unsafe {
             self.surface_fn
                 .get_physical_device_surface_formats(pd, self.surface)
@@ -273,6 +276,16 @@ impl Swapchain {
                 feature: format!("blitting to swapchain format {:?}", chosen.format),
             });
         }
+        Ok(chosen)
+    }
+
+    /// A swapchain replacing the current one (which the caller then destroys).
+    fn create_swapchain(
+        &self,
+        caps: &vk::SurfaceCapabilitiesKHR,
+        chosen: vk::SurfaceFormatKHR,
+        extent: vk::Extent2D,
+    ) -> Result<vk::SwapchainKHR> {
         let mut count = caps.min_image_count + 1;
         if caps.max_image_count > 0 {
             count = count.min(caps.max_image_count);
@@ -281,7 +294,6 @@ impl Swapchain {
         if self.can_read {
             usage |= vk::ImageUsageFlags::TRANSFER_SRC;
         }
-        let old = self.swapchain;
         let info = vk::SwapchainCreateInfoKHR::default()
             .surface(self.surface)
             .min_image_count(count)
@@ -295,28 +307,9 @@ impl Swapchain {
             .composite_alpha(vk::CompositeAlphaFlagsKHR::OPAQUE)
             .present_mode(self.present_mode)
             .clipped(true)
-            .old_swapchain(old);
-        // SAFETY: valid surface; the old swapchain (if any) is idle (waited above).
-        let swapchain =
-            unsafe { self.swapchain_fn.create_swapchain(&info, None) }.vk("vkCreateSwapchainKHR");
-        self.destroy_swapchain();
-        self.swapchain = swapchain?;
-        // SAFETY: created above.
-        self.images = unsafe { self.swapchain_fn.get_swapchain_images(self.swapchain) }
-            .vk("vkGetSwapchainImagesKHR")?;
-        for _ in 0..self.images.len() {
-            // SAFETY: valid device; destroyed with the swapchain.
-            let s = unsafe {
-                self.ctx
-                    .device
-                    .create_semaphore(&vk::SemaphoreCreateInfo::default(), None)
-            }
-            .vk("vkCreateSemaphore")?;
-            self.finished.push(s);
-        }
-        self.format = chosen.format;
-        self.extent = extent;
-        Ok(())
+            .old_swapchain(self.swapchain);
+        // SAFETY: valid surface; the old swapchain (if any) is idle (the caller waited).
+        unsafe { self.swapchain_fn.create_swapchain(&info, None) }.vk("vkCreateSwapchainKHR")
     }
 
     fn is_bgr(&self) -> bool {
@@ -326,10 +319,11 @@ impl Swapchain {
         )
     }
 
-    /// Shows `color` (the renderer's color image, in COLOR_ATTACHMENT_OPTIMAL after its frame;
-    /// left in TRANSFER_SRC_OPTIMAL) scaled to the window, with `panels` on top. Records the
-    /// final command buffer through `recorder` (so its commands are counted), submits it, waits
-    /// for it and presents. `window_size` is the window's current inner size.
+    /// Shows `color` (the renderer's color image, after its frame) scaled to the window, with
+    /// `panels` on top: acquire, record (blit, overlay, optional readback), submit, present,
+    /// and recreate the swapchain when the window changed. The final command buffer is
+    /// recorded through `recorder`, so its commands are counted. Leaves `color` in
+    /// [`ImageUse::TransferSrc`]. `window_size` is the window's current inner size.
     pub fn present(
         &mut self,
         recorder: &mut Recorder,
@@ -338,18 +332,56 @@ impl Swapchain {
         window_size: (u32, u32),
         screenshot: bool,
     ) -> Result<Presented> {
-        if window_size.0 == 0 || window_size.1 == 0 {
+        if !self.ready_for(window_size)? {
             return Ok(Presented::Skipped);
+        }
+        let Some(index) = self.acquire()? else {
+            return Ok(Presented::Skipped);
+        };
+        let screenshot = screenshot && self.can_read;
+        let copies = self.stage_panels(panels)?;
+        if screenshot {
+            self.ensure_readback()?;
+        }
+        self.pool.reset(&self.timeline)?;
+        let prev = recorder.command_buffer();
+        recorder.set_command_buffer(self.pool.begin_next()?);
+        self.record(recorder, color, index, &copies, screenshot);
+        let submitted = self.timeline.submit_with(
+            recorder,
+            BinarySync {
+                wait: Some(self.acquired),
+                signal: Some(self.finished[index as usize]),
+            },
+        );
+        recorder.set_command_buffer(prev);
+        self.timeline.wait(submitted?)?;
+        self.queue_present(index)?;
+        let pixels = if screenshot {
+            Some(self.screenshot_pixels()?)
+        } else {
+            None
+        };
+        Ok(Presented::Shown { pixels })
+    }
+
+    /// Recreates the swapchain if it is stale; false when there is nothing to present to.
+    fn ready_for(&mut self, window_size: (u32, u32)) -> Result<bool> {
+        if window_size.0 == 0 || window_size.1 == 0 {
+            return Ok(false);
         }
         if self.needs_recreate
             || self.swapchain == vk::SwapchainKHR::null()
             || self.made_for != window_size
         {
             self.recreate(window_size.0, window_size.1)?;
-            if self.swapchain == vk::SwapchainKHR::null() {
-                return Ok(Presented::Skipped);
-            }
         }
+        Ok(self.swapchain != vk::SwapchainKHR::null())
+    }
+
+    /// Acquires the next image; `None` when the swapchain is out of date (it is recreated
+    /// before the next frame).
+    fn acquire(&mut self) -> Result<Option<u32>> {
         // SAFETY: valid swapchain; the semaphore is unsignaled (the last submit waited on it).
         let acquired = unsafe {
             self.swapchain_fn.acquire_next_image(
@@ -359,30 +391,27 @@ impl Swapchain {
                 vk::Fence::null(),
             )
         };
-        let index = match acquired {
+        match acquired {
             Ok((i, suboptimal)) => {
-                if suboptimal {
-                    self.needs_recreate = true;
-                }
-                i
+                self.needs_recreate |= suboptimal;
+                Ok(Some(i))
             }
             Err(vk::Result::ERROR_OUT_OF_DATE_KHR) => {
                 self.needs_recreate = true;
-                return Ok(Presented::Skipped);
+                Ok(None)
             }
-            Err(e) => {
-                return Err(Error::Vulkan {
-                    call: "vkAcquireNextImageKHR",
-                    result: e,
-                })
-            }
-        };
-        let image = self.images[index as usize];
+            Err(e) => Err(Error::Vulkan {
+                call: "vkAcquireNextImageKHR",
+                result: e,
+            }),
+        }
+    }
+
+    /// Writes the overlay panels (clipped to the image) into the staging buffer in the
+    /// swapchain's byte order; returns the copies to record.
+    fn stage_panels(&mut self, panels: &[Panel]) -> Result<Vec<vk::BufferImageCopy>> {
         let extent = self.extent;
         let bgr = self.is_bgr();
-        let screenshot = screenshot && self.can_read;
-
-        // Stage the overlay panels (clipped to the image) in the swapchain's byte order.
         let mut bytes = Vec::new();
         let mut copies = Vec::new();
         for p in panels {
@@ -408,238 +437,193 @@ impl Swapchain {
                     }
                 }
             }
-            copies.push(
-                vk::BufferImageCopy::default()
-                    .buffer_offset(offset)
-                    .buffer_row_length(w)
-                    .image_subresource(color_layers())
-                    .image_offset(vk::Offset3D {
-                        x: p.x as i32,
-                        y: p.y as i32,
-                        z: 0,
-                    })
-                    .image_extent(vk::Extent3D {
-                        width: w,
-                        height: h,
-                        depth: 1,
-                    }),
-            );
+            copies.push(panel_copy(offset, p.x, p.y, w, h));
         }
-        if !bytes.is_empty() {
-            let big_enough = self
-                .staging
-                .as_ref()
-                .map(|b| b.size >= bytes.len() as u64)
-                .unwrap_or(false);
-            if !big_enough {
-                self.staging = Some(Buffer::new(
-                    &self.ctx,
-                    "overlay staging",
-                    bytes.len() as u64 * 2,
-                    vk::BufferUsageFlags::TRANSFER_SRC,
-                    MemoryLocation::CpuToGpu,
-                )?);
-            }
-            if let Some(s) = self.staging.as_mut() {
-                s.write(0, &bytes)?;
-            }
+        if bytes.is_empty() {
+            return Ok(copies);
         }
-        let read_size = extent.width as u64 * extent.height as u64 * 4;
-        if screenshot {
-            let big_enough = self
-                .readback
-                .as_ref()
-                .map(|b| b.size >= read_size)
-                .unwrap_or(false);
-            if !big_enough {
-                self.readback = Some(Buffer::new(
-                    &self.ctx,
-                    "screenshot readback",
-                    read_size,
-                    vk::BufferUsageFlags::TRANSFER_DST,
-                    MemoryLocation::GpuToCpu,
-                )?);
-            }
+        let big_enough = self
+            .staging
+            .as_ref()
+            .is_some_and(|b| b.size >= bytes.len() as u64);
+        if !big_enough {
+            self.staging = Some(Buffer::new(
+                &self.ctx,
+                "overlay staging",
+                bytes.len() as u64 * 2,
+                vk::BufferUsageFlags::TRANSFER_SRC,
+                MemoryLocation::CpuToGpu,
+            )?);
         }
+        if let Some(s) = self.staging.as_mut() {
+            s.write(0, &bytes)?;
+        }
+        Ok(copies)
+    }
 
-        // Not in flight: every present waits for its fence.
-        commands::begin_one_time(&self.ctx.device, self.cmd, true)?;
-        let d = &self.ctx.device;
-        let prev = recorder.command_buffer();
-        recorder.set_command_buffer(self.cmd);
-        let range = vk::ImageSubresourceRange {
-            aspect_mask: vk::ImageAspectFlags::COLOR,
-            base_mip_level: 0,
-            level_count: 1,
-            base_array_layer: 0,
-            layer_count: 1,
-        };
-        let transfer_dst = (
-            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+    fn read_size(&self) -> u64 {
+        self.extent.width as u64 * self.extent.height as u64 * 4
+    }
+
+    fn ensure_readback(&mut self) -> Result<()> {
+        let size = self.read_size();
+        if self.readback.as_ref().is_none_or(|b| b.size < size) {
+            self.readback = Some(Buffer::new(
+                &self.ctx,
+                "screenshot readback",
+                size,
+                vk::BufferUsageFlags::TRANSFER_DST,
+                MemoryLocation::GpuToCpu,
+            )?);
+        }
+        Ok(())
+    }
+
+    /// Records the frame's last command buffer: blit `color` to image `index`, copy the panels
+    /// over it, read it back if asked, and hand it to presentation.
+    fn record(
+        &self,
+        recorder: &mut Recorder,
+        color: &Image,
+        index: u32,
+        copies: &[vk::BufferImageCopy],
+        screenshot: bool,
+    ) {
+        let image = self.images[index as usize];
+        let range = color_range();
+        recorder.transition(color, ImageUse::TransferSrc);
+        let transfer_dst = ImageUse::TransferDst.access();
+        let undefined = (
+            vk::ImageLayout::UNDEFINED,
             vk::PipelineStageFlags2::ALL_TRANSFER,
-            vk::AccessFlags2::TRANSFER_WRITE,
+            vk::AccessFlags2::NONE,
         );
-        recorder.barrier(
-            &[
-                image_barrier(
-                    color.handle,
-                    range,
-                    (
-                        vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
-                        vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT,
-                        vk::AccessFlags2::COLOR_ATTACHMENT_WRITE,
-                    ),
-                    (
-                        vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                        vk::PipelineStageFlags2::BLIT,
-                        vk::AccessFlags2::TRANSFER_READ,
-                    ),
-                ),
-                image_barrier(
-                    image,
-                    range,
-                    (
-                        vk::ImageLayout::UNDEFINED,
-                        vk::PipelineStageFlags2::ALL_TRANSFER,
-                        vk::AccessFlags2::NONE,
-                    ),
-                    transfer_dst,
-                ),
-            ],
-            &[],
-        );
-        let blit = vk::ImageBlit {
-            src_subresource: color_layers(),
-            src_offsets: [
-                vk::Offset3D::default(),
-                vk::Offset3D {
-                    x: color.extent.width as i32,
-                    y: color.extent.height as i32,
-                    z: 1,
-                },
-            ],
-            dst_subresource: color_layers(),
-            dst_offsets: [
-                vk::Offset3D::default(),
-                vk::Offset3D {
-                    x: extent.width as i32,
-                    y: extent.height as i32,
-                    z: 1,
-                },
-            ],
-        };
-        recorder.blit_image(color.handle, image, blit);
+        recorder.barrier(&[image_barrier(image, range, undefined, transfer_dst)], &[]);
+        recorder.blit_image(color.handle, image, self.blit_region(color));
         if let (Some(staging), false) = (self.staging.as_ref(), copies.is_empty()) {
             recorder.barrier(
                 &[image_barrier(image, range, transfer_dst, transfer_dst)],
                 &[],
             );
-            recorder.copy_buffer_to_image(staging.handle, image, &copies);
+            recorder.copy_buffer_to_image(staging.handle, image, copies);
         }
         let mut last = transfer_dst;
         if let (true, Some(rb)) = (screenshot, self.readback.as_ref()) {
-            let src = (
-                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                vk::PipelineStageFlags2::ALL_TRANSFER,
-                vk::AccessFlags2::TRANSFER_READ,
-            );
+            let src = ImageUse::TransferSrc.access();
             recorder.barrier(&[image_barrier(image, range, transfer_dst, src)], &[]);
-            recorder.copy_image_to_buffer(
-                image,
-                rb.handle,
-                vk::BufferImageCopy::default()
-                    .image_subresource(color_layers())
-                    .image_extent(vk::Extent3D {
-                        width: extent.width,
-                        height: extent.height,
-                        depth: 1,
-                    }),
-            );
-            recorder.barrier(
-                &[],
-                &[vk::BufferMemoryBarrier2::default()
-                    .buffer(rb.handle)
-                    .size(vk::WHOLE_SIZE)
-                    .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-                    .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                    .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-                    .dst_access_mask(vk::AccessFlags2::HOST_READ)],
-            );
+            let region = vk::BufferImageCopy::default()
+                .image_subresource(color_layers())
+                .image_extent(vk::Extent3D {
+                    width: self.extent.width,
+                    height: self.extent.height,
+                    depth: 1,
+                });
+            recorder.copy_image_to_buffer(image, rb.handle, region);
+            recorder.host_read_barrier(rb);
             last = src;
         }
-        recorder.barrier(
-            &[image_barrier(
-                image,
-                range,
-                last,
-                (
-                    vk::ImageLayout::PRESENT_SRC_KHR,
-                    vk::PipelineStageFlags2::NONE,
-                    vk::AccessFlags2::NONE,
-                ),
-            )],
-            &[],
-        );
-        recorder.set_command_buffer(prev);
-        let finished = self.finished[index as usize];
-        let waits = [vk::SemaphoreSubmitInfo::default()
-            .semaphore(self.acquired)
-            .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)];
-        let signals = [vk::SemaphoreSubmitInfo::default()
-            .semaphore(finished)
-            .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)];
-        let cmds = [vk::CommandBufferSubmitInfo::default().command_buffer(self.cmd)];
-        let submit = vk::SubmitInfo2::default()
-            .wait_semaphore_infos(&waits)
-            .command_buffer_infos(&cmds)
-            .signal_semaphore_infos(&signals);
-        // SAFETY: recorded above; the fence is unsignaled (reset after every wait).
-        unsafe {
-            d.end_command_buffer(self.cmd).vk("vkEndCommandBuffer")?;
-            d.queue_submit2(self.ctx.queue, &[submit], self.fence)
-                .vk("vkQueueSubmit2")?;
+        let present = ImageUse::Present.access();
+        recorder.barrier(&[image_barrier(image, range, last, present)], &[]);
+    }
+
+    fn blit_region(&self, color: &Image) -> vk::ImageBlit {
+        let corner = |w: u32, h: u32| vk::Offset3D {
+            x: w as i32,
+            y: h as i32,
+            z: 1,
+        };
+        vk::ImageBlit {
+            src_subresource: color_layers(),
+            src_offsets: [
+                vk::Offset3D::default(),
+                corner(color.extent.width, color.extent.height),
+            ],
+            dst_subresource: color_layers(),
+            dst_offsets: [
+                vk::Offset3D::default(),
+                corner(self.extent.width, self.extent.height),
+            ],
         }
-        recorder.note_submit();
-        // SAFETY: submitted above with this fence.
-        unsafe {
-            d.wait_for_fences(&[self.fence], true, u64::MAX)
-                .vk("vkWaitForFences")?;
-            d.reset_fences(&[self.fence]).vk("vkResetFences")?;
-        }
+    }
+
+    /// Presents image `index` once its command buffer has signalled `finished`.
+    fn queue_present(&mut self, index: u32) -> Result<()> {
         let swapchains = [self.swapchain];
         let indices = [index];
-        let wait = [finished];
+        let wait = [self.finished[index as usize]];
         let info = vk::PresentInfoKHR::default()
             .wait_semaphores(&wait)
             .swapchains(&swapchains)
             .image_indices(&indices);
-        // SAFETY: the image was acquired and transitioned to PRESENT_SRC by the submit above.
+        // SAFETY: the image was acquired and transitioned to PRESENT_SRC by the submit before.
         match unsafe { self.swapchain_fn.queue_present(self.ctx.queue, &info) } {
-            Ok(false) => {}
-            Ok(true) | Err(vk::Result::ERROR_OUT_OF_DATE_KHR) => self.needs_recreate = true,
-            Err(e) => {
-                return Err(Error::Vulkan {
-                    call: "vkQueuePresentKHR",
-                    result: e,
-                })
+            Ok(false) => Ok(()),
+            Ok(true) | Err(vk::Result::ERROR_OUT_OF_DATE_KHR) => {
+                self.needs_recreate = true;
+                Ok(())
+            }
+            Err(e) => Err(Error::Vulkan {
+                call: "vkQueuePresentKHR",
+                result: e,
+            }),
+        }
+    }
+
+    /// The read-back image as RGBA8 (the submission that wrote it has completed).
+    fn screenshot_pixels(&self) -> Result<(u32, u32, Vec<u8>)> {
+        let rb = self
+            .readback
+            .as_ref()
+            .ok_or_else(|| Error::Alloc("no screenshot readback buffer".into()))?;
+        let data = rb
+            .mapped()
+            .ok_or_else(|| Error::Alloc("readback buffer is not mapped".into()))?;
+        let mut px = data[..self.read_size() as usize].to_vec();
+        if self.is_bgr() {
+            for p in px.chunks_exact_mut(4) {
+                p.swap(0, 2);
             }
         }
-        let pixels = match (screenshot, self.readback.as_ref()) {
-            (true, Some(rb)) => {
-                let data = rb
-                    .mapped()
-                    .ok_or_else(|| Error::Alloc("readback buffer is not mapped".into()))?;
-                let mut px = data[..read_size as usize].to_vec();
-                if bgr {
-                    for p in px.chunks_exact_mut(4) {
-                        p.swap(0, 2);
-                    }
-                }
-                Some((extent.width, extent.height, px))
-            }
-            _ => None,
-        };
-        Ok(Presented::Shown { pixels })
+        Ok((self.extent.width, self.extent.height, px))
+    }
+}
+
+fn panel_copy(offset: u64, x: u32, y: u32, w: u32, h: u32) -> vk::BufferImageCopy {
+    vk::BufferImageCopy::default()
+        .buffer_offset(offset)
+        .buffer_row_length(w)
+        .image_subresource(color_layers())
+        .image_offset(vk::Offset3D {
+            x: x as i32,
+            y: y as i32,
+            z: 0,
+        })
+        .image_extent(vk::Extent3D {
+            width: w,
+            height: h,
+            depth: 1,
+        })
+}
+
+fn color_range() -> vk::ImageSubresourceRange {
+    vk::ImageSubresourceRange {
+        aspect_mask: vk::ImageAspectFlags::COLOR,
+        base_mip_level: 0,
+        level_count: 1,
+        base_array_layer: 0,
+        layer_count: 1,
+    }
+}
+
+/// The surface's size, or the window's clamped to what the surface allows.
+fn surface_extent(caps: &vk::SurfaceCapabilitiesKHR, width: u32, height: u32) -> vk::Extent2D {
+    if caps.current_extent.width != u32::MAX {
+        caps.current_extent
+    } else {
+        vk::Extent2D {
+            width: width.clamp(caps.min_image_extent.width, caps.max_image_extent.width),
+            height: height.clamp(caps.min_image_extent.height, caps.max_image_extent.height),
+        }
     }
 }
 
@@ -661,10 +645,7 @@ impl Drop for Swapchain {
         // SAFETY: the device is idle; these objects belong to us; the surface goes last, before
         // the context (which we hold an Arc to) destroys the instance.
         unsafe {
-            let d = &self.ctx.device;
-            d.destroy_command_pool(self.pool, None);
-            d.destroy_fence(self.fence, None);
-            d.destroy_semaphore(self.acquired, None);
+            self.ctx.device.destroy_semaphore(self.acquired, None);
             self.surface_fn.destroy_surface(self.surface, None);
         }
     }

@@ -5,8 +5,8 @@ use std::sync::Arc;
 use ash::vk;
 use gpu_allocator::MemoryLocation;
 
-use super::commands::{image_barrier, Recorder};
-use super::memory::{Buffer, Image};
+use super::commands::Recorder;
+use super::memory::{Buffer, Image, ImageUse};
 use super::{GpuContext, OneShot};
 use crate::error::{Error, Result};
 
@@ -16,25 +16,6 @@ pub const COLOR_FORMAT: vk::Format = vk::Format::R8G8B8A8_UNORM;
 pub const DEPTH_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
 /// Object-ID format (oracle pass).
 pub const ID_FORMAT: vk::Format = vk::Format::R32_UINT;
-
-/// A depth attachment for dynamic rendering that clears to 1.0 when `load` is CLEAR.
-pub fn depth_attachment(
-    view: vk::ImageView,
-    load: vk::AttachmentLoadOp,
-    store: vk::AttachmentStoreOp,
-) -> vk::RenderingAttachmentInfo<'static> {
-    vk::RenderingAttachmentInfo::default()
-        .image_view(view)
-        .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-        .load_op(load)
-        .store_op(store)
-        .clear_value(vk::ClearValue {
-            depth_stencil: vk::ClearDepthStencilValue {
-                depth: 1.0,
-                stencil: 0,
-            },
-        })
-}
 
 /// A color + depth target of one size.
 pub struct Target {
@@ -55,11 +36,12 @@ impl Target {
             )));
         }
         let extent = vk::Extent2D { width, height };
+        let size = (width, height);
         let color = Image::new(
             ctx,
             "color target",
             COLOR_FORMAT,
-            extent,
+            size,
             1,
             vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
         )?;
@@ -67,7 +49,7 @@ impl Target {
             ctx,
             "depth target",
             DEPTH_FORMAT,
-            extent,
+            size,
             1,
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::SAMPLED,
         )?;
@@ -79,16 +61,14 @@ impl Target {
     }
 }
 
-/// Copies layer 0 of `image` (4 bytes per pixel, currently in `layout` after `stage`) to host
-/// memory with a one-shot command buffer. Leaves the image in TRANSFER_SRC_OPTIMAL.
+/// Copies layer 0 of `image` (4 bytes per pixel) to host memory with a one-shot command
+/// buffer, after whatever last used it. Leaves the image in [`ImageUse::TransferSrc`], so any
+/// number of reads may follow each other.
 pub fn read_image(
     ctx: &Arc<GpuContext>,
-    oneshot: &OneShot,
+    oneshot: &mut OneShot,
     recorder: &mut Recorder,
     image: &Image,
-    layout: vk::ImageLayout,
-    stage: vk::PipelineStageFlags2,
-    access: vk::AccessFlags2,
 ) -> Result<Vec<u8>> {
     let size = image.extent.width as u64 * image.extent.height as u64 * 4;
     let buffer = Buffer::new(
@@ -98,24 +78,8 @@ pub fn read_image(
         vk::BufferUsageFlags::TRANSFER_DST,
         MemoryLocation::GpuToCpu,
     )?;
-    let range = vk::ImageSubresourceRange {
-        layer_count: 1,
-        ..image.full_range()
-    };
     oneshot.run(recorder, |rec| {
-        rec.barrier(
-            &[image_barrier(
-                image.handle,
-                range,
-                (layout, stage, access),
-                (
-                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                    vk::PipelineStageFlags2::COPY,
-                    vk::AccessFlags2::TRANSFER_READ,
-                ),
-            )],
-            &[],
-        );
+        rec.transition(image, ImageUse::TransferSrc);
         let region = vk::BufferImageCopy::default()
             .image_subresource(vk::ImageSubresourceLayers {
                 aspect_mask: image.aspect(),
@@ -129,16 +93,8 @@ pub fn read_image(
                 depth: 1,
             });
         rec.copy_image_to_buffer(image.handle, buffer.handle, region);
-        rec.barrier(
-            &[],
-            &[vk::BufferMemoryBarrier2::default()
-                .buffer(buffer.handle)
-                .size(vk::WHOLE_SIZE)
-                .src_stage_mask(vk::PipelineStageFlags2::COPY)
-                .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-                .dst_access_mask(vk::AccessFlags2::HOST_READ)],
-        );
+        rec.host_read_barrier(&buffer);
+        Ok(())
     })?;
     let bytes = buffer
         .mapped()

@@ -20,20 +20,7 @@ pub struct UploadedScene {
     pub objects: Buffer,
 }
 
-/// Plain-old-data that can be viewed as bytes.
-pub trait Pod: Copy {}
-impl Pod for f32 {}
-impl Pod for u32 {}
-impl Pod for [f32; 3] {}
-impl Pod for [f32; 16] {}
-impl Pod for crate::scene::Vertex {}
-
-/// The bytes of a slice of plain data.
-pub fn as_bytes<T: Pod>(data: &[T]) -> Vec<u8> {
-    // SAFETY: T is Pod (repr(C) floats/ints without padding), so every byte is initialized.
-    unsafe { std::slice::from_raw_parts(data.as_ptr() as *const u8, std::mem::size_of_val(data)) }
-        .to_vec()
-}
+pub use crate::gpu::{as_bytes, Pod};
 
 /// Uploads vertices, indices and per-object data.
 pub fn upload_scene(ctx: &Arc<GpuContext>, scene: &Scene) -> Result<UploadedScene> {

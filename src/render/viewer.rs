@@ -19,12 +19,13 @@ use winit::keyboard::{KeyCode, PhysicalKey};
 use winit::window::{Window, WindowId};
 
 use super::overlay::{self, Class};
-use super::Renderer;
+use super::{FrameResult, Renderer};
 use crate::bvh::ObjectBvh;
 use crate::culling::{self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId};
 use crate::error::{Error, Result};
-use crate::gpu::swapchain::{self, Presented, Swapchain};
+use crate::gpu::swapchain::{self, Panel, Presented, Swapchain};
 use crate::gpu::{CommandCounts, ContextOptions, GpuContext, Recorder, ValidationLog};
+use crate::scene::camera::Camera;
 use crate::scene::{Aabb, CameraPath, CameraPose, Scene};
 
 /// What `coherent view` was asked to do.
@@ -241,7 +242,7 @@ impl App {
             validation: cfg.validation,
             echo_validation: true,
             instance_extensions: swapchain::required_instance_extensions(display)?,
-            device_extensions: vec![ash::khr::swapchain::NAME.to_owned()],
+            device_extensions: crate::gpu::swapchain::required_device_extensions(),
             ..Default::default()
         })?;
         self.log = Some(ctx.validation_log());
@@ -410,13 +411,7 @@ impl Running {
 
     /// Renders and presents one frame; `Ok(false)` when nothing could be shown.
     fn frame(&mut self, cfg: &ViewerConfig, presented: u32) -> Result<bool> {
-        if let Some((at, (w, h))) = cfg.resize_at {
-            if presented == at && !self.resized {
-                self.resized = true;
-                // The new size arrives with a Resized event or is already current.
-                let _ = self.window.request_inner_size(PhysicalSize::new(w, h));
-            }
-        }
+        self.scripted_resize(cfg, presented);
         let size = self.window.inner_size();
         if size.width == 0 || size.height == 0 {
             return Ok(false);
@@ -436,7 +431,78 @@ impl Running {
         self.frame += 1;
         add_counts(&mut self.pending, &result.counts);
         add_counts(&mut self.pending, &self.renderer.take_prepass_counts());
+        let panels = self.panels(
+            cfg,
+            &result,
+            presented,
+            (size.width, size.height),
+            &camera,
+            &log,
+        );
+        let last = cfg.frames.is_some_and(|n| presented + 1 >= n);
+        let want_shot = self.screenshot_requested || (last && cfg.screenshot.is_some());
+        let shown = self.swapchain.present(
+            &mut self.recorder,
+            self.renderer.color_image(),
+            &panels,
+            (size.width, size.height),
+            want_shot,
+        )?;
+        let Presented::Shown { pixels } = shown else {
+            return Ok(false);
+        };
+        let present_counts = self.recorder.take_counts();
+        let mut total = std::mem::take(&mut self.pending);
+        add_counts(&mut total, &present_counts);
+        self.write_stats(presented, result.frame_ms, &total)?;
+        if let Some((w, h, px)) = pixels {
+            self.save_screenshot(cfg, w, h, px)?;
+        }
+        self.screenshot_requested = false;
+        Ok(true)
+    }
 
+    /// Asks for the scripted window size once, at the frame the test aid names.
+    fn scripted_resize(&mut self, cfg: &ViewerConfig, presented: u32) {
+        if let Some((at, (w, h))) = cfg.resize_at {
+            if presented == at && !self.resized {
+                self.resized = true;
+                // The new size arrives with a Resized event or is already current.
+                let _ = self.window.request_inner_size(PhysicalSize::new(w, h));
+            }
+        }
+    }
+
+    /// The stats text panel and, when the query visualization is on, the map panel.
+    fn panels(
+        &self,
+        cfg: &ViewerConfig,
+        result: &FrameResult,
+        presented: u32,
+        (width, height): (u32, u32),
+        camera: &Camera,
+        log: &FrameLog,
+    ) -> Vec<Panel> {
+        let lines = self.stats_lines(cfg, result, presented);
+        let scale = if width >= 800 { 2 } else { 1 };
+        let mut panels = vec![overlay::text_panel(&lines, 4, 4, scale)];
+        if self.visualize {
+            let side = width.min(height) / 3;
+            let boxes = classify(&cfg.scene, camera, log);
+            panels.push(overlay::map_panel(
+                &cfg.bvh.nodes[0].bounds,
+                &boxes,
+                camera.eye,
+                width.saturating_sub(side + 4),
+                height.saturating_sub(side + 4),
+                side,
+            ));
+        }
+        panels
+    }
+
+    /// The overlay's lines: algorithm, frame time and the recorder's counts.
+    fn stats_lines(&self, cfg: &ViewerConfig, result: &FrameResult, presented: u32) -> Vec<String> {
         let c = &result.counts;
         let mut lines = vec![
             format!(
@@ -466,42 +532,18 @@ impl Running {
         if cfg.frames.is_none() {
             lines.push("1-5 ALG  BIMT PARTS  V VIS  P PATH".into());
         }
-        let scale = if size.width >= 800 { 2 } else { 1 };
-        let mut panels = vec![overlay::text_panel(&lines, 4, 4, scale)];
-        if self.visualize {
-            let side = size.width.min(size.height) / 3;
-            let boxes = classify(&cfg.scene, &camera, &log);
-            panels.push(overlay::map_panel(
-                &cfg.bvh.nodes[0].bounds,
-                &boxes,
-                camera.eye,
-                size.width.saturating_sub(side + 4),
-                size.height.saturating_sub(side + 4),
-                side,
-            ));
-        }
-        let last = cfg.frames.is_some_and(|n| presented + 1 >= n);
-        let want_shot = self.screenshot_requested || (last && cfg.screenshot.is_some());
-        let shown = self.swapchain.present(
-            &mut self.recorder,
-            self.renderer.color_image(),
-            &panels,
-            (size.width, size.height),
-            want_shot,
-        )?;
-        let Presented::Shown { pixels } = shown else {
-            return Ok(false);
-        };
-        let present_counts = self.recorder.take_counts();
-        let mut total = std::mem::take(&mut self.pending);
-        add_counts(&mut total, &present_counts);
+        lines
+    }
+
+    /// One `--stats` row: every command buffer of the presented frame.
+    fn write_stats(&mut self, presented: u32, frame_ms: f64, total: &CommandCounts) -> Result<()> {
         if let Some(w) = self.stats.as_mut() {
             writeln!(
                 w,
                 "{},{},{:.3},{},{},{},{},{},{},{}",
                 presented,
                 self.algorithm,
-                result.frame_ms,
+                frame_ms,
                 total.pipeline_binds,
                 total.draw_calls,
                 total.queries_begun,
@@ -511,22 +553,24 @@ impl Running {
                 total.submits
             )?;
         }
-        if let Some((w, h, px)) = pixels {
-            let path = match (&cfg.screenshot, self.screenshot_requested) {
-                (Some(p), false) => p.clone(),
-                (Some(p), true) if cfg.frames.is_some() => p.clone(),
-                _ => {
-                    self.screenshots += 1;
-                    PathBuf::from(format!("coherent-{}.png", self.screenshots))
-                }
-            };
-            super::save_rgba_png(&path, w, h, px)?;
-            if cfg.frames.is_none() {
-                eprintln!("view: saved {}", path.display());
+        Ok(())
+    }
+
+    /// Saves a screenshot: to `--screenshot` when scripted, else to `coherent-N.png`.
+    fn save_screenshot(&mut self, cfg: &ViewerConfig, w: u32, h: u32, px: Vec<u8>) -> Result<()> {
+        let path = match (&cfg.screenshot, self.screenshot_requested) {
+            (Some(p), false) => p.clone(),
+            (Some(p), true) if cfg.frames.is_some() => p.clone(),
+            _ => {
+                self.screenshots += 1;
+                PathBuf::from(format!("coherent-{}.png", self.screenshots))
             }
+        };
+        super::save_rgba_png(&path, w, h, px)?;
+        if cfg.frames.is_none() {
+            eprintln!("view: saved {}", path.display());
         }
-        self.screenshot_requested = false;
-        Ok(true)
+        Ok(())
     }
 }
 

@@ -5,7 +5,7 @@ use glam::{Mat4, Vec3, Vec4};
 
 /// One vertex of the shared scene vertex buffer (object space).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Vertex {
     pub position: [f32; 3],
     pub normal: [f32; 3],

@@ -1,0 +1,109 @@
+//! The forward renderer's pipelines: shaded scene geometry (render state), query boxes (query
+//! state: depth test, no writes) and the object-ID pass of the exact-visibility oracle. They
+//! share one layout: set 0 binds the per-object storage buffer; push constants hold view_proj
+//! and the sun direction.
+
+use std::sync::Arc;
+
+use ash::vk;
+
+use crate::error::Result;
+use crate::gpu::targets::{COLOR_FORMAT, DEPTH_FORMAT, ID_FORMAT};
+use crate::gpu::{shaders, GpuContext, Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
+
+/// Push-constant block: view_proj (64 bytes) and sun direction (16 bytes).
+pub const PUSH_SIZE: u32 = 80;
+
+/// Vertex attributes of the scene vertex buffer: position and normal.
+const SCENE_ATTRIBUTES: [(u32, vk::Format, u32); 2] = [
+    (0, vk::Format::R32G32B32_SFLOAT, 0),
+    (1, vk::Format::R32G32B32_SFLOAT, 12),
+];
+
+/// The three pipelines and their layout.
+pub struct ScenePipelines {
+    // Pipelines are declared before the layout so they are dropped first.
+    /// Shaded geometry.
+    pub render: Pipeline,
+    /// Query boxes.
+    pub query: Pipeline,
+    /// Object IDs (oracle pre-pass).
+    pub id: Pipeline,
+    /// The shared layout.
+    pub layout: PipelineLayout,
+}
+
+impl ScenePipelines {
+    /// Creates the layout and the three pipelines.
+    pub fn new(ctx: &Arc<GpuContext>) -> Result<ScenePipelines> {
+        let layout = PipelineLayout::new(ctx, &[vk::DescriptorType::STORAGE_BUFFER], PUSH_SIZE)?;
+        Ok(ScenePipelines {
+            render: Pipeline::graphics(ctx, &layout, &scene_desc("render", shaded()))?,
+            query: Pipeline::graphics(ctx, &layout, &query_desc())?,
+            id: Pipeline::graphics(ctx, &layout, &scene_desc("id", ids()))?,
+            layout,
+        })
+    }
+}
+
+/// Fragment shader, color format and kind of a pass over scene geometry.
+struct SceneOutput {
+    frag: &'static [u8],
+    formats: &'static [vk::Format],
+    kind: PipelineKind,
+}
+
+fn shaded() -> SceneOutput {
+    SceneOutput {
+        frag: shaders::SCENE_FRAG,
+        formats: &[COLOR_FORMAT],
+        kind: PipelineKind::Render,
+    }
+}
+
+fn ids() -> SceneOutput {
+    SceneOutput {
+        frag: shaders::ID_FRAG,
+        formats: &[ID_FORMAT],
+        kind: PipelineKind::Other,
+    }
+}
+
+fn scene_desc(name: &'static str, out: SceneOutput) -> PipelineDesc<'static> {
+    PipelineDesc {
+        name,
+        vert: shaders::SCENE_VERT,
+        frag: Some(out.frag),
+        vertex_stride: 24,
+        attributes: &SCENE_ATTRIBUTES,
+        color_formats: out.formats,
+        color_write: true,
+        depth_format: DEPTH_FORMAT,
+        depth_compare: vk::CompareOp::LESS,
+        depth_write: true,
+        cull: vk::CullModeFlags::BACK,
+        kind: out.kind,
+        depth_bias: (0.0, 0.0),
+    }
+}
+
+fn query_desc() -> PipelineDesc<'static> {
+    PipelineDesc {
+        name: "query",
+        vert: shaders::BOX_VERT,
+        frag: None,
+        vertex_stride: 12,
+        attributes: &[(0, vk::Format::R32G32B32_SFLOAT, 0)],
+        color_formats: &[COLOR_FORMAT],
+        color_write: false,
+        depth_format: DEPTH_FORMAT,
+        depth_compare: vk::CompareOp::LESS_OR_EQUAL,
+        depth_write: false,
+        // Front faces suffice: the camera is never inside a queried box (enlarged by the
+        // near-plane corner distance), so every visible point of a box is covered by a front
+        // face at most as deep. Halves the query fill.
+        cull: vk::CullModeFlags::BACK,
+        kind: PipelineKind::Query,
+        depth_bias: (0.0, 0.0),
+    }
+}
