@@ -71,6 +71,8 @@ fn walk_writes_csv_json_and_plots() {
         "state_changes_median",
         "pipeline_binds_median",
         "draw_calls_median",
+        "object_draws_median",
+        "query_draws_median",
         "triangles_median",
         "submits_median",
     ];
@@ -88,7 +90,7 @@ fn walk_writes_csv_json_and_plots() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "algorithm,frame,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,triangles,objects,submits"
+        "algorithm,frame,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits"
     );
     assert_eq!(lines.count(), 6 * 5);
     for png in ["frametime.png", "counts.png"] {

@@ -21,8 +21,14 @@ pub struct CommandCounts {
     pub pipeline_binds: u32,
     /// Switches between render and query state (a bind whose kind differs from the last one).
     pub state_changes: u32,
-    /// Draw calls.
+    /// Draw calls (object draws, query draws and any other).
     pub draw_calls: u32,
+    /// Draw calls in render state (shaded objects).
+    pub object_draws: u32,
+    /// Draw calls inside an occlusion query (query boxes).
+    pub query_draws: u32,
+    /// Triangles drawn inside occlusion queries (12 per box).
+    pub query_triangles: u64,
     /// Triangles submitted by draw calls (render and query geometry).
     pub triangles: u64,
     /// Triangles of render-state draws only.
@@ -200,6 +206,7 @@ pub struct Recorder {
     cmd: vk::CommandBuffer,
     bound: Option<vk::Pipeline>,
     last_kind: Option<PipelineKind>,
+    in_query: bool,
     render_extent: vk::Extent2D,
     /// Counts since the last [`Recorder::take_counts`].
     pub counts: CommandCounts,
@@ -213,6 +220,7 @@ impl Recorder {
             cmd: vk::CommandBuffer::null(),
             bound: None,
             last_kind: None,
+            in_query: false,
             render_extent: vk::Extent2D::default(),
             counts: CommandCounts::default(),
         }
@@ -347,11 +355,7 @@ impl Recorder {
             )
         };
         let tris = (index_count / 3) as u64 * instances as u64;
-        self.counts.draw_calls += 1;
-        self.counts.triangles += tris;
-        if self.last_kind == Some(PipelineKind::Render) {
-            self.counts.render_triangles += tris;
-        }
+        self.count_draw(tris);
     }
 
     /// Non-indexed draw.
@@ -361,8 +365,21 @@ impl Recorder {
             self.device
                 .cmd_draw(self.cmd, vertex_count, instances, 0, 0)
         };
+        self.count_draw((vertex_count / 3) as u64 * instances as u64);
+    }
+
+    /// Counts a draw of `tris` triangles by what it draws: query boxes (inside a query) or
+    /// objects (render state).
+    fn count_draw(&mut self, tris: u64) {
         self.counts.draw_calls += 1;
-        self.counts.triangles += (vertex_count / 3) as u64 * instances as u64;
+        self.counts.triangles += tris;
+        if self.in_query {
+            self.counts.query_draws += 1;
+            self.counts.query_triangles += tris;
+        } else if self.last_kind == Some(PipelineKind::Render) {
+            self.counts.object_draws += 1;
+            self.counts.render_triangles += tris;
+        }
     }
 
     /// Begins precise occlusion query `id` of `pools`.
@@ -374,6 +391,7 @@ impl Recorder {
                 .cmd_begin_query(self.cmd, pool, index, vk::QueryControlFlags::PRECISE)
         };
         self.counts.queries_begun += 1;
+        self.in_query = true;
     }
 
     /// Ends query `id` of `pools`.
@@ -381,6 +399,7 @@ impl Recorder {
         let (pool, index) = pools.location(id);
         // SAFETY: the query is active in this command buffer.
         unsafe { self.device.cmd_end_query(self.cmd, pool, index) };
+        self.in_query = false;
     }
 
     /// Writes timestamp `id` of `pools` after all previous work.

@@ -10,7 +10,8 @@ pub struct FrameResult {
     pub frame_ms: f64,
     /// Sum of the segments' GPU time (timestamps).
     pub gpu_ms: f64,
-    /// Time spent blocked on query results.
+    /// Time spent blocked on query results inside the frame (every wait for a segment; the
+    /// final wait for the frame's completion is not included).
     pub stall_ms: f64,
     /// What the recorder counted.
     pub counts: CommandCounts,
@@ -32,8 +33,10 @@ impl FrameResult {
             state_changes: self.counts.state_changes,
             pipeline_binds: self.counts.pipeline_binds,
             draw_calls: self.counts.draw_calls,
+            object_draws: self.counts.object_draws,
+            query_draws: self.counts.query_draws,
             triangles: self.counts.render_triangles,
-            objects: self.cull.objects_drawn,
+            objects: self.counts.object_draws,
             submits: self.counts.submits,
         }
     }

@@ -537,7 +537,13 @@ impl OcclusionBackend for Renderer {
             .get(query as usize)
             .ok_or_else(|| Error::Input(format!("query {query} was not issued this frame")))?
             as usize;
-        if self.recording && seg == self.current_segment() {
+        // Only a completed segment's queries are read: on some drivers (lavapipe) reading a
+        // query of a pending submission waits for the whole device, so that read would be a
+        // hidden, uncounted stall.
+        let Some(&value) = self.segment_values.get(seg) else {
+            return Ok(None); // still being recorded
+        };
+        if !self.timeline.is_complete(value)? {
             return Ok(None);
         }
         let r = self.occlusion.poll(query)?;
@@ -555,7 +561,7 @@ impl OcclusionBackend for Renderer {
             return Ok(v);
         }
         let seg = self.query_segment[query as usize] as usize;
-        if self.recording && seg == self.current_segment() {
+        if seg >= self.segment_values.len() {
             self.submit_segment()?;
         }
         let start = Instant::now();

@@ -34,18 +34,22 @@ pub struct FrameRecord {
     pub state_changes: u32,
     /// Pipeline binds recorded.
     pub pipeline_binds: u32,
-    /// Draw calls recorded.
+    /// Draw calls recorded (object draws + query-box draws).
     pub draw_calls: u32,
+    /// Draw calls of shaded objects.
+    pub object_draws: u32,
+    /// Draw calls of query boxes.
+    pub query_draws: u32,
     /// Triangles submitted for rendering.
     pub triangles: u64,
-    /// Objects rendered.
+    /// Objects rendered (the recorder's object draws: one draw per object).
     pub objects: u32,
     /// Queue submissions.
     pub submits: u32,
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 13] = [
+pub const CSV_HEADER: [&str; 15] = [
     "algorithm",
     "frame",
     "frame_ms",
@@ -56,6 +60,8 @@ pub const CSV_HEADER: [&str; 13] = [
     "state_changes",
     "pipeline_binds",
     "draw_calls",
+    "object_draws",
+    "query_draws",
     "triangles",
     "objects",
     "submits",
@@ -77,7 +83,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.frame_ms,
@@ -88,6 +94,8 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             r.state_changes,
             r.pipeline_binds,
             r.draw_calls,
+            r.object_draws,
+            r.query_draws,
             r.triangles,
             r.objects,
             r.submits
@@ -156,10 +164,10 @@ mod tests {
         assert_eq!(
             lines[0],
             "algorithm,frame,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
-             pipeline_binds,draw_calls,triangles,objects,submits"
+             pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits"
         );
         assert_eq!(lines.len(), 1 + records.len());
-        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,1000000,0,0");
+        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0");
         assert!(lines[2].starts_with("\"a,b\",1,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -33,6 +33,10 @@ pub struct AlgorithmSummary {
     pub pipeline_binds_median: f64,
     /// Median draw calls per frame.
     pub draw_calls_median: f64,
+    /// Median object draws per frame.
+    pub object_draws_median: f64,
+    /// Median query-box draws per frame.
+    pub query_draws_median: f64,
     /// Median triangles per frame.
     pub triangles_median: f64,
     /// Median queue submissions per frame.
@@ -56,6 +60,8 @@ impl AlgorithmSummary {
             state_changes_median: med(&|r| f64::from(r.state_changes)),
             pipeline_binds_median: med(&|r| f64::from(r.pipeline_binds)),
             draw_calls_median: med(&|r| f64::from(r.draw_calls)),
+            object_draws_median: med(&|r| f64::from(r.object_draws)),
+            query_draws_median: med(&|r| f64::from(r.query_draws)),
             triangles_median: med(&|r| r.triangles as f64),
             submits_median: med(&|r| f64::from(r.submits)),
         }
@@ -185,7 +191,7 @@ impl WalkSummary {
             self.scene, self.objects, self.triangles, self.device, self.size, self.frames
         );
         let header = format!(
-            "{:<name_w$} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>7} {:>7} {:>11} {:>7} {:>8}",
+            "{:<name_w$} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>11} {:>7} {:>8}",
             "algorithm",
             "frame ms",
             "p95 ms",
@@ -196,6 +202,7 @@ impl WalkSummary {
             "states",
             "binds",
             "draws",
+            "objects",
             "triangles",
             "submits",
             "x oracle",
@@ -209,7 +216,7 @@ impl WalkSummary {
             };
             let _ = writeln!(
                 out,
-                "{:<name_w$} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>8} {:>8} {:>8} {:>7} {:>7} {:>11} {:>7} {:>8}",
+                "{:<name_w$} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>11} {:>7} {:>8}",
                 name,
                 s.frame_ms_median,
                 s.frame_ms_p95,
@@ -220,6 +227,7 @@ impl WalkSummary {
                 fmt_count(s.state_changes_median),
                 fmt_count(s.pipeline_binds_median),
                 fmt_count(s.draw_calls_median),
+                fmt_count(s.object_draws_median),
                 fmt_count(s.triangles_median),
                 fmt_count(s.submits_median),
                 ratio,
@@ -363,6 +371,8 @@ mod tests {
             "state_changes_median",
             "pipeline_binds_median",
             "draw_calls_median",
+            "object_draws_median",
+            "query_draws_median",
             "triangles_median",
             "submits_median",
         ]
