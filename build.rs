@@ -1,11 +1,16 @@
 //! Compiles every GLSL shader in shaders/ to Vulkan 1.2 SPIR-V with shaderc. A GLSL error fails
-//! the build and names the shader file and line.
+//! the build and names the shader file and line. Code shared between shaders lives in
+//! shaders/include/*.glsl, pulled in with `#include "include/x.glsl"` (GL_GOOGLE_include_directive,
+//! resolved relative to shaders/); include files are not shader stages and are not compiled alone.
 
 use std::path::Path;
 
+/// Where the shaders are, and what `#include` paths are relative to.
+const SHADER_DIR: &str = "shaders";
+
 fn main() {
     let out_dir = std::env::var("OUT_DIR").expect("cargo sets OUT_DIR");
-    println!("cargo:rerun-if-changed=shaders");
+    println!("cargo:rerun-if-changed={SHADER_DIR}");
     let compiler = shaderc::Compiler::new().expect("shaderc compiler");
     let mut options = shaderc::CompileOptions::new().expect("shaderc options");
     options.set_target_env(
@@ -14,7 +19,8 @@ fn main() {
     );
     options.set_optimization_level(shaderc::OptimizationLevel::Performance);
     options.set_generate_debug_info();
-    let mut entries: Vec<_> = std::fs::read_dir("shaders")
+    options.set_include_callback(resolve_include);
+    let mut entries: Vec<_> = std::fs::read_dir(SHADER_DIR)
         .expect("shaders/ directory")
         .filter_map(|e| e.ok())
         .map(|e| e.path())
@@ -22,6 +28,7 @@ fn main() {
     entries.sort();
     let mut failed = false;
     for path in entries {
+        // Only stage files; shaders/include/ (a directory, of .glsl files) is skipped here.
         let kind = match path.extension().and_then(|e| e.to_str()) {
             Some("vert") => shaderc::ShaderKind::Vertex,
             Some("frag") => shaderc::ShaderKind::Fragment,
@@ -50,5 +57,27 @@ fn main() {
     }
     if failed {
         panic!("shader compilation failed (see the file:line messages above)");
+    }
+}
+
+/// shaderc's include callback: `#include "x"` and `#include <x>` both name a file relative to
+/// the shaders directory. A file that can't be read gives an error naming the path tried (shaderc
+/// prefixes the including file and line, and appends the requested name).
+fn resolve_include(
+    requested: &str,
+    _kind: shaderc::IncludeType,
+    _requesting: &str,
+    _depth: usize,
+) -> shaderc::IncludeCallbackResult {
+    let path = Path::new(SHADER_DIR).join(requested);
+    match std::fs::read_to_string(&path) {
+        Ok(content) => {
+            println!("cargo:rerun-if-changed={}", path.display());
+            Ok(shaderc::ResolvedInclude {
+                resolved_name: path.display().to_string(),
+                content,
+            })
+        }
+        Err(e) => Err(format!("cannot read {}: {e}", path.display())),
     }
 }

@@ -1,14 +1,11 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
 // G-buffer: world position (w = 1 where covered), normal facing the camera, albedo.
 layout(location = 0) in vec3 v_position;
 layout(location = 1) in vec3 v_normal;
 layout(location = 2) in vec3 v_albedo;
 
-layout(push_constant) uniform Push {
-    mat4 view_proj;
-    vec4 eye;
-    vec4 params;
-} pc;
+#include "include/gi_raster_push.glsl"
 
 layout(location = 0) out vec4 out_position;
 layout(location = 1) out vec4 out_normal;

@@ -1,13 +1,9 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
 // G-buffer pass: world-space triangles pulled from a storage buffer (non-indexed draw).
-struct GiVertex { vec4 position; vec4 normal; vec4 albedo; };
-layout(std430, set = 0, binding = 0) readonly buffer Vertices { GiVertex verts[]; };
+#include "include/gi_vertices.glsl"
 
-layout(push_constant) uniform Push {
-    mat4 view_proj;
-    vec4 eye;
-    vec4 params;
-} pc;
+#include "include/gi_raster_push.glsl"
 
 layout(location = 0) out vec3 v_position;
 layout(location = 1) out vec3 v_normal;

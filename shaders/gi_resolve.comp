@@ -1,47 +1,12 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
 // Resolve: geometry-aware 4x4 blur of the interleaved indirect irradiance (a 4x4 window holds
 // each of the 16 VPL classes once; neighbours whose normal or plane differ are skipped), direct
 // light from the spotlight with its paraboloid shadow map, receiver albedo, Reinhard tone mapping
 // and gamma 2.2 into RGBA8.
 layout(local_size_x = 8, local_size_y = 8) in;
 
-layout(set = 0, binding = 0, rgba32f) uniform readonly image2D g_position;
-layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_normal;
-layout(set = 0, binding = 2, rgba8) uniform readonly image2D g_albedo;
-struct GpuVpl { vec4 position_layer; vec4 normal; vec4 flux; };
-layout(std430, set = 0, binding = 3) readonly buffer Vpls { GpuVpl vpls[]; };
-layout(set = 0, binding = 4) uniform sampler2DArray shadow_maps;
-layout(set = 0, binding = 5, rgba32f) uniform image2D indirect;
-layout(set = 0, binding = 6, rgba8) uniform writeonly image2D out_color;
-
-layout(push_constant) uniform Push {
-    vec4 spot_pos;
-    vec4 spot_dir;
-    vec4 spot_power;
-    vec4 gather;
-    vec4 misc;
-} pc;
-
-const float PI = 3.14159265;
-
-void basis(vec3 n, out vec3 t, out vec3 b) {
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float k = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * k, -s * n.x);
-    b = vec3(k, s + n.y * n.y * a, -n.y);
-}
-
-float visibility(float layer, vec3 n, vec3 d) {
-    vec3 t, b;
-    basis(n, t, b);
-    vec3 l = vec3(dot(d, t), dot(d, b), dot(d, n));
-    float len = length(l);
-    vec2 p = l.xy / max(len + l.z, 1e-9);
-    vec2 uv = vec2(0.5 + 0.5 * p.x, 0.5 - 0.5 * p.y);
-    float stored = textureLod(shadow_maps, vec3(uv, layer), 0.0).r * pc.spot_dir.w;
-    return len - pc.misc.x - 0.02 * len <= stored ? 1.0 : 0.0;
-}
+#include "include/gi_shading.glsl"
 
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);

@@ -1,4 +1,5 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_shader_viewport_layer_array : require
 // Layered paraboloid shadow maps (incremental instant radiosity): one instance per shadow slot
 // (a VPL, or the spotlight), each writing its own layer of one 2D-array depth image via gl_Layer.
@@ -10,29 +11,18 @@
 // paraboloid map); depth = len / far, linear in distance. The map is non-linear: the rasterizer
 // interpolates straight edges and linear depth in paraboloid space, while the true images of long
 // edges are curves. Scenes here are made of moderately sized triangles, so we accept the error and
-// cover it with the depth bias of the lookup (see gi_gather.comp), rather than tessellating.
+// cover it with the depth bias of the lookup (`visibility` in include/gi_shading.glsl), rather
+// than tessellating.
 // Triangles entirely behind the base plane (l.z < 0) are culled; straddling ones are clipped to
 // the plane in the shader (each vertex sees its whole triangle).
 
-struct GiVertex { vec4 position; vec4 normal; vec4 albedo; };
-layout(std430, set = 0, binding = 0) readonly buffer Vertices { GiVertex verts[]; };
+#include "include/gi_vertices.glsl"
 struct Slot { vec4 position_layer; vec4 normal; };
 layout(std430, set = 0, binding = 1) readonly buffer Slots { Slot slots[]; };
 
-layout(push_constant) uniform Push {
-    mat4 view_proj;
-    vec4 eye;
-    vec4 params; // x: first slot of this draw, y: far distance
-} pc;
+#include "include/gi_raster_push.glsl"
 
-// Duff et al. 2017 branchless orthonormal basis; must match gi_gather.comp and gi_resolve.comp.
-void basis(vec3 n, out vec3 t, out vec3 b) {
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float k = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * k, -s * n.x);
-    b = vec3(k, s + n.y * n.y * a, -n.y);
-}
+#include "include/paraboloid.glsl"
 
 void main() {
     Slot s = slots[int(pc.params.x) + gl_InstanceIndex];

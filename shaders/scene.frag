@@ -1,13 +1,11 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
 // Lambert from one directional light plus ambient, per-object base color, gamma 2.2 output.
 layout(location = 0) in vec3 v_normal;
 layout(location = 1) in vec4 v_color;
 layout(location = 2) flat in uint v_object;
 
-layout(push_constant) uniform Push {
-    mat4 view_proj;
-    vec4 sun_dir;
-} pc;
+#include "include/scene_push.glsl"
 
 layout(location = 0) out vec4 out_color;
 

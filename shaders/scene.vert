@@ -1,4 +1,5 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
 // Forward pass: object-space vertices, per-object data from a storage buffer indexed by
 // gl_InstanceIndex (the draw's firstInstance is the object index).
 layout(location = 0) in vec3 in_position;
@@ -11,10 +12,7 @@ struct ObjectData {
 };
 layout(std430, set = 0, binding = 0) readonly buffer Objects { ObjectData objects[]; };
 
-layout(push_constant) uniform Push {
-    mat4 view_proj;
-    vec4 sun_dir;
-} pc;
+#include "include/scene_push.glsl"
 
 layout(location = 0) out vec3 v_normal;
 layout(location = 1) out vec4 v_color;

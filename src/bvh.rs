@@ -5,6 +5,7 @@ use std::collections::BinaryHeap;
 
 use glam::Vec3;
 use obvhs::aabb::Aabb as OAabb;
+use obvhs::bvh2::Bvh2;
 use obvhs::{Boundable, BvhBuildParams};
 
 use crate::scene::Aabb;
@@ -54,50 +55,42 @@ impl ObjectBvh {
     /// leaf. An empty input gives a root leaf with no objects.
     pub fn build(bounds: &[Aabb], leaf_size: u32) -> ObjectBvh {
         if bounds.is_empty() {
-            return ObjectBvh {
-                nodes: vec![BvhNode {
-                    bounds: Aabb::new(Vec3::ZERO, Vec3::ZERO),
-                    parent: u32::MAX,
-                    children: [0; 2],
-                    first_object: 0,
-                    object_count: 0,
-                    depth: 0,
-                }],
-                leaf_objects: Vec::new(),
-            };
+            return ObjectBvh::empty();
         }
-        let prims: Vec<Bounded> = bounds
-            .iter()
-            .map(|b| {
-                let (min, max) = if b.is_valid() {
-                    (b.min, b.max)
-                } else {
-                    (Vec3::ZERO, Vec3::ZERO)
-                };
-                Bounded(OAabb::new(min.into(), max.into()))
-            })
-            .collect();
-        let mut params = BvhBuildParams::fast_build();
-        params.max_prims_per_leaf = leaf_size.clamp(1, 255);
-        params.collapse_traversal_cost = 1.0;
-        let mut t = std::time::Duration::ZERO;
-        let bvh2 = obvhs::bvh2::builder::build_bvh2(&prims, params, &mut t);
+        let bvh2 = build_bvh2(bounds, leaf_size);
+        let mut out = ObjectBvh::flatten(&bvh2, bounds);
+        out.fit_interior_bounds();
+        out
+    }
+
+    /// A root leaf with no objects.
+    fn empty() -> ObjectBvh {
+        ObjectBvh {
+            nodes: vec![BvhNode {
+                bounds: Aabb::new(Vec3::ZERO, Vec3::ZERO),
+                parent: u32::MAX,
+                children: [0; 2],
+                first_object: 0,
+                object_count: 0,
+                depth: 0,
+            }],
+            leaf_objects: Vec::new(),
+        }
+    }
+
+    /// Copies obvhs's tree into our node array, depth-first from its root (index 0) so that
+    /// parents come before children; leaves get their objects' bounds.
+    fn flatten(bvh2: &Bvh2, bounds: &[Aabb]) -> ObjectBvh {
         let mut out = ObjectBvh {
             nodes: Vec::with_capacity(bvh2.nodes.len()),
             leaf_objects: Vec::with_capacity(bounds.len()),
         };
-        // Flatten breadth-first from obvhs's root (index 0).
         let mut stack = vec![(0usize, u32::MAX, 0u32)];
         while let Some((src, parent, depth)) = stack.pop() {
             let n = &bvh2.nodes[src];
             let id = out.nodes.len() as u32;
             if parent != u32::MAX {
-                let p = &mut out.nodes[parent as usize];
-                if p.children[0] == u32::MAX {
-                    p.children[0] = id;
-                } else {
-                    p.children[1] = id;
-                }
+                out.link_child(parent, id);
             }
             let mut node = BvhNode {
                 bounds: Aabb::EMPTY,
@@ -123,16 +116,29 @@ impl ObjectBvh {
                 stack.push((n.first_index as usize, id, depth + 1));
             }
         }
-        // Bounds bottom-up (children come after parents).
-        for i in (0..out.nodes.len()).rev() {
-            if !out.nodes[i].is_leaf() {
-                let [a, b] = out.nodes[i].children;
-                out.nodes[i].bounds = out.nodes[a as usize]
+        out
+    }
+
+    /// Makes `child` the next free child slot of `parent`.
+    fn link_child(&mut self, parent: u32, child: u32) {
+        let p = &mut self.nodes[parent as usize];
+        if p.children[0] == u32::MAX {
+            p.children[0] = child;
+        } else {
+            p.children[1] = child;
+        }
+    }
+
+    /// Interior bounds bottom-up (children come after parents).
+    fn fit_interior_bounds(&mut self) {
+        for i in (0..self.nodes.len()).rev() {
+            if !self.nodes[i].is_leaf() {
+                let [a, b] = self.nodes[i].children;
+                self.nodes[i].bounds = self.nodes[a as usize]
                     .bounds
-                    .union(&out.nodes[b as usize].bounds);
+                    .union(&self.nodes[b as usize].bounds);
             }
         }
-        out
     }
 
     /// The objects of a leaf (empty for interior nodes).
@@ -160,6 +166,26 @@ impl ObjectBvh {
             }
         }
     }
+}
+
+/// obvhs's binary BVH (PLOC) over `bounds`, invalid boxes replaced by the origin.
+fn build_bvh2(bounds: &[Aabb], leaf_size: u32) -> Bvh2 {
+    let prims: Vec<Bounded> = bounds
+        .iter()
+        .map(|b| {
+            let (min, max) = if b.is_valid() {
+                (b.min, b.max)
+            } else {
+                (Vec3::ZERO, Vec3::ZERO)
+            };
+            Bounded(OAabb::new(min.into(), max.into()))
+        })
+        .collect();
+    let mut params = BvhBuildParams::fast_build();
+    params.max_prims_per_leaf = leaf_size.clamp(1, 255);
+    params.collapse_traversal_cost = 1.0;
+    let mut t = std::time::Duration::ZERO;
+    obvhs::bvh2::builder::build_bvh2(&prims, params, &mut t)
 }
 
 fn bounds_or_point(b: &Aabb) -> Aabb {

@@ -301,68 +301,91 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     let ctx = context(a.validation)?;
     let mut summaries = Vec::new();
     for &scale in &scales {
-        let scene = load_scene(&a.scene, scale)?;
-        let path = match &a.path {
-            Some(p) => scene.path(p)?.clone(),
-            None => scene.default_path()?.clone(),
-        };
-        let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-        let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
         let dir = if scales.len() > 1 {
             a.out.join(format!("scale_{scale}"))
         } else {
             a.out.clone()
         };
-        println!(
-            "walk: {} (scale {scale}: {} objects, {} triangles), path {}, {} frames + {} warm-up, {w}x{h}, {} on {}",
-            scene.name,
-            scene.objects.len(),
-            scene.triangle_count(),
-            path.name,
-            a.frames,
-            a.warmup,
-            a.algorithms.join(", "),
-            ctx.info.name
-        );
-        let records = {
-            let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
-            let bar = progress_bar();
-            let records = walk::run(&mut renderer, &bvh, &path, &cfg, |done, total| {
-                bar.tick(done, total)
-            })?;
-            bar.finish();
-            records
-        };
-        let summary = walk::write_report(
-            &dir,
-            &scene,
-            &path.name,
-            &ctx.info.name,
-            (w, h),
-            &records,
-            &a.algorithms,
-        )?;
-        let reference = a
-            .algorithms
-            .iter()
-            .any(|x| x == "oracle")
-            .then_some("oracle");
-        println!("{}", summary.table(reference));
-        println!(
-            "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
-            dir.display()
-        );
+        let summary = walk_scale(a, &ctx, &cfg, scale, &dir, (w, h))?;
         summaries.push((scale, summary));
     }
     if summaries.len() > 1 {
-        let rows: Vec<(f32, &coherent::report::WalkSummary)> =
-            summaries.iter().map(|(s, m)| (*s, m)).collect();
-        let table = coherent::report::scaling_table(&rows);
-        println!("{table}");
-        std::fs::create_dir_all(&a.out)?;
-        std::fs::write(a.out.join("scaling.txt"), &table)?;
+        write_scaling_table(&a.out, &summaries)?;
     }
     check_validation(&ctx)
+}
+
+/// One scale of `coherent walk`: loads the scene, walks its path with every algorithm and
+/// writes the report to `dir`.
+fn walk_scale(
+    a: &WalkArgs,
+    ctx: &Arc<GpuContext>,
+    cfg: &WalkConfig,
+    scale: f32,
+    dir: &std::path::Path,
+    (w, h): (u32, u32),
+) -> Result<coherent::report::WalkSummary> {
+    let scene = load_scene(&a.scene, scale)?;
+    let path = match &a.path {
+        Some(p) => scene.path(p)?.clone(),
+        None => scene.default_path()?.clone(),
+    };
+    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
+    let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    println!(
+        "walk: {} (scale {scale}: {} objects, {} triangles), path {}, {} frames + {} warm-up, {w}x{h}, {} on {}",
+        scene.name,
+        scene.objects.len(),
+        scene.triangle_count(),
+        path.name,
+        a.frames,
+        a.warmup,
+        a.algorithms.join(", "),
+        ctx.info.name
+    );
+    let records = {
+        let mut renderer = Renderer::new(ctx, &scene, w, h)?;
+        let bar = progress_bar();
+        let records = walk::run(&mut renderer, &bvh, &path, cfg, |done, total| {
+            bar.tick(done, total)
+        })?;
+        bar.finish();
+        records
+    };
+    let summary = walk::write_report(
+        dir,
+        &scene,
+        &path.name,
+        &ctx.info.name,
+        (w, h),
+        &records,
+        &a.algorithms,
+    )?;
+    let reference = a
+        .algorithms
+        .iter()
+        .any(|x| x == "oracle")
+        .then_some("oracle");
+    println!("{}", summary.table(reference));
+    println!(
+        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
+        dir.display()
+    );
+    Ok(summary)
+}
+
+/// Prints the table comparing the scales of a walk and writes it to `out/scaling.txt`.
+fn write_scaling_table(
+    out: &std::path::Path,
+    summaries: &[(f32, coherent::report::WalkSummary)],
+) -> Result<()> {
+    let rows: Vec<(f32, &coherent::report::WalkSummary)> =
+        summaries.iter().map(|(s, m)| (*s, m)).collect();
+    let table = coherent::report::scaling_table(&rows);
+    println!("{table}");
+    std::fs::create_dir_all(out)?;
+    std::fs::write(out.join("scaling.txt"), &table)?;
+    Ok(())
 }
 
 /// `coherent view`.

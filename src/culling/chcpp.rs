@@ -218,7 +218,7 @@ impl Chcpp {
         }
     }
 
-    fn pull_up(&mut self, bvh: &ObjectBvh, mut node: u32) {
+    fn pull_up_visibility(&mut self, bvh: &ObjectBvh, mut node: u32) {
         loop {
             let s = &mut self.state[node as usize];
             if s.visible && s.last_visited == self.frame {
@@ -303,38 +303,11 @@ impl Chcpp {
         for n in std::mem::take(&mut self.requery) {
             self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
         }
-        let mut nodes = std::mem::take(&mut self.i_queue);
+        let nodes = std::mem::take(&mut self.i_queue);
         if self.params.multiqueries && nodes.len() > 1 {
-            // Highest probability of staying invisible first.
-            let p = |s: &NodeState| 0.99 - 0.7 * (-(s.invisible_frames as f32)).exp();
-            nodes.sort_by(|a, b| {
-                p(&self.state[*b as usize])
-                    .total_cmp(&p(&self.state[*a as usize]))
-                    .then(a.cmp(b))
-            });
-            let mut i = 0;
-            while i < nodes.len() {
-                let mut prod = 1.0f32;
-                let mut best_value = 0.0f32;
-                let mut j = i;
-                while j < nodes.len() {
-                    let pj = p(&self.state[nodes[j] as usize]).max(0.0);
-                    let size = (j - i + 1) as f32;
-                    let cost = 1.0 + (1.0 - prod * pj) * size;
-                    let value = size / cost;
-                    if j > i && value < best_value {
-                        break;
-                    }
-                    best_value = value;
-                    prod *= pj;
-                    j += 1;
-                }
-                let group = nodes[i..j].to_vec();
-                self.issue(bvh, group, QueryKind::Invisible, backend, stats)?;
-                i = j;
-            }
+            self.issue_multiqueries(bvh, nodes, backend, stats)?;
         } else {
-            for n in nodes.drain(..) {
+            for n in nodes {
                 self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
             }
         }
@@ -346,6 +319,52 @@ impl Chcpp {
         backend.flush()?;
         self.unsubmitted = 0;
         Ok(())
+    }
+
+    /// Groups i-queue nodes greedily into multiqueries, highest probability of staying
+    /// invisible first, and issues one query per group.
+    fn issue_multiqueries(
+        &mut self,
+        bvh: &ObjectBvh,
+        mut nodes: Vec<u32>,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        nodes.sort_by(|a, b| {
+            stays_invisible(&self.state[*b as usize])
+                .total_cmp(&stays_invisible(&self.state[*a as usize]))
+                .then(a.cmp(b))
+        });
+        let mut i = 0;
+        while i < nodes.len() {
+            let j = self.multiquery_group_end(&nodes, i);
+            let group = nodes[i..j].to_vec();
+            self.issue(bvh, group, QueryKind::Invisible, backend, stats)?;
+            i = j;
+        }
+        Ok(())
+    }
+
+    /// The end of the multiquery group that starts at `nodes[i]`: a group M costs
+    /// `1 + (1 - Π p) · |M|` queries in expectation; it grows while `|M| / cost` does not
+    /// decrease.
+    fn multiquery_group_end(&self, nodes: &[u32], i: usize) -> usize {
+        let mut prod = 1.0f32;
+        let mut best_value = 0.0f32;
+        let mut j = i;
+        while j < nodes.len() {
+            let pj = stays_invisible(&self.state[nodes[j] as usize]).max(0.0);
+            let size = (j - i + 1) as f32;
+            let cost = 1.0 + (1.0 - prod * pj) * size;
+            let value = size / cost;
+            if j > i && value < best_value {
+                break;
+            }
+            best_value = value;
+            prod *= pj;
+            j += 1;
+        }
+        j
     }
 
     /// Issues up to `limit` v-queue queries as one batch.
@@ -371,7 +390,7 @@ impl Chcpp {
         Ok(())
     }
 
-    fn handle_result(
+    fn handle_returned_query(
         &mut self,
         bvh: &ObjectBvh,
         q: Pending,
@@ -399,7 +418,7 @@ impl Chcpp {
                 self.traverse_node(bvh, node, eye, stats);
                 self.start_interval(node);
             }
-            self.pull_up(bvh, node);
+            self.pull_up_visibility(bvh, node);
         } else {
             let s = &mut self.state[node as usize];
             s.visible = false;
@@ -425,6 +444,224 @@ impl Chcpp {
     fn query_reasonable(&self, node: u32) -> bool {
         self.frame >= self.state[node as usize].next_query
     }
+}
+
+/// The steps of [`Chcpp::cull_frame`], in the order the paper's pseudocode runs them.
+impl Chcpp {
+    /// Starts a frame: empty queues, the root in the traversal queue.
+    fn begin_frame(&mut self, bvh: &ObjectBvh, eye: glam::Vec3) {
+        self.prepare(bvh);
+        self.frame += 1;
+        self.traversal.clear();
+        self.query_queue.clear();
+        self.i_queue.clear();
+        self.requery.clear();
+        self.v_queue.clear();
+        self.render_queue.clear();
+        self.unsubmitted = 0;
+        self.traversal
+            .push(0, bvh.nodes[0].bounds.distance_squared(eye));
+    }
+
+    /// Nodes per i-queue batch (`b`; 1 without batching).
+    fn i_queue_batch_size(&self) -> usize {
+        if self.params.batching {
+            self.params.batch_size.max(1)
+        } else {
+            1
+        }
+    }
+
+    /// Handles returned queries in order. While the traversal has work, stops at the first
+    /// query that is not ready; when it has none, fills the wait with the v-queue's queries,
+    /// and only then blocks on the query.
+    fn process_finished_queries(
+        &mut self,
+        bvh: &ObjectBvh,
+        eye: glam::Vec3,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        while let Some(front) = self.query_queue.front() {
+            let id = front.id;
+            let pixels = match backend.query_result(id)? {
+                Some(p) => p,
+                None if !self.traversal.is_empty() => break,
+                None if !self.v_queue.is_empty() => {
+                    let all = self.v_queue.len();
+                    self.issue_v_queue(bvh, all, backend, stats)?;
+                    continue;
+                }
+                None => {
+                    self.flush_render_queue(backend)?;
+                    backend.wait_query(id)?
+                }
+            };
+            if let Some(q) = self.query_queue.pop_front() {
+                self.handle_returned_query(bvh, q, pixels, eye, backend, stats)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// One node from the traversal queue: frustum test, then by its visibility last frame.
+    fn visit_node(
+        &mut self,
+        input: &FrameInput,
+        view: &View,
+        node: u32,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        let bvh = input.bvh;
+        stats.nodes_visited += 1;
+        let bounds = &bvh.nodes[node as usize].bounds;
+        if !view.frustum.intersects(bounds) {
+            self.frustum_cull(node, stats);
+        } else if eye_inside(bounds, input.camera) {
+            self.traverse_unqueryable(bvh, node, view.eye, stats);
+        } else if !self.was_visible(node) {
+            self.query_previously_invisible(bvh, node, backend, stats)?;
+        } else {
+            self.traverse_previously_visible(bvh, node, view.eye, backend, stats)?;
+        }
+        Ok(())
+    }
+
+    /// A node outside the view frustum: invisible, and its count of occluded frames restarts.
+    fn frustum_cull(&mut self, node: u32, stats: &mut CullStats) {
+        stats.frustum_culled += 1;
+        let s = &mut self.state[node as usize];
+        s.visible = false;
+        s.last_visited = self.frame;
+        s.invisible_frames = 0;
+    }
+
+    /// The eye is inside the node's box, so a query can't be trusted: treat it as visible.
+    fn traverse_unqueryable(
+        &mut self,
+        bvh: &ObjectBvh,
+        node: u32,
+        eye: glam::Vec3,
+        stats: &mut CullStats,
+    ) {
+        let was = self.was_visible(node);
+        self.traverse_node(bvh, node, eye, stats);
+        if bvh.nodes[node as usize].is_leaf() {
+            if !was {
+                self.start_interval(node);
+            }
+            self.pull_up_visibility(bvh, node);
+        } else {
+            self.state[node as usize].last_visited = self.frame;
+        }
+    }
+
+    /// A previously invisible node goes to the i-queue, issued as a batch once it holds `b`
+    /// nodes (unbatched: queried at once). It is traversed only when its query says visible.
+    fn query_previously_invisible(
+        &mut self,
+        bvh: &ObjectBvh,
+        node: u32,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        self.state[node as usize].last_visited = self.frame;
+        if self.params.batching {
+            self.i_queue.push(node);
+            if self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size() {
+                self.issue_i_queue(bvh, backend, stats)?;
+            }
+            Ok(())
+        } else {
+            self.issue_unbatched(bvh, node, QueryKind::Invisible, backend, stats)
+        }
+    }
+
+    /// A previously visible node is traversed without waiting; a leaf is rendered now and, if
+    /// its query is due, queried for next frame (through the v-queue when batching).
+    fn traverse_previously_visible(
+        &mut self,
+        bvh: &ObjectBvh,
+        node: u32,
+        eye: glam::Vec3,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        self.traverse_node(bvh, node, eye, stats);
+        if !bvh.nodes[node as usize].is_leaf() {
+            self.state[node as usize].last_visited = self.frame;
+            return Ok(());
+        }
+        let due = self.query_reasonable(node);
+        self.pull_up_visibility(bvh, node);
+        if due {
+            self.state[node as usize].next_query =
+                self.frame + self.params.visible_interval.max(1) as u64;
+            if self.params.batching {
+                self.v_queue.push(node);
+            } else {
+                self.issue_unbatched(bvh, node, QueryKind::Visible, backend, stats)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Unbatched (CHC): render what is queued, then issue this node's query on its own.
+    fn issue_unbatched(
+        &mut self,
+        bvh: &ObjectBvh,
+        node: u32,
+        kind: QueryKind,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        self.flush_render_queue(backend)?;
+        stats.query_batches += 1;
+        self.issue(bvh, vec![node], kind, backend, stats)
+    }
+
+    /// The traversal queue ran dry: issue the i-queue (unbatched: submit what was recorded).
+    fn issue_remaining_queries(
+        &mut self,
+        bvh: &ObjectBvh,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        self.issue_i_queue(bvh, backend, stats)?;
+        if !self.params.batching && self.unsubmitted > 0 {
+            self.flush_render_queue(backend)?;
+            backend.flush()?;
+            self.unsubmitted = 0;
+        }
+        Ok(())
+    }
+
+    /// Ends a frame: render what is left, issue the leftover visible-leaf queries (their
+    /// results are for the next frame), wait for the device and read back every query.
+    fn end_frame(
+        &mut self,
+        bvh: &ObjectBvh,
+        eye: glam::Vec3,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        self.flush_render_queue(backend)?;
+        let rest = self.v_queue.len();
+        self.issue_v_queue(bvh, rest, backend, stats)?;
+        backend.finish()?;
+        while let Some(q) = self.query_queue.pop_front() {
+            let pixels = backend.wait_query(q.id)?;
+            self.handle_returned_query(bvh, q, pixels, eye, backend, stats)?;
+        }
+        Ok(())
+    }
+}
+
+/// `p(k) = 0.99 - 0.7 e^(-k)`: the probability that a node invisible for `k` frames stays
+/// invisible (fitted by the paper's authors).
+fn stays_invisible(s: &NodeState) -> f32 {
+    0.99 - 0.7 * (-(s.invisible_frames as f32)).exp()
 }
 
 /// The boxes of `node`'s descendants down to `tight_depth` levels (leaves above that depth count
@@ -454,135 +691,31 @@ impl Culler for Chcpp {
         self.name
     }
 
+    /// The main loop of the paper's pseudocode: while the traversal queue or the query queue is
+    /// not empty, first handle the queries that have returned, then take the next node from the
+    /// traversal queue; when the traversal queue runs dry, issue what the i-queue holds.
     fn cull_frame(
         &mut self,
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
     ) -> Result<CullStats> {
         let bvh = input.bvh;
-        self.prepare(bvh);
-        self.frame += 1;
         let view = View::new(input.camera);
         let eye = view.eye;
         let mut stats = CullStats::default();
-        self.traversal.clear();
-        self.query_queue.clear();
-        self.i_queue.clear();
-        self.requery.clear();
-        self.v_queue.clear();
-        self.render_queue.clear();
-        self.unsubmitted = 0;
-        let batch = if self.params.batching {
-            self.params.batch_size.max(1)
-        } else {
-            1
-        };
-        self.traversal
-            .push(0, bvh.nodes[0].bounds.distance_squared(eye));
-
+        self.begin_frame(bvh, eye);
         while !self.traversal.is_empty() || !self.query_queue.is_empty() {
-            // 1. Handle finished queries; when there is nothing else to do, fill the wait with
-            //    v-queue queries, and only then block.
-            while let Some(front) = self.query_queue.front() {
-                let id = front.id;
-                let pixels = match backend.query_result(id)? {
-                    Some(p) => p,
-                    None if !self.traversal.is_empty() => break,
-                    None if !self.v_queue.is_empty() => {
-                        let all = self.v_queue.len();
-                        self.issue_v_queue(bvh, all, backend, &mut stats)?;
-                        continue;
-                    }
-                    None => {
-                        self.flush_render_queue(backend)?;
-                        backend.wait_query(id)?
-                    }
-                };
-                if let Some(q) = self.query_queue.pop_front() {
-                    self.handle_result(bvh, q, pixels, eye, backend, &mut stats)?;
-                }
-            }
+            // 1. Process finished occlusion queries.
+            self.process_finished_queries(bvh, eye, backend, &mut stats)?;
             // 2. Hierarchical traversal.
             if let Some(node) = self.traversal.pop() {
-                stats.nodes_visited += 1;
-                let n = &bvh.nodes[node as usize];
-                if !view.frustum.intersects(&n.bounds) {
-                    stats.frustum_culled += 1;
-                    let s = &mut self.state[node as usize];
-                    s.visible = false;
-                    s.last_visited = self.frame;
-                    s.invisible_frames = 0;
-                } else if eye_inside(&n.bounds, input.camera) {
-                    // The query can't be trusted: treat as visible.
-                    let was = self.was_visible(node);
-                    self.traverse_node(bvh, node, eye, &mut stats);
-                    if n.is_leaf() {
-                        if !was {
-                            self.start_interval(node);
-                        }
-                        self.pull_up(bvh, node);
-                    } else {
-                        self.state[node as usize].last_visited = self.frame;
-                    }
-                } else if !self.was_visible(node) {
-                    self.state[node as usize].last_visited = self.frame;
-                    if self.params.batching {
-                        self.i_queue.push(node);
-                        if self.i_queue.len() + self.requery.len() >= batch {
-                            self.issue_i_queue(bvh, backend, &mut stats)?;
-                        }
-                    } else {
-                        self.flush_render_queue(backend)?;
-                        stats.query_batches += 1;
-                        self.issue(bvh, vec![node], QueryKind::Invisible, backend, &mut stats)?;
-                    }
-                } else {
-                    let leaf = n.is_leaf();
-                    self.traverse_node(bvh, node, eye, &mut stats);
-                    if leaf {
-                        // Rendered now; its query (if due) tells next frame.
-                        let due = self.query_reasonable(node);
-                        self.pull_up(bvh, node);
-                        if due {
-                            self.state[node as usize].next_query =
-                                self.frame + self.params.visible_interval.max(1) as u64;
-                            if self.params.batching {
-                                self.v_queue.push(node);
-                            } else {
-                                self.flush_render_queue(backend)?;
-                                stats.query_batches += 1;
-                                self.issue(
-                                    bvh,
-                                    vec![node],
-                                    QueryKind::Visible,
-                                    backend,
-                                    &mut stats,
-                                )?;
-                            }
-                        }
-                    } else {
-                        self.state[node as usize].last_visited = self.frame;
-                    }
-                }
+                self.visit_node(input, &view, node, backend, &mut stats)?;
             }
             if self.traversal.is_empty() {
-                self.issue_i_queue(bvh, backend, &mut stats)?;
-                if !self.params.batching && self.unsubmitted > 0 {
-                    self.flush_render_queue(backend)?;
-                    backend.flush()?;
-                    self.unsubmitted = 0;
-                }
+                self.issue_remaining_queries(bvh, backend, &mut stats)?;
             }
         }
-        self.flush_render_queue(backend)?;
-        // Visible-leaf queries left over: their results are for the next frame.
-        let rest = self.v_queue.len();
-        self.issue_v_queue(bvh, rest, backend, &mut stats)?;
-        backend.finish()?;
-        while let Some(q) = self.query_queue.pop_front() {
-            let pixels = backend.wait_query(q.id)?;
-            self.handle_result(bvh, q, pixels, eye, backend, &mut stats)?;
-        }
+        self.end_frame(bvh, eye, backend, &mut stats)?;
         Ok(stats)
     }
 

@@ -443,49 +443,9 @@ pub fn run(
     };
     for &mode in &opts.modes {
         let r = run_mode(ctx, &geometry, &rays, &path, &camera, opts, mode, &sampled)?;
-        let totals: Vec<f64> = r
-            .frames
-            .iter()
-            .zip(&r.update_ms)
-            .map(|(f, u)| f.frame_ms + u)
-            .collect();
-        let maps: Vec<f64> = r
-            .frames
-            .iter()
-            .map(|f| f.shadow_maps_rendered as f64)
-            .collect();
-        let errors: Vec<f64> = r
-            .samples
-            .iter()
-            .zip(&reference)
-            .map(|(a, b)| rmse(a, b))
-            .collect();
-        let m = ModeSummary {
-            frame_ms_median: percentile(&totals, 0.5),
-            frame_ms_p95: percentile(&totals, 0.95),
-            update_ms_median: percentile(&r.update_ms, 0.5),
-            shadow_maps_rendered_median: percentile(&maps, 0.5),
-            vpls: opts.vpls,
-            budget: if mode == GiMode::Full {
-                opts.vpls
-            } else {
-                opts.budget
-            },
-            rmse_vs_reference: errors.iter().sum::<f64>() / errors.len().max(1) as f64,
-        };
+        let m = summarize_mode(&r, &reference, opts);
         if let Some(dir) = out {
-            crate::render::save_rgba_png(
-                &dir.join(format!("{}.png", mode.name())),
-                opts.width,
-                opts.height,
-                r.last.clone(),
-            )?;
-            save_strip(
-                &dir.join(format!("{}_strip.png", mode.name())),
-                opts.width,
-                opts.height,
-                &r.samples,
-            )?;
+            save_mode_images(dir, opts, &r)?;
         }
         summary.algorithms.push((mode.name().to_string(), m));
     }
@@ -495,6 +455,57 @@ pub fn run(
         std::fs::write(dir.join("summary.json"), json)?;
     }
     Ok(summary)
+}
+
+/// A mode's medians (frame time with its VPL update, shadow maps per frame) and its mean
+/// RMSE against the reference images.
+fn summarize_mode(r: &ModeRun, reference: &[Vec<u8>], opts: &GiRunOptions) -> ModeSummary {
+    let totals: Vec<f64> = r
+        .frames
+        .iter()
+        .zip(&r.update_ms)
+        .map(|(f, u)| f.frame_ms + u)
+        .collect();
+    let maps: Vec<f64> = r
+        .frames
+        .iter()
+        .map(|f| f.shadow_maps_rendered as f64)
+        .collect();
+    let errors: Vec<f64> = r
+        .samples
+        .iter()
+        .zip(reference)
+        .map(|(a, b)| rmse(a, b))
+        .collect();
+    ModeSummary {
+        frame_ms_median: percentile(&totals, 0.5),
+        frame_ms_p95: percentile(&totals, 0.95),
+        update_ms_median: percentile(&r.update_ms, 0.5),
+        shadow_maps_rendered_median: percentile(&maps, 0.5),
+        vpls: opts.vpls,
+        budget: if r.mode == GiMode::Full {
+            opts.vpls
+        } else {
+            opts.budget
+        },
+        rmse_vs_reference: errors.iter().sum::<f64>() / errors.len().max(1) as f64,
+    }
+}
+
+/// Writes a mode's last frame (`<mode>.png`) and its sampled frames (`<mode>_strip.png`).
+fn save_mode_images(dir: &Path, opts: &GiRunOptions, r: &ModeRun) -> Result<()> {
+    crate::render::save_rgba_png(
+        &dir.join(format!("{}.png", r.mode.name())),
+        opts.width,
+        opts.height,
+        r.last.clone(),
+    )?;
+    save_strip(
+        &dir.join(format!("{}_strip.png", r.mode.name())),
+        opts.width,
+        opts.height,
+        &r.samples,
+    )
 }
 
 /// Writes images side by side, each downscaled to half size.

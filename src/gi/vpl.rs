@@ -453,17 +453,35 @@ fn worst_placed(tri: &DiskTriangulation) -> Option<spade::handles::FixedVertexHa
 /// collinear points (cells are the disk clipped by the bisectors to Delaunay
 /// neighbours, which exist for collinear input too).
 fn voronoi_disk_areas(points: &[Vec2]) -> Vec<f64> {
-    let mut areas = vec![0.0; points.len()];
     if points.is_empty() {
-        return areas;
+        return Vec::new();
     }
-    let disk: Vec<DVec2> = (0..DISK_POLYGON_SIDES)
+    let disk = disk_polygon();
+    let disk_inradius = (std::f64::consts::PI / DISK_POLYGON_SIDES as f64).cos();
+    let (tri, owner) = triangulate_distinct(points);
+    let mut cell = Vec::with_capacity(2 * DISK_POLYGON_SIDES);
+    let mut scratch = Vec::with_capacity(2 * DISK_POLYGON_SIDES);
+    let mut cell_area = vec![0.0; points.len()];
+    for v in tri.vertices() {
+        clipped_voronoi_cell(v, &disk, disk_inradius, &mut cell, &mut scratch);
+        cell_area[v.data().sample] = polygon_area(&cell);
+    }
+    share_among_duplicates(&owner, &cell_area)
+}
+
+/// The `DISK_POLYGON_SIDES`-gon inscribed in the unit circle.
+fn disk_polygon() -> Vec<DVec2> {
+    (0..DISK_POLYGON_SIDES)
         .map(|k| {
             let a = k as f64 * std::f64::consts::TAU / DISK_POLYGON_SIDES as f64;
             DVec2::new(a.cos(), a.sin())
         })
-        .collect();
-    let disk_inradius = (std::f64::consts::PI / DISK_POLYGON_SIDES as f64).cos();
+        .collect()
+}
+
+/// The Delaunay triangulation of the distinct points, and for each point the index of the
+/// first point at the same position (its owner; `usize::MAX` if spade refused it).
+fn triangulate_distinct(points: &[Vec2]) -> (DiskTriangulation, Vec<usize>) {
     let mut tri = DiskTriangulation::new();
     let mut first_at: HashMap<(u32, u32), usize> = HashMap::new();
     let mut owner = vec![usize::MAX; points.len()];
@@ -484,49 +502,61 @@ fn voronoi_disk_areas(points: &[Vec2]) -> Vec<f64> {
             owner[i] = i;
         }
     }
-    let mut cell = Vec::with_capacity(2 * DISK_POLYGON_SIDES);
-    let mut scratch = Vec::with_capacity(2 * DISK_POLYGON_SIDES);
-    let mut cell_area = vec![0.0; points.len()];
-    for v in tri.vertices() {
-        let p = to_dvec(v.position());
-        cell.clear();
-        // An interior vertex's cell lies within its largest incident circumradius;
-        // if that box is inside the disk polygon, start from the box (much cheaper).
-        let mut reach: Option<f64> = Some(0.0);
-        for e in v.out_edges() {
-            reach = match (reach, e.face().as_inner()) {
-                (Some(r), Some(face)) => Some(r.max(face.circumcircle().1.sqrt())),
-                _ => None,
-            };
-        }
-        match reach {
-            Some(h) if h > 0.0 && p.length() + h * std::f64::consts::SQRT_2 < disk_inradius => {
-                cell.extend([
-                    p + DVec2::new(-h, -h),
-                    p + DVec2::new(h, -h),
-                    p + DVec2::new(h, h),
-                    p + DVec2::new(-h, h),
-                ]);
-            }
-            _ => cell.extend_from_slice(&disk),
-        }
-        for e in v.out_edges() {
-            let q = to_dvec(e.to().position());
-            clip_half_plane(&cell, &mut scratch, (p + q) * 0.5, q - p);
-            std::mem::swap(&mut cell, &mut scratch);
-            if cell.is_empty() {
-                break;
-            }
-        }
-        cell_area[v.data().sample] = polygon_area(&cell);
+    (tri, owner)
+}
+
+/// Writes into `cell` the Voronoi cell of `v` clipped to the `disk` polygon: the disk (or a
+/// smaller box around `v` known to hold the cell) clipped by the bisector to each neighbour.
+fn clipped_voronoi_cell(
+    v: spade::handles::VertexHandle<DiskVertex>,
+    disk: &[DVec2],
+    disk_inradius: f64,
+    cell: &mut Vec<DVec2>,
+    scratch: &mut Vec<DVec2>,
+) {
+    let p = to_dvec(v.position());
+    cell.clear();
+    // An interior vertex's cell lies within its largest incident circumradius;
+    // if that box is inside the disk polygon, start from the box (much cheaper).
+    let mut reach: Option<f64> = Some(0.0);
+    for e in v.out_edges() {
+        reach = match (reach, e.face().as_inner()) {
+            (Some(r), Some(face)) => Some(r.max(face.circumcircle().1.sqrt())),
+            _ => None,
+        };
     }
-    let mut share = vec![0usize; points.len()];
-    for &o in &owner {
+    match reach {
+        Some(h) if h > 0.0 && p.length() + h * std::f64::consts::SQRT_2 < disk_inradius => {
+            cell.extend([
+                p + DVec2::new(-h, -h),
+                p + DVec2::new(h, -h),
+                p + DVec2::new(h, h),
+                p + DVec2::new(-h, h),
+            ]);
+        }
+        _ => cell.extend_from_slice(disk),
+    }
+    for e in v.out_edges() {
+        let q = to_dvec(e.to().position());
+        clip_half_plane(cell, scratch, (p + q) * 0.5, q - p);
+        std::mem::swap(cell, scratch);
+        if cell.is_empty() {
+            break;
+        }
+    }
+}
+
+/// Each point's area: its owner's cell area, split equally among the points at the same
+/// position (0 for points the triangulation refused).
+fn share_among_duplicates(owner: &[usize], cell_area: &[f64]) -> Vec<f64> {
+    let mut areas = vec![0.0; owner.len()];
+    let mut share = vec![0usize; owner.len()];
+    for &o in owner {
         if o != usize::MAX {
             share[o] += 1;
         }
     }
-    for (area, &o) in areas.iter_mut().zip(&owner) {
+    for (area, &o) in areas.iter_mut().zip(owner) {
         if o != usize::MAX {
             *area = cell_area[o] / share[o] as f64;
         }

@@ -261,6 +261,25 @@ impl Loader<'_> {
             ));
             return Ok(None);
         }
+        let positions = self.primitive_positions(prim, label)?;
+        let indices = self.primitive_indices(prim, label, positions.len())?;
+        if indices.is_empty() {
+            self.warnings
+                .push(format!("{label}: no triangles, skipped"));
+            return Ok(None);
+        }
+        let normals = self.primitive_normals(prim, label, &positions, &indices)?;
+        let color = base_color(prim);
+        self.append_geometry(&positions, &normals, &indices, color)
+            .map(Some)
+    }
+
+    /// The POSITION attribute, all finite.
+    fn primitive_positions(
+        &self,
+        prim: &::gltf::Primitive<'_>,
+        label: &str,
+    ) -> Result<Vec<Vec3>, String> {
         let pos_acc = prim
             .get(&Semantic::Positions)
             .ok_or_else(|| format!("{label}: no POSITION attribute"))?;
@@ -269,9 +288,18 @@ impl Loader<'_> {
         if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
             return Err(format!("{label}: vertex {i} has a non-finite position"));
         }
-        let n = positions.len();
+        Ok(positions)
+    }
 
-        let indices = match prim.indices() {
+    /// The triangle list's indices, checked against the `n` vertices; `0..n` when the
+    /// primitive has no index accessor.
+    fn primitive_indices(
+        &self,
+        prim: &::gltf::Primitive<'_>,
+        label: &str,
+        n: usize,
+    ) -> Result<Vec<u32>, String> {
+        match prim.indices() {
             Some(acc) => {
                 let idx = read_indices(&acc, self.buffers)
                     .map_err(|e| format!("{label}: index accessor {}: {e}", acc.index()))?;
@@ -286,7 +314,7 @@ impl Loader<'_> {
                         "{label}: index {bad} out of range (vertex count {n})"
                     ));
                 }
-                idx
+                Ok(idx)
             }
             None => {
                 if !n.is_multiple_of(3) {
@@ -295,17 +323,21 @@ impl Loader<'_> {
                     ));
                 }
                 let n32 = u32::try_from(n).map_err(|_| format!("{label}: too many vertices"))?;
-                (0..n32).collect()
+                Ok((0..n32).collect())
             }
-        };
-        if indices.is_empty() {
-            self.warnings
-                .push(format!("{label}: no triangles, skipped"));
-            return Ok(None);
         }
+    }
 
-        let normals = self.primitive_normals(prim, label, &positions, &indices)?;
-
+    /// Appends the vertices and indices to the shared buffers, which must stay addressable by
+    /// `u32`.
+    fn append_geometry(
+        &mut self,
+        positions: &[Vec3],
+        normals: &[Vec3],
+        indices: &[u32],
+        color: Vec4,
+    ) -> Result<PrimGeom, String> {
+        let n = positions.len();
         let vertex_offset = u32::try_from(self.vertices.len()).ok();
         let first_index = u32::try_from(self.indices.len()).ok();
         let fits = self
@@ -324,32 +356,22 @@ impl Loader<'_> {
         };
 
         let mut bounds = Aabb::EMPTY;
-        for (p, nrm) in positions.iter().zip(&normals) {
+        for (p, nrm) in positions.iter().zip(normals) {
             bounds.grow(*p);
             self.vertices.push(Vertex {
                 position: p.to_array(),
                 normal: nrm.to_array(),
             });
         }
-        let index_count = indices.len() as u32;
-        self.indices.extend_from_slice(&indices);
-
-        let factor = prim.material().pbr_metallic_roughness().base_color_factor();
-        let color = Vec4::from_array(factor);
-        let color = if color.is_finite() {
-            color.clamp(Vec4::ZERO, Vec4::ONE)
-        } else {
-            Vec4::ONE
-        };
-
-        Ok(Some(PrimGeom {
+        self.indices.extend_from_slice(indices);
+        Ok(PrimGeom {
             first_index,
-            index_count,
+            index_count: indices.len() as u32,
             vertex_offset,
             vertex_count: n as u32,
             bounds,
             color,
-        }))
+        })
     }
 
     /// The NORMAL attribute when usable, else area-weighted averaged face normals; invalid
@@ -387,6 +409,17 @@ impl Loader<'_> {
             }
         }
         Ok(normals)
+    }
+}
+
+/// The material's base color factor, clamped to [0, 1]; white if it is not finite.
+fn base_color(prim: &::gltf::Primitive<'_>) -> Vec4 {
+    let factor = prim.material().pbr_metallic_roughness().base_color_factor();
+    let color = Vec4::from_array(factor);
+    if color.is_finite() {
+        color.clamp(Vec4::ZERO, Vec4::ONE)
+    } else {
+        Vec4::ONE
     }
 }
 

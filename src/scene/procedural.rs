@@ -3,7 +3,7 @@
 
 use glam::{Mat4, Quat, Vec3};
 
-use super::mesh::{Mesh, Rng, SceneBuilder};
+use super::mesh::{Mesh, Proto, Rng, SceneBuilder};
 use super::Scene;
 use crate::error::{Error, Result};
 
@@ -147,162 +147,275 @@ fn roof_unit_mesh() -> Mesh {
     m
 }
 
+/// Facade colors of the city's buildings.
+const BUILDING_PALETTE: [Vec3; 6] = [
+    Vec3::new(0.75, 0.70, 0.62),
+    Vec3::new(0.62, 0.55, 0.50),
+    Vec3::new(0.55, 0.60, 0.68),
+    Vec3::new(0.80, 0.78, 0.72),
+    Vec3::new(0.58, 0.42, 0.35),
+    Vec3::new(0.45, 0.50, 0.55),
+];
+
+/// Paint colors of the city's parked cars.
+const CITY_CAR_COLORS: [Vec3; 6] = [
+    Vec3::new(0.8, 0.1, 0.1),
+    Vec3::new(0.1, 0.2, 0.7),
+    Vec3::new(0.9, 0.9, 0.9),
+    Vec3::new(0.1, 0.1, 0.1),
+    Vec3::new(0.9, 0.7, 0.1),
+    Vec3::new(0.2, 0.5, 0.3),
+];
+
+/// The city's layout: `blocks` x `blocks` square blocks of side `block`, `street` apart.
+struct CityGrid {
+    blocks: i32,
+    block: f32,
+    street: f32,
+    /// Block plus street: the distance between block corners.
+    pitch: f32,
+}
+
+impl CityGrid {
+    fn new(scale: f32) -> CityGrid {
+        let block = 40.0f32;
+        let street = 14.0f32;
+        CityGrid {
+            blocks: ((14.0 * scale.sqrt()).round() as i32).max(2),
+            block,
+            street,
+            pitch: block + street,
+        }
+    }
+
+    /// The paths are laid out on the default-size city (14 blocks), so that larger scales grow
+    /// the city around the same walk (for scaling measurements).
+    fn path_blocks(&self) -> i32 {
+        self.blocks.min(14)
+    }
+}
+
+/// The city's prototypes, each stored once and instanced everywhere.
+struct CityProtos {
+    cube: Proto,
+    tree: Proto,
+    car: Proto,
+    lamp: Proto,
+    bench: Proto,
+    statue: Proto,
+    roof_unit: Proto,
+}
+
+impl CityProtos {
+    fn new(b: &mut SceneBuilder) -> CityProtos {
+        CityProtos {
+            cube: b.proto(&Mesh::cube()),
+            tree: b.proto(&tree_mesh()),
+            car: b.proto(&car_mesh()),
+            lamp: b.proto(&lamp_mesh()),
+            bench: b.proto(&bench_mesh()),
+            statue: b.proto(&statue_mesh()),
+            roof_unit: b.proto(&roof_unit_mesh()),
+        }
+    }
+}
+
 /// `city`: a grid of blocks with tall buildings (the occluders), trees, cars, lamps, benches,
 /// statues on the streets and machinery on the roofs.
 pub fn city(scale: f32) -> Scene {
     let mut b = SceneBuilder::new("city");
     let mut rng = Rng::new(0xC17E);
-    let blocks = ((14.0 * scale.sqrt()).round() as i32).max(2);
-    let block = 40.0f32;
-    let street = 14.0f32;
-    let pitch = block + street;
-    let extent = blocks as f32 * pitch;
+    let grid = CityGrid::new(scale);
+    let extent = grid.blocks as f32 * grid.pitch;
     let ground = Mesh::cuboid(
-        Vec3::new(-street, -0.5, -street),
+        Vec3::new(-grid.street, -0.5, -grid.street),
         Vec3::new(extent, 0.0, extent),
     );
     b.add(&ground, Vec3::new(0.32, 0.32, 0.34));
-    let cube = b.proto(&Mesh::cube());
-    let tree = b.proto(&tree_mesh());
-    let car = b.proto(&car_mesh());
-    let lamp = b.proto(&lamp_mesh());
-    let bench = b.proto(&bench_mesh());
-    let statue = b.proto(&statue_mesh());
-    let roof_unit = b.proto(&roof_unit_mesh());
-    let palette = [
-        Vec3::new(0.75, 0.70, 0.62),
-        Vec3::new(0.62, 0.55, 0.50),
-        Vec3::new(0.55, 0.60, 0.68),
-        Vec3::new(0.80, 0.78, 0.72),
-        Vec3::new(0.58, 0.42, 0.35),
-        Vec3::new(0.45, 0.50, 0.55),
-    ];
-    let car_colors = [
-        Vec3::new(0.8, 0.1, 0.1),
-        Vec3::new(0.1, 0.2, 0.7),
-        Vec3::new(0.9, 0.9, 0.9),
-        Vec3::new(0.1, 0.1, 0.1),
-        Vec3::new(0.9, 0.7, 0.1),
-        Vec3::new(0.2, 0.5, 0.3),
-    ];
-    for bx in 0..blocks {
-        for bz in 0..blocks {
-            let x0 = bx as f32 * pitch;
-            let z0 = bz as f32 * pitch;
-            // sidewalk slab
-            b.instance(
-                cube,
-                trs(
-                    Vec3::new(x0 + block / 2.0, 0.1, z0 + block / 2.0),
-                    0.0,
-                    Vec3::new(block + 4.0, 0.2, block + 4.0),
-                ),
-                Vec3::new(0.55, 0.55, 0.53),
-            );
-            // 2x2 lots with buildings
-            for lx in 0..2 {
-                for lz in 0..2 {
-                    let w = rng.range(14.0, 18.5);
-                    let d = rng.range(14.0, 18.5);
-                    let h = rng.range(18.0, 70.0);
-                    let cx = x0 + 10.0 + lx as f32 * 20.0;
-                    let cz = z0 + 10.0 + lz as f32 * 20.0;
-                    let color = palette[rng.below(palette.len() as u32) as usize];
-                    b.instance(
-                        cube,
-                        trs(Vec3::new(cx, 0.2 + h / 2.0, cz), 0.0, Vec3::new(w, h, d)),
-                        color,
-                    );
-                    for _ in 0..3 {
-                        let ux = cx + rng.range(-w / 2.0 + 1.5, w / 2.0 - 1.5);
-                        let uz = cz + rng.range(-d / 2.0 + 1.5, d / 2.0 - 1.5);
-                        b.instance(
-                            roof_unit,
-                            trs(Vec3::new(ux, 0.2 + h, uz), rng.range(0.0, 3.0), Vec3::ONE),
-                            Vec3::new(0.6, 0.6, 0.62),
-                        );
-                    }
-                }
-            }
-            // trees and lamps along the block edges, cars in the streets
-            for side in 0..4 {
-                let along = |t: f32| -> (Vec3, f32) {
-                    match side {
-                        0 => (Vec3::new(x0 + t, 0.0, z0 - 1.0), 0.0),
-                        1 => (Vec3::new(x0 + t, 0.0, z0 + block + 1.0), 0.0),
-                        2 => (
-                            Vec3::new(x0 - 1.0, 0.0, z0 + t),
-                            std::f32::consts::FRAC_PI_2,
-                        ),
-                        _ => (
-                            Vec3::new(x0 + block + 1.0, 0.0, z0 + t),
-                            std::f32::consts::FRAC_PI_2,
-                        ),
-                    }
-                };
-                for k in 0..5 {
-                    let (p, _) = along(4.0 + k as f32 * 8.0);
-                    b.instance(
-                        tree,
-                        trs(
-                            p + Vec3::Y * 0.2,
-                            rng.range(0.0, 6.0),
-                            Vec3::splat(rng.range(0.8, 1.2)),
-                        ),
-                        Vec3::new(0.2, rng.range(0.4, 0.6), 0.15),
-                    );
-                }
-                for k in 0..2 {
-                    let (p, r) = along(8.0 + k as f32 * 24.0);
-                    b.instance(
-                        lamp,
-                        trs(p + Vec3::Y * 0.2, r, Vec3::ONE),
-                        Vec3::new(0.2, 0.2, 0.22),
-                    );
-                    let (p, r) = along(12.0 + k as f32 * 16.0);
-                    b.instance(
-                        bench,
-                        trs(p + Vec3::Y * 0.2, r, Vec3::ONE),
-                        Vec3::new(0.45, 0.3, 0.2),
-                    );
-                }
-                // parked cars in the lane next to this side
-                let lane = match side {
-                    0 => Vec3::new(0.0, 0.0, -3.0),
-                    1 => Vec3::new(0.0, 0.0, 3.0),
-                    2 => Vec3::new(-3.0, 0.0, 0.0),
-                    _ => Vec3::new(3.0, 0.0, 0.0),
-                };
-                for k in 0..3 {
-                    let (p, r) = along(6.0 + k as f32 * 13.0 + rng.range(-1.0, 1.0));
-                    let c = car_colors[rng.below(car_colors.len() as u32) as usize];
-                    b.instance(car, trs(p + lane, r, Vec3::ONE), c);
-                }
-            }
-            // statues at the block corners
-            for (sx, sz) in [
-                (-2.0, -2.0),
-                (block + 2.0, -2.0),
-                (-2.0, block + 2.0),
-                (block + 2.0, block + 2.0),
-            ] {
-                b.instance(
-                    statue,
-                    trs(
-                        Vec3::new(x0 + sx, 0.2, z0 + sz),
-                        rng.range(0.0, 6.0),
-                        Vec3::ONE,
-                    ),
-                    Vec3::new(0.7, 0.68, 0.6),
-                );
-            }
+    let protos = CityProtos::new(&mut b);
+    for bx in 0..grid.blocks {
+        for bz in 0..grid.blocks {
+            let x0 = bx as f32 * grid.pitch;
+            let z0 = bz as f32 * grid.pitch;
+            city_block(&mut b, &mut rng, &protos, grid.block, x0, z0);
         }
     }
-    // street: walk along a street, turn, walk another; eye height 1.7 m.
+    city_street_path(&mut b, &grid);
+    city_overhead_path(&mut b, &grid);
+    b.finish()
+}
+
+/// One block with its corner at (`x0`, `z0`): sidewalk, four buildings, street furniture and
+/// parked cars along its four sides, statues at its corners.
+fn city_block(b: &mut SceneBuilder, rng: &mut Rng, p: &CityProtos, block: f32, x0: f32, z0: f32) {
+    // sidewalk slab
+    b.instance(
+        p.cube,
+        trs(
+            Vec3::new(x0 + block / 2.0, 0.1, z0 + block / 2.0),
+            0.0,
+            Vec3::new(block + 4.0, 0.2, block + 4.0),
+        ),
+        Vec3::new(0.55, 0.55, 0.53),
+    );
+    // 2x2 lots with buildings
+    for lx in 0..2 {
+        for lz in 0..2 {
+            let cx = x0 + 10.0 + lx as f32 * 20.0;
+            let cz = z0 + 10.0 + lz as f32 * 20.0;
+            city_building(b, rng, p, cx, cz);
+        }
+    }
+    // trees and lamps along the block edges, cars in the streets
+    for side in 0..4 {
+        let side = BlockSide {
+            x0,
+            z0,
+            block,
+            side,
+        };
+        street_trees(b, rng, p.tree, &side);
+        lamps_and_benches(b, p, &side);
+        parked_cars(b, rng, p.car, &side);
+    }
+    corner_statues(b, rng, p.statue, block, x0, z0);
+}
+
+/// A building on the lot centred at (`cx`, `cz`) with three machinery units on its roof.
+fn city_building(b: &mut SceneBuilder, rng: &mut Rng, p: &CityProtos, cx: f32, cz: f32) {
+    let w = rng.range(14.0, 18.5);
+    let d = rng.range(14.0, 18.5);
+    let h = rng.range(18.0, 70.0);
+    let color = BUILDING_PALETTE[rng.below(BUILDING_PALETTE.len() as u32) as usize];
+    b.instance(
+        p.cube,
+        trs(Vec3::new(cx, 0.2 + h / 2.0, cz), 0.0, Vec3::new(w, h, d)),
+        color,
+    );
+    for _ in 0..3 {
+        let ux = cx + rng.range(-w / 2.0 + 1.5, w / 2.0 - 1.5);
+        let uz = cz + rng.range(-d / 2.0 + 1.5, d / 2.0 - 1.5);
+        b.instance(
+            p.roof_unit,
+            trs(Vec3::new(ux, 0.2 + h, uz), rng.range(0.0, 3.0), Vec3::ONE),
+            Vec3::new(0.6, 0.6, 0.62),
+        );
+    }
+}
+
+/// One side of a block (0: -z, 1: +z, 2: -x, 3: +x), for placing things along it.
+struct BlockSide {
+    x0: f32,
+    z0: f32,
+    block: f32,
+    side: i32,
+}
+
+impl BlockSide {
+    /// The point `t` along the side, just off the sidewalk, and the rotation that faces along it.
+    fn along(&self, t: f32) -> (Vec3, f32) {
+        let (x0, z0, block) = (self.x0, self.z0, self.block);
+        match self.side {
+            0 => (Vec3::new(x0 + t, 0.0, z0 - 1.0), 0.0),
+            1 => (Vec3::new(x0 + t, 0.0, z0 + block + 1.0), 0.0),
+            2 => (
+                Vec3::new(x0 - 1.0, 0.0, z0 + t),
+                std::f32::consts::FRAC_PI_2,
+            ),
+            _ => (
+                Vec3::new(x0 + block + 1.0, 0.0, z0 + t),
+                std::f32::consts::FRAC_PI_2,
+            ),
+        }
+    }
+
+    /// Offset from the side into the parking lane next to it.
+    fn lane(&self) -> Vec3 {
+        match self.side {
+            0 => Vec3::new(0.0, 0.0, -3.0),
+            1 => Vec3::new(0.0, 0.0, 3.0),
+            2 => Vec3::new(-3.0, 0.0, 0.0),
+            _ => Vec3::new(3.0, 0.0, 0.0),
+        }
+    }
+}
+
+/// Five trees along a block side, each turned, scaled and tinted at random.
+fn street_trees(b: &mut SceneBuilder, rng: &mut Rng, tree: Proto, side: &BlockSide) {
+    for k in 0..5 {
+        let (p, _) = side.along(4.0 + k as f32 * 8.0);
+        b.instance(
+            tree,
+            trs(
+                p + Vec3::Y * 0.2,
+                rng.range(0.0, 6.0),
+                Vec3::splat(rng.range(0.8, 1.2)),
+            ),
+            Vec3::new(0.2, rng.range(0.4, 0.6), 0.15),
+        );
+    }
+}
+
+/// Two lamps and two benches along a block side.
+fn lamps_and_benches(b: &mut SceneBuilder, protos: &CityProtos, side: &BlockSide) {
+    for k in 0..2 {
+        let (p, r) = side.along(8.0 + k as f32 * 24.0);
+        b.instance(
+            protos.lamp,
+            trs(p + Vec3::Y * 0.2, r, Vec3::ONE),
+            Vec3::new(0.2, 0.2, 0.22),
+        );
+        let (p, r) = side.along(12.0 + k as f32 * 16.0);
+        b.instance(
+            protos.bench,
+            trs(p + Vec3::Y * 0.2, r, Vec3::ONE),
+            Vec3::new(0.45, 0.3, 0.2),
+        );
+    }
+}
+
+/// Three cars parked in the lane next to a block side.
+fn parked_cars(b: &mut SceneBuilder, rng: &mut Rng, car: Proto, side: &BlockSide) {
+    let lane = side.lane();
+    for k in 0..3 {
+        let (p, r) = side.along(6.0 + k as f32 * 13.0 + rng.range(-1.0, 1.0));
+        let c = CITY_CAR_COLORS[rng.below(CITY_CAR_COLORS.len() as u32) as usize];
+        b.instance(car, trs(p + lane, r, Vec3::ONE), c);
+    }
+}
+
+/// Statues at the four corners of the block at (`x0`, `z0`).
+fn corner_statues(
+    b: &mut SceneBuilder,
+    rng: &mut Rng,
+    statue: Proto,
+    block: f32,
+    x0: f32,
+    z0: f32,
+) {
+    for (sx, sz) in [
+        (-2.0, -2.0),
+        (block + 2.0, -2.0),
+        (-2.0, block + 2.0),
+        (block + 2.0, block + 2.0),
+    ] {
+        b.instance(
+            statue,
+            trs(
+                Vec3::new(x0 + sx, 0.2, z0 + sz),
+                rng.range(0.0, 6.0),
+                Vec3::ONE,
+            ),
+            Vec3::new(0.7, 0.68, 0.6),
+        );
+    }
+}
+
+/// Path `street`: walk along a street, turn, walk another; eye height 1.7 m.
+fn city_street_path(b: &mut SceneBuilder, grid: &CityGrid) {
+    let (block, street, pitch) = (grid.block, grid.street, grid.pitch);
     let s0 = block + street / 2.0; // centre line of the first street
-                                   // The paths are laid out on the default-size city (14 blocks), so that larger scales grow
-                                   // the city around the same walk (for scaling measurements).
-    let path_blocks = blocks.min(14);
+    let path_blocks = grid.path_blocks();
     let path_extent = path_blocks as f32 * pitch;
     let mid = (path_blocks / 2) as f32 * pitch - street / 2.0;
     let far = path_extent - street;
@@ -347,7 +460,11 @@ pub fn city(scale: f32) -> Scene {
             ),
         ],
     );
-    let extent = path_extent;
+}
+
+/// Path `overhead`: a bird's-eye flight around the city (mostly visible: CHC's worst case).
+fn city_overhead_path(b: &mut SceneBuilder, grid: &CityGrid) {
+    let extent = grid.path_blocks() as f32 * grid.pitch;
     let h = extent * 0.45 + 60.0;
     b.path(
         "overhead",
@@ -378,19 +495,61 @@ pub fn city(scale: f32) -> Scene {
             ),
         ],
     );
-    b.finish()
+}
+
+/// Paint colors of the parking lot's cars.
+const PARKING_CAR_COLORS: [Vec3; 5] = [
+    Vec3::new(0.7, 0.1, 0.1),
+    Vec3::new(0.1, 0.3, 0.7),
+    Vec3::new(0.85, 0.85, 0.85),
+    Vec3::new(0.15, 0.15, 0.15),
+    Vec3::new(0.8, 0.6, 0.1),
+];
+
+/// The parking lot's layout: `rows` rows of `per_row` bays, `dx` wide and `dz` apart.
+struct ParkingLot {
+    rows: i32,
+    per_row: i32,
+    dx: f32,
+    dz: f32,
+}
+
+impl ParkingLot {
+    fn new(scale: f32) -> ParkingLot {
+        ParkingLot {
+            rows: ((8.0 * scale.sqrt()).round() as i32).max(1),
+            per_row: ((20.0 * scale.sqrt()).round() as i32).max(2),
+            dx: 3.0,
+            dz: 9.0,
+        }
+    }
+
+    /// Width of the rows.
+    fn width(&self) -> f32 {
+        self.per_row as f32 * self.dx
+    }
+
+    /// Depth of all rows together.
+    fn depth(&self) -> f32 {
+        self.rows as f32 * self.dz
+    }
+}
+
+/// The parking lot's prototypes: a car is a closed body with parts hidden inside it.
+struct ParkingProtos {
+    body: Proto,
+    engine: Proto,
+    seat: Proto,
+    wheel: Proto,
+    pillar: Proto,
 }
 
 /// `parking`: rows of cars with engine blocks, seats and steering wheels inside closed bodies.
 pub fn parking(scale: f32) -> Scene {
     let mut b = SceneBuilder::new("parking");
     let mut rng = Rng::new(0xCA75);
-    let rows = ((8.0 * scale.sqrt()).round() as i32).max(1);
-    let per_row = ((20.0 * scale.sqrt()).round() as i32).max(2);
-    let dx = 3.0f32;
-    let dz = 9.0f32;
-    let w = per_row as f32 * dx;
-    let d = rows as f32 * dz;
+    let lot = ParkingLot::new(scale);
+    let (w, d) = (lot.width(), lot.depth());
     b.add(
         &Mesh::cuboid(
             Vec3::new(-8.0, -0.3, -8.0),
@@ -398,107 +557,132 @@ pub fn parking(scale: f32) -> Scene {
         ),
         Vec3::new(0.35, 0.35, 0.37),
     );
-    let body = b.proto(&{
-        let mut m = Mesh::default();
-        m.append(
-            &Mesh::cuboid(Vec3::new(-1.0, 0.3, -2.2), Vec3::new(1.0, 1.1, 2.2)),
-            Mat4::IDENTITY,
-        );
-        m.append(
-            &Mesh::cuboid(Vec3::new(-0.9, 1.1, -1.2), Vec3::new(0.9, 1.6, 1.0)),
-            Mat4::IDENTITY,
-        );
-        m
-    });
-    let engine = b.proto(&{
-        let mut m = Mesh::default();
-        m.append(
-            &Mesh::cuboid(Vec3::new(-0.5, 0.45, -0.45), Vec3::new(0.5, 0.95, 0.45)),
-            Mat4::IDENTITY,
-        );
-        for i in 0..4 {
-            m.append(
-                &Mesh::cylinder(16),
-                Mat4::from_translation(Vec3::new(-0.3 + i as f32 * 0.2, 0.95, 0.0))
-                    * Mat4::from_scale(Vec3::new(0.07, 0.1, 0.07)),
-            );
+    let protos = ParkingProtos {
+        body: b.proto(&car_body_mesh()),
+        engine: b.proto(&engine_mesh()),
+        seat: b.proto(&seat_mesh()),
+        wheel: b.proto(&Mesh::sphere(16, 8)),
+        pillar: b.proto(&Mesh::cube()),
+    };
+    for r in 0..lot.rows {
+        parking_row(&mut b, &mut rng, &protos, &lot, r);
+    }
+    parking_path(&mut b, &lot);
+    b.finish()
+}
+
+/// Row `r`: a car in each bay (about one bay in eight stays empty), facing the aisle; every
+/// second row has pillars in front of it.
+fn parking_row(b: &mut SceneBuilder, rng: &mut Rng, p: &ParkingProtos, lot: &ParkingLot, r: i32) {
+    let (dx, dz) = (lot.dx, lot.dz);
+    for c in 0..lot.per_row {
+        if rng.f32() < 0.12 {
+            continue;
         }
-        m
-    });
-    let seat = b.proto(&{
-        let mut m = Mesh::default();
-        m.append(
-            &Mesh::cuboid(Vec3::new(-0.3, 0.4, -0.3), Vec3::new(0.3, 0.6, 0.3)),
-            Mat4::IDENTITY,
-        );
-        m.append(
-            &Mesh::cuboid(Vec3::new(-0.3, 0.6, 0.2), Vec3::new(0.3, 1.3, 0.3)),
-            Mat4::IDENTITY,
-        );
-        m.append(
-            &Mesh::sphere(10, 6),
-            Mat4::from_translation(Vec3::new(0.0, 1.4, 0.25)) * Mat4::from_scale(Vec3::splat(0.12)),
-        );
-        m
-    });
-    let wheel = b.proto(&Mesh::sphere(16, 8));
-    let pillar = b.proto(&Mesh::cube());
-    let colors = [
-        Vec3::new(0.7, 0.1, 0.1),
-        Vec3::new(0.1, 0.3, 0.7),
-        Vec3::new(0.85, 0.85, 0.85),
-        Vec3::new(0.15, 0.15, 0.15),
-        Vec3::new(0.8, 0.6, 0.1),
-    ];
-    for r in 0..rows {
-        for c in 0..per_row {
-            if rng.f32() < 0.12 {
-                continue;
-            }
-            let p = Vec3::new(c as f32 * dx + 1.5, 0.0, r as f32 * dz + 2.5);
-            let rot = if r % 2 == 0 {
-                0.0
-            } else {
-                std::f32::consts::PI
-            };
-            let t = trs(p, rot, Vec3::ONE);
-            b.instance(body, t, colors[rng.below(colors.len() as u32) as usize]);
+        let pos = Vec3::new(c as f32 * dx + 1.5, 0.0, r as f32 * dz + 2.5);
+        let rot = if r % 2 == 0 {
+            0.0
+        } else {
+            std::f32::consts::PI
+        };
+        let color = PARKING_CAR_COLORS[rng.below(PARKING_CAR_COLORS.len() as u32) as usize];
+        parked_car(b, p, trs(pos, rot, Vec3::ONE), color);
+    }
+    if r % 2 == 1 {
+        for c in (0..lot.per_row).step_by(4) {
             b.instance(
-                engine,
-                t * Mat4::from_translation(Vec3::new(0.0, 0.0, -1.5)),
-                Vec3::new(0.3, 0.3, 0.3),
+                p.pillar,
+                trs(
+                    Vec3::new(c as f32 * dx, 2.0, r as f32 * dz - 1.8),
+                    0.0,
+                    Vec3::new(0.6, 4.0, 0.6),
+                ),
+                Vec3::new(0.6, 0.6, 0.58),
             );
-            b.instance(
-                seat,
-                t * Mat4::from_translation(Vec3::new(-0.45, 0.0, 0.1)),
-                Vec3::new(0.2, 0.15, 0.1),
-            );
-            b.instance(
-                seat,
-                t * Mat4::from_translation(Vec3::new(0.45, 0.0, 0.1)),
-                Vec3::new(0.2, 0.15, 0.1),
-            );
-            b.instance(
-                wheel,
-                t * Mat4::from_translation(Vec3::new(-0.45, 0.9, -0.5))
-                    * Mat4::from_scale(Vec3::new(0.2, 0.2, 0.04)),
-                Vec3::new(0.1, 0.1, 0.1),
-            );
-        }
-        if r % 2 == 1 {
-            for c in (0..per_row).step_by(4) {
-                b.instance(
-                    pillar,
-                    trs(
-                        Vec3::new(c as f32 * dx, 2.0, r as f32 * dz - 1.8),
-                        0.0,
-                        Vec3::new(0.6, 4.0, 0.6),
-                    ),
-                    Vec3::new(0.6, 0.6, 0.58),
-                );
-            }
         }
     }
+}
+
+/// One car placed by `t`: its body, and inside it an engine, two seats and a steering wheel.
+fn parked_car(b: &mut SceneBuilder, p: &ParkingProtos, t: Mat4, color: Vec3) {
+    b.instance(p.body, t, color);
+    b.instance(
+        p.engine,
+        t * Mat4::from_translation(Vec3::new(0.0, 0.0, -1.5)),
+        Vec3::new(0.3, 0.3, 0.3),
+    );
+    b.instance(
+        p.seat,
+        t * Mat4::from_translation(Vec3::new(-0.45, 0.0, 0.1)),
+        Vec3::new(0.2, 0.15, 0.1),
+    );
+    b.instance(
+        p.seat,
+        t * Mat4::from_translation(Vec3::new(0.45, 0.0, 0.1)),
+        Vec3::new(0.2, 0.15, 0.1),
+    );
+    b.instance(
+        p.wheel,
+        t * Mat4::from_translation(Vec3::new(-0.45, 0.9, -0.5))
+            * Mat4::from_scale(Vec3::new(0.2, 0.2, 0.04)),
+        Vec3::new(0.1, 0.1, 0.1),
+    );
+}
+
+/// A closed car body: lower box and cabin.
+fn car_body_mesh() -> Mesh {
+    let mut m = Mesh::default();
+    m.append(
+        &Mesh::cuboid(Vec3::new(-1.0, 0.3, -2.2), Vec3::new(1.0, 1.1, 2.2)),
+        Mat4::IDENTITY,
+    );
+    m.append(
+        &Mesh::cuboid(Vec3::new(-0.9, 1.1, -1.2), Vec3::new(0.9, 1.6, 1.0)),
+        Mat4::IDENTITY,
+    );
+    m
+}
+
+/// An engine block with four cylinder heads.
+fn engine_mesh() -> Mesh {
+    let mut m = Mesh::default();
+    m.append(
+        &Mesh::cuboid(Vec3::new(-0.5, 0.45, -0.45), Vec3::new(0.5, 0.95, 0.45)),
+        Mat4::IDENTITY,
+    );
+    for i in 0..4 {
+        m.append(
+            &Mesh::cylinder(16),
+            Mat4::from_translation(Vec3::new(-0.3 + i as f32 * 0.2, 0.95, 0.0))
+                * Mat4::from_scale(Vec3::new(0.07, 0.1, 0.07)),
+        );
+    }
+    m
+}
+
+/// A seat with backrest and headrest.
+fn seat_mesh() -> Mesh {
+    let mut m = Mesh::default();
+    m.append(
+        &Mesh::cuboid(Vec3::new(-0.3, 0.4, -0.3), Vec3::new(0.3, 0.6, 0.3)),
+        Mat4::IDENTITY,
+    );
+    m.append(
+        &Mesh::cuboid(Vec3::new(-0.3, 0.6, 0.2), Vec3::new(0.3, 1.3, 0.3)),
+        Mat4::IDENTITY,
+    );
+    m.append(
+        &Mesh::sphere(10, 6),
+        Mat4::from_translation(Vec3::new(0.0, 1.4, 0.25)) * Mat4::from_scale(Vec3::splat(0.12)),
+    );
+    m
+}
+
+/// The walk: along the first aisle, round the end of the rows, back along a middle aisle, and
+/// a look over the lot from its far edge.
+fn parking_path(b: &mut SceneBuilder, lot: &ParkingLot) {
+    let (rows, dz) = (lot.rows, lot.dz);
+    let (w, d) = (lot.width(), lot.depth());
     let e = 1.7;
     let aisle = |r: i32| r as f32 * dz + 6.9;
     b.path(
@@ -527,7 +711,19 @@ pub fn parking(scale: f32) -> Scene {
             ),
         ],
     );
-    b.finish()
+}
+
+/// Side of a powerplant room.
+const ROOM_SIZE: f32 = 24.0;
+/// Height of a powerplant room's walls.
+const ROOM_HEIGHT: f32 = 12.0;
+
+/// The powerplant's prototypes.
+struct PlantProtos {
+    cube: Proto,
+    pipe: Proto,
+    boiler: Proto,
+    valve: Proto,
 }
 
 /// `powerplant`: rooms in a grid separated by walls with doorways, filled with boilers, pipe
@@ -536,9 +732,7 @@ pub fn powerplant(scale: f32) -> Scene {
     let mut b = SceneBuilder::new("powerplant");
     let mut rng = Rng::new(0x90E7);
     let rooms = ((4.0 * scale.sqrt()).round() as i32).max(1);
-    let size = 24.0f32;
-    let height = 12.0f32;
-    let total = rooms as f32 * size;
+    let total = rooms as f32 * ROOM_SIZE;
     b.add(
         &Mesh::cuboid(
             Vec3::new(-1.0, -0.5, -1.0),
@@ -546,98 +740,130 @@ pub fn powerplant(scale: f32) -> Scene {
         ),
         Vec3::new(0.4, 0.4, 0.42),
     );
-    let cube = b.proto(&Mesh::cube());
-    let pipe = b.proto(&Mesh::cylinder(20));
-    let boiler = b.proto(&{
-        let mut m = Mesh::default();
-        m.append(
-            &Mesh::cylinder(40),
-            Mat4::from_scale(Vec3::new(2.2, 7.0, 2.2)),
-        );
-        m.append(
-            &Mesh::sphere(40, 16),
-            Mat4::from_translation(Vec3::new(0.0, 7.0, 0.0))
-                * Mat4::from_scale(Vec3::new(2.2, 1.2, 2.2)),
-        );
-        m
-    });
-    let valve = b.proto(&Mesh::sphere(14, 8));
+    let protos = PlantProtos {
+        cube: b.proto(&Mesh::cube()),
+        pipe: b.proto(&Mesh::cylinder(20)),
+        boiler: b.proto(&boiler_mesh()),
+        valve: b.proto(&Mesh::sphere(14, 8)),
+    };
     for rx in 0..rooms {
         for rz in 0..rooms {
-            let x0 = rx as f32 * size;
-            let z0 = rz as f32 * size;
-            // walls on the -x and -z sides with a doorway in the middle
-            let wall = Vec3::new(0.76, 0.74, 0.7);
-            for (a, bb) in [(0.0, size * 0.4), (size * 0.6, size)] {
-                b.instance(
-                    cube,
-                    Mat4::from_translation(Vec3::new(x0 + 0.2, height / 2.0, z0 + (a + bb) / 2.0))
-                        * Mat4::from_scale(Vec3::new(0.4, height, bb - a)),
-                    wall,
-                );
-                b.instance(
-                    cube,
-                    Mat4::from_translation(Vec3::new(x0 + (a + bb) / 2.0, height / 2.0, z0 + 0.2))
-                        * Mat4::from_scale(Vec3::new(bb - a, height, 0.4)),
-                    wall,
-                );
-            }
-            for k in 0..2 {
-                let p = Vec3::new(x0 + 7.0 + k as f32 * 10.0, 0.0, z0 + rng.range(6.0, 9.0));
-                b.instance(
-                    boiler,
-                    Mat4::from_translation(p),
-                    Vec3::new(0.6, 0.25, 0.15),
-                );
-                for v in 0..4 {
-                    b.instance(
-                        valve,
-                        Mat4::from_translation(p + Vec3::new(2.3, 1.0 + v as f32 * 1.5, 0.0))
-                            * Mat4::from_scale(Vec3::splat(0.35)),
-                        Vec3::new(0.8, 0.7, 0.1),
-                    );
-                }
-            }
-            // pipe runs along x and z at several heights
-            for level in 0..6 {
-                let y = 2.0 + level as f32 * 1.6;
-                let z = z0 + 14.0 + rng.range(0.0, 8.0);
-                let c = [
-                    Vec3::new(0.2, 0.4, 0.7),
-                    Vec3::new(0.7, 0.7, 0.2),
-                    Vec3::new(0.3, 0.6, 0.3),
-                ][level % 3];
-                b.instance(
-                    pipe,
-                    Mat4::from_translation(Vec3::new(x0 + 1.0, y, z))
-                        * Mat4::from_rotation_z(-std::f32::consts::FRAC_PI_2)
-                        * Mat4::from_scale(Vec3::new(0.3, size - 2.0, 0.3)),
-                    c,
-                );
-                let x = x0 + 2.0 + rng.range(0.0, 20.0);
-                b.instance(
-                    pipe,
-                    Mat4::from_translation(Vec3::new(x, y + 0.7, z0 + 1.0))
-                        * Mat4::from_rotation_x(std::f32::consts::FRAC_PI_2)
-                        * Mat4::from_scale(Vec3::new(0.2, size - 2.0, 0.2)),
-                    c * 0.8,
-                );
-            }
-            // vertical pipes
-            for _ in 0..8 {
-                let p = Vec3::new(
-                    x0 + rng.range(2.0, size - 2.0),
-                    0.0,
-                    z0 + rng.range(12.0, size - 2.0),
-                );
-                b.instance(
-                    pipe,
-                    Mat4::from_translation(p) * Mat4::from_scale(Vec3::new(0.25, height, 0.25)),
-                    Vec3::new(0.55, 0.55, 0.6),
-                );
-            }
+            let x0 = rx as f32 * ROOM_SIZE;
+            let z0 = rz as f32 * ROOM_SIZE;
+            room_walls(&mut b, protos.cube, x0, z0);
+            room_boilers(&mut b, &mut rng, &protos, x0, z0);
+            room_pipe_runs(&mut b, &mut rng, protos.pipe, x0, z0);
+            room_vertical_pipes(&mut b, &mut rng, protos.pipe, x0, z0);
         }
     }
+    powerplant_path(&mut b);
+    b.finish()
+}
+
+/// A boiler: a tall cylinder with a domed top.
+fn boiler_mesh() -> Mesh {
+    let mut m = Mesh::default();
+    m.append(
+        &Mesh::cylinder(40),
+        Mat4::from_scale(Vec3::new(2.2, 7.0, 2.2)),
+    );
+    m.append(
+        &Mesh::sphere(40, 16),
+        Mat4::from_translation(Vec3::new(0.0, 7.0, 0.0))
+            * Mat4::from_scale(Vec3::new(2.2, 1.2, 2.2)),
+    );
+    m
+}
+
+/// Walls on the room's -x and -z sides, with a doorway in the middle of each.
+fn room_walls(b: &mut SceneBuilder, cube: Proto, x0: f32, z0: f32) {
+    let (size, height) = (ROOM_SIZE, ROOM_HEIGHT);
+    let wall = Vec3::new(0.76, 0.74, 0.7);
+    for (a, bb) in [(0.0, size * 0.4), (size * 0.6, size)] {
+        b.instance(
+            cube,
+            Mat4::from_translation(Vec3::new(x0 + 0.2, height / 2.0, z0 + (a + bb) / 2.0))
+                * Mat4::from_scale(Vec3::new(0.4, height, bb - a)),
+            wall,
+        );
+        b.instance(
+            cube,
+            Mat4::from_translation(Vec3::new(x0 + (a + bb) / 2.0, height / 2.0, z0 + 0.2))
+                * Mat4::from_scale(Vec3::new(bb - a, height, 0.4)),
+            wall,
+        );
+    }
+}
+
+/// Two boilers, each with four valves on its side.
+fn room_boilers(b: &mut SceneBuilder, rng: &mut Rng, protos: &PlantProtos, x0: f32, z0: f32) {
+    for k in 0..2 {
+        let p = Vec3::new(x0 + 7.0 + k as f32 * 10.0, 0.0, z0 + rng.range(6.0, 9.0));
+        b.instance(
+            protos.boiler,
+            Mat4::from_translation(p),
+            Vec3::new(0.6, 0.25, 0.15),
+        );
+        for v in 0..4 {
+            b.instance(
+                protos.valve,
+                Mat4::from_translation(p + Vec3::new(2.3, 1.0 + v as f32 * 1.5, 0.0))
+                    * Mat4::from_scale(Vec3::splat(0.35)),
+                Vec3::new(0.8, 0.7, 0.1),
+            );
+        }
+    }
+}
+
+/// Pipe runs along x and z at six heights.
+fn room_pipe_runs(b: &mut SceneBuilder, rng: &mut Rng, pipe: Proto, x0: f32, z0: f32) {
+    let size = ROOM_SIZE;
+    for level in 0..6 {
+        let y = 2.0 + level as f32 * 1.6;
+        let z = z0 + 14.0 + rng.range(0.0, 8.0);
+        let c = [
+            Vec3::new(0.2, 0.4, 0.7),
+            Vec3::new(0.7, 0.7, 0.2),
+            Vec3::new(0.3, 0.6, 0.3),
+        ][level % 3];
+        b.instance(
+            pipe,
+            Mat4::from_translation(Vec3::new(x0 + 1.0, y, z))
+                * Mat4::from_rotation_z(-std::f32::consts::FRAC_PI_2)
+                * Mat4::from_scale(Vec3::new(0.3, size - 2.0, 0.3)),
+            c,
+        );
+        let x = x0 + 2.0 + rng.range(0.0, 20.0);
+        b.instance(
+            pipe,
+            Mat4::from_translation(Vec3::new(x, y + 0.7, z0 + 1.0))
+                * Mat4::from_rotation_x(std::f32::consts::FRAC_PI_2)
+                * Mat4::from_scale(Vec3::new(0.2, size - 2.0, 0.2)),
+            c * 0.8,
+        );
+    }
+}
+
+/// Eight floor-to-ceiling pipes at random places in the back half of the room.
+fn room_vertical_pipes(b: &mut SceneBuilder, rng: &mut Rng, pipe: Proto, x0: f32, z0: f32) {
+    let (size, height) = (ROOM_SIZE, ROOM_HEIGHT);
+    for _ in 0..8 {
+        let p = Vec3::new(
+            x0 + rng.range(2.0, size - 2.0),
+            0.0,
+            z0 + rng.range(12.0, size - 2.0),
+        );
+        b.instance(
+            pipe,
+            Mat4::from_translation(p) * Mat4::from_scale(Vec3::new(0.25, height, 0.25)),
+            Vec3::new(0.55, 0.55, 0.6),
+        );
+    }
+}
+
+/// The walk through the doorways of the first rooms.
+fn powerplant_path(b: &mut SceneBuilder) {
+    let size = ROOM_SIZE;
     let e = 1.7;
     let door = size * 0.5;
     b.path(
@@ -666,7 +892,6 @@ pub fn powerplant(scale: f32) -> Scene {
             ),
         ],
     );
-    b.finish()
 }
 
 /// `cornell`: the Cornell box (5.5 m) with a tall and a short block; red left, green right.
@@ -730,15 +955,49 @@ pub fn cornell() -> Scene {
     b.finish()
 }
 
+/// Length of one bay of the hall (pillar to pillar).
+const HALL_BAY: f32 = 6.0;
+/// Width of the nave between the pillar rows.
+const HALL_WIDTH: f32 = 16.0;
+/// Height of the side walls, where the vault starts.
+const HALL_WALL_HEIGHT: f32 = 12.0;
+/// The hall's stone color.
+const STONE: Vec3 = Vec3::new(0.75, 0.7, 0.62);
+
 /// `hall`: a nave with two rows of pillars, arches between them, side walls, a vaulted roof.
 pub fn hall(scale: f32) -> Scene {
     let mut b = SceneBuilder::new("hall");
     let bays = ((8.0 * scale.sqrt()).round() as i32).max(2);
-    let bay = 6.0f32;
-    let len = bays as f32 * bay;
-    let width = 16.0f32;
-    let wall_h = 12.0f32;
-    let stone = Vec3::new(0.75, 0.7, 0.62);
+    let len = bays as f32 * HALL_BAY;
+    hall_floor_and_walls(&mut b, len);
+    b.add(&vault_mesh(len), STONE);
+    let pillar = b.proto(&pillar_mesh());
+    let arch = b.proto(&arch_mesh());
+    for i in 0..=bays {
+        let z = i as f32 * HALL_BAY;
+        for x in [-HALL_WIDTH / 2.0, HALL_WIDTH / 2.0] {
+            b.instance(pillar, Mat4::from_translation(Vec3::new(x, 0.0, z)), STONE);
+            if i < bays {
+                b.instance(
+                    arch,
+                    Mat4::from_translation(Vec3::new(
+                        x,
+                        HALL_WALL_HEIGHT - 0.6,
+                        z + HALL_BAY / 2.0,
+                    )),
+                    STONE * 0.95,
+                );
+            }
+        }
+    }
+    hall_path(&mut b, len);
+    b.sun(Vec3::new(0.3, 1.0, -0.4));
+    b.finish()
+}
+
+/// The floor, the two colored side walls and the end wall of a hall `len` long.
+fn hall_floor_and_walls(b: &mut SceneBuilder, len: f32) {
+    let (width, wall_h) = (HALL_WIDTH, HALL_WALL_HEIGHT);
     b.add(
         &Mesh::cuboid(
             Vec3::new(-width / 2.0 - 4.0, -0.3, -2.0),
@@ -765,9 +1024,14 @@ pub fn hall(scale: f32) -> Scene {
             Vec3::new(-width / 2.0 - 4.5, 0.0, len + 2.0),
             Vec3::new(width / 2.0 + 4.5, wall_h + 6.0, len + 2.5),
         ),
-        stone,
+        STONE,
     );
-    // vault: a half cylinder over the nave made of many segments (the bulk of the triangles)
+}
+
+/// The vault: a half cylinder over the nave made of many segments (the bulk of the
+/// triangles).
+fn vault_mesh(len: f32) -> Mesh {
+    let (width, wall_h) = (HALL_WIDTH, HALL_WALL_HEIGHT);
     let mut vault = Mesh::default();
     let segs = 48;
     for i in 0..segs {
@@ -787,67 +1051,64 @@ pub fn hall(scale: f32) -> Scene {
             Mat4::from_translation(mid) * rot,
         );
     }
-    b.add(&vault, stone);
-    let pillar = b.proto(&{
-        let mut m = Mesh::default();
-        m.append(
-            &Mesh::cuboid(Vec3::new(-0.8, 0.0, -0.8), Vec3::new(0.8, 0.6, 0.8)),
-            Mat4::IDENTITY,
-        );
-        m.append(
-            &Mesh::cylinder(64),
-            Mat4::from_translation(Vec3::new(0.0, 0.6, 0.0))
-                * Mat4::from_scale(Vec3::new(0.55, wall_h - 1.8, 0.55)),
-        );
+    vault
+}
+
+/// A pillar: base, round shaft, capital block and a flattened sphere under the capital.
+fn pillar_mesh() -> Mesh {
+    let wall_h = HALL_WALL_HEIGHT;
+    let mut m = Mesh::default();
+    m.append(
+        &Mesh::cuboid(Vec3::new(-0.8, 0.0, -0.8), Vec3::new(0.8, 0.6, 0.8)),
+        Mat4::IDENTITY,
+    );
+    m.append(
+        &Mesh::cylinder(64),
+        Mat4::from_translation(Vec3::new(0.0, 0.6, 0.0))
+            * Mat4::from_scale(Vec3::new(0.55, wall_h - 1.8, 0.55)),
+    );
+    m.append(
+        &Mesh::cuboid(
+            Vec3::new(-0.8, wall_h - 1.2, -0.8),
+            Vec3::new(0.8, wall_h - 0.6, 0.8),
+        ),
+        Mat4::IDENTITY,
+    );
+    m.append(
+        &Mesh::sphere(48, 24),
+        Mat4::from_translation(Vec3::new(0.0, wall_h - 1.2, 0.0))
+            * Mat4::from_scale(Vec3::new(0.75, 0.3, 0.75)),
+    );
+    m
+}
+
+/// An arch spanning one bay, made of short straight segments.
+fn arch_mesh() -> Mesh {
+    let bay = HALL_BAY;
+    let mut m = Mesh::default();
+    let n = 24;
+    for i in 0..n {
+        let a0 = i as f32 / n as f32 * std::f32::consts::PI;
+        let a1 = (i + 1) as f32 / n as f32 * std::f32::consts::PI;
+        let r = bay / 2.0;
+        let p0 = Vec3::new(0.0, r * a0.sin(), r * a0.cos());
+        let p1 = Vec3::new(0.0, r * a1.sin(), r * a1.cos());
+        let mid = (p0 + p1) * 0.5;
+        let along = p1 - p0;
+        let rot = Mat4::from_rotation_x(-(along.y.atan2(along.z)));
         m.append(
             &Mesh::cuboid(
-                Vec3::new(-0.8, wall_h - 1.2, -0.8),
-                Vec3::new(0.8, wall_h - 0.6, 0.8),
+                Vec3::new(-0.4, -0.2, -along.length() / 2.0 - 0.03),
+                Vec3::new(0.4, 0.4, along.length() / 2.0 + 0.03),
             ),
-            Mat4::IDENTITY,
+            Mat4::from_translation(mid) * rot,
         );
-        m.append(
-            &Mesh::sphere(48, 24),
-            Mat4::from_translation(Vec3::new(0.0, wall_h - 1.2, 0.0))
-                * Mat4::from_scale(Vec3::new(0.75, 0.3, 0.75)),
-        );
-        m
-    });
-    let arch = b.proto(&{
-        let mut m = Mesh::default();
-        let n = 24;
-        for i in 0..n {
-            let a0 = i as f32 / n as f32 * std::f32::consts::PI;
-            let a1 = (i + 1) as f32 / n as f32 * std::f32::consts::PI;
-            let r = bay / 2.0;
-            let p0 = Vec3::new(0.0, r * a0.sin(), r * a0.cos());
-            let p1 = Vec3::new(0.0, r * a1.sin(), r * a1.cos());
-            let mid = (p0 + p1) * 0.5;
-            let along = p1 - p0;
-            let rot = Mat4::from_rotation_x(-(along.y.atan2(along.z)));
-            m.append(
-                &Mesh::cuboid(
-                    Vec3::new(-0.4, -0.2, -along.length() / 2.0 - 0.03),
-                    Vec3::new(0.4, 0.4, along.length() / 2.0 + 0.03),
-                ),
-                Mat4::from_translation(mid) * rot,
-            );
-        }
-        m
-    });
-    for i in 0..=bays {
-        let z = i as f32 * bay;
-        for x in [-width / 2.0, width / 2.0] {
-            b.instance(pillar, Mat4::from_translation(Vec3::new(x, 0.0, z)), stone);
-            if i < bays {
-                b.instance(
-                    arch,
-                    Mat4::from_translation(Vec3::new(x, wall_h - 0.6, z + bay / 2.0)),
-                    stone * 0.95,
-                );
-            }
-        }
     }
+    m
+}
+
+/// The walk up the nave.
+fn hall_path(b: &mut SceneBuilder, len: f32) {
     let e = 1.7;
     b.path(
         "default",
@@ -866,8 +1127,6 @@ pub fn hall(scale: f32) -> Scene {
             ),
         ],
     );
-    b.sun(Vec3::new(0.3, 1.0, -0.4));
-    b.finish()
 }
 
 /// Default path name of a scene.
