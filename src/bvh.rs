@@ -154,8 +154,19 @@ impl ObjectBvh {
 
     /// Visits nodes front to back from `eye` (by distance to their boxes); `visit` returns
     /// whether to descend into the node.
-    pub fn front_to_back(&self, eye: Vec3, mut visit: impl FnMut(u32, &BvhNode) -> bool) {
-        let mut queue = DistanceQueue::default();
+    pub fn front_to_back(&self, eye: Vec3, visit: impl FnMut(u32, &BvhNode) -> bool) {
+        self.front_to_back_with(&mut DistanceQueue::default(), eye, visit);
+    }
+
+    /// [`ObjectBvh::front_to_back`] with a caller's queue, reused from frame to frame so that
+    /// steady frames do not allocate.
+    pub fn front_to_back_with(
+        &self,
+        queue: &mut DistanceQueue,
+        eye: Vec3,
+        mut visit: impl FnMut(u32, &BvhNode) -> bool,
+    ) {
+        queue.clear();
         queue.push(0, self.nodes[0].bounds.distance_squared(eye));
         while let Some(id) = queue.pop() {
             let node = &self.nodes[id as usize];
@@ -235,6 +246,10 @@ impl DistanceQueue {
     /// Whether empty.
     pub fn is_empty(&self) -> bool {
         self.heap.is_empty()
+    }
+    /// Makes room for `additional` more nodes (so steady frames do not allocate).
+    pub fn reserve(&mut self, additional: usize) {
+        self.heap.reserve(additional);
     }
     /// Empties the queue.
     pub fn clear(&mut self) {

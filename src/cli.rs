@@ -70,6 +70,10 @@ pub struct WalkArgs {
     /// Warm-up frames before recording (excluded from the report).
     #[arg(long, default_value_t = 10)]
     pub warmup: u32,
+    /// Run the whole interleaved walk this many times; ratios are reported with their median
+    /// and min-max over the repeats.
+    #[arg(long, default_value_t = 1)]
+    pub repeat: u32,
     /// Image size WxH.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
@@ -158,13 +162,23 @@ impl ChcppArgs {
         for d in &self.disable {
             match d.as_str() {
                 "batching" => p.batching = false,
-                "interval" => p.randomized_interval = false,
+                // No interval: every visible leaf is queried every frame.
+                "interval" => {
+                    p.randomized_interval = false;
+                    p.visible_interval = 1;
+                }
                 "multiqueries" => p.multiqueries = false,
                 "tight" => p.tight_bounds = false,
                 other => bail!(
                     "unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight)"
                 ),
             }
+        }
+        if p.multiqueries && !p.batching {
+            bail!(
+                "multiqueries group the i-queue, so they need batching: \
+                 use --disable batching,multiqueries"
+            );
         }
         Ok(p)
     }
@@ -287,6 +301,9 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     if a.frames == 0 {
         bail!("--frames must be at least 1");
     }
+    if a.repeat == 0 {
+        bail!("--repeat must be at least 1");
+    }
     let params = a.chcpp.params()?;
     for alg in &a.algorithms {
         culling::create(alg, &params)?;
@@ -296,6 +313,7 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         frames: a.frames,
         warmup: a.warmup,
         params,
+        repeats: a.repeat,
     };
     let scales = a.scene.scale.clone();
     let ctx = context(a.validation)?;

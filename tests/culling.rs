@@ -338,3 +338,101 @@ fn query_pools_grow_past_their_initial_size() {
     drop(ctx);
     common::assert_silent(&log);
 }
+
+/// A wall with thin panels flush against it and a floor with tiles lying on it: query-box faces
+/// coincide with surfaces everywhere (no two front faces are coplanar, so draw order does not
+/// matter). Every algorithm matches vfc pixel for pixel from the very first frame.
+#[test]
+fn coplanar_box_faces_never_hide_visible_objects() {
+    use coherent::scene::mesh::{Mesh, SceneBuilder};
+    let mut b = SceneBuilder::new("coplanar");
+    b.add(
+        &Mesh::cuboid(Vec3::new(-10.0, -1.0, -10.0), Vec3::new(10.0, 0.0, 10.0)),
+        Vec3::splat(0.6),
+    );
+    b.add(
+        &Mesh::cuboid(Vec3::new(-10.0, 0.0, -10.5), Vec3::new(10.0, 6.0, -10.0)),
+        Vec3::new(0.7, 0.6, 0.5),
+    );
+    for i in 0..6 {
+        let x = -9.0 + i as f32 * 3.0;
+        // A panel: its back face lies on the wall's front face.
+        b.add(
+            &Mesh::cuboid(Vec3::new(x, 1.0, -10.0), Vec3::new(x + 2.0, 4.0, -9.98)),
+            Vec3::new(0.2, 0.3, 0.8),
+        );
+        for j in 0..4 {
+            let z = -8.0 + j as f32 * 4.0;
+            // A tile: its bottom face lies on the floor's top face.
+            b.add(
+                &Mesh::cuboid(Vec3::new(x, 0.0, z), Vec3::new(x + 2.5, 0.01, z + 3.5)),
+                Vec3::new(0.8, 0.2, 0.2),
+            );
+        }
+    }
+    let scene = b.finish();
+    edge_case(
+        &scene,
+        &[
+            CameraPose {
+                eye: Vec3::new(0.0, 3.0, 12.0),
+                target: Vec3::new(0.0, 1.0, -10.0),
+            },
+            CameraPose {
+                eye: Vec3::new(-8.0, 0.6, 6.0),
+                target: Vec3::new(6.0, 0.0, -9.0),
+            },
+            // Grazing along the floor and along the wall.
+            CameraPose {
+                eye: Vec3::new(-12.0, 0.05, 0.0),
+                target: Vec3::new(12.0, 0.0, 0.0),
+            },
+            CameraPose {
+                eye: Vec3::new(12.0, 2.5, -9.5),
+                target: Vec3::new(-12.0, 2.5, -10.0),
+            },
+        ],
+    );
+}
+
+/// The recorder splits draws: object draws + query draws = draw calls; objects drawn by the
+/// algorithm equal the recorder's object draws; waiting for a query is counted as stall.
+#[test]
+fn recorder_splits_draws_and_counts_stalls() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let street = Scene {
+            paths: vec![scene.path("street").unwrap().clone()],
+            ..scene.clone()
+        };
+        let mut r = Renderer::new(&ctx, &street, W, H).unwrap();
+        for name in ["vfc", "stop-and-wait", "chc", "chcpp"] {
+            let mut alg = culling::create(name, &ChcppParams::default()).unwrap();
+            let results = run(alg.as_mut(), &street, &bvh, &mut r, 6);
+            for res in &results {
+                let c = &res.counts;
+                assert_eq!(c.object_draws + c.query_draws, c.draw_calls, "{name}");
+                assert_eq!(c.object_draws, res.cull.objects_drawn, "{name}");
+                assert_eq!(c.multiqueries, res.cull.multiqueries, "{name}");
+                assert_eq!(
+                    c.visible_leaf_queries, res.cull.visible_leaf_queries,
+                    "{name}"
+                );
+                // Query draws draw whole boxes: 12 triangles each.
+                assert_eq!(c.query_triangles % 12, 0, "{name}");
+                assert!(c.query_triangles >= 12 * c.query_draws as u64, "{name}");
+                if name == "vfc" {
+                    assert_eq!(c.query_draws, 0);
+                    assert_eq!(res.stall_ms, 0.0);
+                }
+                if name == "stop-and-wait" {
+                    // It waits for every query: that wait is stall time.
+                    assert!(c.queries_begun > 0 && res.stall_ms > 0.0, "{name}");
+                }
+            }
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}

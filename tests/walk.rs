@@ -52,9 +52,15 @@ fn walk_writes_csv_json_and_plots() {
         "size",
         "frames",
         "algorithms",
+        "repeats",
+        "ratios",
     ] {
         assert!(keys.contains(&k), "summary.json has {k}: {keys:?}");
     }
+    assert_eq!(json["repeats"], 1);
+    let chcpp_vs_vfc = &json["ratios"]["chcpp"]["vs_vfc"];
+    assert!(chcpp_vs_vfc["median"].as_f64().unwrap() > 0.0);
+    assert!(chcpp_vs_vfc["min"].as_f64().unwrap() <= chcpp_vs_vfc["max"].as_f64().unwrap());
     assert_eq!(json["frames"], 6);
     assert_eq!(json["size"], "96x64");
     let algs = json["algorithms"].as_object().unwrap();
@@ -90,7 +96,7 @@ fn walk_writes_csv_json_and_plots() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "algorithm,frame,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits"
+        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits"
     );
     assert_eq!(lines.count(), 6 * 5);
     for png in ["frametime.png", "counts.png"] {
@@ -131,6 +137,9 @@ fn walk_scaling_table_and_bad_flags() {
         vec!["--algorithms", "vfc,warp"],
         vec!["--frames", "0"],
         vec!["--disable", "nothing"],
+        // Multiqueries need the i-queue: the combination is refused, not silently changed.
+        vec!["--disable", "batching"],
+        vec!["--repeat", "0"],
     ] {
         let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
             .args(["walk", "--scene", "cornell", "--size", "32x32"])
@@ -146,4 +155,40 @@ fn walk_scaling_table_and_bad_flags() {
             "{args:?}: {err}"
         );
     }
+}
+
+#[test]
+fn walk_repeats_report_ratio_spread() {
+    let dir = tempdir("repeat");
+    let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
+        .args([
+            "walk", "--scene", "parking", "--scale", "0.1", "--frames", "3",
+        ])
+        .args(["--warmup", "0", "--repeat", "2", "--size", "64x48"])
+        .args(["--algorithms", "vfc,chcpp,oracle", "--pixel-threshold", "2"])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("over 2 repeat(s)"), "{stdout}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(json["repeats"], 2);
+    assert_eq!(json["frames"], 3);
+    let r = &json["ratios"]["chcpp"]["vs_oracle"];
+    let (lo, med, hi) = (
+        r["min"].as_f64().unwrap(),
+        r["median"].as_f64().unwrap(),
+        r["max"].as_f64().unwrap(),
+    );
+    assert!(lo <= med && med <= hi && lo > 0.0, "{r}");
+    let csv = std::fs::read_to_string(dir.join("frames.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 3 * 3 * 2);
+    assert!(csv.lines().any(|l| l.starts_with("chcpp,2,1,")));
 }

@@ -5,7 +5,9 @@
 
 use std::collections::VecDeque;
 
-use super::{eye_inside, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, View};
+use super::{
+    eye_inside, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose, View,
+};
 use crate::bvh::{DistanceQueue, ObjectBvh};
 use crate::error::Result;
 use crate::scene::mesh::Rng;
@@ -93,6 +95,7 @@ impl ChcppParams {
                 "multiqueries" => {
                     p.multiqueries = true;
                     p.batching = true;
+                    p.batch_size = 50;
                 }
                 "tight" => p.tight_bounds = true,
                 _ => {}
@@ -109,8 +112,9 @@ struct NodeState {
     last_visited: u64,
     /// Frame at which a visible leaf is queried next.
     next_query: u64,
-    /// Frames the node has been invisible in a row (for the multiquery probability).
-    invisible_frames: u32,
+    /// The last frame the node was visible (0: never). `k`, the frames it has been invisible
+    /// (for the multiquery probability), counts from here, frustum-culled frames included.
+    last_visible: u64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -121,9 +125,12 @@ enum QueryKind {
     Visible,
 }
 
+/// An issued query: its nodes are `query_nodes[first..first + count]`.
+#[derive(Clone, Copy)]
 struct Pending {
     id: QueryId,
-    nodes: Vec<u32>,
+    first: u32,
+    count: u32,
     kind: QueryKind,
 }
 
@@ -144,6 +151,10 @@ pub struct Chcpp {
     render_queue: Vec<u32>,
     unsubmitted: usize,
     boxes: Vec<Aabb>,
+    /// The nodes of this frame's queries, in issue order (a query's nodes are contiguous).
+    query_nodes: Vec<u32>,
+    /// A batch being issued (taken out of the queues so they can refill meanwhile).
+    batch: Vec<u32>,
 }
 
 impl Chcpp {
@@ -169,6 +180,8 @@ impl Chcpp {
             render_queue: Vec::new(),
             unsubmitted: 0,
             boxes: Vec::new(),
+            query_nodes: Vec::new(),
+            batch: Vec::new(),
         }
     }
 
@@ -187,7 +200,26 @@ impl Chcpp {
                     self.tight[id as usize] = tight_boxes(bvh, id, &self.params);
                 }
             }
+            self.reserve(bvh);
         }
+    }
+
+    /// Sizes every per-frame queue for the worst case of this hierarchy, so that steady
+    /// frames never allocate: a frame visits each node at most once and queries each node at
+    /// most twice (a failed multiquery re-queries its nodes one by one).
+    fn reserve(&mut self, bvh: &ObjectBvh) {
+        let nodes = bvh.nodes.len();
+        let most_boxes = self.tight.iter().flatten().map(Vec::len).max().unwrap_or(1);
+        let batch = self.params.batch_size.max(1);
+        self.traversal.reserve(nodes);
+        self.query_queue.reserve(2 * nodes);
+        self.query_nodes.reserve(2 * nodes);
+        self.i_queue.reserve(nodes);
+        self.requery.reserve(nodes);
+        self.v_queue.reserve(nodes);
+        self.batch.reserve(nodes);
+        self.render_queue.reserve(bvh.leaf_objects.len());
+        self.boxes.reserve(batch * most_boxes);
     }
 
     fn was_visible(&self, node: u32) -> bool {
@@ -224,11 +256,9 @@ impl Chcpp {
             if s.visible && s.last_visited == self.frame {
                 break;
             }
-            if !s.visible {
-                s.invisible_frames = 0;
-            }
             s.visible = true;
             s.last_visited = self.frame;
+            s.last_visible = self.frame;
             let parent = bvh.nodes[node as usize].parent;
             if parent == u32::MAX {
                 break;
@@ -252,21 +282,28 @@ impl Chcpp {
         Ok(())
     }
 
+    /// Issues one query for `nodes` (a multiquery when several) with their boxes.
     fn issue(
         &mut self,
         bvh: &ObjectBvh,
-        nodes: Vec<u32>,
+        nodes: &[u32],
         kind: QueryKind,
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
         let mut boxes = std::mem::take(&mut self.boxes);
         boxes.clear();
-        for &n in &nodes {
+        for &n in nodes {
             self.query_boxes(bvh, n, &mut boxes);
         }
-        let id = backend.issue_query(&boxes)?;
+        let purpose = match kind {
+            QueryKind::Visible => QueryPurpose::VisibleLeaf,
+            QueryKind::Invisible if nodes.len() > 1 => QueryPurpose::Multiquery,
+            QueryKind::Invisible => QueryPurpose::Node,
+        };
+        let id = backend.issue_query_for(&boxes, purpose);
         self.boxes = boxes;
+        let id = id?;
         stats.queries += 1;
         match kind {
             QueryKind::Invisible => stats.invisible_node_queries += 1,
@@ -275,7 +312,14 @@ impl Chcpp {
         if nodes.len() > 1 {
             stats.multiqueries += 1;
         }
-        self.query_queue.push_back(Pending { id, nodes, kind });
+        let first = self.query_nodes.len() as u32;
+        self.query_nodes.extend_from_slice(nodes);
+        self.query_queue.push_back(Pending {
+            id,
+            first,
+            count: nodes.len() as u32,
+            kind,
+        });
         self.unsubmitted += 1;
         if !self.params.batching {
             backend.restore_render_state()?;
@@ -285,6 +329,26 @@ impl Chcpp {
             self.unsubmitted = 0;
         }
         Ok(())
+    }
+
+    /// Issues each node of `self.batch` with its own query.
+    fn issue_batch_singly(
+        &mut self,
+        bvh: &ObjectBvh,
+        kind: QueryKind,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        let batch = std::mem::take(&mut self.batch);
+        let mut result = Ok(());
+        for &n in &batch {
+            result = self.issue(bvh, &[n], kind, backend, stats);
+            if result.is_err() {
+                break;
+            }
+        }
+        self.batch = batch;
+        result
     }
 
     /// Issues the i-queue as one batch: render queue first, one switch into query state,
@@ -300,62 +364,69 @@ impl Chcpp {
         }
         self.flush_render_queue(backend)?;
         stats.query_batches += 1;
-        for n in std::mem::take(&mut self.requery) {
-            self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
-        }
-        let nodes = std::mem::take(&mut self.i_queue);
-        if self.params.multiqueries && nodes.len() > 1 {
-            self.issue_multiqueries(bvh, nodes, backend, stats)?;
+        // Nodes of failed multiqueries: one query each.
+        self.batch.clear();
+        self.batch.append(&mut self.requery);
+        self.issue_batch_singly(bvh, QueryKind::Invisible, backend, stats)?;
+        self.batch.clear();
+        self.batch.append(&mut self.i_queue);
+        if self.params.multiqueries && self.batch.len() > 1 {
+            self.issue_multiqueries(bvh, backend, stats)?;
         } else {
-            for n in nodes {
-                self.issue(bvh, vec![n], QueryKind::Invisible, backend, stats)?;
-            }
+            self.issue_batch_singly(bvh, QueryKind::Invisible, backend, stats)?;
         }
         // Due visible-leaf queries ride along while we are in query state anyway: no extra
         // state change for them.
-        for n in std::mem::take(&mut self.v_queue) {
-            self.issue(bvh, vec![n], QueryKind::Visible, backend, stats)?;
-        }
+        self.batch.clear();
+        self.batch.append(&mut self.v_queue);
+        self.issue_batch_singly(bvh, QueryKind::Visible, backend, stats)?;
         backend.flush()?;
         self.unsubmitted = 0;
         Ok(())
     }
 
-    /// Groups i-queue nodes greedily into multiqueries, highest probability of staying
-    /// invisible first, and issues one query per group.
+    /// Groups the batch (i-queue nodes) greedily into multiqueries, highest probability of
+    /// staying invisible first, and issues one query per group.
     fn issue_multiqueries(
         &mut self,
         bvh: &ObjectBvh,
-        mut nodes: Vec<u32>,
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
+        let mut nodes = std::mem::take(&mut self.batch);
         nodes.sort_by(|a, b| {
-            stays_invisible(&self.state[*b as usize])
-                .total_cmp(&stays_invisible(&self.state[*a as usize]))
+            self.stays_invisible(*b)
+                .total_cmp(&self.stays_invisible(*a))
                 .then(a.cmp(b))
         });
         let mut i = 0;
-        while i < nodes.len() {
+        let mut result = Ok(());
+        while i < nodes.len() && result.is_ok() {
             let j = self.multiquery_group_end(&nodes, i);
-            let group = nodes[i..j].to_vec();
-            self.issue(bvh, group, QueryKind::Invisible, backend, stats)?;
+            result = self.issue(bvh, &nodes[i..j], QueryKind::Invisible, backend, stats);
             i = j;
         }
-        Ok(())
+        self.batch = nodes;
+        result
     }
 
-    /// The end of the multiquery group that starts at `nodes[i]`: a group M costs
-    /// `1 + (1 - Π p) · |M|` queries in expectation; it grows while `|M| / cost` does not
-    /// decrease.
+    /// The end of the multiquery group that starts at `nodes[i]` (sorted by `p`, highest
+    /// first). A group M of several nodes costs `1 + (1 - Π p) · |M|` queries in expectation
+    /// (the multiquery, plus one per node if it fails); a single query costs 1. The group grows
+    /// while its benefit per cost, `|M| / cost(M)`, does not decrease; a single node is worth 1,
+    /// so a pair is only formed when `p₁·p₂ > 1/2`.
     fn multiquery_group_end(&self, nodes: &[u32], i: usize) -> usize {
         let mut prod = 1.0f32;
         let mut best_value = 0.0f32;
         let mut j = i;
         while j < nodes.len() {
-            let pj = stays_invisible(&self.state[nodes[j] as usize]).max(0.0);
+            let pj = self.stays_invisible(nodes[j]).max(0.0);
             let size = (j - i + 1) as f32;
-            let cost = 1.0 + (1.0 - prod * pj) * size;
+            let cost = if j == i {
+                1.0
+            } else {
+                1.0 + (1.0 - prod * pj) * size
+            };
             let value = size / cost;
             if j > i && value < best_value {
                 break;
@@ -365,6 +436,15 @@ impl Chcpp {
             j += 1;
         }
         j
+    }
+
+    /// `p(k) = 0.99 - 0.7 e^(-k)`: the probability that a node invisible for `k` frames stays
+    /// invisible (fitted by the paper's authors); `k` counts the frames since it was last
+    /// visible, not counting this one.
+    fn stays_invisible(&self, node: u32) -> f32 {
+        let s = &self.state[node as usize];
+        let k = self.frame.saturating_sub(s.last_visible + 1);
+        0.99 - 0.7 * (-(k as f32)).exp()
     }
 
     /// Issues up to `limit` v-queue queries as one batch.
@@ -381,15 +461,17 @@ impl Chcpp {
         self.flush_render_queue(backend)?;
         stats.query_batches += 1;
         let n = limit.min(self.v_queue.len());
-        let batch: Vec<u32> = self.v_queue.drain(..n).collect();
-        for node in batch {
-            self.issue(bvh, vec![node], QueryKind::Visible, backend, stats)?;
-        }
+        self.batch.clear();
+        self.batch.extend(self.v_queue.drain(..n));
+        self.issue_batch_singly(bvh, QueryKind::Visible, backend, stats)?;
         backend.flush()?;
         self.unsubmitted = 0;
         Ok(())
     }
 
+    /// A query's result: a visible multiquery re-queues its nodes for single queries; a
+    /// visible single query opens its node (previously invisible) and pulls visibility up; an
+    /// invisible result marks every node of the query invisible.
     fn handle_returned_query(
         &mut self,
         bvh: &ObjectBvh,
@@ -403,29 +485,30 @@ impl Chcpp {
         if visible {
             stats.visible_results += 1;
         }
-        if visible && q.nodes.len() > 1 {
+        let nodes = q.first as usize..(q.first + q.count) as usize;
+        if visible && q.count > 1 {
             // A failed multiquery: each node is queried on its own in the next batch.
             stats.failed_multiqueries += 1;
-            self.requery.extend_from_slice(&q.nodes);
+            self.requery.extend_from_slice(&self.query_nodes[nodes]);
             if self.requery.len() + self.i_queue.len() >= self.params.batch_size.max(1) {
                 self.issue_i_queue(bvh, backend, stats)?;
             }
             return Ok(());
         }
-        let node = q.nodes[0];
         if visible {
+            let node = self.query_nodes[q.first as usize];
             if q.kind == QueryKind::Invisible {
                 self.traverse_node(bvh, node, eye, stats);
                 self.start_interval(node);
             }
             self.pull_up_visibility(bvh, node);
-        } else {
-            let s = &mut self.state[node as usize];
-            s.visible = false;
-            s.invisible_frames += 1;
-            if q.kind == QueryKind::Invisible {
-                stats.query_culled += 1;
-            }
+            return Ok(());
+        }
+        for &node in &self.query_nodes[nodes] {
+            self.state[node as usize].visible = false;
+        }
+        if q.kind == QueryKind::Invisible {
+            stats.query_culled += q.count;
         }
         Ok(())
     }
@@ -458,6 +541,7 @@ impl Chcpp {
         self.requery.clear();
         self.v_queue.clear();
         self.render_queue.clear();
+        self.query_nodes.clear();
         self.unsubmitted = 0;
         self.traversal
             .push(0, bvh.nodes[0].bounds.distance_squared(eye));
@@ -528,13 +612,14 @@ impl Chcpp {
         Ok(())
     }
 
-    /// A node outside the view frustum: invisible, and its count of occluded frames restarts.
+    /// A node outside the view frustum: invisible. It keeps ageing (`k` counts frames since
+    /// it was last visible), so when it re-enters the frustum it is grouped by how long it has
+    /// really been unseen.
     fn frustum_cull(&mut self, node: u32, stats: &mut CullStats) {
         stats.frustum_culled += 1;
         let s = &mut self.state[node as usize];
         s.visible = false;
         s.last_visited = self.frame;
-        s.invisible_frames = 0;
     }
 
     /// The eye is inside the node's box, so a query can't be trusted: treat it as visible.
@@ -618,7 +703,7 @@ impl Chcpp {
     ) -> Result<()> {
         self.flush_render_queue(backend)?;
         stats.query_batches += 1;
-        self.issue(bvh, vec![node], kind, backend, stats)
+        self.issue(bvh, &[node], kind, backend, stats)
     }
 
     /// The traversal queue ran dry: issue the i-queue (unbatched: submit what was recorded).
@@ -658,32 +743,42 @@ impl Chcpp {
     }
 }
 
-/// `p(k) = 0.99 - 0.7 e^(-k)`: the probability that a node invisible for `k` frames stays
-/// invisible (fitted by the paper's authors).
-fn stays_invisible(s: &NodeState) -> f32 {
-    0.99 - 0.7 * (-(s.invisible_frames as f32)).exp()
-}
-
-/// The boxes of `node`'s descendants down to `tight_depth` levels (leaves above that depth count
-/// themselves), if their total surface area is at most `tight_area_factor` times the node's.
+/// Tight bounding volume of `node`: the boxes of its descendants one level further down at a
+/// time (leaves stand for themselves), as long as their total surface area stays within
+/// `tight_area_factor` times the node's, up to `tight_depth` levels; the deepest level that
+/// passes wins. `None` when already the first level fails (query the node's own box).
 fn tight_boxes(bvh: &ObjectBvh, node: u32, params: &ChcppParams) -> Option<Vec<Aabb>> {
     let root = &bvh.nodes[node as usize];
     if root.is_leaf() {
         return None;
     }
-    let mut out = Vec::new();
-    let mut stack = vec![(node, 0u32)];
-    while let Some((n, d)) = stack.pop() {
-        let nn = &bvh.nodes[n as usize];
-        if nn.is_leaf() || d == params.tight_depth {
-            out.push(nn.bounds);
-        } else {
-            stack.push((nn.children[0], d + 1));
-            stack.push((nn.children[1], d + 1));
+    let limit = params.tight_area_factor * root.bounds.surface_area();
+    let mut level = vec![node];
+    let mut best = None;
+    for _ in 0..params.tight_depth {
+        let mut next = Vec::with_capacity(level.len() * 2);
+        for &n in &level {
+            let nn = &bvh.nodes[n as usize];
+            if nn.is_leaf() {
+                next.push(n);
+            } else {
+                next.extend_from_slice(&nn.children);
+            }
         }
+        if next == level {
+            break; // only leaves left
+        }
+        let area: f32 = next
+            .iter()
+            .map(|&n| bvh.nodes[n as usize].bounds.surface_area())
+            .sum();
+        if area > limit {
+            break;
+        }
+        best = Some(next.iter().map(|&n| bvh.nodes[n as usize].bounds).collect());
+        level = next;
     }
-    let area: f32 = out.iter().map(|b| b.surface_area()).sum();
-    (area <= params.tight_area_factor * root.bounds.surface_area()).then_some(out)
+    best
 }
 
 impl Culler for Chcpp {
@@ -723,5 +818,226 @@ impl Culler for Chcpp {
         self.state.clear();
         self.tight.clear();
         self.rng = Rng::new(self.params.seed);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::camera::Camera;
+    use crate::scene::CameraPose;
+    use glam::Vec3;
+
+    /// A backend without a GPU: a query sees pixels when one of its boxes touches a region
+    /// marked visible. Results are ready at once. It logs every query's box count.
+    #[derive(Default)]
+    struct Mock {
+        visible: Vec<Aabb>,
+        results: Vec<u64>,
+        boxes_per_query: Vec<usize>,
+    }
+
+    fn touches(a: &Aabb, b: &Aabb) -> bool {
+        a.min.cmple(b.max).all() && b.min.cmple(a.max).all()
+    }
+
+    impl OcclusionBackend for Mock {
+        fn draw_objects(&mut self, _objects: &[u32]) -> Result<()> {
+            Ok(())
+        }
+        fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+            let hit = boxes
+                .iter()
+                .any(|b| self.visible.iter().any(|v| touches(b, v)));
+            self.results.push(if hit { 100 } else { 0 });
+            self.boxes_per_query.push(boxes.len());
+            Ok(self.results.len() as u32 - 1)
+        }
+        fn flush(&mut self) -> Result<()> {
+            Ok(())
+        }
+        fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+            Ok(self.results.get(query as usize).copied())
+        }
+        fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+            Ok(self.results[query as usize])
+        }
+        fn finish(&mut self) -> Result<()> {
+            Ok(())
+        }
+    }
+
+    /// 16 unit boxes in a row along x, seen from the front.
+    fn row() -> (ObjectBvh, Camera) {
+        let boxes: Vec<Aabb> = (0..16)
+            .map(|i| {
+                let x = i as f32 * 2.0;
+                Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0))
+            })
+            .collect();
+        let bvh = ObjectBvh::build(&boxes, 1);
+        let pose = CameraPose {
+            eye: Vec3::new(15.0, 0.5, 60.0),
+            target: Vec3::new(15.0, 0.5, 0.0),
+        };
+        (bvh, Camera::from_pose(pose, 1.0, 500.0))
+    }
+
+    fn frame(c: &mut Chcpp, bvh: &ObjectBvh, cam: &Camera, m: &mut Mock, f: u64) -> CullStats {
+        m.results.clear();
+        m.boxes_per_query.clear();
+        let input = FrameInput {
+            bvh,
+            camera: cam,
+            frame: f,
+            exact_visible: None,
+        };
+        c.cull_frame(&input, m).unwrap()
+    }
+
+    fn leaves(bvh: &ObjectBvh) -> Vec<u32> {
+        (0..bvh.nodes.len() as u32)
+            .filter(|&n| bvh.nodes[n as usize].is_leaf())
+            .collect()
+    }
+
+    #[test]
+    fn multiqueries_update_every_node_and_failed_ones_requery() {
+        let (bvh, cam) = row();
+        let params = ChcppParams {
+            tight_bounds: false,
+            ..ChcppParams::default()
+        };
+        let mut c = Chcpp::new(params);
+        // Only the first box is visible: the rest of the hierarchy becomes the invisible cut.
+        let mut m = Mock {
+            visible: vec![Aabb::new(
+                Vec3::new(0.2, 0.2, 0.2),
+                Vec3::new(0.8, 0.8, 0.8),
+            )],
+            ..Mock::default()
+        };
+        let mut saw_invisible_multiquery = false;
+        for f in 1..12 {
+            let s = frame(&mut c, &bvh, &cam, &mut m, f);
+            if s.multiqueries > 0 && s.failed_multiqueries == 0 {
+                saw_invisible_multiquery = true;
+                // Every node of a multiquery got the invisible result in this frame.
+                assert!(
+                    s.query_culled > s.invisible_node_queries.saturating_sub(s.visible_results)
+                );
+                for n in 0..bvh.nodes.len() {
+                    let st = &c.state[n];
+                    if st.last_visited == c.frame && !st.visible {
+                        assert_ne!(st.last_visible, c.frame);
+                    }
+                }
+            }
+        }
+        assert!(saw_invisible_multiquery, "the invisible cut was grouped");
+        // Now everything is visible: the multiqueries fail and their nodes are re-queried
+        // one by one in the same frame.
+        m.visible = vec![Aabb::new(Vec3::splat(-100.0), Vec3::splat(100.0))];
+        let s = frame(&mut c, &bvh, &cam, &mut m, 12);
+        assert!(s.failed_multiqueries > 0);
+        assert!(s.queries > s.multiqueries + s.failed_multiqueries);
+        for l in leaves(&bvh) {
+            assert!(c.state[l as usize].visible, "leaf {l} found visible again");
+        }
+    }
+
+    #[test]
+    fn frustum_culled_nodes_keep_their_age() {
+        let (bvh, cam) = row();
+        let mut c = Chcpp::new(ChcppParams::default());
+        let mut m = Mock::default();
+        frame(&mut c, &bvh, &cam, &mut m, 1);
+        let node = leaves(&bvh)[3];
+        let mut stats = CullStats::default();
+        c.frame = 7;
+        c.state[node as usize].last_visible = 2;
+        let before = c.stays_invisible(node);
+        c.frustum_cull(node, &mut stats);
+        assert_eq!(c.state[node as usize].last_visible, 2);
+        c.frame = 8;
+        assert!(
+            c.stays_invisible(node) > before,
+            "k grows while out of the frustum"
+        );
+    }
+
+    #[test]
+    fn a_single_query_costs_one() {
+        let (bvh, _) = row();
+        let mut c = Chcpp::new(ChcppParams::default());
+        c.prepare(&bvh);
+        c.frame = 1;
+        // Two nodes seen a frame ago: p(0) = 0.29 each, far from paying off as a pair.
+        let nodes = leaves(&bvh);
+        for &n in &nodes[..2] {
+            c.state[n as usize].last_visible = 1;
+        }
+        assert_eq!(c.multiquery_group_end(&nodes[..2], 0), 1);
+        // Long invisible (p close to 0.99): grouped.
+        c.frame = 50;
+        assert!(c.multiquery_group_end(&nodes, 0) > 4);
+    }
+
+    /// The nodes `levels` below `node` (leaves stand for themselves).
+    fn frontier(bvh: &ObjectBvh, node: u32, levels: u32) -> Vec<u32> {
+        let mut level = vec![node];
+        for _ in 0..levels {
+            level = level
+                .iter()
+                .flat_map(|&n| {
+                    let nn = &bvh.nodes[n as usize];
+                    if nn.is_leaf() {
+                        vec![n]
+                    } else {
+                        nn.children.to_vec()
+                    }
+                })
+                .collect();
+        }
+        level
+    }
+
+    #[test]
+    fn tight_bounds_descend_level_by_level() {
+        // Overlapping boxes: each level down covers more total area than the one above.
+        let boxes: Vec<Aabb> = (0..16)
+            .map(|i| {
+                let o = Vec3::new(i as f32 * 0.3, (i % 3) as f32 * 0.2, (i % 5) as f32 * 0.1);
+                Aabb::new(o, o + Vec3::splat(2.0))
+            })
+            .collect();
+        let bvh = ObjectBvh::build(&boxes, 1);
+        let root_area = bvh.nodes[0].bounds.surface_area();
+        let ratio = |levels| {
+            let area: f32 = frontier(&bvh, 0, levels)
+                .iter()
+                .map(|&n| bvh.nodes[n as usize].bounds.surface_area())
+                .sum();
+            area / root_area
+        };
+        let (r1, r2, r3) = (ratio(1), ratio(2), ratio(3));
+        assert!(r1 < r3 && r2 < r3, "areas grow with depth: {r1} {r2} {r3}");
+        // A factor that the first level passes and the third fails.
+        let factor = (r1.max(r2) + r3) / 2.0;
+        let params = ChcppParams {
+            tight_area_factor: factor,
+            tight_depth: 3,
+            ..ChcppParams::default()
+        };
+        let tight = tight_boxes(&bvh, 0, &params).expect("level 1 passes");
+        let expected = if r2 <= factor { 2 } else { 1 };
+        assert_eq!(tight.len(), frontier(&bvh, 0, expected).len());
+        // The old all-or-nothing rule at depth 3 would have given nothing here; a factor
+        // that level 1 fails gives nothing too.
+        let strict = ChcppParams {
+            tight_area_factor: r1 * 0.9,
+            ..params
+        };
+        assert!(tight_boxes(&bvh, 0, &strict).is_none());
     }
 }

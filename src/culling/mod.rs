@@ -19,6 +19,18 @@ pub use chcpp::ChcppParams;
 /// An occlusion query handed out by the backend, valid within one frame.
 pub type QueryId = u32;
 
+/// What a query is for, so that a backend can count and show queries by purpose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum QueryPurpose {
+    /// One node whose result decides traversal in this frame (a previously invisible node,
+    /// or any node of stop-and-wait). Its boxes may be a tight bounding volume.
+    Node,
+    /// Several previously invisible nodes in one query (a CHC++ multiquery).
+    Multiquery,
+    /// A previously visible leaf, tested for the next frame (the v-queue).
+    VisibleLeaf,
+}
+
 /// What a culling algorithm needs from a renderer: the embedding API. A host engine implements
 /// this over its own device and command buffers.
 pub trait OcclusionBackend {
@@ -26,6 +38,12 @@ pub trait OcclusionBackend {
     fn draw_objects(&mut self, objects: &[u32]) -> Result<()>;
     /// Record one occlusion query covering all `boxes` (query state: depth test on, no writes).
     fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId>;
+    /// [`OcclusionBackend::issue_query`] saying what the query is for. Default: the same
+    /// query; backends that count or draw queries by purpose override it.
+    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+        let _ = purpose;
+        self.issue_query(boxes)
+    }
     /// Go back to render state after a query (an unbatched culler does this after every query,
     /// as the original CHC toggles write masks around each one). Default: nothing.
     fn restore_render_state(&mut self) -> Result<()> {
@@ -103,11 +121,16 @@ pub trait Culler {
 /// The algorithm names `create` accepts.
 pub const ALGORITHMS: &[&str] = &["vfc", "stop-and-wait", "chc", "chcpp", "oracle"];
 
-/// Creates an algorithm by name (`chcpp` takes `params`).
+/// Creates an algorithm by name (`chcpp` takes `params`; every algorithm that queries takes
+/// its pixel threshold).
 pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
     Ok(match name {
         "vfc" => Box::new(vfc::Vfc::default()),
-        "stop-and-wait" => Box::new(stop_and_wait::StopAndWait::default()),
+        "stop-and-wait" => {
+            let mut s = stop_and_wait::StopAndWait::default();
+            s.pixel_threshold = params.pixel_threshold;
+            Box::new(s)
+        }
         "chc" => Box::new(chc::Chc::default()),
         "chcpp" => Box::new(chcpp::Chcpp::new(params.clone())),
         "oracle" => Box::new(oracle::Oracle),

@@ -9,6 +9,8 @@ use crate::error::Result;
 #[derive(Default)]
 pub struct StopAndWait {
     queue: DistanceQueue,
+    /// A query counting more than this many pixels means visible.
+    pub pixel_threshold: u64,
 }
 
 impl Culler for StopAndWait {
@@ -39,7 +41,7 @@ impl Culler for StopAndWait {
                 stats.queries += 1;
                 stats.query_batches += 1;
                 let pixels = backend.wait_query(q)?;
-                if pixels == 0 {
+                if pixels <= self.pixel_threshold {
                     stats.query_culled += 1;
                     continue;
                 }

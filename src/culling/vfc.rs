@@ -2,12 +2,14 @@
 //! every leaf whose box touches the frustum, no queries.
 
 use super::{CullStats, Culler, FrameInput, OcclusionBackend, View};
+use crate::bvh::DistanceQueue;
 use crate::error::Result;
 
 /// View-frustum culling only.
 #[derive(Default)]
 pub struct Vfc {
     batch: Vec<u32>,
+    queue: DistanceQueue,
 }
 
 impl Culler for Vfc {
@@ -24,17 +26,19 @@ impl Culler for Vfc {
         let mut stats = CullStats::default();
         self.batch.clear();
         let batch = &mut self.batch;
-        input.bvh.front_to_back(view.eye, |id, node| {
-            stats.nodes_visited += 1;
-            if !view.frustum.intersects(&node.bounds) {
-                stats.frustum_culled += 1;
-                return false;
-            }
-            if node.is_leaf() {
-                batch.extend_from_slice(input.bvh.objects(id));
-            }
-            true
-        });
+        input
+            .bvh
+            .front_to_back_with(&mut self.queue, view.eye, |id, node| {
+                stats.nodes_visited += 1;
+                if !view.frustum.intersects(&node.bounds) {
+                    stats.frustum_culled += 1;
+                    return false;
+                }
+                if node.is_leaf() {
+                    batch.extend_from_slice(input.bvh.objects(id));
+                }
+                true
+            });
         stats.objects_drawn = batch.len() as u32;
         backend.draw_objects(batch)?;
         backend.finish()?;

@@ -35,6 +35,10 @@ pub struct CommandCounts {
     pub render_triangles: u64,
     /// `vkCmdBeginQuery` calls for occlusion queries.
     pub queries_begun: u32,
+    /// Of those, queries covering several nodes (multiqueries), as the caller tagged them.
+    pub multiqueries: u32,
+    /// Of those, queries for previously visible leaves, as the caller tagged them.
+    pub visible_leaf_queries: u32,
     /// Occlusion-query results read back.
     pub queries_read: u32,
     /// Occlusion-query results that counted more pixels than the visibility threshold.
@@ -392,6 +396,13 @@ impl Recorder {
         };
         self.counts.queries_begun += 1;
         self.in_query = true;
+    }
+
+    /// Tags the query begun last: a multiquery and/or a visible-leaf query (so queries can be
+    /// counted by purpose where they are recorded).
+    pub fn tag_query(&mut self, multiquery: bool, visible_leaf: bool) {
+        self.counts.multiqueries += multiquery as u32;
+        self.counts.visible_leaf_queries += visible_leaf as u32;
     }
 
     /// Ends query `id` of `pools`.

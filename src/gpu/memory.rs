@@ -367,6 +367,11 @@ impl ImageUse {
 /// pattern valid), so [`as_bytes`] needs no `unsafe` from its callers.
 pub use bytemuck::Pod;
 
+/// The bytes of a slice of plain data, borrowed (no copy).
+pub fn bytes_of<T: Pod>(data: &[T]) -> &[u8] {
+    bytemuck::cast_slice(data)
+}
+
 /// The bytes of a slice of plain data, copied.
 pub fn as_bytes<T: Pod>(data: &[T]) -> Vec<u8> {
     bytemuck::cast_slice(data).to_vec()

@@ -22,7 +22,7 @@ pub use context::{
     ContextOptions, DeviceInfo, GpuContext, Severity, ValidationLog, ValidationMessage,
 };
 pub use descriptors::{Binding, DescriptorSet, DescriptorSets, Sampler};
-pub use memory::{as_bytes, Buffer, Image, ImageUse, Pod};
+pub use memory::{as_bytes, bytes_of, Buffer, Image, ImageUse, Pod};
 pub use pipelines::{ComputePipeline, Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
 pub use sync::Timeline;
 

@@ -20,11 +20,12 @@ pub struct FrameResult {
 }
 
 impl FrameResult {
-    /// Converts to a report row.
-    pub fn record(&self, algorithm: &str, frame: u32) -> crate::report::FrameRecord {
+    /// Converts to a report row (`repeat`: which run of a repeated walk).
+    pub fn record(&self, algorithm: &str, frame: u32, repeat: u32) -> crate::report::FrameRecord {
         crate::report::FrameRecord {
             algorithm: algorithm.to_string(),
             frame,
+            repeat,
             frame_ms: self.frame_ms,
             gpu_ms: self.gpu_ms,
             stall_ms: self.stall_ms,

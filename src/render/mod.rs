@@ -16,13 +16,13 @@ use ash::vk;
 use gpu_allocator::MemoryLocation;
 
 use crate::bvh::ObjectBvh;
-use crate::culling::{CullStats, Culler, FrameInput, OcclusionBackend, QueryId};
+use crate::culling::{CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose};
 use crate::error::{Error, Result};
 use crate::gpu::queries::QueryPools;
 use crate::gpu::targets::{self, Target, ID_FORMAT};
 use crate::gpu::{
-    Attachment, Binding, Buffer, CommandCounts, CommandPool, DescriptorSets, GpuContext, Image,
-    ImageUse, Load, OneShot, PipelineKind, Recorder, Timeline,
+    bytes_of, Attachment, Binding, Buffer, CommandCounts, CommandPool, DescriptorSets, GpuContext,
+    Image, ImageUse, Load, OneShot, PipelineKind, Recorder, Timeline,
 };
 use crate::scene::camera::Camera;
 use crate::scene::{Aabb, Scene};
@@ -82,6 +82,8 @@ pub struct Renderer {
     oneshot: OneShot,
     push: [u8; PUSH_SIZE as usize],
     bound: Option<Bound>,
+    /// Scratch for query-box corners (reused, so queries do not allocate).
+    corners: Vec<[f32; 3]>,
     stall: Duration,
     prepass_counts: CommandCounts,
     /// Pixel count above which a query result means visible (for counting wasted queries).
@@ -142,6 +144,7 @@ impl Renderer {
             oneshot: OneShot::new(ctx)?,
             push: initial_push(scene),
             bound: None,
+            corners: Vec::with_capacity(8 * 64),
             stall: Duration::ZERO,
             prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
@@ -265,7 +268,7 @@ impl Renderer {
         self.stall = Duration::ZERO;
         self.recorder.take_counts();
         let vp = camera.view_proj();
-        self.push[..64].copy_from_slice(&upload::as_bytes(&vp.to_cols_array()));
+        self.push[..64].copy_from_slice(bytes_of(&vp.to_cols_array()));
         Ok(())
     }
 
@@ -358,7 +361,7 @@ impl Renderer {
     pub fn exact_visible(&mut self, bvh: &ObjectBvh, camera: &Camera) -> Result<Vec<u32>> {
         let candidates = frustum_candidates(bvh, camera);
         let mut push = self.push;
-        push[..64].copy_from_slice(&upload::as_bytes(&camera.view_proj().to_cols_array()));
+        push[..64].copy_from_slice(bytes_of(&camera.view_proj().to_cols_array()));
         let pass = self.render_ids(&candidates, &push)?;
         add_prepass(&mut self.prepass_counts, &pass);
         let Some(ids) = self.id_image.as_ref() else {
@@ -463,7 +466,7 @@ fn add_prepass(total: &mut CommandCounts, pass: &CommandCounts) {
 fn initial_push(scene: &Scene) -> [u8; PUSH_SIZE as usize] {
     let sun = scene.sun_dir.normalize_or(glam::Vec3::Y).to_array();
     let mut push = [0u8; PUSH_SIZE as usize];
-    push[64..76].copy_from_slice(&upload::as_bytes(&sun));
+    push[64..76].copy_from_slice(bytes_of(&sun));
     push
 }
 
@@ -517,6 +520,15 @@ impl OcclusionBackend for Renderer {
             rest = self.draw_boxes(rest)?;
         }
         self.recorder.end_query(&self.occlusion, id);
+        Ok(id)
+    }
+
+    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+        let id = self.issue_query(boxes)?;
+        self.recorder.tag_query(
+            purpose == QueryPurpose::Multiquery,
+            purpose == QueryPurpose::VisibleLeaf,
+        );
         Ok(id)
     }
 
@@ -598,12 +610,10 @@ impl Renderer {
             }
         }
         let n = (BOX_CHUNK - self.box_used).min(boxes.len() as u32);
-        let corners = upload::box_corners(&boxes[..n as usize]);
+        self.corners.clear();
+        upload::box_corners_into(&boxes[..n as usize], &mut self.corners);
         let chunk = &mut self.box_chunks[self.box_chunk];
-        chunk.write(
-            self.box_used as usize * BOX_BYTES,
-            &upload::as_bytes(&corners),
-        )?;
+        chunk.write(self.box_used as usize * BOX_BYTES, bytes_of(&self.corners))?;
         if self.bound != Some(Bound::Boxes(self.box_chunk)) {
             self.recorder
                 .bind_buffers(chunk, 0, Some(&self.box_index_buffer));

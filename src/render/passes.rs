@@ -104,6 +104,11 @@ fn query_desc() -> PipelineDesc<'static> {
         // face at most as deep. Halves the query fill.
         cull: vk::CullModeFlags::BACK,
         kind: PipelineKind::Query,
-        depth_bias: (0.0, 0.0),
+        // Conservative against depth precision: a box face that lies exactly on the surface it
+        // bounds (a panel flush on a wall, a tile on a floor) rasterizes with slightly
+        // different depths than that surface's own triangles, and with LESS_OR_EQUAL could
+        // fail where the object is visible. Pulling boxes towards the eye by a few depth units
+        // plus one pixel's depth slope can only make a query report more pixels, never fewer.
+        depth_bias: (-4.0, -1.0),
     }
 }

@@ -76,6 +76,12 @@ pub fn box_indices(n: u32) -> Vec<u32> {
 /// World-space corners of boxes, 8 per box.
 pub fn box_corners(boxes: &[Aabb]) -> Vec<[f32; 3]> {
     let mut out = Vec::with_capacity(boxes.len() * 8);
+    box_corners_into(boxes, &mut out);
+    out
+}
+
+/// Appends the world-space corners of `boxes` (8 per box) to `out`.
+pub fn box_corners_into(boxes: &[Aabb], out: &mut Vec<[f32; 3]>) {
     for b in boxes {
         for c in 0..8 {
             let p = Vec3::new(
@@ -86,5 +92,4 @@ pub fn box_corners(boxes: &[Aabb]) -> Vec<[f32; 3]> {
             out.push(p.to_array());
         }
     }
-    out
 }

@@ -21,7 +21,9 @@ use winit::window::{Window, WindowId};
 use super::overlay::{self, Class};
 use super::{FrameResult, Renderer};
 use crate::bvh::ObjectBvh;
-use crate::culling::{self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId};
+use crate::culling::{
+    self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose,
+};
 use crate::error::{Error, Result};
 use crate::gpu::swapchain::{self, Panel, Presented, Swapchain};
 use crate::gpu::{CommandCounts, ContextOptions, GpuContext, Recorder, ValidationLog};
@@ -578,7 +580,7 @@ impl Running {
 #[derive(Default)]
 struct FrameLog {
     drawn: Vec<u32>,
-    queries: Vec<(QueryId, Vec<Aabb>)>,
+    queries: Vec<(QueryId, Vec<Aabb>, bool)>,
     results: std::collections::HashMap<QueryId, u64>,
 }
 
@@ -623,7 +625,13 @@ impl OcclusionBackend for Probe<'_> {
     }
     fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
         let id = self.inner.issue_query(boxes)?;
-        self.log.queries.push((id, boxes.to_vec()));
+        self.log.queries.push((id, boxes.to_vec(), false));
+        Ok(id)
+    }
+    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+        let id = self.inner.issue_query_for(boxes, purpose)?;
+        let multiquery = purpose == QueryPurpose::Multiquery;
+        self.log.queries.push((id, boxes.to_vec(), multiquery));
         Ok(id)
     }
     fn restore_render_state(&mut self) -> Result<()> {
@@ -664,12 +672,14 @@ fn classify(
         .map(|o| (o.bounds, Class::FrustumCulled))
         .collect();
     let mut multi = 0;
-    for (id, boxes) in &log.queries {
+    for (id, boxes, multiquery) in &log.queries {
         let visible = log.results.get(id).is_some_and(|&v| v > 0);
         if visible {
             continue;
         }
-        let class = if boxes.len() > 1 {
+        // Only real multiqueries get their own color; a tight bounding volume (several boxes
+        // for one node) is a single node's query.
+        let class = if *multiquery {
             multi += 1;
             Class::Multiquery(multi - 1)
         } else {

@@ -20,12 +20,16 @@ pub struct WalkConfig {
     pub frames: u32,
     /// Frames rendered first and left out of the records.
     pub warmup: u32,
-    /// CHC++ parameters.
+    /// CHC++ parameters (their pixel threshold also sets the renderer's).
     pub params: ChcppParams,
+    /// How many times to run the whole interleaved walk (each with fresh temporal state), so
+    /// that ratios come with their spread (at least 1).
+    pub repeats: u32,
 }
 
-/// Runs the walk: `warmup + frames` poses spread over the whole path; every algorithm renders
-/// every pose in turn. `progress(done, total)` is called after each rendered frame.
+/// Runs the walk `repeats` times: `warmup + frames` poses spread over the whole path; every
+/// algorithm renders every pose in turn. `progress(done, total)` is called after each rendered
+/// frame.
 pub fn run(
     renderer: &mut Renderer,
     bvh: &ObjectBvh,
@@ -33,25 +37,28 @@ pub fn run(
     cfg: &WalkConfig,
     mut progress: impl FnMut(u64, u64),
 ) -> Result<Vec<FrameRecord>> {
-    let mut cullers: Vec<Box<dyn Culler>> = cfg
-        .algorithms
-        .iter()
-        .map(|a| culling::create(a, &cfg.params))
-        .collect::<Result<_>>()?;
+    renderer.visibility_threshold = cfg.params.pixel_threshold;
+    let repeats = cfg.repeats.max(1);
     let total = cfg.warmup + cfg.frames;
-    let mut records = Vec::with_capacity((cfg.frames as usize) * cullers.len());
-    let steps = total as u64 * cullers.len() as u64;
-    let mut done = 0;
-    for i in 0..total {
-        let pose = path.sample(i, total);
-        let camera = renderer.camera(pose, bvh);
-        for (name, culler) in cfg.algorithms.iter().zip(cullers.iter_mut()) {
-            let r = renderer.render_frame(culler.as_mut(), bvh, &camera, i as u64)?;
-            if i >= cfg.warmup {
-                records.push(r.record(name, i - cfg.warmup));
+    let per_repeat = total as u64 * cfg.algorithms.len() as u64;
+    let mut records = Vec::with_capacity((cfg.frames * repeats) as usize * cfg.algorithms.len());
+    for repeat in 0..repeats {
+        let mut cullers: Vec<Box<dyn Culler>> = cfg
+            .algorithms
+            .iter()
+            .map(|a| culling::create(a, &cfg.params))
+            .collect::<Result<_>>()?;
+        for i in 0..total {
+            let pose = path.sample(i, total);
+            let camera = renderer.camera(pose, bvh);
+            for (k, (name, culler)) in cfg.algorithms.iter().zip(cullers.iter_mut()).enumerate() {
+                let r = renderer.render_frame(culler.as_mut(), bvh, &camera, i as u64)?;
+                if i >= cfg.warmup {
+                    records.push(r.record(name, i - cfg.warmup, repeat));
+                }
+                let done = repeat as u64 * per_repeat + i as u64 * cfg.algorithms.len() as u64;
+                progress(done + k as u64 + 1, per_repeat * repeats as u64);
             }
-            done += 1;
-            progress(done, steps);
         }
     }
     Ok(records)
@@ -94,7 +101,7 @@ pub fn write_report(
                 a.clone(),
                 records
                     .iter()
-                    .filter(|r| &r.algorithm == a)
+                    .filter(|r| &r.algorithm == a && r.repeat == 0)
                     .map(|r| (r.frame, r.frame_ms))
                     .collect(),
             )
@@ -112,7 +119,7 @@ pub fn write_report(
                 a.clone(),
                 records
                     .iter()
-                    .filter(|r| &r.algorithm == a)
+                    .filter(|r| &r.algorithm == a && r.repeat == 0)
                     .map(|r| (r.frame, r.queries as f64, r.state_changes as f64))
                     .collect(),
             )

@@ -20,6 +20,8 @@ pub struct FrameRecord {
     pub algorithm: String,
     /// Frame index along the camera path.
     pub frame: u32,
+    /// Which repeat of the walk (`walk --repeat`), from 0.
+    pub repeat: u32,
     /// CPU wall-clock frame time in milliseconds.
     pub frame_ms: f64,
     /// GPU time of the frame in milliseconds (timestamp queries).
@@ -49,9 +51,10 @@ pub struct FrameRecord {
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 15] = [
+pub const CSV_HEADER: [&str; 16] = [
     "algorithm",
     "frame",
+    "repeat",
     "frame_ms",
     "gpu_ms",
     "stall_ms",
@@ -83,9 +86,10 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
+            r.repeat,
             r.frame_ms,
             r.gpu_ms,
             r.stall_ms,
@@ -163,12 +167,12 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(
             lines[0],
-            "algorithm,frame,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
+            "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
              pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits"
         );
         assert_eq!(lines.len(), 1 + records.len());
-        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0");
-        assert!(lines[2].starts_with("\"a,b\",1,1.5,"));
+        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0");
+        assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -87,11 +87,55 @@ pub struct WalkSummary {
     /// whose keys keep this order.
     #[serde(serialize_with = "serialize_ordered")]
     pub algorithms: Vec<(String, AlgorithmSummary)>,
+    /// How many times the interleaved walk ran (`walk --repeat`).
+    pub repeats: u32,
+    /// Each algorithm's median frame time as a ratio to `vfc`'s and to `oracle`'s (where they
+    /// ran): one ratio per repeat (medians of the same repeat), summarized by its median and
+    /// its min–max over the repeats.
+    #[serde(serialize_with = "serialize_ordered")]
+    pub ratios: Vec<(String, Ratios)>,
+}
+
+/// The median and the min–max of one ratio over the repeats.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Spread {
+    /// Median over the repeats.
+    pub median: f64,
+    /// Smallest.
+    pub min: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+impl Spread {
+    fn of(values: &mut [f64]) -> Option<Spread> {
+        if values.is_empty() {
+            return None;
+        }
+        let min = values.iter().copied().fold(f64::INFINITY, f64::min);
+        let max = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        Some(Spread {
+            median: median(values),
+            min,
+            max,
+        })
+    }
+}
+
+/// One algorithm's frame-time ratios to the references.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Ratios {
+    /// Median frame time / vfc's, over the repeats.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vs_vfc: Option<Spread>,
+    /// Median frame time / oracle's, over the repeats.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vs_oracle: Option<Spread>,
 }
 
 /// Serializes `(name, value)` pairs as a map, keeping their order.
-fn serialize_ordered<S: Serializer>(
-    pairs: &[(String, AlgorithmSummary)],
+fn serialize_ordered<S: Serializer, T: Serialize>(
+    pairs: &[(String, T)],
     serializer: S,
 ) -> Result<S::Ok, S::Error> {
     let mut map = serializer.serialize_map(Some(pairs.len()))?;
@@ -123,16 +167,29 @@ pub fn summarize(
             names.push(name);
         }
     }
+    let repeats = records.iter().map(|r| r.repeat + 1).max().unwrap_or(1);
     let mut frames = 0;
     let algorithms = names
-        .into_iter()
-        .map(|name| {
+        .iter()
+        .map(|&name| {
             let own: Vec<&FrameRecord> = records.iter().filter(|r| r.algorithm == name).collect();
-            frames = frames.max(own.len());
+            frames = frames.max(own.len() / repeats as usize);
             (name.to_owned(), AlgorithmSummary::from_records(&own))
         })
         .collect();
+    let ratios = names
+        .iter()
+        .map(|&name| {
+            let r = Ratios {
+                vs_vfc: ratio_spread(records, name, "vfc", repeats),
+                vs_oracle: ratio_spread(records, name, "oracle", repeats),
+            };
+            (name.to_owned(), r)
+        })
+        .collect();
     WalkSummary {
+        repeats,
+        ratios,
         scene: scene.to_owned(),
         objects,
         triangles,
@@ -141,6 +198,33 @@ pub fn summarize(
         frames,
         algorithms,
     }
+}
+
+/// The median frame time of `name` in one repeat.
+fn repeat_median(records: &[FrameRecord], name: &str, repeat: u32) -> Option<f64> {
+    let mut ms: Vec<f64> = records
+        .iter()
+        .filter(|r| r.algorithm == name && r.repeat == repeat)
+        .map(|r| r.frame_ms)
+        .collect();
+    (!ms.is_empty()).then(|| median(&mut ms))
+}
+
+/// `name`'s median frame time over `reference`'s, per repeat, summarized.
+fn ratio_spread(
+    records: &[FrameRecord],
+    name: &str,
+    reference: &str,
+    repeats: u32,
+) -> Option<Spread> {
+    let mut ratios: Vec<f64> = (0..repeats)
+        .filter_map(|k| {
+            let own = repeat_median(records, name, k)?;
+            let base = repeat_median(records, reference, k)?;
+            (base > 0.0).then_some(own / base)
+        })
+        .collect();
+    Spread::of(&mut ratios)
 }
 
 /// Formats a count-like median: integral values without decimals.
@@ -231,6 +315,31 @@ impl WalkSummary {
                 fmt_count(s.triangles_median),
                 fmt_count(s.submits_median),
                 ratio,
+            );
+        }
+        out.push_str(&self.ratio_table());
+        out
+    }
+
+    /// Frame-time ratios to vfc and oracle with their spread over the repeats.
+    fn ratio_table(&self) -> String {
+        let fmt = |s: Option<Spread>| match s {
+            Some(s) if self.repeats > 1 => {
+                format!("{:.2} [{:.2}-{:.2}]", s.median, s.min, s.max)
+            }
+            Some(s) => format!("{:.2}", s.median),
+            None => "-".to_owned(),
+        };
+        let mut out = format!(
+            "\nframe-time ratios over {} repeat(s): median [min-max]\n",
+            self.repeats
+        );
+        for (name, r) in &self.ratios {
+            let _ = writeln!(
+                out,
+                "  {name:<16} x vfc {:<20} x oracle {}",
+                fmt(r.vs_vfc),
+                fmt(r.vs_oracle)
             );
         }
         out
@@ -357,6 +466,8 @@ mod tests {
             "size",
             "frames",
             "algorithms",
+            "repeats",
+            "ratios",
         ]
         .map(String::from)
         .into();
