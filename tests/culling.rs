@@ -436,3 +436,63 @@ fn recorder_splits_draws_and_counts_stalls() {
     drop(ctx);
     common::assert_silent(&log);
 }
+
+/// A query of a segment that is still being recorded (or has not completed) is not read: the
+/// poll says "not ready" without waiting; waiting for it is counted as stall.
+#[test]
+fn polls_never_read_pending_segments() {
+    use coherent::culling::OcclusionBackend;
+    use coherent::scene::Aabb;
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let mut r = Renderer::new(&ctx, &scene, W, H).unwrap();
+        // A frame through a probe culler that polls before and after flushing.
+        struct Probe {
+            before_flush: Option<Option<u64>>,
+            waited: Option<u64>,
+        }
+        impl Culler for Probe {
+            fn name(&self) -> &str {
+                "probe"
+            }
+            fn cull_frame(
+                &mut self,
+                input: &coherent::culling::FrameInput,
+                backend: &mut dyn OcclusionBackend,
+            ) -> coherent::Result<coherent::culling::CullStats> {
+                let all: Vec<u32> = (0..input.bvh.leaf_objects.len() as u32).collect();
+                backend.draw_objects(&all)?;
+                let b = input.bvh.nodes[0].bounds;
+                let q = backend.issue_query(&[Aabb::new(b.min, b.max)])?;
+                self.before_flush = Some(backend.query_result(q)?);
+                backend.flush()?;
+                self.waited = Some(backend.wait_query(q)?);
+                backend.finish()?;
+                Ok(Default::default())
+            }
+            fn reset(&mut self) {}
+        }
+        let mut probe = Probe {
+            before_flush: None,
+            waited: None,
+        };
+        let b = bvh.nodes[0].bounds;
+        let pose = CameraPose {
+            eye: b.center() + b.extent(),
+            target: b.center(),
+        };
+        let cam = r.camera(pose, &bvh);
+        let res = r.render_frame(&mut probe, &bvh, &cam, 0).unwrap();
+        assert_eq!(
+            probe.before_flush,
+            Some(None),
+            "recording segment: not ready"
+        );
+        assert!(probe.waited.is_some());
+        assert!(res.stall_ms > 0.0, "the wait is stall time");
+        assert_eq!(res.counts.queries_read, 1);
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
