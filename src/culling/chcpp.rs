@@ -115,6 +115,12 @@ struct NodeState {
     /// The last frame the node was visible (0: never). `k`, the frames it has been invisible
     /// (for the multiquery probability), counts from here, frustum-culled frames included.
     last_visible: u64,
+    /// The node was not visited in the previous frame (its parent was closed: culled by a
+    /// query, or just opened now), so nothing is known of its recent visibility: `k` = 0.
+    unknown: bool,
+    /// The node has been tested inside the frustum at least once. Until then, frames outside
+    /// the frustum are no evidence of occlusion and do not age it.
+    tested: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -440,10 +446,16 @@ impl Chcpp {
 
     /// `p(k) = 0.99 - 0.7 e^(-k)`: the probability that a node invisible for `k` frames stays
     /// invisible (fitted by the paper's authors); `k` counts the frames since it was last
-    /// visible, not counting this one.
+    /// visible, not counting this one, frustum-culled frames included. A node that was not
+    /// visited last frame (it lay below a closed node, e.g. a car whose parent was just opened)
+    /// has no recent history: k = 0, so it is not lumped into a group that would likely fail.
     fn stays_invisible(&self, node: u32) -> f32 {
         let s = &self.state[node as usize];
-        let k = self.frame.saturating_sub(s.last_visible + 1);
+        let k = if s.unknown {
+            0
+        } else {
+            self.frame.saturating_sub(s.last_visible + 1)
+        };
         0.99 - 0.7 * (-(k as f32)).exp()
     }
 
@@ -612,14 +624,18 @@ impl Chcpp {
         Ok(())
     }
 
-    /// A node outside the view frustum: invisible. It keeps ageing (`k` counts frames since
-    /// it was last visible), so when it re-enters the frustum it is grouped by how long it has
-    /// really been unseen.
+    /// A node outside the view frustum: invisible. Once it has been tested in the frustum it
+    /// keeps ageing (`k` counts frames since it was last visible), so when it re-enters the
+    /// frustum it is grouped by how long it has really been unseen; a node never tested yet
+    /// has no evidence of occlusion and does not age.
     fn frustum_cull(&mut self, node: u32, stats: &mut CullStats) {
         stats.frustum_culled += 1;
         let s = &mut self.state[node as usize];
         s.visible = false;
         s.last_visited = self.frame;
+        if !s.tested {
+            s.last_visible = self.frame;
+        }
     }
 
     /// The eye is inside the node's box, so a query can't be trusted: treat it as visible.
@@ -651,7 +667,10 @@ impl Chcpp {
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
-        self.state[node as usize].last_visited = self.frame;
+        let s = &mut self.state[node as usize];
+        s.unknown = s.last_visited + 1 < self.frame;
+        s.last_visited = self.frame;
+        s.tested = true;
         if self.params.batching {
             self.i_queue.push(node);
             if self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size() {
@@ -956,6 +975,7 @@ mod tests {
         let mut stats = CullStats::default();
         c.frame = 7;
         c.state[node as usize].last_visible = 2;
+        c.state[node as usize].tested = true;
         let before = c.stays_invisible(node);
         c.frustum_cull(node, &mut stats);
         assert_eq!(c.state[node as usize].last_visible, 2);
