@@ -30,7 +30,9 @@ pub struct BvhNode {
 impl BvhNode {
     /// Whether this is a leaf.
     pub fn is_leaf(&self) -> bool {
-        self.object_count > 0
+        // No node has the root (0) as a child, so children [0, 0] mark a leaf too: the root of
+        // an empty hierarchy is a leaf without objects, not a node whose children are itself.
+        self.object_count > 0 || self.children == [0, 0]
     }
 }
 

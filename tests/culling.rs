@@ -496,3 +496,21 @@ fn polls_never_read_pending_segments() {
     drop(ctx);
     common::assert_silent(&log);
 }
+
+/// An empty scene: the hierarchy is one leaf without objects; every algorithm terminates and
+/// renders the sky like vfc.
+#[test]
+fn empty_scene_renders_like_vfc() {
+    use coherent::scene::mesh::SceneBuilder;
+    let scene = SceneBuilder::new("empty").finish();
+    let bvh = common::bvh_of(&scene);
+    assert_eq!(bvh.nodes.len(), 1);
+    assert!(bvh.nodes[0].is_leaf());
+    edge_case(
+        &scene,
+        &[CameraPose {
+            eye: Vec3::new(0.0, 1.0, 5.0),
+            target: Vec3::ZERO,
+        }],
+    );
+}

@@ -310,9 +310,12 @@ fn reference_images(
     frames: &[u32],
 ) -> Result<Vec<Vec<u8>>> {
     let n = opts.vpls * 4;
-    let layers = (n as u32)
-        .min(ctx.info.max_image_array_layers.saturating_sub(1))
-        .max(1);
+    // The reference renders its VPLs in chunks of what one layered pass may hold.
+    let limit = ctx
+        .info
+        .max_image_array_layers
+        .min(ctx.info.max_framebuffer_layers);
+    let layers = (n as u32).min(limit.saturating_sub(1)).max(1);
     let mut renderer = GiRenderer::new(
         ctx,
         geometry,

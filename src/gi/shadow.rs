@@ -55,6 +55,15 @@ impl ShadowMaps {
         size: u32,
     ) -> Result<ShadowMaps> {
         let layers = vpl_layers + 1;
+        // One layered pass renders every layer: the framebuffer-layer limit applies as well
+        // as the array-layer limit (the spec only guarantees 256 of each).
+        if layers > ctx.info.max_framebuffer_layers {
+            return Err(Error::Input(format!(
+                "{vpl_layers} VPL shadow maps (+1 for the spotlight) exceed the device's {} \
+                 framebuffer layers (use fewer VPLs)",
+                ctx.info.max_framebuffer_layers
+            )));
+        }
         if layers > ctx.info.max_image_array_layers {
             return Err(Error::Input(format!(
                 "{vpl_layers} VPL shadow maps (+1 for the spotlight) exceed the device's {} array layers",
