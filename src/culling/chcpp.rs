@@ -346,13 +346,9 @@ impl Chcpp {
         stats: &mut CullStats,
     ) -> Result<()> {
         let batch = std::mem::take(&mut self.batch);
-        let mut result = Ok(());
-        for &n in &batch {
-            result = self.issue(bvh, &[n], kind, backend, stats);
-            if result.is_err() {
-                break;
-            }
-        }
+        let result = batch
+            .iter()
+            .try_for_each(|&n| self.issue(bvh, &[n], kind, backend, stats));
         self.batch = batch;
         result
     }

@@ -25,11 +25,16 @@ impl Spotlight {
         }
     }
 
+    /// The unit direction the light points in (-Y for a zero direction).
+    pub fn axis(&self) -> Vec3 {
+        self.direction.try_normalize().unwrap_or(Vec3::NEG_Y)
+    }
+
     /// Orthonormal light frame `(tangent, bitangent, direction)`, right-handed,
     /// well defined for any direction including straight up or down
     /// (Duff et al. 2017 branchless basis). A zero direction falls back to -Y.
     pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
-        let n = self.direction.try_normalize().unwrap_or(Vec3::NEG_Y);
+        let n = self.axis();
         let (t, b) = n.any_orthonormal_pair();
         (t, b, n)
     }

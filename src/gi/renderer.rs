@@ -9,7 +9,6 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use ash::vk;
-use glam::Vec3;
 use gpu_allocator::MemoryLocation;
 
 use super::deferred::GBuffer;
@@ -284,7 +283,7 @@ impl GiRenderer {
         let new: HashSet<u32> = new_layers.iter().copied().collect();
         let spot = ShadowSlot {
             position: light.position,
-            normal: light.direction.try_normalize().unwrap_or(Vec3::NEG_Y),
+            normal: light.axis(),
             layer: cap,
         };
         let mut vpl_data: Vec<f32> = Vec::with_capacity(vpls.len() * VPL_FLOATS);
@@ -326,7 +325,7 @@ impl GiRenderer {
     /// The compute push block: spotlight, far distance, power, output mode and the biases;
     /// floats 12..16 (the chunk) are set per chunk.
     fn compute_push(&self, light: &Spotlight) -> [f32; 20] {
-        let dir = light.direction.try_normalize().unwrap_or(Vec3::NEG_Y);
+        let dir = light.axis();
         let mode = match self.output {
             OutputMode::Full => 0.0,
             OutputMode::IndirectOnly => 1.0,

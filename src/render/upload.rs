@@ -73,13 +73,6 @@ pub fn box_indices(n: u32) -> Vec<u32> {
         .collect()
 }
 
-/// World-space corners of boxes, 8 per box.
-pub fn box_corners(boxes: &[Aabb]) -> Vec<[f32; 3]> {
-    let mut out = Vec::with_capacity(boxes.len() * 8);
-    box_corners_into(boxes, &mut out);
-    out
-}
-
 /// Appends the world-space corners of `boxes` (8 per box) to `out`.
 pub fn box_corners_into(boxes: &[Aabb], out: &mut Vec<[f32; 3]>) {
     for b in boxes {
