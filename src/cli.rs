@@ -54,6 +54,10 @@ pub struct RenderArgs {
     /// Turn the validation layer off (it is on by default for render).
     #[arg(long)]
     pub no_validation: bool,
+    #[command(flatten)]
+    pub pvs: crate::cli_setup::PvsArgs,
+    #[command(flatten)]
+    pub cache: crate::cli_setup::CacheArgs,
 }
 
 /// `coherent walk`.
@@ -77,10 +81,10 @@ pub struct WalkArgs {
     /// Image size WxH.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// Algorithms to compare, comma separated.
+    /// Algorithms to compare, comma separated (also: stop-and-wait).
     #[arg(
         long,
-        default_value = "vfc,stop-and-wait,chc,chcpp,oracle",
+        default_value = "vfc,pvs,nohc,chc,chcpp,oracle",
         value_delimiter = ','
     )]
     pub algorithms: Vec<String>,
@@ -90,8 +94,16 @@ pub struct WalkArgs {
     /// Turn the validation layer on (off by default: it slows everything down).
     #[arg(long)]
     pub validation: bool,
+    /// Exactness check: render the exact ID pass at every pose (not timed) and report each
+    /// algorithm's missed objects and pixels (visible but not drawn).
+    #[arg(long)]
+    pub check: bool,
     #[command(flatten)]
     pub chcpp: ChcppArgs,
+    #[command(flatten)]
+    pub pvs: crate::cli_setup::PvsArgs,
+    #[command(flatten)]
+    pub cache: crate::cli_setup::CacheArgs,
 }
 
 /// `coherent view`.
@@ -203,7 +215,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     Ok((w, h))
 }
 
-fn context(validation: bool) -> Result<Arc<GpuContext>> {
+pub(crate) fn context(validation: bool) -> Result<Arc<GpuContext>> {
     Ok(GpuContext::new(&ContextOptions {
         validation,
         echo_validation: true,
@@ -211,11 +223,11 @@ fn context(validation: bool) -> Result<Arc<GpuContext>> {
     })?)
 }
 
-fn load_scene(a: &SceneArgs, scale: f32) -> Result<Scene> {
+pub(crate) fn load_scene(a: &SceneArgs, scale: f32) -> Result<Scene> {
     Ok(Scene::load(&a.scene, scale, a.chunk_triangles)?)
 }
 
-fn single_scale(a: &SceneArgs) -> Result<f32> {
+pub(crate) fn single_scale(a: &SceneArgs) -> Result<f32> {
     match a.scale.as_slice() {
         [s] => Ok(*s),
         _ => bail!("this command takes one --scale value"),
@@ -252,7 +264,7 @@ pub fn info() -> Result<()> {
 /// `coherent render`.
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
-    let mut culler = culling::create(&a.algorithm, &ChcppParams::default())?;
+    culling::check_name(&a.algorithm)?;
     let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
@@ -262,6 +274,23 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let ctx = context(!a.no_validation)?;
     {
+        let scale = single_scale(&a.scene)?;
+        let mut setup = culling::CullerSetup::default();
+        if a.algorithm == "nohc" {
+            setup.nohc = Some(crate::cli_setup::nohc_params(
+                &ctx,
+                &a.cache,
+                &scene,
+                (w, h),
+            )?);
+        }
+        if a.algorithm == "pvs" {
+            let b = crate::cli_setup::pvs(
+                &ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache,
+            )?;
+            setup.pvs = Some(b.pvs);
+        }
+        let mut culler = culling::create_with(&a.algorithm, &setup)?;
         let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
         let first = if culler.needs_exact_visibility() || a.algorithm == "vfc" {
             a.frame
@@ -306,7 +335,7 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     }
     let params = a.chcpp.params()?;
     for alg in &a.algorithms {
-        culling::create(alg, &params)?;
+        culling::check_name(alg)?;
     }
     let cfg = WalkConfig {
         algorithms: a.algorithms.clone(),
@@ -314,6 +343,9 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         warmup: a.warmup,
         params,
         repeats: a.repeat,
+        check: a.check,
+        nohc: None,
+        pvs: None,
     };
     let scales = a.scene.scale.clone();
     let ctx = context(a.validation)?;
@@ -350,6 +382,24 @@ fn walk_scale(
     };
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let mut cfg = cfg.clone();
+    let uses = |name: &str| a.algorithms.iter().any(|x| x == name);
+    if uses("nohc") {
+        cfg.nohc = Some(crate::cli_setup::nohc_params(
+            ctx,
+            &a.cache,
+            &scene,
+            (w, h),
+        )?);
+    }
+    let pvs = if uses("pvs") {
+        let b = crate::cli_setup::pvs(ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache)?;
+        cfg.pvs = Some(b.pvs.clone());
+        Some(b)
+    } else {
+        None
+    };
+    let cfg = &cfg;
     println!(
         "walk: {} (scale {scale}: {} objects, {} triangles), path {}, {} frames + {} warm-up, {w}x{h}, {} on {}",
         scene.name,
@@ -370,7 +420,7 @@ fn walk_scale(
         bar.finish();
         records
     };
-    let summary = walk::write_report(
+    let mut summary = walk::write_report(
         dir,
         &scene,
         &path.name,
@@ -379,6 +429,14 @@ fn walk_scale(
         &records,
         &a.algorithms,
     )?;
+    if let Some(b) = &pvs {
+        let outside = crate::cli_setup::frames_outside(&b.pvs, &path, a.frames, a.warmup);
+        let pre = crate::cli_setup::preprocess_summary(b, outside);
+        if let Some((_, s)) = summary.algorithms.iter_mut().find(|(n, _)| n == "pvs") {
+            s.preprocess = Some(pre);
+        }
+        summary.write_json(&dir.join("summary.json"))?;
+    }
     let reference = a
         .algorithms
         .iter()
@@ -468,18 +526,24 @@ pub fn view(a: &ViewArgs) -> Result<()> {
 }
 
 /// A progress bar on a terminal, plain lines otherwise.
-struct Progress {
+pub(crate) struct Progress {
     bar: Option<indicatif::ProgressBar>,
     last: std::cell::Cell<u64>,
+    unit: &'static str,
 }
 
 fn progress_bar() -> Progress {
+    progress_bar_named("frames")
+}
+
+/// A progress bar counting `unit`s.
+pub(crate) fn progress_bar_named(unit: &'static str) -> Progress {
     use std::io::IsTerminal;
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = indicatif::ProgressBar::new(1);
-        if let Ok(style) = indicatif::ProgressStyle::with_template(
-            "{bar:40} {pos}/{len} frames {elapsed} (eta {eta})",
-        ) {
+        if let Ok(style) = indicatif::ProgressStyle::with_template(&format!(
+            "{{bar:40}} {{pos}}/{{len}} {unit} {{elapsed}} (eta {{eta}})"
+        )) {
             b.set_style(style);
         }
         b
@@ -487,11 +551,12 @@ fn progress_bar() -> Progress {
     Progress {
         bar,
         last: std::cell::Cell::new(0),
+        unit,
     }
 }
 
 impl Progress {
-    fn tick(&self, done: u64, total: u64) {
+    pub(crate) fn tick(&self, done: u64, total: u64) {
         match &self.bar {
             Some(b) => {
                 b.set_length(total);
@@ -501,12 +566,12 @@ impl Progress {
                 let pct = done * 10 / total.max(1);
                 if pct > self.last.get() {
                     self.last.set(pct);
-                    eprintln!("walk: {done}/{total} frames");
+                    eprintln!("{done}/{total} {}", self.unit);
                 }
             }
         }
     }
-    fn finish(&self) {
+    pub(crate) fn finish(&self) {
         if let Some(b) = &self.bar {
             b.finish_and_clear();
         }

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod cli;
+mod cli_setup;
 
 #[derive(Parser)]
 #[command(
@@ -29,6 +30,10 @@ enum Command {
     Gi(cli::GiArgs),
     /// Open a window: fly camera, path playback, live algorithm switching, stats overlay.
     View(cli::ViewArgs),
+    /// Measure the device's costs for NOHC (draw, triangle, fragment, query, round trip).
+    Calibrate(cli_setup::CalibrateArgs),
+    /// Precompute the potentially visible sets of a scene's path (cached).
+    Pvs(cli_setup::PvsCommandArgs),
 }
 
 fn main() -> ExitCode {
@@ -39,6 +44,8 @@ fn main() -> ExitCode {
         Command::Walk(a) => cli::walk(&a),
         Command::Gi(a) => cli::gi(&a),
         Command::View(a) => cli::view(&a),
+        Command::Calibrate(a) => cli_setup::calibrate_command(&a),
+        Command::Pvs(a) => cli_setup::pvs_command(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -5,6 +5,7 @@
 
 use std::collections::VecDeque;
 
+use super::nohc::{NohcParams, NohcRule};
 use super::{
     eye_inside, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose, View,
 };
@@ -161,6 +162,10 @@ pub struct Chcpp {
     query_nodes: Vec<u32>,
     /// A batch being issued (taken out of the queues so they can refill meanwhile).
     batch: Vec<u32>,
+    /// NOHC's cost rule, when it decides the queries instead of CHC's rules (`nohc`).
+    nohc: Option<NohcRule>,
+    /// The eye of the current frame.
+    eye: glam::Vec3,
 }
 
 impl Chcpp {
@@ -188,7 +193,35 @@ impl Chcpp {
             boxes: Vec::new(),
             query_nodes: Vec::new(),
             batch: Vec::new(),
+            nohc: None,
+            eye: glam::Vec3::ZERO,
         }
+    }
+
+    /// NOHC (Guthe et al. 2006): the CHC traversal (no batching, multiqueries or tight
+    /// bounds) with the cost rule of [`NohcRule`] deciding which nodes are queried. See
+    /// `nohc.rs`.
+    pub fn nohc(params: NohcParams) -> Chcpp {
+        let flush_interval = params.flush_interval.max(1) as usize;
+        let mut c = Chcpp::named(
+            "nohc",
+            ChcppParams {
+                flush_interval,
+                ..ChcppParams::chc()
+            },
+        );
+        c.nohc = Some(NohcRule::new(params));
+        c
+    }
+
+    /// Sets the visibility threshold in pixels.
+    pub fn set_pixel_threshold(&mut self, pixels: u64) {
+        self.params.pixel_threshold = pixels;
+    }
+
+    /// The NOHC rule, when this traversal is NOHC.
+    pub fn nohc_rule(&self) -> Option<&NohcRule> {
+        self.nohc.as_ref()
     }
 
     /// The parameters.
@@ -493,6 +526,11 @@ impl Chcpp {
         if visible {
             stats.visible_results += 1;
         }
+        if let Some(rule) = self.nohc.as_mut() {
+            for &n in &self.query_nodes[q.first as usize..(q.first + q.count) as usize] {
+                rule.record(n, !visible);
+            }
+        }
         let nodes = q.first as usize..(q.first + q.count) as usize;
         if visible && q.count > 1 {
             // A failed multiquery: each node is queried on its own in the next batch.
@@ -663,6 +701,15 @@ impl Chcpp {
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
+        if let Some(rule) = self.nohc.as_mut() {
+            if !rule.query_invisible(bvh, node, self.frame) {
+                // Not worth a query: open it as if it were visible (conservative).
+                self.state[node as usize].tested = true;
+                let eye = self.eye;
+                self.traverse_unqueryable(bvh, node, eye, stats);
+                return Ok(());
+            }
+        }
         let s = &mut self.state[node as usize];
         s.unknown = s.last_visited + 1 < self.frame;
         s.last_visited = self.frame;
@@ -693,7 +740,10 @@ impl Chcpp {
             self.state[node as usize].last_visited = self.frame;
             return Ok(());
         }
-        let due = self.query_reasonable(node);
+        let due = match self.nohc.as_mut() {
+            Some(rule) => rule.query_visible_leaf(bvh, node, self.frame),
+            None => self.query_reasonable(node),
+        };
         self.pull_up_visibility(bvh, node);
         if due {
             self.state[node as usize].next_query =
@@ -814,6 +864,10 @@ impl Culler for Chcpp {
         let eye = view.eye;
         let mut stats = CullStats::default();
         self.begin_frame(bvh, eye);
+        self.eye = eye;
+        if let Some(rule) = self.nohc.as_mut() {
+            rule.begin_frame(bvh, input.camera.view_proj());
+        }
         while !self.traversal.is_empty() || !self.query_queue.is_empty() {
             // 1. Process finished occlusion queries.
             self.process_finished_queries(bvh, eye, backend, &mut stats)?;
@@ -832,6 +886,9 @@ impl Culler for Chcpp {
     fn reset(&mut self) {
         self.state.clear();
         self.tight.clear();
+        if let Some(rule) = self.nohc.as_mut() {
+            rule.reset();
+        }
         self.rng = Rng::new(self.params.seed);
     }
 }

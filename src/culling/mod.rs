@@ -3,7 +3,9 @@
 
 pub mod chc;
 pub mod chcpp;
+pub mod nohc;
 pub mod oracle;
+pub mod pvs;
 pub mod stop_and_wait;
 pub mod vfc;
 
@@ -15,6 +17,8 @@ use crate::scene::camera::{Camera, Frustum};
 use crate::scene::Aabb;
 
 pub use chcpp::ChcppParams;
+pub use nohc::{CostModel, NohcParams};
+pub use pvs::Pvs;
 
 /// An occlusion query handed out by the backend, valid within one frame.
 pub type QueryId = u32;
@@ -118,11 +122,66 @@ pub trait Culler {
     fn reset(&mut self);
 }
 
-/// The algorithm names `create` accepts.
-pub const ALGORITHMS: &[&str] = &["vfc", "stop-and-wait", "chc", "chcpp", "oracle"];
+/// The algorithm names [`create_with`] accepts.
+pub const ALGORITHMS: &[&str] = &[
+    "vfc",
+    "stop-and-wait",
+    "chc",
+    "chcpp",
+    "oracle",
+    "nohc",
+    "pvs",
+];
 
-/// Creates an algorithm by name (`chcpp` takes `params`; every algorithm that queries takes
-/// its pixel threshold).
+/// What algorithms need beyond a name: CHC++'s parameters (their pixel threshold applies to
+/// every algorithm that queries), NOHC's cost model, the PVS of the scene.
+#[derive(Clone, Default)]
+pub struct CullerSetup {
+    /// CHC++ parameters.
+    pub params: ChcppParams,
+    /// NOHC's parameters (cost model from `coherent calibrate`, viewport, triangles).
+    pub nohc: Option<NohcParams>,
+    /// The scene's potentially visible sets.
+    pub pvs: Option<std::sync::Arc<Pvs>>,
+}
+
+/// Checks an algorithm name without creating it.
+pub fn check_name(name: &str) -> Result<()> {
+    if ALGORITHMS.contains(&name) {
+        Ok(())
+    } else {
+        Err(Error::Input(format!(
+            "unknown algorithm \"{name}\" (known: {})",
+            ALGORITHMS.join(", ")
+        )))
+    }
+}
+
+/// Creates an algorithm by name with what it needs from `setup`.
+pub fn create_with(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> {
+    match name {
+        "nohc" => {
+            let mut p = setup.nohc.clone().ok_or_else(|| {
+                Error::Input("nohc needs a device cost model (CullerSetup::nohc)".into())
+            })?;
+            p.flush_interval = p.flush_interval.max(1);
+            let mut c = chcpp::Chcpp::nohc(p);
+            c.set_pixel_threshold(setup.params.pixel_threshold);
+            Ok(Box::new(c))
+        }
+        "pvs" => {
+            let pvs = setup.pvs.clone().ok_or_else(|| {
+                Error::Input("pvs needs the scene's potentially visible sets".into())
+            })?;
+            Ok(Box::new(pvs::PvsCuller::new(pvs)))
+        }
+        _ => create(name, &setup.params),
+    }
+}
+
+/// Creates an algorithm that needs nothing but CHC++'s parameters by name (`chcpp` takes
+/// `params`; every algorithm that queries takes its pixel threshold). `nohc` and `pvs` need
+/// [`create_with`].
 pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
     Ok(match name {
         "vfc" => Box::new(vfc::Vfc::default()),
@@ -134,6 +193,11 @@ pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
         "chc" => Box::new(chc::Chc::default()),
         "chcpp" => Box::new(chcpp::Chcpp::new(params.clone())),
         "oracle" => Box::new(oracle::Oracle),
+        "nohc" | "pvs" => {
+            return Err(Error::Input(format!(
+                "{name} needs more than CHC++'s parameters: use culling::create_with"
+            )))
+        }
         other => {
             return Err(Error::Input(format!(
                 "unknown algorithm \"{other}\" (known: {})",

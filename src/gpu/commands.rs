@@ -214,6 +214,10 @@ pub struct Recorder {
     render_extent: vk::Extent2D,
     /// Counts since the last [`Recorder::take_counts`].
     pub counts: CommandCounts,
+    /// Whether render-state draws log the object they draw (their `first_instance`).
+    log_objects: bool,
+    /// Objects drawn in render state since the last [`Recorder::clear_drawn_objects`].
+    drawn_objects: Vec<u32>,
 }
 
 impl Recorder {
@@ -227,7 +231,27 @@ impl Recorder {
             in_query: false,
             render_extent: vk::Extent2D::default(),
             counts: CommandCounts::default(),
+            log_objects: false,
+            drawn_objects: Vec::new(),
         }
+    }
+
+    /// Turns on (or off) the log of objects drawn in render state: every render-state
+    /// `draw_indexed` records its `first_instance`, which the scene renderer sets to the
+    /// object's index. This is how `walk --check` knows what an algorithm really drew.
+    pub fn log_drawn_objects(&mut self, on: bool) {
+        self.log_objects = on;
+        self.drawn_objects.clear();
+    }
+
+    /// The objects drawn in render state since the last clear (in draw order, with repeats).
+    pub fn drawn_objects(&self) -> &[u32] {
+        &self.drawn_objects
+    }
+
+    /// Forgets the drawn-object log (keeps its capacity).
+    pub fn clear_drawn_objects(&mut self) {
+        self.drawn_objects.clear();
     }
 
     /// Starts recording into a new command buffer (already begun): bound state is forgotten.
@@ -360,6 +384,9 @@ impl Recorder {
         };
         let tris = (index_count / 3) as u64 * instances as u64;
         self.count_draw(tris);
+        if self.log_objects && !self.in_query && self.last_kind == Some(PipelineKind::Render) {
+            self.drawn_objects.push(first_instance);
+        }
     }
 
     /// Non-indexed draw.

@@ -17,6 +17,21 @@ pub struct FrameResult {
     pub counts: CommandCounts,
     /// The algorithm's own bookkeeping.
     pub cull: CullStats,
+    /// What the exactness check found, when it ran (`walk --check`).
+    pub check: Option<Check>,
+}
+
+/// Exactness at object level: what an algorithm drew, against the exact ID pass of the same
+/// camera. An object *owns a pixel* when the ID pass shows it there; it is *missed* when it
+/// owns a pixel and the frame did not draw it (the recorder's log of object draws).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Check {
+    /// Objects that own at least one pixel.
+    pub visible_objects: u32,
+    /// Visible objects that were not drawn.
+    pub missed_objects: u32,
+    /// Pixels owned by missed objects.
+    pub missed_pixels: u64,
 }
 
 impl FrameResult {
@@ -39,6 +54,8 @@ impl FrameResult {
             triangles: self.counts.render_triangles,
             objects: self.counts.object_draws,
             submits: self.counts.submits,
+            missed_objects: self.check.map(|c| c.missed_objects),
+            missed_pixels: self.check.map(|c| c.missed_pixels),
         }
     }
 }

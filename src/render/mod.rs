@@ -2,9 +2,11 @@
 //! chain of segments (command buffers): when a culler needs query results the current segment is
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
+pub mod calibrate;
 pub mod frame;
 pub mod overlay;
 pub mod passes;
+pub mod pvs_build;
 pub mod upload;
 pub mod viewer;
 pub mod walk;
@@ -28,7 +30,7 @@ use crate::scene::camera::Camera;
 use crate::scene::{Aabb, Scene};
 use passes::{ScenePipelines, PUSH_SIZE};
 
-pub use frame::FrameResult;
+pub use frame::{Check, FrameResult};
 
 /// Boxes per box-vertex chunk (8 corners each).
 const BOX_CHUNK: u32 = 16384;
@@ -234,6 +236,7 @@ impl Renderer {
             stall_ms: self.stall.as_secs_f64() * 1e3,
             counts,
             cull,
+            check: None,
         })
     }
 
@@ -267,6 +270,7 @@ impl Renderer {
         self.box_used = 0;
         self.stall = Duration::ZERO;
         self.recorder.take_counts();
+        self.recorder.clear_drawn_objects();
         let vp = camera.view_proj();
         self.push[..64].copy_from_slice(bytes_of(&vp.to_cols_array()));
         Ok(())
@@ -359,27 +363,81 @@ impl Renderer {
     /// Finds the objects that cover at least one pixel: renders the frustum's objects into an
     /// object-ID image and reads it back. Not part of any frame's time or counts.
     pub fn exact_visible(&mut self, bvh: &ObjectBvh, camera: &Camera) -> Result<Vec<u32>> {
+        let mut pixels = Vec::new();
+        let candidates = self.id_pass(bvh, camera, &mut pixels)?;
+        // Keep front-to-back order for the draw.
+        Ok(candidates
+            .into_iter()
+            .filter(|&o| pixels[o as usize] > 0)
+            .collect())
+    }
+
+    /// The exact ID pass of `camera`: `pixels[o]` becomes the number of pixels object `o` owns
+    /// (0 for hidden or culled objects). Not part of any frame's time or counts.
+    pub fn object_pixels(
+        &mut self,
+        bvh: &ObjectBvh,
+        camera: &Camera,
+        pixels: &mut Vec<u32>,
+    ) -> Result<()> {
+        self.id_pass(bvh, camera, pixels).map(|_| ())
+    }
+
+    /// Turns the log of drawn objects on or off (`walk --check` needs it; it costs a push per
+    /// object draw).
+    pub fn log_drawn_objects(&mut self, on: bool) {
+        self.recorder.log_drawn_objects(on);
+    }
+
+    /// Compares what the last frame drew (the recorder's log, see
+    /// [`Renderer::log_drawn_objects`]) with `pixels` from [`Renderer::object_pixels`] for the
+    /// same camera.
+    pub fn check_drawn(&self, pixels: &[u32]) -> Check {
+        let mut drawn = vec![false; pixels.len()];
+        for &o in self.recorder.drawn_objects() {
+            if let Some(d) = drawn.get_mut(o as usize) {
+                *d = true;
+            }
+        }
+        let mut check = Check::default();
+        for (&p, &d) in pixels.iter().zip(&drawn) {
+            if p > 0 {
+                check.visible_objects += 1;
+                if !d {
+                    check.missed_objects += 1;
+                    check.missed_pixels += u64::from(p);
+                }
+            }
+        }
+        check
+    }
+
+    /// Renders the frustum's objects into the ID image, counts each object's pixels into
+    /// `pixels` and returns the candidates (front to back).
+    fn id_pass(
+        &mut self,
+        bvh: &ObjectBvh,
+        camera: &Camera,
+        pixels: &mut Vec<u32>,
+    ) -> Result<Vec<u32>> {
         let candidates = frustum_candidates(bvh, camera);
         let mut push = self.push;
         push[..64].copy_from_slice(bytes_of(&camera.view_proj().to_cols_array()));
         let pass = self.render_ids(&candidates, &push)?;
         add_prepass(&mut self.prepass_counts, &pass);
+        pixels.clear();
+        pixels.resize(self.objects.len(), 0);
         let Some(ids) = self.id_image.as_ref() else {
-            return Ok(Vec::new());
+            return Ok(candidates);
         };
         let bytes = targets::read_image(&self.ctx, &mut self.oneshot, &mut self.recorder, ids)?;
-        let mut seen = vec![false; self.objects.len()];
         for px in bytes.chunks_exact(4) {
             let id = u32::from_le_bytes([px[0], px[1], px[2], px[3]]);
-            if id > 0 && ((id - 1) as usize) < seen.len() {
-                seen[(id - 1) as usize] = true;
+            if id > 0 && ((id - 1) as usize) < pixels.len() {
+                pixels[(id - 1) as usize] += 1;
             }
         }
-        // Keep front-to-back order for the draw.
-        Ok(candidates
-            .into_iter()
-            .filter(|&o| seen[o as usize])
-            .collect())
+        Ok(candidates)
     }
 
     /// Draws `candidates` into the object-ID image (ID = object + 1; 0 is background) and

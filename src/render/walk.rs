@@ -25,6 +25,13 @@ pub struct WalkConfig {
     /// How many times to run the whole interleaved walk (each with fresh temporal state), so
     /// that ratios come with their spread (at least 1).
     pub repeats: u32,
+    /// Render the exact ID pass at every pose and report each algorithm's missed objects
+    /// and pixels (objects that own a pixel but were not drawn).
+    pub check: bool,
+    /// NOHC's parameters (needed when `nohc` is walked).
+    pub nohc: Option<crate::culling::NohcParams>,
+    /// The scene's PVS (needed when `pvs` is walked).
+    pub pvs: Option<std::sync::Arc<crate::culling::Pvs>>,
 }
 
 /// Runs the walk `repeats` times: `warmup + frames` poses spread over the whole path; every
@@ -38,21 +45,34 @@ pub fn run(
     mut progress: impl FnMut(u64, u64),
 ) -> Result<Vec<FrameRecord>> {
     renderer.visibility_threshold = cfg.params.pixel_threshold;
+    renderer.log_drawn_objects(cfg.check);
+    let mut owned = Vec::new();
     let repeats = cfg.repeats.max(1);
     let total = cfg.warmup + cfg.frames;
     let per_repeat = total as u64 * cfg.algorithms.len() as u64;
     let mut records = Vec::with_capacity((cfg.frames * repeats) as usize * cfg.algorithms.len());
     for repeat in 0..repeats {
+        let setup = culling::CullerSetup {
+            params: cfg.params.clone(),
+            nohc: cfg.nohc.clone(),
+            pvs: cfg.pvs.clone(),
+        };
         let mut cullers: Vec<Box<dyn Culler>> = cfg
             .algorithms
             .iter()
-            .map(|a| culling::create(a, &cfg.params))
+            .map(|a| culling::create_with(a, &setup))
             .collect::<Result<_>>()?;
         for i in 0..total {
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
+            if cfg.check {
+                renderer.object_pixels(bvh, &camera, &mut owned)?;
+            }
             for (k, (name, culler)) in cfg.algorithms.iter().zip(cullers.iter_mut()).enumerate() {
-                let r = renderer.render_frame(culler.as_mut(), bvh, &camera, i as u64)?;
+                let mut r = renderer.render_frame(culler.as_mut(), bvh, &camera, i as u64)?;
+                if cfg.check {
+                    r.check = Some(renderer.check_drawn(&owned));
+                }
                 if i >= cfg.warmup {
                     records.push(r.record(name, i - cfg.warmup, repeat));
                 }
@@ -120,14 +140,17 @@ pub fn write_report(
                 records
                     .iter()
                     .filter(|r| &r.algorithm == a && r.repeat == 0)
-                    .map(|r| (r.frame, r.queries as f64, r.state_changes as f64))
+                    .map(|r| {
+                        let (q, w) = (r.queries as f64, r.wasted_queries as f64);
+                        (r.frame, q, w, r.state_changes as f64)
+                    })
                     .collect(),
             )
         })
         .collect();
     report::plot_counts(
         &dir.join("counts.png"),
-        &format!("Queries and state changes: {title}"),
+        &format!("Queries, wasted queries, state changes: {title}"),
         &counts,
     )?;
     Ok(summary)

@@ -11,7 +11,7 @@ use std::path::Path;
 use crate::Error;
 
 pub use plot::{plot_counts, plot_frametime, CountSeries};
-pub use summary::{scaling_table, summarize, AlgorithmSummary, WalkSummary};
+pub use summary::{scaling_table, summarize, AlgorithmSummary, PreprocessSummary, WalkSummary};
 
 /// One frame of one algorithm.
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -48,10 +48,14 @@ pub struct FrameRecord {
     pub objects: u32,
     /// Queue submissions.
     pub submits: u32,
+    /// With `walk --check`: objects that own a pixel of the exact ID pass but were not drawn.
+    pub missed_objects: Option<u32>,
+    /// With `walk --check`: pixels of the exact ID pass owned by missed objects.
+    pub missed_pixels: Option<u64>,
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 16] = [
+pub const CSV_HEADER: [&str; 18] = [
     "algorithm",
     "frame",
     "repeat",
@@ -68,6 +72,8 @@ pub const CSV_HEADER: [&str; 16] = [
     "triangles",
     "objects",
     "submits",
+    "missed_objects",
+    "missed_pixels",
 ];
 
 /// Quotes a CSV field if it contains a separator, quote or line break.
@@ -79,6 +85,11 @@ fn csv_field(s: &str) -> String {
     }
 }
 
+/// A CSV field for an optional figure: empty when it was not measured.
+fn optional<T: ToString>(v: Option<T>) -> String {
+    v.map(|v| v.to_string()).unwrap_or_default()
+}
+
 /// Writes one CSV row per record, preceded by a header of the field names.
 pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Error> {
     let mut w = BufWriter::new(File::create(path)?);
@@ -86,7 +97,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.repeat,
@@ -102,7 +113,9 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             r.query_draws,
             r.triangles,
             r.objects,
-            r.submits
+            r.submits,
+            optional(r.missed_objects),
+            optional(r.missed_pixels)
         )?;
     }
     w.flush()?;
@@ -168,10 +181,11 @@ mod tests {
         assert_eq!(
             lines[0],
             "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
-             pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits"
+             pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,\
+             missed_objects,missed_pixels"
         );
         assert_eq!(lines.len(), 1 + records.len());
-        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0");
+        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,");
         assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -14,8 +14,9 @@ use crate::Error;
 /// Font file registered as the "sans-serif" family on first use.
 pub const FONT_PATH: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
 
-/// One algorithm's count series: name and `(frame, queries, state_changes)` points.
-pub type CountSeries = (String, Vec<(u32, f64, f64)>);
+/// One algorithm's count series: name and `(frame, queries, wasted_queries, state_changes)`
+/// points.
+pub type CountSeries = (String, Vec<(u32, f64, f64, f64)>);
 
 /// Font family name used in every text style.
 const FAMILY: &str = "sans-serif";
@@ -72,8 +73,9 @@ fn draw_chart(
         .fold(0.0_f64, f64::max);
     let top = if max_y > 0.0 { max_y * 1.1 } else { 1.0 };
 
+    let width = area.dim_in_pixel().0;
     let mut chart = ChartBuilder::on(area)
-        .caption(caption, (FAMILY, 26))
+        .caption(caption, (FAMILY, title_size(caption, width, 26)))
         .margin(16)
         .x_label_area_size(56)
         .y_label_area_size(84)
@@ -143,38 +145,109 @@ pub fn plot_frametime(
     root.present().map_err(|e| plot_err(path, e))
 }
 
-/// Count plot (1280x900) of `(frame, queries, state_changes)` series: queries
-/// per frame on top, state changes per frame below, one line per algorithm.
+/// A title font size that fits `title` into `width` pixels (DejaVu Sans averages about 0.55
+/// of its size per character).
+fn title_size(title: &str, width: u32, largest: u32) -> u32 {
+    let chars = title.chars().count().max(1) as f64;
+    ((f64::from(width) - 40.0) / (0.56 * chars)).clamp(12.0, f64::from(largest)) as u32
+}
+
+/// Count plot (1280x1200) of `(frame, queries, wasted, state_changes)` series: queries,
+/// wasted queries and state changes per frame, one panel each, on log scales (so that CHC's
+/// hundreds and CHC++'s few are both readable; zero is drawn at the bottom edge).
 pub fn plot_counts(path: &Path, title: &str, series: &[CountSeries]) -> Result<(), Error> {
     ensure_font()?;
-    let root = BitMapBackend::new(path, (1280, 900)).into_drawing_area();
+    let root = BitMapBackend::new(path, (1280, 1200)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
     let body = root
         .margin(8, 0, 0, 0)
-        .titled(title, (FAMILY, 30))
+        .titled(title, (FAMILY, title_size(title, 1280, 28)))
         .map_err(|e| plot_err(path, e))?;
-    let (upper, lower) = body.split_vertically(body.dim_in_pixel().1 / 2);
-    let pick = |f: fn(&(u32, f64, f64)) -> f64| -> Vec<(&str, Vec<(u32, f64)>)> {
+    let panels = body.split_evenly((3, 1));
+    let pick = |f: fn(&(u32, f64, f64, f64)) -> f64| -> Vec<(&str, Vec<(u32, f64)>)> {
         series
             .iter()
             .map(|(name, pts)| (name.as_str(), pts.iter().map(|p| (p.0, f(p))).collect()))
             .collect()
     };
-    draw_chart(
-        &upper,
-        "occlusion queries per frame",
-        "queries",
-        &pick(|p| p.1),
-    )
-    .map_err(|e| plot_err(path, e))?;
-    draw_chart(
-        &lower,
-        "state changes per frame",
-        "state changes",
-        &pick(|p| p.2),
-    )
-    .map_err(|e| plot_err(path, e))?;
+    type Column = fn(&(u32, f64, f64, f64)) -> f64;
+    let charts: [(&str, &str, Column); 3] = [
+        ("occlusion queries per frame (log)", "queries", |p| p.1),
+        (
+            "wasted queries per frame (log; result: visible)",
+            "wasted",
+            |p| p.2,
+        ),
+        ("state changes per frame (log)", "state changes", |p| p.3),
+    ];
+    for (area, (caption, y, f)) in panels.iter().zip(charts) {
+        draw_log_chart(area, caption, y, &pick(f)).map_err(|e| plot_err(path, e))?;
+    }
     root.present().map_err(|e| plot_err(path, e))
+}
+
+/// One line chart of `(frame, count)` series on a log scale from 0.5 (zero is drawn there).
+fn draw_log_chart(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    caption: &str,
+    y_desc: &str,
+    series: &[(&str, Vec<(u32, f64)>)],
+) -> Result<(), String> {
+    let max_x = series
+        .iter()
+        .flat_map(|(_, pts)| pts.iter().map(|p| p.0))
+        .max()
+        .unwrap_or(0)
+        .max(1);
+    let max_y = series
+        .iter()
+        .flat_map(|(_, pts)| pts.iter().map(|p| p.1))
+        .filter(|v| v.is_finite())
+        .fold(1.0_f64, f64::max);
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, (FAMILY, 22))
+        .margin(12)
+        .x_label_area_size(44)
+        .y_label_area_size(84)
+        .build_cartesian_2d(0u32..max_x, (0.5..max_y * 2.0).log_scale())
+        .map_err(|e| e.to_string())?;
+    chart
+        .configure_mesh()
+        .x_desc("frame")
+        .y_desc(y_desc)
+        .axis_desc_style((FAMILY, 18))
+        .label_style((FAMILY, 15))
+        .bold_line_style(RGBColor(215, 215, 215))
+        .light_line_style(RGBColor(242, 242, 242))
+        .y_label_formatter(&|v: &f64| format!("{v:.0}"))
+        .draw()
+        .map_err(|e| e.to_string())?;
+    for (i, (name, pts)) in series.iter().enumerate() {
+        let color = COLORS[i % COLORS.len()];
+        let line = pts
+            .iter()
+            .filter(|p| p.1.is_finite())
+            .map(|&(x, y)| (x, y.max(0.5)));
+        chart
+            .draw_series(LineSeries::new(line, color.stroke_width(2)))
+            .map_err(|e| e.to_string())?
+            .label(*name)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 24, y)], color.stroke_width(3))
+            });
+    }
+    if !series.is_empty() {
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .label_font((FAMILY, 15))
+            .background_style(WHITE.mix(0.9))
+            .border_style(BLACK)
+            .margin(8)
+            .draw()
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -245,7 +318,14 @@ mod tests {
         let path = dir.join("counts.png");
         let series: Vec<CountSeries> = walk(600)
             .into_iter()
-            .map(|(n, pts)| (n, pts.into_iter().map(|p| (p.0, p.2, p.3)).collect()))
+            .map(|(n, pts)| {
+                (
+                    n,
+                    pts.into_iter()
+                        .map(|p| (p.0, p.2, p.2 * 0.3, p.3))
+                        .collect(),
+                )
+            })
             .collect();
         plot_counts(&path, "city walk: queries and state changes", &series).unwrap();
         let size = std::fs::metadata(&path).unwrap().len();
@@ -272,7 +352,7 @@ mod tests {
         plot_counts(
             &dir.join("empty4.png"),
             "one",
-            &[("a".into(), vec![(3, 0.0, 0.0)])],
+            &[("a".into(), vec![(3, 0.0, 0.0, 0.0)])],
         )
         .unwrap();
         assert!(dir.join("empty1.png").exists());

@@ -41,6 +41,34 @@ pub struct AlgorithmSummary {
     pub triangles_median: f64,
     /// Median queue submissions per frame.
     pub submits_median: f64,
+    /// With `walk --check`: the most objects missed in any frame (visible, not drawn).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub missed_objects_max: Option<u32>,
+    /// With `walk --check`: the most pixels owned by missed objects in any frame.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub missed_pixels_max: Option<u64>,
+    /// Preprocessing figures of a precomputed algorithm (pvs).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub preprocess: Option<PreprocessSummary>,
+}
+
+/// What a preprocessed visibility algorithm (pvs) cost before the walk.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct PreprocessSummary {
+    /// Seconds spent building the PVS (0 when it was loaded from the cache).
+    pub preprocess_s: f64,
+    /// Whether the PVS came from the cache file rather than being built in this run.
+    pub from_cache: bool,
+    /// View cells.
+    pub cells: usize,
+    /// Mean objects per cell's PVS.
+    pub pvs_objects_mean: f64,
+    /// Largest cell PVS.
+    pub pvs_objects_max: usize,
+    /// Size of the cache file in bytes.
+    pub file_bytes: u64,
+    /// Frames whose camera was outside every view cell (drawn frustum-culled only).
+    pub frames_outside_cells: usize,
 }
 
 impl AlgorithmSummary {
@@ -64,6 +92,9 @@ impl AlgorithmSummary {
             query_draws_median: med(&|r| f64::from(r.query_draws)),
             triangles_median: med(&|r| r.triangles as f64),
             submits_median: med(&|r| f64::from(r.submits)),
+            missed_objects_max: records.iter().filter_map(|r| r.missed_objects).max(),
+            missed_pixels_max: records.iter().filter_map(|r| r.missed_pixels).max(),
+            preprocess: None,
         }
     }
 }
@@ -317,7 +348,39 @@ impl WalkSummary {
                 ratio,
             );
         }
+        out.push_str(&self.check_table());
         out.push_str(&self.ratio_table());
+        out
+    }
+
+    /// Missed objects and pixels per algorithm (`walk --check`), and the preprocessing of
+    /// precomputed algorithms; empty when neither applies.
+    fn check_table(&self) -> String {
+        let mut out = String::new();
+        for (name, s) in &self.algorithms {
+            if let (Some(o), Some(p)) = (s.missed_objects_max, s.missed_pixels_max) {
+                if out.is_empty() {
+                    out.push_str("\nexactness (walk --check): most missed in any frame\n");
+                }
+                let _ = writeln!(out, "  {name:<16} {o} objects, {p} pixels");
+            }
+        }
+        for (name, s) in &self.algorithms {
+            if let Some(p) = &s.preprocess {
+                let _ = writeln!(
+                    out,
+                    "\n{name}: {} cells, {:.1} objects per cell (max {}), {:.1} s preprocessing{}, \
+                     {} KiB cache file, {} frames outside the cells",
+                    p.cells,
+                    p.pvs_objects_mean,
+                    p.pvs_objects_max,
+                    p.preprocess_s,
+                    if p.from_cache { " (loaded from cache)" } else { "" },
+                    p.file_bytes / 1024,
+                    p.frames_outside_cells
+                );
+            }
+        }
         out
     }
 

@@ -757,6 +757,9 @@ pub fn powerplant(scale: f32) -> Scene {
         }
     }
     powerplant_path(&mut b);
+    if rooms >= 3 {
+        powerplant_difficult_path(&mut b);
+    }
     b.finish()
 }
 
@@ -892,6 +895,43 @@ fn powerplant_path(b: &mut SceneBuilder) {
             ),
         ],
     );
+}
+
+/// `difficult`: through six doorways with a sharp turn right behind each, along the pipe
+/// runs, where temporal coherence breaks (what was hidden a moment ago fills the view).
+fn powerplant_difficult_path(b: &mut SceneBuilder) {
+    let s = ROOM_SIZE;
+    let e = 1.7;
+    let z = 0.49 * s; // a walkway between the boilers and the pipe runs
+    let keys = [
+        (Vec3::new(0.5 * s, e, 3.0), Vec3::new(0.5 * s, e, 20.0)),
+        (Vec3::new(0.5 * s, e, z), Vec3::new(s, e, z)),
+        (Vec3::new(s - 1.5, e, z), Vec3::new(s + 10.0, e, z)),
+        (Vec3::new(s + 1.5, e, z), Vec3::new(s + 1.5, e, s)),
+        (
+            Vec3::new(s + 3.0, e, z),
+            Vec3::new(2.0 * s, e + 2.0, z + 1.0),
+        ),
+        (Vec3::new(1.5 * s, e, z), Vec3::new(1.5 * s, e, s)),
+        (
+            Vec3::new(1.5 * s, e, s - 1.5),
+            Vec3::new(1.5 * s, e, s + 10.0),
+        ),
+        (Vec3::new(1.5 * s, e, s + 1.5), Vec3::new(s, e, s + 1.5)),
+        (Vec3::new(1.2 * s, e, s + z), Vec3::new(0.5 * s, e, s + z)),
+        (Vec3::new(s + 1.5, e, s + z), Vec3::new(s - 10.0, e, s + z)),
+        (Vec3::new(s - 1.5, e, s + z), Vec3::new(s - 1.5, e, 2.0 * s)),
+        (Vec3::new(0.5 * s, e, s + z), Vec3::new(0.5 * s, e, 2.5 * s)),
+        (
+            Vec3::new(0.5 * s, e, 2.0 * s - 1.5),
+            Vec3::new(0.5 * s, e, 2.0 * s + 10.0),
+        ),
+        (
+            Vec3::new(0.5 * s, e, 2.0 * s + 1.5),
+            Vec3::new(0.5 * s + 10.0, e + 4.0, 2.0 * s + 14.0),
+        ),
+    ];
+    b.path("difficult", &keys);
 }
 
 /// `cornell`: the Cornell box (5.5 m) with a tall and a short block; red left, green right.
