@@ -18,7 +18,8 @@ use coherent::scene::{CameraPath, Scene};
 
 use crate::cli::{self, SceneArgs};
 
-/// Where calibration and PVS files live.
+/// Where calibration and PVS files live, and NOHC's parameters (its costs come from the
+/// calibration).
 #[derive(Args, Clone, Debug)]
 pub struct CacheArgs {
     /// Cache directory (default: $XDG_CACHE_HOME/coherent, else ~/.cache/coherent).
@@ -27,6 +28,18 @@ pub struct CacheArgs {
     /// Measure the device again instead of using the stored calibration.
     #[arg(long)]
     pub recalibrate: bool,
+    /// NOHC: occlusion probability of a node with no query history.
+    #[arg(long, default_value_t = 0.5)]
+    pub nohc_prior: f32,
+    /// NOHC: weight of the newest query outcome in a node's occlusion history.
+    #[arg(long, default_value_t = 0.5)]
+    pub nohc_history_weight: f32,
+    /// NOHC: exponent of the screen-coverage term (1 - coverage)^e.
+    #[arg(long, default_value_t = 1.0)]
+    pub nohc_coverage_exponent: f32,
+    /// NOHC: per-frame chance that a visible leaf became occluded.
+    #[arg(long, default_value_t = 0.05)]
+    pub nohc_turnover: f32,
 }
 
 impl CacheArgs {
@@ -135,12 +148,29 @@ pub fn nohc_params(
     size: (u32, u32),
 ) -> Result<NohcParams> {
     let cal = calibration(ctx, cache)?;
+    for (name, v) in [
+        ("--nohc-prior", cache.nohc_prior),
+        ("--nohc-history-weight", cache.nohc_history_weight),
+        ("--nohc-turnover", cache.nohc_turnover),
+    ] {
+        if !(0.0..=1.0).contains(&v) {
+            bail!("{name} must be between 0 and 1");
+        }
+    }
+    if !(cache.nohc_coverage_exponent.is_finite() && cache.nohc_coverage_exponent >= 0.0) {
+        bail!("--nohc-coverage-exponent must be a number >= 0");
+    }
     let triangles = scene
         .objects
         .iter()
         .map(|o| o.triangle_count().min(u64::from(u32::MAX)) as u32)
         .collect();
-    Ok(NohcParams::new(cal.costs, size, triangles))
+    let mut p = NohcParams::new(cal.costs, size, triangles);
+    p.prior = cache.nohc_prior;
+    p.history_weight = cache.nohc_history_weight;
+    p.coverage_exponent = cache.nohc_coverage_exponent;
+    p.visible_turnover = cache.nohc_turnover;
+    Ok(p)
 }
 
 /// `coherent pvs`: builds (or loads) the PVS of a scene's path and reports it.
