@@ -225,15 +225,17 @@ fn rss_kb() -> u64 {
 struct Soak {
     frames: u32,
     messages: usize,
-    rss_kb: (u64, u64),
+    rss_kb: Vec<(u32, u64)>,
     memory: (MemoryUsage, MemoryUsage),
     seconds: f64,
 }
 
-/// Walks `frames` poses of the city's street path at 160x90 (scale 0.1), every algorithm at
-/// every pose, under strict validation. Start figures are taken after a warm-up of 20 poses.
+/// Renders `frames` frames along the city's street path at 160x90 (scale 0.1): each pose is
+/// rendered by every algorithm in turn (frames / 5 poses, forward and back along the path),
+/// under strict validation. Start figures are taken after a warm-up of 20 poses; RSS is also
+/// sampled at ten checkpoints.
 fn soak(frames: u32) -> Soak {
-    let warmup = 20u32;
+    let (warmup, poses) = (20u32, (frames / ALGORITHMS.len() as u32).max(1));
     let (ctx, log) = common::context();
     let mut report = {
         let (scene, bvh) = common::scene("city", 0.1);
@@ -243,26 +245,29 @@ fn soak(frames: u32) -> Soak {
             .iter()
             .map(|a| culling::create(a, &ChcppParams::default()).expect("algorithm"))
             .collect();
-        let mut start = (0, MemoryUsage::default(), std::time::Instant::now());
-        for f in 0..warmup + frames {
-            if f == warmup {
-                start = (rss_kb(), ctx.memory_usage(), std::time::Instant::now());
+        let mut start = (MemoryUsage::default(), std::time::Instant::now());
+        let mut rss = Vec::new();
+        for p in 0..warmup + poses {
+            if p == warmup {
+                start = (ctx.memory_usage(), std::time::Instant::now());
             }
-            // Forward and back along the path, so a long soak keeps moving.
-            let period = 2 * 600;
-            let k = f % period;
+            if p >= warmup && (p - warmup) % (poses / 10).max(1) == 0 {
+                rss.push(((p - warmup) * ALGORITHMS.len() as u32, rss_kb()));
+            }
+            let (period, k) = (2 * 600, p % 1200);
             let cam = r.camera(path.sample(k.min(period - k), 601), &bvh);
             for alg in algs.iter_mut() {
-                r.render_frame(alg.as_mut(), &bvh, &cam, f as u64)
+                r.render_frame(alg.as_mut(), &bvh, &cam, p as u64)
                     .expect("frame");
             }
         }
+        rss.push((poses * ALGORITHMS.len() as u32, rss_kb()));
         Soak {
-            frames,
+            frames: poses * ALGORITHMS.len() as u32,
             messages: 0,
-            rss_kb: (start.0, rss_kb()),
-            memory: (start.1, ctx.memory_usage()),
-            seconds: start.2.elapsed().as_secs_f64(),
+            rss_kb: rss,
+            memory: (start.0, ctx.memory_usage()),
+            seconds: start.1.elapsed().as_secs_f64(),
         }
     };
     drop(ctx);
@@ -273,21 +278,25 @@ fn soak(frames: u32) -> Soak {
 
 fn print_and_check(s: &Soak) {
     let (m0, m1) = s.memory;
+    let rss: Vec<String> = s.rss_kb.iter().map(|(f, kb)| format!("{f}:{kb}")).collect();
     println!(
-        "soak: {} poses x {} algorithms in {:.1} s; validation messages {}; RSS {} kB -> {} kB; \
-         GPU allocator {} B in {} allocations ({} B capacity) -> {} B in {} allocations ({} B capacity)",
+        "soak: {} frames ({} poses x {} algorithms) in {:.1} s; validation messages {}; \
+         RSS kB at frame {}; GPU allocator {} B in {} allocations ({} B in {} blocks) -> \
+         {} B in {} allocations ({} B in {} blocks)",
         s.frames,
+        s.frames / ALGORITHMS.len() as u32,
         ALGORITHMS.len(),
         s.seconds,
         s.messages,
-        s.rss_kb.0,
-        s.rss_kb.1,
+        rss.join(" "),
         m0.allocated_bytes,
         m0.allocations,
         m0.capacity_bytes,
+        m0.blocks,
         m1.allocated_bytes,
         m1.allocations,
-        m1.capacity_bytes
+        m1.capacity_bytes,
+        m1.blocks
     );
     assert_eq!(s.messages, 0);
     let flat = |a: u64, b: u64| b.abs_diff(a) as f64 <= 0.01 * a as f64;

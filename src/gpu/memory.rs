@@ -362,10 +362,12 @@ impl ImageUse {
                 S::COMPUTE_SHADER,
                 A::SHADER_STORAGE_READ,
             ),
+            // SHADER_READ (which includes SHADER_SAMPLED_READ): best practices of layer 1.3.239
+            // expects it for SHADER_READ_ONLY_OPTIMAL and does not know the sync2 bit.
             ImageUse::SampledByCompute => (
                 vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
                 S::COMPUTE_SHADER,
-                A::SHADER_SAMPLED_READ,
+                A::SHADER_READ,
             ),
             ImageUse::TransferSrc => (
                 vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
