@@ -13,6 +13,37 @@ pub enum Error {
         /// The result it returned.
         result: vk::Result,
     },
+    /// The device was lost (a driver crash, reset or hang); the context cannot be used again.
+    #[error("the Vulkan device was lost during {call} (driver crash, reset or hang); recreate the context")]
+    DeviceLost {
+        /// The call that reported it.
+        call: &'static str,
+    },
+    /// Device memory ran out (the driver said so, the allocator found no room, or the
+    /// context's memory budget would be exceeded).
+    #[error("out of device memory: {what}")]
+    OutOfDeviceMemory {
+        /// What was being allocated or called, and the sizes where known.
+        what: String,
+    },
+    /// Host memory ran out inside the driver.
+    #[error("out of host memory: {what}")]
+    OutOfHostMemory {
+        /// The call that reported it.
+        what: String,
+    },
+    /// Something exceeds a device limit and the work cannot be split to fit.
+    #[error("{what}: {value} exceeds the device's {limit} of {max}")]
+    Limit {
+        /// What was being created or recorded.
+        what: String,
+        /// The Vulkan limit's name, e.g. `maxImageDimension2D`.
+        limit: &'static str,
+        /// The value asked for.
+        value: u64,
+        /// The device's limit.
+        max: u64,
+    },
     /// The Vulkan loader could not be opened.
     #[error("cannot load the Vulkan loader: {0}")]
     Loader(String),
@@ -49,6 +80,33 @@ pub(crate) trait VkContext<T> {
 
 impl<T> VkContext<T> for std::result::Result<T, vk::Result> {
     fn vk(self, call: &'static str) -> Result<T> {
-        self.map_err(|result| Error::Vulkan { call, result })
+        self.map_err(|result| Error::from_vk(call, result))
+    }
+}
+
+impl Error {
+    /// The error for `result` returned by `call`: device loss and running out of device or host
+    /// memory get their own variants, everything else is [`Error::Vulkan`].
+    pub fn from_vk(call: &'static str, result: vk::Result) -> Error {
+        match result {
+            vk::Result::ERROR_DEVICE_LOST => Error::DeviceLost { call },
+            vk::Result::ERROR_OUT_OF_DEVICE_MEMORY => Error::OutOfDeviceMemory {
+                what: format!("{call} returned {result}"),
+            },
+            vk::Result::ERROR_OUT_OF_HOST_MEMORY => Error::OutOfHostMemory {
+                what: format!("{call} returned {result}"),
+            },
+            _ => Error::Vulkan { call, result },
+        }
+    }
+
+    /// The error for a failed gpu-allocator allocation of `what`.
+    pub(crate) fn from_alloc(what: &str, e: gpu_allocator::AllocationError) -> Error {
+        match e {
+            gpu_allocator::AllocationError::OutOfMemory => Error::OutOfDeviceMemory {
+                what: format!("{what}: the allocator found no memory"),
+            },
+            e => Error::Alloc(format!("{what}: {e}")),
+        }
     }
 }

@@ -440,14 +440,15 @@ impl Recorder {
         self.in_query = false;
     }
 
-    /// Writes timestamp `id` of `pools` after all previous work.
+    /// Writes timestamp `id` of `pools` after all previous work (BOTTOM_OF_PIPE: for a
+    /// timestamp the same point as ALL_COMMANDS, without best practices' warning about it).
     pub fn write_timestamp(&mut self, pools: &QueryPools, id: u32) {
         let (pool, index) = pools.location(id);
         // SAFETY: the query was reset.
         unsafe {
             self.device.cmd_write_timestamp2(
                 self.cmd,
-                vk::PipelineStageFlags2::ALL_COMMANDS,
+                vk::PipelineStageFlags2::BOTTOM_OF_PIPE,
                 pool,
                 index,
             )

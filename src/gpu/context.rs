@@ -37,6 +37,8 @@ pub struct ValidationMessage {
 #[derive(Debug, Default)]
 pub struct ValidationLog {
     messages: Mutex<Vec<ValidationMessage>>,
+    others: Mutex<Vec<ValidationMessage>>,
+    allowed: Mutex<Vec<ValidationMessage>>,
     echo: bool,
 }
 
@@ -48,6 +50,29 @@ impl ValidationLog {
     /// Number of warnings and errors captured so far.
     pub fn count(&self) -> usize {
         self.messages.lock().map(|m| m.len()).unwrap_or(0)
+    }
+    /// Messages from the loader and layers other than validation (e.g. the loader's warning
+    /// that `VK_INSTANCE_LAYERS` injected a layer): printed to stderr, never counted.
+    pub fn other_messages(&self) -> Vec<ValidationMessage> {
+        self.others.lock().map(|m| m.clone()).unwrap_or_default()
+    }
+    /// Messages on the allow-list ([`ALLOWED_MESSAGES`]): kept, not printed, not counted.
+    pub fn allowed_messages(&self) -> Vec<ValidationMessage> {
+        self.allowed.lock().map(|m| m.clone()).unwrap_or_default()
+    }
+    fn push_allowed(&self, m: ValidationMessage) {
+        if let Ok(mut v) = self.allowed.lock() {
+            v.push(m);
+        }
+    }
+    fn push_other(&self, m: ValidationMessage) {
+        eprintln!(
+            "vulkan {:?} (not validation, not counted): {}",
+            m.severity, m.text
+        );
+        if let Ok(mut v) = self.others.lock() {
+            v.push(m);
+        }
     }
     fn push(&self, m: ValidationMessage) {
         if self.echo {
@@ -61,7 +86,7 @@ impl ValidationLog {
 
 unsafe extern "system" fn debug_callback(
     severity: vk::DebugUtilsMessageSeverityFlagsEXT,
-    _types: vk::DebugUtilsMessageTypeFlagsEXT,
+    types: vk::DebugUtilsMessageTypeFlagsEXT,
     data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
     user: *mut c_void,
 ) -> vk::Bool32 {
@@ -86,12 +111,52 @@ unsafe extern "system" fn debug_callback(
     let text = unsafe { data.message_as_c_str() }
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
-    log.push(ValidationMessage {
+    let message = ValidationMessage {
         severity: sev,
         id,
         text,
-    });
+    };
+    if allowed(&message.id) {
+        log.push_allowed(message);
+    } else if is_validation_message(types, &message.id) {
+        log.push(message);
+    } else {
+        log.push_other(message);
+    }
     vk::FALSE
+}
+
+/// Validation messages that do not fail a run, by message ID, each with the reason. This is
+/// the one allow-list; keep it short.
+pub const ALLOWED_MESSAGES: &[(&str, &str)] = &[
+    (
+        "UNASSIGNED-BestPractices-vkCreateInstance-specialuse-extension-debugging",
+        "best practices advises against VK_EXT_debug_utils and VK_EXT_validation_features, \
+         which are enabled only together with the validation layer, to capture and configure it",
+    ),
+    (
+        "UNASSIGNED-BestPractices-SpirvDeprecated_WorkgroupSize",
+        "glslang declares the WorkgroupSize built-in in every compute shader; it is deprecated \
+         only from SPIR-V 1.6 and ours are SPIR-V 1.5 (Vulkan 1.2 target), but layer 1.3.239 \
+         warns whatever the module's version",
+    ),
+];
+
+/// Whether a message ID is on [`ALLOWED_MESSAGES`].
+fn allowed(id: &str) -> bool {
+    ALLOWED_MESSAGES.iter().any(|(allowed, _)| *allowed == id)
+}
+
+/// Message-ID prefixes of the Khronos validation layer (core checks, object tracker, thread
+/// safety, synchronization validation, best practices).
+const VALIDATION_ID_PREFIXES: &[&str] = &["VUID-", "UNASSIGNED-", "SYNC-", "BestPractices-"];
+
+/// Whether a debug-utils message comes from the validation layer (and so counts as a failure):
+/// its type is VALIDATION or its ID is one of the layer's. The loader and other layers (a
+/// capture layer, an overlay) send GENERAL messages without such IDs.
+pub(crate) fn is_validation_message(types: vk::DebugUtilsMessageTypeFlagsEXT, id: &str) -> bool {
+    types.contains(vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION)
+        || VALIDATION_ID_PREFIXES.iter().any(|p| id.starts_with(p))
 }
 
 /// How to create a context.
@@ -101,6 +166,11 @@ pub struct ContextOptions {
     pub validation: bool,
     /// Print captured messages to stderr as they arrive.
     pub echo_validation: bool,
+    /// With `validation`: also enable synchronization validation and best practices
+    /// (`VkValidationFeaturesEXT`). [`GpuContext::headless`] (the test suite's contexts) turns
+    /// it on; `COHERENT_STRICT_VALIDATION=1` (or `=0`) turns it on (off) for every validated
+    /// context.
+    pub strict_validation: bool,
     /// Pick the first device whose name contains this (case-insensitive). `COHERENT_DEVICE`
     /// is used when this is `None`.
     pub device_filter: Option<String>,
@@ -108,6 +178,22 @@ pub struct ContextOptions {
     pub instance_extensions: Vec<CString>,
     /// Device extensions needed by the caller (e.g. `VK_KHR_swapchain`).
     pub device_extensions: Vec<CString>,
+    /// At most this many bytes of GPU memory may be allocated through the context; an
+    /// allocation beyond it fails with [`Error::OutOfDeviceMemory`] (`None`: no budget).
+    pub memory_budget: Option<u64>,
+}
+
+/// What the context's allocator holds (gpu-allocator's report), for soak runs and leak checks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MemoryUsage {
+    /// Bytes in live allocations.
+    pub allocated_bytes: u64,
+    /// Bytes of device memory blocks the allocator holds (allocated or free within a block).
+    pub capacity_bytes: u64,
+    /// Live allocations.
+    pub allocations: usize,
+    /// Device memory blocks.
+    pub blocks: usize,
 }
 
 /// What was chosen and why, for `coherent info`.
@@ -133,6 +219,127 @@ pub struct DeviceInfo {
     pub max_image_array_layers: u32,
     /// Largest layer count of a (layered) rendering.
     pub max_framebuffer_layers: u32,
+    /// Largest width or height of a 2D image.
+    pub max_image_dimension_2d: u32,
+    /// Largest width and height of a rendering area.
+    pub max_framebuffer_size: (u32, u32),
+    /// Largest range of one storage-buffer descriptor, in bytes.
+    pub max_storage_buffer_range: u32,
+    /// Largest range of one uniform-buffer descriptor, in bytes.
+    pub max_uniform_buffer_range: u32,
+    /// Largest push-constant block, in bytes.
+    pub max_push_constants_size: u32,
+    /// Largest local workgroup size of a compute shader, per dimension.
+    pub max_compute_work_group_size: [u32; 3],
+    /// Largest number of invocations in one compute workgroup.
+    pub max_compute_work_group_invocations: u32,
+    /// Largest number of workgroups of one dispatch, per dimension.
+    pub max_compute_work_group_count: [u32; 3],
+}
+
+impl DeviceInfo {
+    /// [`Error::Limit`] unless `value <= max`.
+    fn within(what: &str, limit: &'static str, value: u64, max: u64) -> Result<()> {
+        if value <= max {
+            Ok(())
+        } else {
+            Err(Error::Limit {
+                what: what.to_string(),
+                limit,
+                value,
+                max,
+            })
+        }
+    }
+
+    /// A 2D (array) image of `width`x`height`x`layers` fits `maxImageDimension2D` and
+    /// `maxImageArrayLayers`, and, when `attachment`, the rendering area limits
+    /// `maxFramebufferWidth`/`Height`.
+    pub fn check_image(
+        &self,
+        what: &str,
+        (w, h): (u32, u32),
+        layers: u32,
+        attachment: bool,
+    ) -> Result<()> {
+        let dim = u64::from(self.max_image_dimension_2d);
+        Self::within(what, "maxImageDimension2D", u64::from(w.max(h)), dim)?;
+        Self::within(
+            what,
+            "maxImageArrayLayers",
+            layers.into(),
+            self.max_image_array_layers.into(),
+        )?;
+        if attachment {
+            let (fw, fh) = self.max_framebuffer_size;
+            Self::within(what, "maxFramebufferWidth", w.into(), fw.into())?;
+            Self::within(what, "maxFramebufferHeight", h.into(), fh.into())?;
+        }
+        Ok(())
+    }
+
+    /// A layered rendering over `layers` layers fits `maxFramebufferLayers`.
+    pub fn check_framebuffer_layers(&self, what: &str, layers: u32) -> Result<()> {
+        Self::within(
+            what,
+            "maxFramebufferLayers",
+            layers.into(),
+            self.max_framebuffer_layers.into(),
+        )
+    }
+
+    /// A storage-buffer descriptor over `bytes` fits `maxStorageBufferRange`.
+    pub fn check_storage_buffer(&self, what: &str, bytes: u64) -> Result<()> {
+        Self::within(
+            what,
+            "maxStorageBufferRange",
+            bytes,
+            self.max_storage_buffer_range.into(),
+        )
+    }
+
+    /// A push-constant block of `bytes` fits `maxPushConstantsSize`.
+    pub fn check_push_constants(&self, what: &str, bytes: u32) -> Result<()> {
+        Self::within(
+            what,
+            "maxPushConstantsSize",
+            bytes.into(),
+            self.max_push_constants_size.into(),
+        )
+    }
+
+    /// A compute shader's local size fits `maxComputeWorkGroupSize` and
+    /// `maxComputeWorkGroupInvocations`.
+    pub fn check_workgroup(&self, what: &str, size: [u32; 3]) -> Result<()> {
+        const NAMES: [&str; 3] = [
+            "maxComputeWorkGroupSize[0]",
+            "maxComputeWorkGroupSize[1]",
+            "maxComputeWorkGroupSize[2]",
+        ];
+        for ((name, v), max) in NAMES.iter().zip(size).zip(self.max_compute_work_group_size) {
+            Self::within(what, name, v.into(), max.into())?;
+        }
+        let invocations = size.iter().map(|&v| u64::from(v)).product();
+        let max = self.max_compute_work_group_invocations.into();
+        Self::within(what, "maxComputeWorkGroupInvocations", invocations, max)
+    }
+
+    /// A dispatch of `groups` workgroups fits `maxComputeWorkGroupCount`.
+    pub fn check_dispatch(&self, what: &str, groups: [u32; 3]) -> Result<()> {
+        const NAMES: [&str; 3] = [
+            "maxComputeWorkGroupCount[0]",
+            "maxComputeWorkGroupCount[1]",
+            "maxComputeWorkGroupCount[2]",
+        ];
+        for ((name, v), max) in NAMES
+            .iter()
+            .zip(groups)
+            .zip(self.max_compute_work_group_count)
+        {
+            Self::within(what, name, v.into(), max.into())?;
+        }
+        Ok(())
+    }
 }
 
 /// The features `coherent` relies on, for `coherent info`.
@@ -166,6 +373,7 @@ pub struct GpuContext {
     /// What was chosen.
     pub info: DeviceInfo,
     allocator: ManuallyDrop<Mutex<Allocator>>,
+    memory_budget: Option<u64>,
     debug: Option<(ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     log: Arc<ValidationLog>,
     log_raw: *const ValidationLog,
@@ -178,10 +386,13 @@ unsafe impl Send for GpuContext {}
 unsafe impl Sync for GpuContext {}
 
 impl GpuContext {
-    /// A context with validation on, for tests and benchmarks: `GpuContext::headless()?`.
+    /// A context with strict validation on (core checks, synchronization validation and best
+    /// practices, see [`ContextOptions::strict_validation`]), for tests:
+    /// `GpuContext::headless()?`.
     pub fn headless() -> Result<Arc<GpuContext>> {
         Self::new(&ContextOptions {
             validation: true,
+            strict_validation: true,
             ..Default::default()
         })
     }
@@ -194,6 +405,8 @@ impl GpuContext {
         })?;
         let log = Arc::new(ValidationLog {
             messages: Mutex::default(),
+            others: Mutex::default(),
+            allowed: Mutex::default(),
             echo: options.echo_validation,
         });
         let log_raw = Arc::into_raw(log.clone());
@@ -247,7 +460,7 @@ impl GpuContext {
             buffer_device_address: false,
             allocation_sizes: Default::default(),
         })
-        .map_err(|e| Error::Alloc(e.to_string()))?;
+        .map_err(|e| Error::from_alloc("the allocator", e))?;
         let debug = partial.debug.take();
         partial.instance = None;
         partial.device = None;
@@ -260,6 +473,7 @@ impl GpuContext {
             queue_family,
             info,
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
+            memory_budget: options.memory_budget,
             debug,
             log,
             log_raw,
@@ -276,6 +490,22 @@ impl GpuContext {
         // A poisoned lock only means another thread panicked mid-allocation; the allocator's
         // bookkeeping is still usable for freeing.
         self.allocator.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// The memory budget of [`ContextOptions::memory_budget`].
+    pub fn memory_budget(&self) -> Option<u64> {
+        self.memory_budget
+    }
+
+    /// What the allocator holds now.
+    pub fn memory_usage(&self) -> MemoryUsage {
+        let report = self.allocator().generate_report();
+        MemoryUsage {
+            allocated_bytes: report.total_allocated_bytes,
+            capacity_bytes: report.total_capacity_bytes,
+            allocations: report.allocations.len(),
+            blocks: report.blocks.len(),
+        }
     }
 
     /// Waits until the device is idle.
@@ -398,7 +628,13 @@ fn create_instance(
         .application_name(c"coherent")
         .engine_name(c"coherent")
         .api_version(vk::API_VERSION_1_3);
+    let strict = options.validation && strict_validation(options);
+    if strict {
+        extensions.push(ext::validation_features::NAME.as_ptr());
+    }
     let mut messenger = messenger_info(log_raw);
+    let mut features = vk::ValidationFeaturesEXT::default()
+        .enabled_validation_features(STRICT_VALIDATION_FEATURES);
     let mut create_info = vk::InstanceCreateInfo::default()
         .application_info(&app)
         .enabled_layer_names(&layers)
@@ -406,8 +642,27 @@ fn create_instance(
     if options.validation {
         create_info = create_info.push_next(&mut messenger);
     }
+    if strict {
+        create_info = create_info.push_next(&mut features);
+    }
     // SAFETY: all pointers in create_info outlive the call.
     unsafe { entry.create_instance(&create_info, None) }.vk("vkCreateInstance")
+}
+
+/// What strict validation adds to the layer's core checks.
+const STRICT_VALIDATION_FEATURES: &[vk::ValidationFeatureEnableEXT] = &[
+    vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION,
+    vk::ValidationFeatureEnableEXT::BEST_PRACTICES,
+];
+
+/// Whether the options ask for strict validation; `COHERENT_STRICT_VALIDATION=1` or `=0`
+/// overrides them.
+fn strict_validation(options: &ContextOptions) -> bool {
+    match std::env::var("COHERENT_STRICT_VALIDATION").as_deref() {
+        Ok("1") => true,
+        Ok("0") => false,
+        _ => options.strict_validation,
+    }
 }
 
 /// An error naming the package when the Khronos validation layer is not installed.
@@ -537,6 +792,17 @@ fn describe(
         validation: false,
         max_image_array_layers: props.limits.max_image_array_layers,
         max_framebuffer_layers: props.limits.max_framebuffer_layers,
+        max_image_dimension_2d: props.limits.max_image_dimension2_d,
+        max_framebuffer_size: (
+            props.limits.max_framebuffer_width,
+            props.limits.max_framebuffer_height,
+        ),
+        max_storage_buffer_range: props.limits.max_storage_buffer_range,
+        max_uniform_buffer_range: props.limits.max_uniform_buffer_range,
+        max_push_constants_size: props.limits.max_push_constants_size,
+        max_compute_work_group_size: props.limits.max_compute_work_group_size,
+        max_compute_work_group_invocations: props.limits.max_compute_work_group_invocations,
+        max_compute_work_group_count: props.limits.max_compute_work_group_count,
     };
     (props, info)
 }

@@ -51,6 +51,12 @@ impl DescriptorSets {
     ) -> Result<DescriptorSets> {
         for (layout, bindings) in sets {
             check_bindings(layout, bindings)?;
+            for b in bindings.iter() {
+                if let Binding::StorageBuffer(buf) = b {
+                    ctx.info
+                        .check_storage_buffer("storage buffer binding", buf.size)?;
+                }
+            }
         }
         let mut me = DescriptorSets {
             ctx: ctx.clone(),

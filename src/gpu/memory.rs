@@ -11,6 +11,39 @@ use gpu_allocator::MemoryLocation;
 use super::GpuContext;
 use crate::error::{Error, Result, VkContext};
 
+/// Allocates memory for `name` within the context's memory budget (if it has one): running
+/// out of memory, in the driver, in the allocator or in the budget, is
+/// [`Error::OutOfDeviceMemory`].
+fn allocate(
+    ctx: &GpuContext,
+    name: &str,
+    requirements: vk::MemoryRequirements,
+    location: MemoryLocation,
+    linear: bool,
+) -> Result<Allocation> {
+    let mut allocator = ctx.allocator();
+    if let Some(budget) = ctx.memory_budget() {
+        let used = allocator.generate_report().total_allocated_bytes;
+        if used.saturating_add(requirements.size) > budget {
+            return Err(Error::OutOfDeviceMemory {
+                what: format!(
+                    "{name}: {} bytes requested, {used} of the context's budget of {budget} bytes in use",
+                    requirements.size
+                ),
+            });
+        }
+    }
+    allocator
+        .allocate(&AllocationCreateDesc {
+            name,
+            requirements,
+            location,
+            linear,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        })
+        .map_err(|e| Error::from_alloc(name, e))
+}
+
 /// A buffer and its memory.
 pub struct Buffer {
     ctx: Arc<GpuContext>,
@@ -39,19 +72,12 @@ impl Buffer {
         let handle = unsafe { ctx.device.create_buffer(&info, None) }.vk("vkCreateBuffer")?;
         // SAFETY: handle is a buffer of this device.
         let requirements = unsafe { ctx.device.get_buffer_memory_requirements(handle) };
-        let allocation = ctx.allocator().allocate(&AllocationCreateDesc {
-            name,
-            requirements,
-            location,
-            linear: true,
-            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-        });
-        let allocation = match allocation {
+        let allocation = match allocate(ctx, name, requirements, location, true) {
             Ok(a) => a,
             Err(e) => {
                 // SAFETY: unused buffer created above.
                 unsafe { ctx.device.destroy_buffer(handle, None) };
-                return Err(Error::Alloc(format!("{name}: {e}")));
+                return Err(e);
             }
         };
         // SAFETY: the allocation satisfies the buffer's requirements.
@@ -160,12 +186,11 @@ impl Image {
                 extent.width, extent.height
             )));
         }
-        if layers > ctx.info.max_image_array_layers {
-            return Err(Error::Input(format!(
-                "{name}: {layers} layers exceed the device limit {}",
-                ctx.info.max_image_array_layers
-            )));
-        }
+        let attachment = usage.intersects(
+            vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+        );
+        ctx.info
+            .check_image(name, (width, height), layers, attachment)?;
         let info = vk::ImageCreateInfo::default()
             .image_type(vk::ImageType::TYPE_2D)
             .format(format)
@@ -185,18 +210,12 @@ impl Image {
         let handle = unsafe { ctx.device.create_image(&info, None) }.vk("vkCreateImage")?;
         // SAFETY: handle is an image of this device.
         let requirements = unsafe { ctx.device.get_image_memory_requirements(handle) };
-        let allocation = match ctx.allocator().allocate(&AllocationCreateDesc {
-            name,
-            requirements,
-            location: MemoryLocation::GpuOnly,
-            linear: false,
-            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-        }) {
+        let allocation = match allocate(ctx, name, requirements, MemoryLocation::GpuOnly, false) {
             Ok(a) => a,
             Err(e) => {
                 // SAFETY: unused image created above.
                 unsafe { ctx.device.destroy_image(handle, None) };
-                return Err(Error::Alloc(format!("{name}: {e}")));
+                return Err(e);
             }
         };
         let mut image = Image {
@@ -343,10 +362,12 @@ impl ImageUse {
                 S::COMPUTE_SHADER,
                 A::SHADER_STORAGE_READ,
             ),
+            // SHADER_READ (which includes SHADER_SAMPLED_READ): best practices of layer 1.3.239
+            // expects it for SHADER_READ_ONLY_OPTIMAL and does not know the sync2 bit.
             ImageUse::SampledByCompute => (
                 vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
                 S::COMPUTE_SHADER,
-                A::SHADER_SAMPLED_READ,
+                A::SHADER_READ,
             ),
             ImageUse::TransferSrc => (
                 vk::ImageLayout::TRANSFER_SRC_OPTIMAL,

@@ -19,7 +19,7 @@ use std::sync::Arc;
 
 pub use commands::{Attachment, CommandBuffer, CommandCounts, CommandPool, Load, Recorder};
 pub use context::{
-    ContextOptions, DeviceInfo, GpuContext, Severity, ValidationLog, ValidationMessage,
+    ContextOptions, DeviceInfo, GpuContext, MemoryUsage, Severity, ValidationLog, ValidationMessage,
 };
 pub use descriptors::{Binding, DescriptorSet, DescriptorSets, Sampler};
 pub use memory::{as_bytes, bytes_of, Buffer, Image, ImageUse, Pod};

@@ -80,6 +80,8 @@ impl PipelineLayout {
         bindings: &[vk::DescriptorType],
         push_size: u32,
     ) -> Result<PipelineLayout> {
+        ctx.info
+            .check_push_constants("pipeline layout", push_size)?;
         let b: Vec<_> = bindings
             .iter()
             .enumerate()
@@ -318,6 +320,9 @@ impl ComputePipeline {
         name: &str,
         spirv: &[u8],
     ) -> Result<ComputePipeline> {
+        if let Some(size) = local_size(spirv) {
+            ctx.info.check_workgroup(name, size)?;
+        }
         let module = shaders::module(ctx, name, spirv)?;
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
@@ -346,4 +351,25 @@ impl Drop for ComputePipeline {
         // SAFETY: the owner waits for the device before dropping.
         unsafe { self.ctx.device.destroy_pipeline(self.handle, None) };
     }
+}
+
+/// The `LocalSize` execution mode of a compute shader's SPIR-V (`OpExecutionMode %main
+/// LocalSize x y z`), if it declares one.
+pub(crate) fn local_size(spirv: &[u8]) -> Option<[u32; 3]> {
+    const OP_EXECUTION_MODE: u32 = 16;
+    const LOCAL_SIZE: u32 = 17;
+    let words: Vec<u32> = spirv
+        .chunks_exact(4)
+        .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+        .collect();
+    // The header is five words; then instructions, each `word count << 16 | opcode`.
+    let mut i = 5;
+    while let Some(&first) = words.get(i) {
+        let (count, opcode) = ((first >> 16) as usize, first & 0xffff);
+        if opcode == OP_EXECUTION_MODE && count >= 6 && words.get(i + 2) == Some(&LOCAL_SIZE) {
+            return words.get(i + 3..i + 6).and_then(|w| w.try_into().ok());
+        }
+        i += count.max(1);
+    }
+    None
 }

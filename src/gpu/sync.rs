@@ -63,15 +63,20 @@ impl Timeline {
         let wait_values = [0];
         let wait_stages = [vk::PipelineStageFlags::ALL_COMMANDS];
         let mut timeline = vk::TimelineSemaphoreSubmitInfo::default()
-            .wait_semaphore_values(&wait_values[..waits.len()])
             .signal_semaphore_values(&signal_values[..signals.len()]);
         let cmds = [cmd];
-        let submit = vk::SubmitInfo::default()
-            .wait_semaphores(waits)
-            .wait_dst_stage_mask(&wait_stages[..waits.len()])
+        let mut submit = vk::SubmitInfo::default()
             .command_buffers(&cmds)
-            .signal_semaphores(signals)
-            .push_next(&mut timeline);
+            .signal_semaphores(signals);
+        // Wait arrays only when there is a wait (best practices flags a set pointer with a
+        // zero count).
+        if !waits.is_empty() {
+            timeline = timeline.wait_semaphore_values(&wait_values[..waits.len()]);
+            submit = submit
+                .wait_semaphores(waits)
+                .wait_dst_stage_mask(&wait_stages[..waits.len()]);
+        }
+        let submit = submit.push_next(&mut timeline);
         let d = &self.ctx.device;
         // SAFETY: the buffer was begun by its pool and recorded through the recorder; the
         // timeline value grows strictly; the queue is used from this thread only.

@@ -28,7 +28,11 @@ const MAX_NODE_VISITS: usize = 10_000_000;
 /// out-of-range accessors or indices, non-finite positions, no triangles at all) gives
 /// [`Error::Scene`] with a single line `"<path>: <problem>"`.
 pub fn load_gltf(path: &Path) -> Result<(Scene, Vec<String>), Error> {
-    load(path).map_err(|problem| {
+    // Known panics of the `gltf` crate are checked for before it runs (see `parse` and
+    // `check_external_uri`); any other is contained here and becomes the same one-line error.
+    let loaded = std::panic::catch_unwind(|| load(path))
+        .unwrap_or_else(|_| Err("the glTF crate failed on this file (a panic, contained)".into()));
+    loaded.map_err(|problem| {
         let problem = problem.replace(['\n', '\r'], " ");
         Error::Scene(format!("{}: {problem}", path.display()))
     })
@@ -112,6 +116,10 @@ fn load_buffers(
             }
             ::gltf::buffer::Source::Uri(uri) => format!("'{uri}'"),
         };
+        if let ::gltf::buffer::Source::Uri(uri) = buffer.source() {
+            check_external_uri(base, uri)
+                .map_err(|e| format!("cannot load buffer {} from {source}: {e}", buffer.index()))?;
+        }
         let data = Data::from_source_and_blob(buffer.source(), Some(base), &mut blob)
             .map_err(|e| format!("cannot load buffer {} from {source}: {e}", buffer.index()))?;
         if data.len() < buffer.length() {
@@ -127,23 +135,98 @@ fn load_buffers(
     Ok(buffers)
 }
 
+/// Checks an external buffer URI before the `gltf` crate reads it: its percent-encoding must
+/// decode to UTF-8 (the crate unwraps the decoding and panics otherwise) and the file it names,
+/// if it exists, must be a regular file (a device such as `/dev/zero` would be read forever).
+fn check_external_uri(base: &Path, uri: &str) -> Result<(), String> {
+    let path = if let Some(rest) = uri.strip_prefix("file://").or(uri.strip_prefix("file:")) {
+        Path::new(rest).to_path_buf()
+    } else if uri.contains(':') {
+        return Ok(());
+    } else {
+        base.join(percent_decode(uri)?)
+    };
+    match std::fs::metadata(&path) {
+        Ok(meta) if !meta.is_file() => Err("not a regular file".to_string()),
+        _ => Ok(()),
+    }
+}
+
+/// Decodes `%XX` escapes (others are kept as they are); an error if the result is not UTF-8.
+fn percent_decode(uri: &str) -> Result<String, String> {
+    let bytes = uri.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        let hex = bytes
+            .get(i + 1..i + 3)
+            .filter(|h| h.iter().all(u8::is_ascii_hexdigit))
+            .and_then(|h| std::str::from_utf8(h).ok())
+            .and_then(|h| u8::from_str_radix(h, 16).ok());
+        match (bytes[i], hex) {
+            (b'%', Some(byte)) => {
+                out.push(byte);
+                i += 3;
+            }
+            (b, _) => {
+                out.push(b);
+                i += 1;
+            }
+        }
+    }
+    String::from_utf8(out).map_err(|_| "the URI's percent-encoding is not UTF-8".to_string())
+}
+
 /// Parses and validates the document, tolerating only missing POSITION `min`/`max` (required
 /// by the spec but often omitted by exporters; bounds are computed from the data anyway).
+///
+/// The crate's own validation indexes `accessors` with a primitive's POSITION index unchecked
+/// (gltf-json 1.4.1 panics on `"POSITION": 2147483647`), so attribute indices are checked here
+/// first and the crate's validation is run only then.
 fn parse(bytes: &[u8]) -> Result<Gltf, String> {
-    match Gltf::from_slice(bytes) {
-        Ok(gltf) => Ok(gltf),
-        Err(::gltf::Error::Validation(errors))
-            if errors.iter().all(|(path, error)| {
-                let path = path.to_string();
-                *error == ::gltf::json::validation::Error::Missing
-                    && (path.ends_with(".min") || path.ends_with(".max"))
-            }) =>
-        {
-            Gltf::from_slice_without_validation(bytes).map_err(|e| format!("invalid glTF: {e}"))
-        }
-        Err(e @ ::gltf::Error::Validation(_)) => Err(e.to_string()),
-        Err(e) => Err(format!("invalid glTF: {e}")),
+    let Gltf { document, blob } =
+        Gltf::from_slice_without_validation(bytes).map_err(|e| format!("invalid glTF: {e}"))?;
+    check_attribute_indices(document.as_json())?;
+    let mut errors = Vec::new();
+    {
+        use ::gltf::json::validation::Validate;
+        let root = document.as_json();
+        root.validate(root, ::gltf::json::Path::new, &mut |path, error| {
+            errors.push((path(), error))
+        });
     }
+    let tolerated = errors.iter().all(|(path, error)| {
+        let path = path.to_string();
+        *error == ::gltf::json::validation::Error::Missing
+            && (path.ends_with(".min") || path.ends_with(".max"))
+    });
+    if tolerated {
+        Ok(Gltf { document, blob })
+    } else {
+        Err(::gltf::Error::Validation(errors).to_string())
+    }
+}
+
+/// Every primitive's attribute and morph-target accessor indices lie within `accessors`.
+fn check_attribute_indices(root: &::gltf::json::Root) -> Result<(), String> {
+    let count = root.accessors.len();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let targets = prim.targets.iter().flatten().flat_map(|t| {
+                [&t.positions, &t.normals, &t.tangents]
+                    .into_iter()
+                    .flatten()
+                    .map(|i| i.value())
+            });
+            let attributes = prim.attributes.values().map(|i| i.value());
+            if let Some(bad) = attributes.chain(targets).find(|&i| i >= count) {
+                return Err(format!(
+                    "mesh {m} primitive {p}: attribute accessor {bad} out of range (the file has {count} accessors)"
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The nodes to start from: the default scene's, else the first scene's, else every node that

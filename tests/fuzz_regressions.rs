@@ -1,0 +1,183 @@
+//! The glTF loader never panics: every file in `tests/fuzz_corpus/` (inputs the fuzzer found,
+//! minimized; see `scripts/fuzz.sh`) and the known upstream panics load or give a one-line
+//! error naming the file. A panic hook counts panics on the loading thread, so a panic that the
+//! loader contains still fails these tests. `COHERENT_FUZZ_SEEDS=DIR` also writes the fuzzer's
+//! seed corpus (built from the loader's test builders) into DIR.
+
+use std::cell::Cell;
+use std::path::{Path, PathBuf};
+use std::sync::Once;
+
+use coherent::scene::gltf::testdata::{cube_grid_glb, GltfBuilder};
+use coherent::scene::Scene;
+
+thread_local! {
+    static PANICS: Cell<usize> = const { Cell::new(0) };
+}
+
+/// Loads `bytes` as a file named `name` in `dir`; fails the test on a panic (even a contained
+/// one) or an error that is not one line naming the file. Returns whether it loaded.
+fn load_never_panics(dir: &Path, name: &str, bytes: &[u8]) -> Result<Scene, String> {
+    static HOOK: Once = Once::new();
+    HOOK.call_once(|| {
+        let default = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            PANICS.with(|p| p.set(p.get() + 1));
+            default(info);
+        }));
+    });
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).expect("write test file");
+    let text = path.to_string_lossy().into_owned();
+    let before = PANICS.with(Cell::get);
+    let result = Scene::load(&text, 1.0, 4096);
+    assert_eq!(
+        PANICS.with(Cell::get),
+        before,
+        "{name}: the loader panicked"
+    );
+    result.map_err(|e| {
+        let msg = e.to_string();
+        assert!(!msg.contains('\n'), "{name}: error is not one line: {msg}");
+        assert!(
+            msg.contains(&text),
+            "{name}: error does not name the file: {msg}"
+        );
+        msg
+    })
+}
+
+fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("coherent-fuzzreg-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("scratch dir");
+    dir
+}
+
+/// A cube whose mesh JSON is replaced by `mesh` (with `{pos}`, `{nrm}`, `{idx}` filled in).
+fn cube_with_mesh(mesh: &str) -> GltfBuilder {
+    let mut b = GltfBuilder::default();
+    b.cube_mesh([0.5, 0.5, 0.5, 1.0]);
+    b.meshes[0] = mesh
+        .replace("{pos}", "0")
+        .replace("{nrm}", "1")
+        .replace("{idx}", "2");
+    b.node(0, [0.0, 0.0, 0.0]);
+    b.scene_nodes = Some(vec![0]);
+    b
+}
+
+#[test]
+fn out_of_range_attribute_accessor_is_a_one_line_error() {
+    let dir = scratch("attr");
+    let cases = [
+        (
+            "position.glb",
+            r#"{"primitives":[{"attributes":{"POSITION":2147483647,"NORMAL":{nrm}},"indices":{idx}}]}"#,
+            "attribute accessor 2147483647 out of range",
+        ),
+        (
+            "normal.glb",
+            r#"{"primitives":[{"attributes":{"POSITION":{pos},"NORMAL":4000000000},"indices":{idx}}]}"#,
+            "attribute accessor 4000000000 out of range",
+        ),
+        (
+            "target.glb",
+            r#"{"primitives":[{"attributes":{"POSITION":{pos}},"indices":{idx},"targets":[{"POSITION":99}]}]}"#,
+            "attribute accessor 99 out of range",
+        ),
+    ];
+    for (name, mesh, needle) in cases {
+        let glb = cube_with_mesh(mesh).glb();
+        let err = load_never_panics(&dir, name, &glb).expect_err(name);
+        assert!(err.contains(needle), "{name}: {err}");
+    }
+    // The same file with valid indices loads, so the errors above are about the index alone.
+    let ok = cube_with_mesh(
+        r#"{"primitives":[{"attributes":{"POSITION":{pos},"NORMAL":{nrm}},"indices":{idx}}]}"#,
+    );
+    load_never_panics(&dir, "valid.glb", &ok.glb()).expect("valid cube loads");
+}
+
+#[test]
+fn bad_buffer_uris_are_one_line_errors() {
+    let dir = scratch("uri");
+    // Invalid UTF-8 after percent-decoding: the gltf crate unwraps the decoding and panics.
+    let mut b =
+        cube_with_mesh(r#"{"primitives":[{"attributes":{"POSITION":{pos}},"indices":{idx}}]}"#);
+    let json = b.json(Some("bad%FFname.bin"));
+    let err = load_never_panics(&dir, "percent.gltf", json.as_bytes()).expect_err("percent");
+    assert!(err.contains("percent-encoding"), "{err}");
+    // A buffer naming a directory (or a device) is refused before it is read.
+    std::fs::create_dir_all(dir.join("sub")).expect("subdir");
+    b.buffer_length_override = Some(16);
+    let json = b.json(Some("sub"));
+    let err = load_never_panics(&dir, "directory.gltf", json.as_bytes()).expect_err("dir");
+    assert!(err.contains("not a regular file"), "{err}");
+}
+
+/// Valid files covering the loader's paths: GLB and embedded glTF, u16/u32 and no indices,
+/// instancing, a hierarchy without scenes, a non-triangle mode.
+fn seeds() -> Vec<(&'static str, Vec<u8>)> {
+    let mut out = vec![("grid4.glb", cube_grid_glb(4))];
+    let mut b = GltfBuilder::default();
+    let cube = b.cube_mesh([1.0, 0.0, 0.0, 1.0]);
+    let pos = b.vec3(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let idx = b.indices_u32(&[0, 1, 2]);
+    b.meshes.push(format!(
+        r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}},"indices":{idx}}},{{"attributes":{{"POSITION":{pos}}},"mode":1}}]}}"#
+    ));
+    b.meshes.push(format!(
+        r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}"#
+    ));
+    b.node(cube, [-2.0, 0.0, 0.0]);
+    b.node(1, [2.0, 0.0, 0.0]);
+    b.nodes
+        .push(r#"{"children":[0,1],"scale":[2,2,2]}"#.to_string());
+    b.node(2, [0.0, 3.0, 0.0]);
+    b.scene_nodes = Some(vec![2, 3]);
+    out.push(("mixed.gltf", b.gltf_embedded().into_bytes()));
+    out.push(("mixed.glb", b.glb()));
+    b.scene_nodes = None;
+    out.push(("noscene.glb", b.glb()));
+    out
+}
+
+#[test]
+fn seed_corpus_loads() {
+    let dir = scratch("seeds");
+    let out = std::env::var_os("COHERENT_FUZZ_SEEDS").map(PathBuf::from);
+    for (name, bytes) in seeds() {
+        let scene = load_never_panics(&dir, name, &bytes).expect(name);
+        assert!(!scene.objects.is_empty(), "{name}: no objects");
+        if let Some(out) = &out {
+            std::fs::create_dir_all(out).expect("seed dir");
+            std::fs::write(out.join(name), &bytes).expect("write seed");
+        }
+    }
+}
+
+#[test]
+fn corpus_replays_without_panic() {
+    let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz_corpus");
+    let dir = scratch("corpus");
+    let mut files: Vec<_> = std::fs::read_dir(&corpus)
+        .expect("tests/fuzz_corpus")
+        .map(|e| e.expect("corpus entry").path())
+        .filter(|p| p.is_file() && p.extension().is_none_or(|e| e != "md"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "tests/fuzz_corpus is empty");
+    for file in files {
+        let bytes = std::fs::read(&file).expect("read corpus file");
+        let ext = if bytes.starts_with(b"glTF") {
+            "glb"
+        } else {
+            "gltf"
+        };
+        let stem = file.file_name().map(|n| n.to_string_lossy().into_owned());
+        let name = format!("{}.{ext}", stem.unwrap_or_default());
+        // Ok or a one-line error are both fine; a panic fails inside.
+        let _ = load_never_panics(&dir, &name, &bytes);
+    }
+}
