@@ -62,8 +62,8 @@ pub struct PvsArgs {
     /// Pixels per side of each PVS ID view.
     #[arg(long, default_value_t = 128)]
     pub face_size: u32,
-    /// View cells added to each side of the path.
-    #[arg(long, default_value_t = 1)]
+    /// View cells added to each side of the path (0: the cells the path passes through).
+    #[arg(long, default_value_t = 0)]
     pub cell_margin: u32,
     /// Spread PVS samples over the cell enlarged by this fraction per side (conservative).
     #[arg(long, default_value_t = 0.0)]
@@ -71,6 +71,9 @@ pub struct PvsArgs {
     /// Build the PVS again even if a cache file exists.
     #[arg(long)]
     pub rebuild_pvs: bool,
+    /// Rasterize the PVS ID buffers (the oracle's ID pass) instead of ray casting them.
+    #[arg(long)]
+    pub pvs_raster: bool,
 }
 
 impl PvsArgs {
@@ -90,6 +93,7 @@ impl PvsArgs {
             face_size: self.face_size,
             margin: self.cell_margin,
             enlarge: self.cell_enlarge,
+            raster: self.pvs_raster,
         })
     }
 }

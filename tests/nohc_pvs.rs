@@ -194,6 +194,7 @@ fn pvs_of_two_rooms_is_what_can_be_seen_and_its_cache_is_checked() {
             face_size: 64,
             margin: 0,
             enlarge: 0.0,
+            raster: false,
         };
         let dir = temp_dir("pvs");
         let build = |ctx| {
