@@ -10,6 +10,7 @@ use coherent::bvh::ObjectBvh;
 use coherent::culling::{self, ChcppParams};
 use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::walk::{self, WalkConfig};
+use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 
@@ -39,7 +40,7 @@ pub struct RenderArgs {
     /// Image size WxH.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// Culling algorithm (vfc, stop-and-wait, chc, chcpp, oracle).
+    /// Culling algorithm (vfc, stop-and-wait, chc, chcpp, oracle, hiz).
     #[arg(long, default_value = "vfc")]
     pub algorithm: String,
     /// Frame of the scene's default path (temporal algorithms render frames 0..=N).
@@ -252,7 +253,7 @@ pub fn info() -> Result<()> {
 /// `coherent render`.
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
-    let mut culler = culling::create(&a.algorithm, &ChcppParams::default())?;
+    check_algorithm(&a.algorithm, &ChcppParams::default())?;
     let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
@@ -263,6 +264,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     let ctx = context(!a.no_validation)?;
     {
         let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
+        let mut culler = FrameAlgorithm::create(&a.algorithm, &ChcppParams::default(), &renderer)?;
         let first = if culler.needs_exact_visibility() || a.algorithm == "vfc" {
             a.frame
         } else {
@@ -271,7 +273,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         let mut last = None;
         for f in first..=a.frame {
             let cam = renderer.camera(path.pose_at(f as f32), &bvh);
-            last = Some(renderer.render_frame(culler.as_mut(), &bvh, &cam, f as u64)?);
+            last = Some(culler.render_frame(&mut renderer, &bvh, &cam, f as u64)?);
         }
         renderer
             .save_png(&a.out)
@@ -306,7 +308,7 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     }
     let params = a.chcpp.params()?;
     for alg in &a.algorithms {
-        culling::create(alg, &params)?;
+        check_algorithm(alg, &params)?;
     }
     let cfg = WalkConfig {
         algorithms: a.algorithms.clone(),

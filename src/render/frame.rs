@@ -36,8 +36,8 @@ impl FrameResult {
             draw_calls: self.counts.draw_calls,
             object_draws: self.counts.object_draws,
             query_draws: self.counts.query_draws,
-            triangles: self.counts.render_triangles,
-            objects: self.counts.object_draws,
+            triangles: self.counts.render_triangles + self.counts.indirect_triangles,
+            objects: self.counts.object_draws + self.counts.indirect_objects,
             submits: self.counts.submits,
         }
     }

@@ -3,6 +3,7 @@
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
 pub mod frame;
+pub mod hiz;
 pub mod overlay;
 pub mod passes;
 pub mod upload;
@@ -48,6 +49,8 @@ struct ObjectDraw {
     first_index: u32,
     index_count: u32,
     vertex_offset: i32,
+    /// World-space bounds (GPU-driven culling reads them).
+    bounds: Aabb,
 }
 
 /// The forward renderer: scene geometry on the GPU, the render/query/ID pipelines, an offscreen
@@ -118,6 +121,7 @@ impl Renderer {
                     first_index: o.first_index,
                     index_count: o.index_count,
                     vertex_offset: o.vertex_offset as i32,
+                    bounds: o.bounds,
                 })
                 .collect(),
             triangles: scene.objects.iter().map(|o| o.triangle_count()).sum(),

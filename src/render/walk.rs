@@ -4,11 +4,12 @@
 use std::path::Path;
 
 use crate::bvh::ObjectBvh;
-use crate::culling::{self, ChcppParams, Culler};
+use crate::culling::ChcppParams;
 use crate::error::Result;
 use crate::report::{self, FrameRecord, WalkSummary};
 use crate::scene::{CameraPath, Scene};
 
+use super::hiz::FrameAlgorithm;
 use super::Renderer;
 
 /// What to walk.
@@ -43,16 +44,16 @@ pub fn run(
     let per_repeat = total as u64 * cfg.algorithms.len() as u64;
     let mut records = Vec::with_capacity((cfg.frames * repeats) as usize * cfg.algorithms.len());
     for repeat in 0..repeats {
-        let mut cullers: Vec<Box<dyn Culler>> = cfg
+        let mut cullers: Vec<FrameAlgorithm> = cfg
             .algorithms
             .iter()
-            .map(|a| culling::create(a, &cfg.params))
+            .map(|a| FrameAlgorithm::create(a, &cfg.params, renderer))
             .collect::<Result<_>>()?;
         for i in 0..total {
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
             for (k, (name, culler)) in cfg.algorithms.iter().zip(cullers.iter_mut()).enumerate() {
-                let r = renderer.render_frame(culler.as_mut(), bvh, &camera, i as u64)?;
+                let r = culler.render_frame(renderer, bvh, &camera, i as u64)?;
                 if i >= cfg.warmup {
                     records.push(r.record(name, i - cfg.warmup, repeat));
                 }

@@ -1,0 +1,160 @@
+//! Two-phase Hi-Z GPU culling: the depth pyramid holds the farthest depth of its 2x2 blocks,
+//! frames equal VFC's pixel for pixel (first frame and camera cuts included, odd sizes too),
+//! and its counts come from the recorder — all under validation.
+
+mod common;
+
+use coherent::culling::{self, ChcppParams};
+use coherent::render::hiz::{FrameAlgorithm, HizCuller, HizParams};
+use coherent::render::walk::{self, WalkConfig};
+use coherent::render::{FrameResult, Renderer};
+
+/// Frames of `path` in `scene` (scaled) at `size`, rendered with VFC and Hi-Z in turn: the
+/// images must be equal. `frames` are path frame numbers in order (a jump is a camera cut).
+/// Returns Hi-Z's and VFC's results.
+fn exactness(
+    scene_name: &str,
+    scale: f32,
+    path: &str,
+    size: (u32, u32),
+    frames: &[u32],
+) -> Vec<(FrameResult, FrameResult)> {
+    let (ctx, log) = common::context();
+    let mut out = Vec::new();
+    {
+        let (scene, bvh) = common::scene(scene_name, scale);
+        let path = if path.is_empty() {
+            scene.default_path().unwrap().clone()
+        } else {
+            scene.path(path).unwrap().clone()
+        };
+        let mut r = Renderer::new(&ctx, &scene, size.0, size.1).unwrap();
+        let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
+        let mut hiz = HizCuller::new(&r, HizParams::default()).unwrap();
+        for &f in frames {
+            let pose = path.pose_at(f as f32);
+            let (v, reference) = common::frame(&mut r, vfc.as_mut(), &bvh, pose, f as u64);
+            let cam = r.camera(pose, &bvh);
+            let h = hiz.render_frame(&mut r, &cam).unwrap();
+            let px = r.read_color().unwrap();
+            let d = common::diff_pixels(&reference, &px);
+            assert_eq!(d, 0, "{scene_name} frame {f}: hiz differs from vfc in {d} pixels");
+            out.push((h, v));
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+    out
+}
+
+/// 15 consecutive frames from `start`, then a cut to 15 frames from `cut`.
+fn with_cut(start: u32, cut: u32) -> Vec<u32> {
+    (start..start + 15).chain(cut..cut + 15).collect()
+}
+
+/// Checks what the recorder counted for one Hi-Z frame.
+fn check_counts(h: &FrameResult, levels: u32) {
+    let c = &h.counts;
+    assert_eq!(c.dispatches, 2 + levels, "two culling passes and one per level");
+    assert_eq!(c.indirect_draws, 2);
+    assert_eq!(c.draw_calls, 2);
+    assert_eq!(c.queries_begun, 0);
+    assert_eq!(c.submits, 1, "one submission, no readback inside the frame");
+    assert_eq!(c.indirect_objects, h.cull.objects_drawn);
+}
+
+#[test]
+fn city_street_images_equal_vfc_with_first_frame_and_cut() {
+    let results = exactness("city", 0.1, "street", (160, 90), &with_cut(20, 150));
+    let levels = coherent::gpu::pyramid::mip_sizes((80, 45)).len() as u32;
+    for (h, v) in &results {
+        check_counts(h, levels);
+        // Never more than the frustum's objects.
+        assert!(h.counts.indirect_objects <= v.counts.object_draws);
+    }
+    // Occlusion culling actually culls on the street.
+    assert!(results
+        .iter()
+        .any(|(h, v)| h.counts.indirect_objects < v.counts.object_draws));
+}
+
+#[test]
+fn parking_images_equal_vfc_with_first_frame_and_cut() {
+    exactness("parking", 0.3, "", (160, 90), &with_cut(0, 90));
+}
+
+#[test]
+fn powerplant_images_equal_vfc_with_first_frame_and_cut() {
+    exactness("powerplant", 0.25, "", (160, 90), &with_cut(0, 90));
+}
+
+#[test]
+fn odd_size_1277x719_stays_exact() {
+    exactness("city", 0.1, "street", (1277, 719), &[20, 21, 22, 150, 151]);
+}
+
+#[test]
+fn pyramid_texels_are_the_farthest_of_the_four_below() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let path = scene.path("street").unwrap().clone();
+        let (w, h) = (37u32, 23u32);
+        let mut r = Renderer::new(&ctx, &scene, w, h).unwrap();
+        let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
+        common::frame(&mut r, vfc.as_mut(), &bvh, path.pose_at(20.0), 20);
+        let mut hiz = HizCuller::new(&r, HizParams::default()).unwrap();
+        hiz.build_pyramid(&mut r).unwrap();
+        let depth = r.read_depth().unwrap();
+        assert!(depth.iter().any(|&d| d < 1.0) && depth.iter().any(|&d| d == 1.0));
+        let mut below = (depth, (w, h));
+        assert_eq!(hiz.pyramid_level_size(0), (19, 12));
+        for level in 0..hiz.pyramid_levels() {
+            let size = hiz.pyramid_level_size(level);
+            let texels = hiz.read_pyramid_level(&mut r, level).unwrap();
+            let (src, (sw, sh)) = &below;
+            for y in 0..size.1 {
+                for x in 0..size.0 {
+                    let mut far = 0.0f32;
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (sx, sy) = ((2 * x + dx).min(sw - 1), (2 * y + dy).min(sh - 1));
+                        far = far.max(src[(sy * sw + sx) as usize]);
+                    }
+                    let got = texels[(y * size.0 + x) as usize];
+                    assert_eq!(got, far, "level {level} texel ({x}, {y})");
+                }
+            }
+            below = (texels, size);
+        }
+        assert_eq!(below.1, (1, 1), "the chain ends at 1x1");
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
+#[test]
+fn walk_runs_hiz_beside_the_query_algorithms() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let path = scene.path("street").unwrap().clone();
+        let mut r = Renderer::new(&ctx, &scene, 96, 64).unwrap();
+        let cfg = WalkConfig {
+            algorithms: vec!["vfc".into(), "chcpp".into(), "hiz".into()],
+            frames: 4,
+            warmup: 1,
+            params: ChcppParams::default(),
+            repeats: 1,
+        };
+        let records = walk::run(&mut r, &bvh, &path, &cfg, |_, _| {}).unwrap();
+        let hiz: Vec<_> = records.iter().filter(|x| x.algorithm == "hiz").collect();
+        assert_eq!(hiz.len(), 4);
+        for x in hiz {
+            assert_eq!((x.draw_calls, x.queries, x.submits), (2, 0, 1));
+            assert!(x.objects > 0 && x.triangles > 0);
+        }
+        assert!(FrameAlgorithm::create("nope", &ChcppParams::default(), &r).is_err());
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
