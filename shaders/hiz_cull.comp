@@ -71,16 +71,16 @@ uint classify(vec3 bmin, vec3 bmax) {
     vec2 hi = vec2(-1e30);
     float nearest = 1e30;
     bool crosses_near = false;
-    bvec4 all_out_xy = bvec4(true);
-    bvec2 all_out_z = bvec2(true);
+    uint all_out = 63u; // bit per clip plane: every corner so far is outside it
     for (int c = 0; c < 8; c++) {
         vec3 p = vec3((c & 1) != 0 ? bmax.x : bmin.x,
                       (c & 2) != 0 ? bmax.y : bmin.y,
                       (c & 4) != 0 ? bmax.z : bmin.z);
         vec4 clip = pc.view_proj * vec4(p, 1.0);
-        all_out_xy = all_out_xy && bvec4(clip.x < -clip.w, clip.x > clip.w,
-                                          clip.y < -clip.w, clip.y > clip.w);
-        all_out_z = all_out_z && bvec2(clip.z < 0.0, clip.z > clip.w);
+        uint out_planes = (clip.x < -clip.w ? 1u : 0u) | (clip.x > clip.w ? 2u : 0u) |
+                          (clip.y < -clip.w ? 4u : 0u) | (clip.y > clip.w ? 8u : 0u) |
+                          (clip.z < 0.0 ? 16u : 0u) | (clip.z > clip.w ? 32u : 0u);
+        all_out &= out_planes;
         if (clip.w <= 1e-6 || clip.z < 0.0) {
             crosses_near = true;
             continue;
@@ -91,7 +91,7 @@ uint classify(vec3 bmin, vec3 bmax) {
         hi = max(hi, px);
         nearest = min(nearest, ndc.z);
     }
-    if (any(all_out_xy) || any(all_out_z)) {
+    if (all_out != 0u) {
         return 0u;
     }
     if (crosses_near || pc.info.z == 0u) {

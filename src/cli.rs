@@ -9,8 +9,8 @@ use clap::Args;
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{self, ChcppParams};
 use coherent::gpu::{ContextOptions, GpuContext};
-use coherent::render::walk::{self, WalkConfig};
 use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
+use coherent::render::walk::{self, WalkConfig};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 

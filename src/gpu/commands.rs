@@ -645,26 +645,6 @@ impl Recorder {
         };
     }
 
-    /// Copies a region of an image in GENERAL layout to a buffer.
-    pub(crate) fn copy_general_image_to_buffer(
-        &mut self,
-        image: vk::Image,
-        buffer: vk::Buffer,
-        region: vk::BufferImageCopy,
-    ) {
-        // SAFETY: image in GENERAL layout with TRANSFER_SRC usage; buffer large enough
-        // (checked by the caller).
-        unsafe {
-            self.device.cmd_copy_image_to_buffer(
-                self.cmd,
-                image,
-                vk::ImageLayout::GENERAL,
-                buffer,
-                &[region],
-            )
-        };
-    }
-
     /// Blits layer 0 of `src` (TRANSFER_SRC_OPTIMAL) to `dst` (TRANSFER_DST_OPTIMAL), scaling
     /// with nearest filtering (viewer presentation).
     pub(crate) fn blit_image(&mut self, src: vk::Image, dst: vk::Image, region: vk::ImageBlit) {

@@ -161,6 +161,10 @@ pub struct OptionalFeatures {
     pub draw_indirect_first_instance: bool,
     /// Min/max reduction samplers (Vulkan 1.2 `samplerFilterMinmax`).
     pub sampler_filter_minmax: bool,
+    /// D32_SFLOAT images can be sampled (optimal tiling): compute passes read the depth target.
+    pub depth_sampled: bool,
+    /// R32_SFLOAT images can be storage images and sampled (optimal tiling): the depth pyramid.
+    pub r32f_storage: bool,
 }
 
 /// The features `coherent` relies on, for `coherent info`.
@@ -638,7 +642,21 @@ fn optional_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Option
     // SAFETY: valid physical device; the chain outlives the call.
     unsafe { instance.get_physical_device_features2(pd, &mut f2) };
     let f10 = f2.features;
+    let has = |format: vk::Format, wanted: vk::FormatFeatureFlags| {
+        // SAFETY: valid physical device; a plain query.
+        unsafe { instance.get_physical_device_format_properties(pd, format) }
+            .optimal_tiling_features
+            .contains(wanted)
+    };
     OptionalFeatures {
+        depth_sampled: has(
+            vk::Format::D32_SFLOAT,
+            vk::FormatFeatureFlags::SAMPLED_IMAGE,
+        ),
+        r32f_storage: has(
+            vk::Format::R32_SFLOAT,
+            vk::FormatFeatureFlags::STORAGE_IMAGE | vk::FormatFeatureFlags::SAMPLED_IMAGE,
+        ),
         draw_indirect_count: f12.draw_indirect_count != 0,
         multi_draw_indirect: f10.multi_draw_indirect != 0,
         draw_indirect_first_instance: f10.draw_indirect_first_instance != 0,

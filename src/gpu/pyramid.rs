@@ -32,9 +32,8 @@ pub struct MipImage {
 }
 
 impl MipImage {
-    /// Creates an image whose level 0 is `size` and each next level is half the last one,
-    /// rounded up, down to 1x1 (so every texel of a level has its 2x2 block, clamped at odd
-    /// edges, in the level above). Usage: storage, sampled, transfer source.
+    /// Creates an image of `size` with its full mip chain (each level half the last, rounded
+    /// down, at least 1, to 1x1). Usage: storage, sampled, transfer source.
     pub fn new(
         ctx: &Arc<GpuContext>,
         name: &str,
@@ -164,7 +163,13 @@ impl MipImage {
             } else {
                 vk::ImageLayout::UNDEFINED
             };
-            rec.layout_barrier(handle, from, Access::ComputeReadWrite, Access::TransferRead);
+            let src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
+            rec.layout_barrier(
+                handle,
+                (from, src),
+                Access::ComputeReadWrite,
+                Access::TransferRead,
+            );
             let region = vk::BufferImageCopy::default()
                 .image_subresource(vk::ImageSubresourceLayers {
                     aspect_mask: vk::ImageAspectFlags::COLOR,
@@ -177,7 +182,9 @@ impl MipImage {
                     height: h,
                     depth: 1,
                 });
-            rec.copy_general_image_to_buffer(handle, buffer.handle, region);
+            rec.copy_image_to_buffer(handle, buffer.handle, region);
+            let back = (src, vk::ImageLayout::GENERAL);
+            rec.layout_barrier(handle, back, Access::TransferRead, Access::ComputeReadWrite);
             rec.memory_barrier(Access::TransferWrite, Access::HostRead);
             Ok(())
         })?;
@@ -201,14 +208,14 @@ impl Recorder {
         } else {
             vk::ImageLayout::UNDEFINED
         };
-        self.layout_barrier(image.handle, old, from, to);
+        self.layout_barrier(image.handle, (old, vk::ImageLayout::GENERAL), from, to);
         image.initialized = true;
     }
 
     fn layout_barrier(
         &mut self,
         image: vk::Image,
-        old: vk::ImageLayout,
+        (old, new): (vk::ImageLayout, vk::ImageLayout),
         from: Access,
         to: Access,
     ) {
@@ -218,7 +225,7 @@ impl Recorder {
             .image(image)
             .subresource_range(range(0, vk::REMAINING_MIP_LEVELS))
             .old_layout(old)
-            .new_layout(vk::ImageLayout::GENERAL)
+            .new_layout(new)
             .src_stage_mask(src_stage)
             .src_access_mask(src_access)
             .dst_stage_mask(dst_stage)
@@ -227,12 +234,12 @@ impl Recorder {
     }
 }
 
-/// Sizes of the mip chain of `size`: halve rounding up until 1x1.
+/// Sizes of the full mip chain of `size` (Vulkan's: halve rounding down, at least 1, to 1x1).
 pub fn mip_sizes(size: (u32, u32)) -> Vec<(u32, u32)> {
     let mut sizes = vec![size];
     let mut s = size;
     while s != (1, 1) {
-        s = (s.0.div_ceil(2), s.1.div_ceil(2));
+        s = ((s.0 / 2).max(1), (s.1 / 2).max(1));
         sizes.push(s);
     }
     sizes

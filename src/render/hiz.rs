@@ -101,12 +101,12 @@ impl HizCuller {
         let ctx = renderer.context().clone();
         let n = renderer.objects.len() as u32;
         check_device(&ctx, n)?;
-        let mut records: Vec<f32> = Vec::with_capacity(n as usize * 12);
+        let mut records: Vec<u32> = Vec::with_capacity(n as usize * 12);
         for o in &renderer.objects {
             let (lo, hi) = (o.bounds.min, o.bounds.max);
-            let draw = [o.index_count, o.first_index, o.vertex_offset as u32, 0];
-            records.extend_from_slice(&[lo.x, lo.y, lo.z, 0.0, hi.x, hi.y, hi.z, 0.0]);
-            records.extend(draw.map(f32::from_bits));
+            let corners = [lo.x, lo.y, lo.z, 0.0, hi.x, hi.y, hi.z, 0.0];
+            records.extend(corners.map(f32::to_bits));
+            records.extend([o.index_count, o.first_index, o.vertex_offset as u32, 0]);
         }
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
         let indirect = storage | vk::BufferUsageFlags::INDIRECT_BUFFER;
@@ -167,7 +167,8 @@ impl HizCuller {
     /// Forgets temporal state: no object counts as visible last frame, no pyramid is reused.
     pub fn reset(&mut self) -> Result<()> {
         self.ctx.wait_idle()?;
-        self.flags.write(0, &vec![0u8; 4 * self.object_count as usize])?;
+        self.flags
+            .write(0, &vec![0u8; 4 * self.object_count as usize])?;
         self.pyramid_valid = false;
         Ok(())
     }
@@ -191,6 +192,13 @@ impl HizCuller {
         let ts = r.timestamps.allocate()?;
         r.recorder.write_timestamp(&r.timestamps, ts);
         let vp = camera.view_proj().to_cols_array();
+        // Moves a new pyramid to GENERAL before phase 1's set refers to it; later frames keep
+        // its contents (the previous frame's pyramid).
+        r.recorder.mip_barrier(
+            &mut self.pyramid.image,
+            Access::ComputeReadWrite,
+            Access::ComputeReadWrite,
+        );
         self.record_phase(r, 1, &vp)?;
         self.pyramid.record_build(&mut r.recorder, &r.target.depth);
         self.record_phase(r, 2, &vp)?;
@@ -292,7 +300,12 @@ impl HizCuller {
             .mapped()
             .ok_or_else(|| Error::Alloc("hiz counters are not mapped".into()))?;
         let word = |i: usize| {
-            u32::from_le_bytes([bytes[4 * i], bytes[4 * i + 1], bytes[4 * i + 2], bytes[4 * i + 3]])
+            u32::from_le_bytes([
+                bytes[4 * i],
+                bytes[4 * i + 1],
+                bytes[4 * i + 2],
+                bytes[4 * i + 3],
+            ])
         };
         Ok((word(0) + word(1), word(2) as u64 + word(3) as u64))
     }
@@ -312,16 +325,23 @@ impl HizCuller {
         self.pyramid.image.levels()
     }
 
-    /// Size of pyramid level `level`.
+    /// The valid region of pyramid level `level` (the image is padded to powers of two).
     pub fn pyramid_level_size(&self, level: u32) -> (u32, u32) {
-        self.pyramid.image.level_size(level)
+        self.pyramid.valid[level as usize]
     }
 
-    /// Reads pyramid level `level` back (row by row).
+    /// Reads the valid region of pyramid level `level` back (row by row).
     pub fn read_pyramid_level(&mut self, r: &mut Renderer, level: u32) -> Result<Vec<f32>> {
-        self.pyramid
+        let (w, h) = self.pyramid_level_size(level);
+        let stride = self.pyramid.image.level_size(level).0;
+        let texels = self
+            .pyramid
             .image
-            .read_level(&mut r.oneshot, &mut r.recorder, level)
+            .read_level(&mut r.oneshot, &mut r.recorder, level)?;
+        Ok((0..h)
+            .flat_map(|y| (0..w).map(move |x| (y * stride + x) as usize))
+            .map(|i| texels[i])
+            .collect())
     }
 }
 
@@ -344,6 +364,12 @@ fn check_device(ctx: &GpuContext, objects: u32) -> Result<()> {
     }
     if !i.optional.draw_indirect_first_instance {
         missing.push("drawIndirectFirstInstance".to_string());
+    }
+    if !i.optional.depth_sampled {
+        missing.push("SAMPLED_IMAGE on D32_SFLOAT".to_string());
+    }
+    if !i.optional.r32f_storage {
+        missing.push("STORAGE_IMAGE and SAMPLED_IMAGE on R32_SFLOAT".to_string());
     }
     if objects > i.max_draw_indirect_count {
         missing.push(format!(

@@ -1,8 +1,10 @@
 //! The Hi-Z depth pyramid: a mip chain of the farthest depth, built by one compute dispatch per
-//! level from the frame's depth buffer. Level 0 is half the depth buffer (rounded up); each
-//! level halves the last (rounded up) down to 1x1, so a texel of level k covers exactly the
-//! 2^(k+1) x 2^(k+1) pixels starting at its coordinates times 2^(k+1) (clamped at the edges):
-//! no pixel is lost at odd sizes, and the test can address texels with shifts.
+//! level from the frame's depth buffer. Texel (x, y) of level k covers the 2^(k+1) x 2^(k+1)
+//! pixels from (x, y) * 2^(k+1), clipped to the image, so the culling test addresses texels
+//! with shifts. Level k must then hold ceil(size / 2^(k+1)) texels (its *valid* region) while
+//! Vulkan mips halve rounding down: the image is padded to powers of two (level 0 is the next
+//! power of two of half the depth buffer) and only the valid region is computed and read, each
+//! 2x2 block clamped to the valid region of the level below. No pixel is lost at odd sizes.
 
 use std::sync::Arc;
 
@@ -10,8 +12,8 @@ use ash::vk;
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    shaders, Access, Binding, ComputePipeline, DescriptorSets, GpuContext, Image, ImageUse,
-    MipImage, PipelineLayout, Recorder, Sampler,
+    bytes_of, shaders, Access, Binding, ComputePipeline, DescriptorSets, GpuContext, Image,
+    ImageUse, MipImage, PipelineLayout, Recorder, Sampler,
 };
 
 /// Workgroup edge of the reduction shader (hiz_reduce.comp: 8x8).
@@ -27,14 +29,22 @@ pub struct DepthPyramid {
     pub sampler: Sampler,
     /// The pyramid (R32_SFLOAT, GENERAL layout once built).
     pub image: MipImage,
+    /// The valid region of each level (the rest is padding, never written or read).
+    pub valid: Vec<(u32, u32)>,
+    /// Size of the depth buffer.
+    depth_size: (u32, u32),
 }
 
 impl DepthPyramid {
     /// A pyramid for `depth` (a sampled depth image).
     pub fn new(ctx: &Arc<GpuContext>, depth: &Image) -> Result<DepthPyramid> {
         let (w, h) = depth.size();
-        let size = (w.div_ceil(2).max(1), h.div_ceil(2).max(1));
-        check_dispatch(ctx, size)?;
+        let valid = valid_sizes((w, h));
+        let size = (
+            valid[0].0.next_power_of_two(),
+            valid[0].1.next_power_of_two(),
+        );
+        check_dispatch(ctx, valid[0])?;
         let image = MipImage::new(ctx, "hi-z pyramid", vk::Format::R32_SFLOAT, size)?;
         let sampler = Sampler::nearest_clamp(ctx)?;
         let layout = PipelineLayout::new(
@@ -63,7 +73,9 @@ impl DepthPyramid {
             layout,
             sets,
             sampler,
+            valid: valid[..image.levels() as usize].to_vec(),
             image,
+            depth_size: (w, h),
         })
     }
 
@@ -83,11 +95,30 @@ impl DepthPyramid {
                 rec.memory_barrier(Access::ComputeReadWrite, Access::ComputeReadWrite);
             }
             rec.bind_compute_set(&self.layout, self.sets.get(level as usize));
-            let (w, h) = self.image.level_size(level);
-            rec.dispatch(w.div_ceil(GROUP), h.div_ceil(GROUP), 1);
+            let src = match level {
+                0 => self.depth_size,
+                l => self.valid[l as usize - 1],
+            };
+            let dst = self.valid[level as usize];
+            rec.push_constants(&self.layout, bytes_of(&[src.0, src.1, dst.0, dst.1]));
+            rec.dispatch(dst.0.div_ceil(GROUP), dst.1.div_ceil(GROUP), 1);
         }
         rec.memory_barrier(Access::ComputeReadWrite, Access::ComputeReadWrite);
     }
+}
+
+/// Valid region of each level for a depth buffer of `size`: halve rounding up, to 1x1, and
+/// then 1x1 for any further level of the padded image.
+pub fn valid_sizes(size: (u32, u32)) -> Vec<(u32, u32)> {
+    let mut sizes = Vec::new();
+    let mut s = size;
+    while s != (1, 1) || sizes.is_empty() {
+        s = (s.0.div_ceil(2), s.1.div_ceil(2));
+        sizes.push(s);
+    }
+    // The padded image may have more levels (its sides are powers of two >= the valid ones).
+    sizes.resize(sizes.len() + 32, (1, 1));
+    sizes
 }
 
 /// Checks the device limits the reduction relies on for a level 0 of `size`.
