@@ -114,7 +114,7 @@ fn pyramid_texels_are_the_farthest_of_the_four_below() {
         let mut hiz = HizCuller::new(&r, HizParams::default()).unwrap();
         hiz.build_pyramid(&mut r).unwrap();
         let depth = r.read_depth().unwrap();
-        assert!(depth.iter().any(|&d| d < 1.0) && depth.iter().any(|&d| d == 1.0));
+        assert!(depth.iter().any(|&d| d < 1.0) && depth.contains(&1.0));
         let mut below = (depth, (w, h));
         assert_eq!(hiz.pyramid_level_size(0), (19, 12));
         for level in 0..hiz.pyramid_levels() {
@@ -162,6 +162,68 @@ fn walk_runs_hiz_beside_the_query_algorithms() {
             assert!(x.objects > 0 && x.triangles > 0);
         }
         assert!(FrameAlgorithm::create("nope", &ChcppParams::default(), &r).is_err());
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
+#[test]
+fn phase_one_draws_last_frames_visible_and_phase_two_the_rest() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let path = scene.path("street").unwrap().clone();
+        let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+        let mut hiz = HizCuller::new(&r, HizParams::default()).unwrap();
+        let mut phases = Vec::new();
+        for f in 20..26 {
+            let cam = r.camera(path.pose_at(f as f32), &bvh);
+            let res = hiz.render_frame(&mut r, &cam).unwrap();
+            let p = hiz.last_phase_objects();
+            assert_eq!(p[0] + p[1], res.counts.indirect_objects);
+            phases.push(p);
+        }
+        // First frame: nothing was visible before, phase 2 draws everything.
+        assert_eq!(phases[0][0], 0);
+        assert!(phases[0][1] > 0);
+        // Then coherence: most objects come from phase 1.
+        for p in &phases[1..] {
+            assert!(p[0] > p[1], "phase 1 {} vs phase 2 {}", p[0], p[1]);
+        }
+        // A reset forgets visibility: phase 1 is empty again.
+        hiz.reset().unwrap();
+        let cam = r.camera(path.pose_at(26.0), &bvh);
+        hiz.render_frame(&mut r, &cam).unwrap();
+        assert_eq!(hiz.last_phase_objects()[0], 0);
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
+/// The image comparison catches a culler that is not conservative: a depth margin that culls
+/// boxes up to 0.01 in depth in front of the pyramid hides visible objects.
+#[test]
+fn a_non_conservative_test_is_caught() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let path = scene.path("street").unwrap().clone();
+        let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+        let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
+        let params = HizParams {
+            depth_margin: -0.01,
+            ..HizParams::default()
+        };
+        let mut hiz = HizCuller::new(&r, params).unwrap();
+        let mut differing = 0;
+        for f in 20..25 {
+            let pose = path.pose_at(f as f32);
+            let (_, reference) = common::frame(&mut r, vfc.as_mut(), &bvh, pose, f as u64);
+            let cam = r.camera(pose, &bvh);
+            hiz.render_frame(&mut r, &cam).unwrap();
+            differing += common::diff_pixels(&reference, &r.read_color().unwrap());
+        }
+        assert!(differing > 0);
     }
     drop(ctx);
     common::assert_silent(&log);

@@ -87,6 +87,8 @@ pub struct HizCuller {
     pyramid: DepthPyramid,
     /// Whether the pyramid holds a previous frame's depth.
     pyramid_valid: bool,
+    /// Objects drawn by phase 1 and phase 2 of the last frame (read back).
+    last_phases: [u32; 2],
     #[allow(dead_code)] // owned here; the descriptor set points at it
     bounds: Buffer,
     flags: Buffer,
@@ -157,6 +159,7 @@ impl HizCuller {
             cull_sets,
             pyramid,
             pyramid_valid: false,
+            last_phases: [0; 2],
             bounds,
             flags,
             draws,
@@ -211,7 +214,9 @@ impl HizCuller {
         r.timeline.wait_all()?;
         let frame_ms = start.elapsed().as_secs_f64() * 1e3;
         self.pyramid_valid = true;
-        let (objects, triangles) = self.read_counters()?;
+        let (phases, triangles) = self.read_counters()?;
+        self.last_phases = phases;
+        let objects = phases[0] + phases[1];
         r.recorder.note_indirect_result(objects, triangles);
         let gpu_ms = r.gpu_time_ms()?;
         Ok(FrameResult {
@@ -294,7 +299,7 @@ impl HizCuller {
     }
 
     /// Objects and triangles drawn by both phases of the last frame (it has completed).
-    fn read_counters(&self) -> Result<(u32, u64)> {
+    fn read_counters(&self) -> Result<([u32; 2], u64)> {
         let bytes = self
             .counters
             .mapped()
@@ -307,7 +312,13 @@ impl HizCuller {
                 bytes[4 * i + 3],
             ])
         };
-        Ok((word(0) + word(1), word(2) as u64 + word(3) as u64))
+        Ok(([word(0), word(1)], word(2) as u64 + word(3) as u64))
+    }
+
+    /// Objects drawn by phase 1 (visible last frame) and phase 2 (newly visible) in the last
+    /// frame, as the GPU counted them.
+    pub fn last_phase_objects(&self) -> [u32; 2] {
+        self.last_phases
     }
 
     /// Builds the pyramid from `r`'s depth buffer as it is now (one submission, waited for).
