@@ -33,7 +33,8 @@ layout(set = 0, binding = 4) uniform sampler2D pyramid;
 
 layout(push_constant) uniform Push {
     mat4 view_proj;
-    // object count, phase (1 or 2), pyramid levels (0: no pyramid to test against), unused
+    // object count, phase (1 or 2), pyramid levels (0: no pyramid to test against), most
+    // texels per side read for one box
     uvec4 info;
     // width, height, depth margin, unused
     vec4 screen;
@@ -43,13 +44,15 @@ const uint VISIBLE = 1u;
 const uint DRAWN_EARLY = 2u;
 
 // Farthest pyramid depth over pixels [lo, hi] (inclusive): the finest level whose texels
-// cover the rectangle with at most 2x2 of them. A texel of level k covers 2^(k+1) pixels.
+// cover the rectangle with at most n x n of them (n = info.w). A texel of level k covers
+// 2^(k+1) pixels.
 float farthest_depth(ivec2 lo, ivec2 hi) {
     int levels = int(pc.info.z);
+    int most = int(pc.info.w) - 1;
     int k = 0;
     while (k < levels - 1) {
         ivec2 span = (hi >> (k + 1)) - (lo >> (k + 1));
-        if (span.x <= 1 && span.y <= 1) {
+        if (span.x <= most && span.y <= most) {
             break;
         }
         k++;

@@ -34,7 +34,7 @@ impl FrameResult {
             state_changes: self.counts.state_changes,
             pipeline_binds: self.counts.pipeline_binds,
             draw_calls: self.counts.draw_calls,
-            object_draws: self.counts.object_draws,
+            object_draws: self.counts.object_draws + self.counts.indirect_objects,
             query_draws: self.counts.query_draws,
             triangles: self.counts.render_triangles + self.counts.indirect_triangles,
             objects: self.counts.object_draws + self.counts.indirect_objects,

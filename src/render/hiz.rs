@@ -64,6 +64,10 @@ pub struct HizParams {
     /// this is farther than the pyramid (guards against rounding between the projected box and
     /// the rasterized depth).
     pub depth_margin: f32,
+    /// Most pyramid texels per side read for one box: the test uses the finest level where
+    /// the box's screen rectangle spans at most this many (2 is the classic 2x2 fetch; more
+    /// fetches test against finer depth and cull more).
+    pub texels_per_side: u32,
 }
 
 impl Default for HizParams {
@@ -71,6 +75,7 @@ impl Default for HizParams {
         HizParams {
             phase1_occlusion: true,
             depth_margin: 1e-6,
+            texels_per_side: 4,
         }
     }
 }
@@ -246,7 +251,12 @@ impl HizCuller {
             0
         };
         let (w, h) = self.size;
-        let info = [self.object_count, phase, levels, 0];
+        let info = [
+            self.object_count,
+            phase,
+            levels,
+            self.params.texels_per_side.max(2),
+        ];
         let screen = [w as f32, h as f32, self.params.depth_margin, 0.0];
         let mut push = [0u8; CULL_PUSH as usize];
         push[..64].copy_from_slice(bytes_of(view_proj));
