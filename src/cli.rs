@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use coherent::bvh::ObjectBvh;
-use coherent::culling::{self, ChcppParams};
+use coherent::culling::ChcppParams;
 use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
 use coherent::render::walk::{self, WalkConfig};
@@ -106,7 +106,7 @@ pub struct ViewArgs {
     /// Window size WxH.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// Starting culling algorithm (keys 1-5 switch: vfc, stop-and-wait, chc, chcpp, oracle).
+    /// Starting culling algorithm (keys 1-6 switch: vfc, stop-and-wait, chc, chcpp, oracle, hiz).
     #[arg(long, default_value = "chcpp")]
     pub algorithm: String,
     /// Non-interactive: play the path for N presented frames, then exit.
@@ -243,6 +243,17 @@ pub fn info() -> Result<()> {
     println!("devices seen:    {}", i.candidates.join("; "));
     println!("timestamp tick:  {} ns", i.timestamp_period_ns);
     println!("max layers:      {}", i.max_image_array_layers);
+    println!(
+        "hiz needs:       drawIndirectCount {}, multiDrawIndirect {}, drawIndirectFirstInstance {}, \
+         sampled D32 {}, storage R32F {} (samplerFilterMinmax {}: not needed, the pyramid \
+         reduces by hand)",
+        i.optional.draw_indirect_count,
+        i.optional.multi_draw_indirect,
+        i.optional.draw_indirect_first_instance,
+        i.optional.depth_sampled,
+        i.optional.r32f_storage,
+        i.optional.sampler_filter_minmax
+    );
     println!(
         "features used:   {} (all present)",
         coherent::gpu::context::REQUIRED_FEATURES.join(", ")
@@ -415,7 +426,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         bail!("--frames must be at least 1");
     }
     let params = a.chcpp.params()?;
-    culling::create(&a.algorithm, &params)?;
+    check_algorithm(&a.algorithm, &params)?;
     let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),

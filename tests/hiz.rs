@@ -228,3 +228,52 @@ fn a_non_conservative_test_is_caught() {
     drop(ctx);
     common::assert_silent(&log);
 }
+
+/// `render`, `walk` and `view` accept `hiz` (validation on; `view` under Xvfb).
+#[test]
+fn cli_render_walk_and_view_accept_hiz() {
+    use std::process::Command;
+    let exe = env!("CARGO_BIN_EXE_coherent");
+    let dir = std::env::temp_dir().join(format!("coherent-hiz-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = |cmd: &mut Command| {
+        if std::env::var_os("COHERENT_DEVICE").is_none() {
+            cmd.env("COHERENT_DEVICE", "llvmpipe");
+        }
+        let out = cmd.output().expect("run coherent");
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(out.status.success(), "{text}");
+        assert!(!text.contains("validation"), "{text}");
+        text
+    };
+    let png = dir.join("hiz.png");
+    let scene = ["--scene", "city", "--scale", "0.1"];
+    run(Command::new(exe)
+        .arg("render")
+        .args(scene)
+        .args(["--size", "160x90", "--algorithm", "hiz", "--frame", "3"])
+        .arg("--out")
+        .arg(&png));
+    assert!(png.exists());
+    let walk_dir = dir.join("walk");
+    run(Command::new(exe)
+        .arg("walk")
+        .args(scene)
+        .args(["--size", "96x64", "--frames", "3", "--warmup", "1"])
+        .args(["--algorithms", "vfc,hiz", "--validation", "--out"])
+        .arg(&walk_dir));
+    let summary = std::fs::read_to_string(walk_dir.join("summary.json")).unwrap();
+    assert!(summary.contains("\"hiz\""));
+    let shot = dir.join("view.png");
+    run(Command::new("xvfb-run")
+        .args(["-a", "-s", "-screen 0 640x480x24", exe, "view"])
+        .args(scene)
+        .args(["--size", "160x120", "--frames", "8", "--algorithm", "hiz"])
+        .args(["--validation", "--screenshot"])
+        .arg(&shot));
+    assert!(shot.exists());
+}
