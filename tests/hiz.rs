@@ -181,6 +181,9 @@ fn phase_one_draws_last_frames_visible_and_phase_two_the_rest() {
             let res = hiz.render_frame(&mut r, &cam).unwrap();
             let p = hiz.last_phase_objects();
             assert_eq!(p[0] + p[1], res.counts.indirect_objects);
+            // Timestamps between the passes add up to the frame's device time.
+            let passes: f64 = hiz.last_pass_ms().iter().sum();
+            assert!(passes > 0.0 && (passes - res.gpu_ms).abs() < 1e-6);
             phases.push(p);
         }
         // First frame: nothing was visible before, phase 2 draws everything.

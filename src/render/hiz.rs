@@ -94,6 +94,8 @@ pub struct HizCuller {
     pyramid_valid: bool,
     /// Objects drawn by phase 1 and phase 2 of the last frame (read back).
     last_phases: [u32; 2],
+    /// Device time of each pass of the last frame ([`PASSES`]), from timestamps.
+    last_pass_ms: [f64; 5],
     #[allow(dead_code)] // owned here; the descriptor set points at it
     bounds: Buffer,
     flags: Buffer,
@@ -165,6 +167,7 @@ impl HizCuller {
             pyramid,
             pyramid_valid: false,
             last_phases: [0; 2],
+            last_pass_ms: [0.0; 5],
             bounds,
             flags,
             draws,
@@ -197,8 +200,7 @@ impl HizCuller {
         let cmd = r.segments.begin_next()?;
         r.recorder.set_command_buffer(cmd);
         r.bound = None;
-        let ts = r.timestamps.allocate()?;
-        r.recorder.write_timestamp(&r.timestamps, ts);
+        pass_timestamp(r)?;
         let vp = camera.view_proj().to_cols_array();
         // Moves a new pyramid to GENERAL before phase 1's set refers to it; later frames keep
         // its contents (the previous frame's pyramid).
@@ -209,11 +211,10 @@ impl HizCuller {
         );
         self.record_phase(r, 1, &vp)?;
         self.pyramid.record_build(&mut r.recorder, &r.target.depth);
+        pass_timestamp(r)?;
         self.record_phase(r, 2, &vp)?;
         r.recorder
             .memory_barrier(Access::ComputeReadWrite, Access::HostRead);
-        let ts = r.timestamps.allocate()?;
-        r.recorder.write_timestamp(&r.timestamps, ts);
         let value = r.timeline.submit(&mut r.recorder)?;
         r.segment_values.push(value);
         r.timeline.wait_all()?;
@@ -223,7 +224,7 @@ impl HizCuller {
         self.last_phases = phases;
         let objects = phases[0] + phases[1];
         r.recorder.note_indirect_result(objects, triangles);
-        let gpu_ms = r.gpu_time_ms()?;
+        let gpu_ms = self.read_pass_times(r)?;
         Ok(FrameResult {
             frame_ms,
             gpu_ms,
@@ -267,6 +268,8 @@ impl HizCuller {
         rec.push_constants(&self.cull_layout, &push);
         rec.dispatch(self.object_count.div_ceil(GROUP).max(1), 1, 1);
         rec.memory_barrier(Access::ComputeReadWrite, Access::IndirectRead);
+        pass_timestamp(r)?;
+        let rec = &mut r.recorder;
         let (color, depth) = (&r.target.color, &r.target.depth);
         let (color_load, depth_load) = if phase == 1 {
             rec.discard(color, ImageUse::ColorAttachment);
@@ -305,7 +308,27 @@ impl HizCuller {
             self.object_count,
         );
         rec.end_rendering();
-        Ok(())
+        pass_timestamp(r)
+    }
+
+    /// Reads the frame's timestamps (it has completed): each pass's time, and the total.
+    fn read_pass_times(&mut self, r: &Renderer) -> Result<f64> {
+        let tick = r.ctx.info.timestamp_period_ns as f64 * 1e-6;
+        // Written at the start and after each pass.
+        let mut t = [0u64; 6];
+        for (i, v) in t.iter_mut().enumerate() {
+            *v = r.timestamps.poll(i as u32)?.unwrap_or(0);
+        }
+        for k in 0..5 {
+            self.last_pass_ms[k] = t[k + 1].saturating_sub(t[k]) as f64 * tick;
+        }
+        Ok(t[5].saturating_sub(t[0]) as f64 * tick)
+    }
+
+    /// Device time of each pass of the last frame, in the order of [`PASSES`] (timestamps
+    /// between passes; on lavapipe the device is the CPU).
+    pub fn last_pass_ms(&self) -> [f64; 5] {
+        self.last_pass_ms
     }
 
     /// Objects and triangles drawn by both phases of the last frame (it has completed).
@@ -371,6 +394,22 @@ impl Drop for HizCuller {
         // Nothing may be in flight when the buffers, sets and pyramid are destroyed.
         let _ = self.ctx.wait_idle();
     }
+}
+
+/// Names of the passes of a frame, in order ([`HizCuller::last_pass_ms`]).
+pub const PASSES: [&str; 5] = [
+    "phase-1 cull",
+    "phase-1 draw",
+    "pyramid",
+    "phase-2 cull",
+    "phase-2 draw",
+];
+
+/// Writes a timestamp after everything recorded so far (between passes).
+fn pass_timestamp(r: &mut Renderer) -> Result<()> {
+    let ts = r.timestamps.allocate()?;
+    r.recorder.write_timestamp(&r.timestamps, ts);
+    Ok(())
 }
 
 /// Checks the features and limits the culler relies on for `objects` objects.
