@@ -7,8 +7,9 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use coherent::bvh::ObjectBvh;
-use coherent::culling::{self, ChcppParams};
+use coherent::culling::ChcppParams;
 use coherent::gpu::{ContextOptions, GpuContext};
+use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
 use coherent::render::walk::{self, WalkConfig};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
@@ -39,7 +40,7 @@ pub struct RenderArgs {
     /// Image size WxH.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// Culling algorithm (vfc, stop-and-wait, chc, chcpp, oracle).
+    /// Culling algorithm (vfc, stop-and-wait, chc, chcpp, oracle, hiz).
     #[arg(long, default_value = "vfc")]
     pub algorithm: String,
     /// Frame of the scene's default path (temporal algorithms render frames 0..=N).
@@ -117,7 +118,7 @@ pub struct ViewArgs {
     /// Window size WxH.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// Starting culling algorithm (keys 1-5 switch: vfc, stop-and-wait, chc, chcpp, oracle).
+    /// Starting culling algorithm (keys 1-6 switch: vfc, stop-and-wait, chc, chcpp, oracle, hiz).
     #[arg(long, default_value = "chcpp")]
     pub algorithm: String,
     /// Non-interactive: play the path for N presented frames, then exit.
@@ -255,6 +256,17 @@ pub fn info() -> Result<()> {
     println!("timestamp tick:  {} ns", i.timestamp_period_ns);
     println!("max layers:      {}", i.max_image_array_layers);
     println!(
+        "hiz needs:       drawIndirectCount {}, multiDrawIndirect {}, drawIndirectFirstInstance {}, \
+         sampled D32 {}, storage R32F {} (samplerFilterMinmax {}: not needed, the pyramid \
+         reduces by hand)",
+        i.optional.draw_indirect_count,
+        i.optional.multi_draw_indirect,
+        i.optional.draw_indirect_first_instance,
+        i.optional.depth_sampled,
+        i.optional.r32f_storage,
+        i.optional.sampler_filter_minmax
+    );
+    println!(
         "features used:   {} (all present)",
         coherent::gpu::context::REQUIRED_FEATURES.join(", ")
     );
@@ -264,7 +276,7 @@ pub fn info() -> Result<()> {
 /// `coherent render`.
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
-    culling::check_name(&a.algorithm)?;
+    check_algorithm(&a.algorithm, &ChcppParams::default())?;
     let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
@@ -275,7 +287,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     let ctx = context(!a.no_validation)?;
     {
         let scale = single_scale(&a.scene)?;
-        let mut setup = culling::CullerSetup::default();
+        let mut setup = coherent::culling::CullerSetup::default();
         if a.algorithm == "nohc" {
             setup.nohc = Some(crate::cli_setup::nohc_params(
                 &ctx,
@@ -290,8 +302,9 @@ pub fn render(a: &RenderArgs) -> Result<()> {
             )?;
             setup.pvs = Some(b.pvs);
         }
-        let mut culler = culling::create_with(&a.algorithm, &setup)?;
-        let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
+        let renderer_scene = Renderer::new(&ctx, &scene, w, h)?;
+        let mut renderer = renderer_scene;
+        let mut culler = FrameAlgorithm::create(&a.algorithm, &setup, &renderer)?;
         let first = if culler.needs_exact_visibility() || a.algorithm == "vfc" {
             a.frame
         } else {
@@ -300,7 +313,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         let mut last = None;
         for f in first..=a.frame {
             let cam = renderer.camera(path.pose_at(f as f32), &bvh);
-            last = Some(renderer.render_frame(culler.as_mut(), &bvh, &cam, f as u64)?);
+            last = Some(culler.render_frame(&mut renderer, &bvh, &cam, f as u64)?);
         }
         renderer
             .save_png(&a.out)
@@ -335,7 +348,7 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     }
     let params = a.chcpp.params()?;
     for alg in &a.algorithms {
-        culling::check_name(alg)?;
+        check_algorithm(alg, &params)?;
     }
     let cfg = WalkConfig {
         algorithms: a.algorithms.clone(),
@@ -471,7 +484,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         bail!("--frames must be at least 1");
     }
     let params = a.chcpp.params()?;
-    culling::create(&a.algorithm, &params)?;
+    check_algorithm(&a.algorithm, &params)?;
     let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),

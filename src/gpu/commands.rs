@@ -49,6 +49,47 @@ pub struct CommandCounts {
     pub descriptor_binds: u32,
     /// Vertex/index buffer binds.
     pub buffer_binds: u32,
+    /// Compute dispatches.
+    pub dispatches: u32,
+    /// Indirect draw calls (`vkCmdDrawIndexedIndirectCount`; also in `draw_calls`).
+    pub indirect_draws: u32,
+    /// Objects drawn by the GPU through indirect draws, read back from the draw counts after
+    /// the frame ([`Recorder::note_indirect_result`]); for reports only.
+    pub indirect_objects: u32,
+    /// Triangles of those objects, read back likewise.
+    pub indirect_triangles: u64,
+}
+
+/// How a buffer (or any memory) is accessed, for [`Recorder::memory_barrier`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Access {
+    /// Written by a transfer (fill, copy).
+    TransferWrite,
+    /// Read by a transfer (copy source).
+    TransferRead,
+    /// Read and written by compute shaders.
+    ComputeReadWrite,
+    /// Read as indirect draw commands and counts.
+    IndirectRead,
+    /// Read by the host after the submission completed.
+    HostRead,
+}
+
+impl Access {
+    pub(crate) fn stage_access(self) -> (vk::PipelineStageFlags2, vk::AccessFlags2) {
+        use vk::AccessFlags2 as A;
+        use vk::PipelineStageFlags2 as S;
+        match self {
+            Access::TransferWrite => (S::ALL_TRANSFER, A::TRANSFER_WRITE),
+            Access::TransferRead => (S::ALL_TRANSFER, A::TRANSFER_READ),
+            Access::ComputeReadWrite => (
+                S::COMPUTE_SHADER,
+                A::SHADER_STORAGE_READ | A::SHADER_STORAGE_WRITE | A::SHADER_SAMPLED_READ,
+            ),
+            Access::IndirectRead => (S::DRAW_INDIRECT, A::INDIRECT_COMMAND_READ),
+            Access::HostRead => (S::HOST, A::HOST_READ),
+        }
+    }
 }
 
 /// A command buffer handed out by a [`CommandPool`], begun and ready to record.
@@ -668,10 +709,71 @@ impl Recorder {
         };
     }
 
-    /// Dispatches the bound compute pipeline.
+    /// Dispatches the bound compute pipeline; counts the dispatch.
     pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {
         // SAFETY: compute pipeline bound.
         unsafe { self.device.cmd_dispatch(self.cmd, x, y, z) };
+        self.counts.dispatches += 1;
+    }
+
+    /// `vkCmdDrawIndexedIndirectCount`: up to `max_draws` indexed draw commands of 20 bytes
+    /// each from `commands` at `offset`, as many as the u32 in `count` at `count_offset` says.
+    /// Counts one draw call and one indirect draw (the objects it draws are only known after
+    /// the frame: [`Recorder::note_indirect_result`]). The device must have `drawIndirectCount`
+    /// (checked by the caller through [`super::DeviceInfo::optional`]).
+    pub fn draw_indexed_indirect_count(
+        &mut self,
+        commands: &Buffer,
+        offset: u64,
+        count: &Buffer,
+        count_offset: u64,
+        max_draws: u32,
+    ) {
+        // SAFETY: recording inside rendering with a bound pipeline and index buffer; the
+        // buffers have INDIRECT_BUFFER usage and hold `max_draws` commands and the count.
+        unsafe {
+            self.device.cmd_draw_indexed_indirect_count(
+                self.cmd,
+                commands.handle,
+                offset,
+                count.handle,
+                count_offset,
+                max_draws,
+                std::mem::size_of::<vk::DrawIndexedIndirectCommand>() as u32,
+            )
+        };
+        self.counts.draw_calls += 1;
+        self.counts.indirect_draws += 1;
+    }
+
+    /// Adds what the frame's indirect draws drew, read back after the frame completed.
+    pub fn note_indirect_result(&mut self, objects: u32, triangles: u64) {
+        self.counts.indirect_objects += objects;
+        self.counts.indirect_triangles += triangles;
+    }
+
+    /// Fills `size` bytes of `buffer` at `offset` with the u32 `value` (outside rendering).
+    pub fn fill_buffer(&mut self, buffer: &Buffer, offset: u64, size: u64, value: u32) {
+        // SAFETY: recording outside rendering; the buffer has TRANSFER_DST usage and the range
+        // lies inside it (multiples of 4, checked by the caller).
+        unsafe {
+            self.device
+                .cmd_fill_buffer(self.cmd, buffer.handle, offset, size, value)
+        };
+    }
+
+    /// A global memory barrier: accesses `from` happen before accesses `to`.
+    pub fn memory_barrier(&mut self, from: Access, to: Access) {
+        let (src_stage, src_access) = from.stage_access();
+        let (dst_stage, dst_access) = to.stage_access();
+        let b = [vk::MemoryBarrier2::default()
+            .src_stage_mask(src_stage)
+            .src_access_mask(src_access)
+            .dst_stage_mask(dst_stage)
+            .dst_access_mask(dst_access)];
+        let dep = vk::DependencyInfo::default().memory_barriers(&b);
+        // SAFETY: recording outside rendering.
+        unsafe { self.device.cmd_pipeline_barrier2(self.cmd, &dep) };
     }
 
     /// Counts a queue submission made by the owner of this recorder.

@@ -235,6 +235,10 @@ pub struct DeviceInfo {
     pub max_compute_work_group_invocations: u32,
     /// Largest number of workgroups of one dispatch, per dimension.
     pub max_compute_work_group_count: [u32; 3],
+    /// Largest draw count of one indirect draw.
+    pub max_draw_indirect_count: u32,
+    /// Optional features found on the device (and enabled when present).
+    pub optional: OptionalFeatures,
 }
 
 impl DeviceInfo {
@@ -340,6 +344,24 @@ impl DeviceInfo {
         }
         Ok(())
     }
+}
+
+/// Optional device features: enabled when the device has them; the code that needs one checks
+/// it here and falls back or reports [`Error::Unsupported`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct OptionalFeatures {
+    /// `vkCmdDrawIndexedIndirectCount` (Vulkan 1.2 `drawIndirectCount`).
+    pub draw_indirect_count: bool,
+    /// Indirect draws with more than one command (`multiDrawIndirect`).
+    pub multi_draw_indirect: bool,
+    /// Indirect draw commands with a non-zero `firstInstance` (`drawIndirectFirstInstance`).
+    pub draw_indirect_first_instance: bool,
+    /// Min/max reduction samplers (Vulkan 1.2 `samplerFilterMinmax`).
+    pub sampler_filter_minmax: bool,
+    /// D32_SFLOAT images can be sampled (optimal tiling): compute passes read the depth target.
+    pub depth_sampled: bool,
+    /// R32_SFLOAT images can be storage images and sampled (optimal tiling): the depth pyramid.
+    pub r32f_storage: bool,
 }
 
 /// The features `coherent` relies on, for `coherent info`.
@@ -448,7 +470,14 @@ impl GpuContext {
         let (physical_device, queue_family, mut info) = pick_device(&instance, filter.as_deref())?;
         info.validation = options.validation;
         check_features(&instance, physical_device)?;
-        let device = create_device(&instance, physical_device, queue_family, options)?;
+        info.optional = optional_features(&instance, physical_device);
+        let device = create_device(
+            &instance,
+            physical_device,
+            queue_family,
+            options,
+            info.optional,
+        )?;
         partial.device = Some(device.clone());
         // SAFETY: the family was created with one queue.
         let queue = unsafe { device.get_device_queue(queue_family, 0) };
@@ -690,16 +719,22 @@ fn create_device(
     physical_device: vk::PhysicalDevice,
     family: u32,
     options: &ContextOptions,
+    optional: OptionalFeatures,
 ) -> Result<ash::Device> {
     let priorities = [1.0f32];
     let queue_info = [vk::DeviceQueueCreateInfo::default()
         .queue_family_index(family)
         .queue_priorities(&priorities)];
-    let features10 = vk::PhysicalDeviceFeatures::default().occlusion_query_precise(true);
+    let features10 = vk::PhysicalDeviceFeatures::default()
+        .occlusion_query_precise(true)
+        .multi_draw_indirect(optional.multi_draw_indirect)
+        .draw_indirect_first_instance(optional.draw_indirect_first_instance);
     let mut features12 = vk::PhysicalDeviceVulkan12Features::default()
         .host_query_reset(true)
         .shader_output_layer(true)
-        .timeline_semaphore(true);
+        .timeline_semaphore(true)
+        .draw_indirect_count(optional.draw_indirect_count)
+        .sampler_filter_minmax(optional.sampler_filter_minmax);
     let mut features13 = vk::PhysicalDeviceVulkan13Features::default()
         .dynamic_rendering(true)
         .synchronization2(true)
@@ -803,6 +838,8 @@ fn describe(
         max_compute_work_group_size: props.limits.max_compute_work_group_size,
         max_compute_work_group_invocations: props.limits.max_compute_work_group_invocations,
         max_compute_work_group_count: props.limits.max_compute_work_group_count,
+        max_draw_indirect_count: props.limits.max_draw_indirect_count,
+        optional: OptionalFeatures::default(),
     };
     (props, info)
 }
@@ -846,6 +883,35 @@ fn no_device(filter: Option<&str>, candidates: &[String]) -> Error {
                 "a Vulkan 1.3 device with a graphics queue (seen: {seen}); install mesa-vulkan-drivers"
             ),
         },
+    }
+}
+
+/// Which of the [`OptionalFeatures`] the device has.
+fn optional_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> OptionalFeatures {
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
+    // SAFETY: valid physical device; the chain outlives the call.
+    unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+    let f10 = f2.features;
+    let has = |format: vk::Format, wanted: vk::FormatFeatureFlags| {
+        // SAFETY: valid physical device; a plain query.
+        unsafe { instance.get_physical_device_format_properties(pd, format) }
+            .optimal_tiling_features
+            .contains(wanted)
+    };
+    OptionalFeatures {
+        depth_sampled: has(
+            vk::Format::D32_SFLOAT,
+            vk::FormatFeatureFlags::SAMPLED_IMAGE,
+        ),
+        r32f_storage: has(
+            vk::Format::R32_SFLOAT,
+            vk::FormatFeatureFlags::STORAGE_IMAGE | vk::FormatFeatureFlags::SAMPLED_IMAGE,
+        ),
+        draw_indirect_count: f12.draw_indirect_count != 0,
+        multi_draw_indirect: f10.multi_draw_indirect != 0,
+        draw_indirect_first_instance: f10.draw_indirect_first_instance != 0,
+        sampler_filter_minmax: f12.sampler_filter_minmax != 0,
     }
 }
 

@@ -7,6 +7,7 @@ use ash::vk;
 
 use super::memory::{Buffer, Image};
 use super::pipelines::PipelineLayout;
+use super::pyramid::MipImage;
 use super::GpuContext;
 use crate::error::{Error, Result, VkContext};
 
@@ -23,14 +24,21 @@ pub enum Binding<'a> {
     StorageImage(&'a Image),
     /// A combined image sampler, sampled in SHADER_READ_ONLY_OPTIMAL layout.
     Sampled(&'a Image, &'a Sampler),
+    /// One mip level of a [`MipImage`] as a storage image (GENERAL layout).
+    StorageMip(&'a MipImage, u32),
+    /// A combined image sampler over one level of a [`MipImage`] (`Some(level)`) or all of
+    /// them (`None`), sampled in GENERAL layout.
+    SampledMips(&'a MipImage, Option<u32>, &'a Sampler),
 }
 
 impl Binding<'_> {
     fn ty(&self) -> vk::DescriptorType {
         match self {
             Binding::StorageBuffer(_) => vk::DescriptorType::STORAGE_BUFFER,
-            Binding::StorageImage(_) => vk::DescriptorType::STORAGE_IMAGE,
-            Binding::Sampled(..) => vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+            Binding::StorageImage(_) | Binding::StorageMip(..) => vk::DescriptorType::STORAGE_IMAGE,
+            Binding::Sampled(..) | Binding::SampledMips(..) => {
+                vk::DescriptorType::COMBINED_IMAGE_SAMPLER
+            }
         }
     }
 }
@@ -122,6 +130,19 @@ impl DescriptorSets {
                     image_view: img.view,
                     image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
                 }],
+                Binding::StorageMip(img, level) => [vk::DescriptorImageInfo {
+                    sampler: vk::Sampler::null(),
+                    image_view: img.level_views[*level as usize],
+                    image_layout: vk::ImageLayout::GENERAL,
+                }],
+                Binding::SampledMips(img, level, sampler) => [vk::DescriptorImageInfo {
+                    sampler: sampler.handle,
+                    image_view: match level {
+                        Some(l) => img.level_views[*l as usize],
+                        None => img.all_levels,
+                    },
+                    image_layout: vk::ImageLayout::GENERAL,
+                }],
                 Binding::StorageBuffer(_) => [vk::DescriptorImageInfo::default()],
             })
             .collect();
@@ -150,6 +171,18 @@ impl DescriptorSets {
 }
 
 fn check_bindings(layout: &PipelineLayout, bindings: &[Binding]) -> Result<()> {
+    for b in bindings {
+        let level = match b {
+            Binding::StorageMip(img, l) | Binding::SampledMips(img, Some(l), _) => Some((img, l)),
+            _ => None,
+        };
+        if let Some((img, &l)) = level.filter(|(img, &l)| l >= img.levels()) {
+            return Err(Error::Input(format!(
+                "mip level {l} bound, the image has {}",
+                img.levels()
+            )));
+        }
+    }
     let declared = layout.bindings();
     let matches = declared.len() == bindings.len()
         && declared.iter().zip(bindings).all(|(&t, b)| t == b.ty());

@@ -9,6 +9,7 @@ pub mod context;
 pub mod descriptors;
 pub mod memory;
 pub mod pipelines;
+pub mod pyramid;
 pub mod queries;
 pub mod shaders;
 pub mod swapchain;
@@ -17,13 +18,15 @@ pub mod targets;
 
 use std::sync::Arc;
 
-pub use commands::{Attachment, CommandBuffer, CommandCounts, CommandPool, Load, Recorder};
+pub use commands::{Access, Attachment, CommandBuffer, CommandCounts, CommandPool, Load, Recorder};
 pub use context::{
-    ContextOptions, DeviceInfo, GpuContext, MemoryUsage, Severity, ValidationLog, ValidationMessage,
+    ContextOptions, DeviceInfo, GpuContext, MemoryUsage, OptionalFeatures, Severity, ValidationLog,
+    ValidationMessage,
 };
 pub use descriptors::{Binding, DescriptorSet, DescriptorSets, Sampler};
 pub use memory::{as_bytes, bytes_of, Buffer, Image, ImageUse, Pod};
 pub use pipelines::{ComputePipeline, Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
+pub use pyramid::MipImage;
 pub use sync::Timeline;
 
 use crate::error::Result;

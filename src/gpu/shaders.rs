@@ -33,6 +33,11 @@ pub const GI_GATHER_COMP: &[u8] = spirv!("gi_gather.comp");
 /// GI resolve: blur, direct light, tone mapping (compute).
 pub const GI_RESOLVE_COMP: &[u8] = spirv!("gi_resolve.comp");
 
+/// Hi-Z: one level of the depth pyramid (farthest depth of 2x2 blocks) (compute).
+pub const HIZ_REDUCE_COMP: &[u8] = spirv!("hiz_reduce.comp");
+/// Hi-Z: frustum and pyramid test of every object, writing indirect draws (compute).
+pub const HIZ_CULL_COMP: &[u8] = spirv!("hiz_cull.comp");
+
 /// Creates a shader module from SPIR-V bytes.
 pub fn module(ctx: &GpuContext, name: &str, bytes: &[u8]) -> Result<vk::ShaderModule> {
     let words = ash::util::read_spv(&mut Cursor::new(bytes))

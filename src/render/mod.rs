@@ -4,6 +4,7 @@
 
 pub mod calibrate;
 pub mod frame;
+pub mod hiz;
 pub mod overlay;
 pub mod passes;
 pub mod pvs_build;
@@ -50,6 +51,8 @@ struct ObjectDraw {
     first_index: u32,
     index_count: u32,
     vertex_offset: i32,
+    /// World-space bounds (GPU-driven culling reads them).
+    bounds: Aabb,
 }
 
 /// The forward renderer: scene geometry on the GPU, the render/query/ID pipelines, an offscreen
@@ -120,6 +123,7 @@ impl Renderer {
                     first_index: o.first_index,
                     index_count: o.index_count,
                     vertex_offset: o.vertex_offset as i32,
+                    bounds: o.bounds,
                 })
                 .collect(),
             triangles: scene.objects.iter().map(|o| o.triangle_count()).sum(),

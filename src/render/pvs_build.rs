@@ -199,7 +199,9 @@ pub fn build(
             ids.mark_visible(bvh, p, face, far, &mut seen)?;
             progress(ci as u64 * u64::from(samples) + u64::from(k) + 1, total);
         }
-        let objects = (0..seen.len() as u32).filter(|&o| seen[o as usize]).collect();
+        let objects = (0..seen.len() as u32)
+            .filter(|&o| seen[o as usize])
+            .collect();
         cells.push(ViewCell { coord, objects });
     }
     Ok(Pvs::new(
@@ -287,7 +289,9 @@ impl ObjectRays {
 
     /// One ray per pixel centre of six 90° views, split over the machine's cores.
     fn mark_visible(&self, p: Vec3, face: u32, far: f32, seen: &mut [bool]) {
-        let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(6);
+        let threads = std::thread::available_parallelism()
+            .map_or(1, |n| n.get())
+            .min(6);
         let found: Vec<Vec<u32>> = std::thread::scope(|scope| {
             let handles: Vec<_> = (0..threads)
                 .map(|t| {

@@ -18,6 +18,7 @@ use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
 use winit::keyboard::{KeyCode, PhysicalKey};
 use winit::window::{Window, WindowId};
 
+use super::hiz::{HizCuller, HizParams};
 use super::overlay::{self, Class};
 use super::{FrameResult, Renderer};
 use crate::bvh::ObjectBvh;
@@ -109,6 +110,8 @@ struct Running {
     renderer: Renderer,
     recorder: Recorder,
     culler: Box<dyn Culler>,
+    /// The GPU-driven culler, when the algorithm is `hiz` (then `culler` is unused).
+    hiz: Option<Box<HizCuller>>,
     algorithm: String,
     params: ChcppParams,
     stats: Option<std::io::BufWriter<std::fs::File>>,
@@ -252,7 +255,11 @@ impl App {
         let swapchain = Swapchain::new(&ctx, display, handle, size.width, size.height, cfg.vsync)?;
         let mut renderer = Renderer::new(&ctx, &cfg.scene, cfg.width, cfg.height)?;
         renderer.visibility_threshold = cfg.params.pixel_threshold;
-        let culler = culling::create(&cfg.algorithm, &cfg.params)?;
+        let hiz = hiz_for(&cfg.algorithm, &renderer)?;
+        let culler = match hiz {
+            Some(_) => culling::create("vfc", &cfg.params)?,
+            None => culling::create(&cfg.algorithm, &cfg.params)?,
+        };
         let stats = match &cfg.stats {
             Some(p) => {
                 let mut w = std::io::BufWriter::new(std::fs::File::create(p)?);
@@ -271,6 +278,7 @@ impl App {
             renderer,
             recorder: Recorder::new(ctx.device.clone()),
             culler,
+            hiz,
             algorithm: cfg.algorithm.clone(),
             params: cfg.params.clone(),
             stats,
@@ -325,6 +333,7 @@ impl Running {
             KeyCode::Digit3 => Some("chc"),
             KeyCode::Digit4 => Some("chcpp"),
             KeyCode::Digit5 => Some("oracle"),
+            KeyCode::Digit6 => Some("hiz"),
             _ => None,
         };
         let mut rebuild = algorithm.is_some();
@@ -358,7 +367,10 @@ impl Running {
             rebuild = true;
         }
         if rebuild {
-            self.culler = culling::create(&self.algorithm, &self.params)?;
+            self.hiz = hiz_for(&self.algorithm, &self.renderer)?;
+            if self.hiz.is_none() {
+                self.culler = culling::create(&self.algorithm, &self.params)?;
+            }
         }
         Ok(())
     }
@@ -422,14 +434,22 @@ impl Running {
         // The offscreen image is stretched to the window: give the camera the window's aspect.
         let mut camera = self.renderer.camera(pose, &cfg.bvh);
         camera.aspect = size.width as f32 / size.height as f32;
-        let mut observed = Observed {
-            inner: self.culler.as_mut(),
-            log: FrameLog::default(),
+        let (result, log) = match self.hiz.as_mut() {
+            Some(hiz) => (
+                hiz.render_frame(&mut self.renderer, &camera)?,
+                FrameLog::default(),
+            ),
+            None => {
+                let mut observed = Observed {
+                    inner: self.culler.as_mut(),
+                    log: FrameLog::default(),
+                };
+                let result =
+                    self.renderer
+                        .render_frame(&mut observed, &cfg.bvh, &camera, self.frame)?;
+                (result, observed.log)
+            }
         };
-        let result = self
-            .renderer
-            .render_frame(&mut observed, &cfg.bvh, &camera, self.frame)?;
-        let log = observed.log;
         self.frame += 1;
         add_counts(&mut self.pending, &result.counts);
         add_counts(&mut self.pending, &self.renderer.take_prepass_counts());
@@ -585,6 +605,15 @@ struct FrameLog {
 }
 
 /// A culler wrapped so that the backend it talks to is logged.
+/// The Hi-Z culler for `renderer` when `algorithm` is `hiz`.
+fn hiz_for(algorithm: &str, renderer: &Renderer) -> Result<Option<Box<HizCuller>>> {
+    if algorithm != "hiz" {
+        return Ok(None);
+    }
+    let hiz = HizCuller::new(renderer, HizParams::default())?;
+    Ok(Some(Box::new(hiz)))
+}
+
 struct Observed<'a> {
     inner: &'a mut dyn Culler,
     log: FrameLog,

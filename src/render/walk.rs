@@ -4,15 +4,17 @@
 use std::path::Path;
 
 use crate::bvh::ObjectBvh;
-use crate::culling::{self, ChcppParams, Culler};
+use crate::culling;
+use crate::culling::ChcppParams;
 use crate::error::Result;
 use crate::report::{self, FrameRecord, WalkSummary};
 use crate::scene::{CameraPath, Scene};
 
+use super::hiz::FrameAlgorithm;
 use super::Renderer;
 
 /// What to walk.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct WalkConfig {
     /// Algorithms by name, in report order.
     pub algorithms: Vec<String>,
@@ -57,10 +59,10 @@ pub fn run(
             nohc: cfg.nohc.clone(),
             pvs: cfg.pvs.clone(),
         };
-        let mut cullers: Vec<Box<dyn Culler>> = cfg
+        let mut cullers: Vec<FrameAlgorithm> = cfg
             .algorithms
             .iter()
-            .map(|a| culling::create_with(a, &setup))
+            .map(|a| FrameAlgorithm::create(a, &setup, renderer))
             .collect::<Result<_>>()?;
         for i in 0..total {
             let pose = path.sample(i, total);
@@ -69,8 +71,8 @@ pub fn run(
                 renderer.object_pixels(bvh, &camera, &mut owned)?;
             }
             for (k, (name, culler)) in cfg.algorithms.iter().zip(cullers.iter_mut()).enumerate() {
-                let mut r = renderer.render_frame(culler.as_mut(), bvh, &camera, i as u64)?;
-                if cfg.check {
+                let mut r = culler.render_frame(renderer, bvh, &camera, i as u64)?;
+                if cfg.check && matches!(culler, FrameAlgorithm::Culler(_)) {
                     r.check = Some(renderer.check_drawn(&owned));
                 }
                 if i >= cfg.warmup {

@@ -1,0 +1,566 @@
+//! Two-phase Hi-Z GPU culling (`hiz`): the GPU-driven alternative to hardware occlusion
+//! queries, run by the same renderer on the same target, and counted by the same recorder.
+//!
+//! Design. Object bounds and draw ranges live in a storage buffer; a per-object flag word
+//! holds "visible last frame" (bit 0) and "drawn in phase 1" (bit 1). A frame is one command
+//! buffer, with no CPU readback inside it:
+//! 1. **Phase 1** (hiz_cull.comp, phase 1): objects visible last frame are tested against the
+//!    frustum and, when the previous frame left one, against its depth pyramid (with this
+//!    frame's camera: a heuristic, since phase 2 re-tests whatever it culls); survivors get an
+//!    indexed indirect draw command and bit 1. One `vkCmdDrawIndexedIndirectCount` draws them
+//!    (clearing color and depth first).
+//! 2. **Pyramid** (hiz_reduce.comp): the depth buffer, now holding the phase-1 occluders, is
+//!    reduced into a mip chain of the farthest depth ([`pyramid`]).
+//! 3. **Phase 2** (hiz_cull.comp, phase 2): every object is tested against the frustum and the
+//!    new pyramid; visible ones not drawn in phase 1 are drawn by a second indirect draw (LOAD
+//!    ops). The same pass writes each object's flag for the next frame (visible or not).
+//!
+//! Exactness: phase 2 tests everything that phase 1 did not draw against a pyramid built from
+//! depth that is a subset of the final depth, and the test is conservative (boxes crossing the
+//! near plane are visible; a box is culled only when its nearest depth, less a small margin, is
+//! farther than the farthest depth of every pyramid texel under its screen rectangle), so an
+//! object that covers a pixel of the final image is always drawn — on the first frame (no flags,
+//! nothing in phase 1) and after a camera cut alike. Moving objects (`--movers`) are not handled.
+//!
+//! Counts come from the recorder: dispatches (2 cull + one per pyramid level), 2 indirect
+//! draws, pipeline binds; the objects and triangles those draws drew are read back from the
+//! GPU's counters after the frame (for the report only).
+
+pub mod pyramid;
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use ash::vk;
+use gpu_allocator::MemoryLocation;
+
+use crate::bvh::ObjectBvh;
+use crate::culling::{self, ChcppParams, CullStats, Culler};
+use crate::error::{Error, Result};
+use crate::gpu::{
+    as_bytes, bytes_of, shaders, targets, Access, Attachment, Binding, Buffer, ComputePipeline,
+    DescriptorSets, GpuContext, ImageUse, Load, PipelineLayout,
+};
+use crate::scene::camera::Camera;
+use pyramid::DepthPyramid;
+
+use super::{FrameResult, Renderer, SKY};
+
+/// Objects per workgroup of the culling shader (hiz_cull.comp: 64).
+const GROUP: u32 = 64;
+/// Bytes of one object's record in the bounds buffer (hiz_cull.comp `ObjectBounds`).
+const BOUNDS_BYTES: u64 = 48;
+/// Bytes of one `VkDrawIndexedIndirectCommand`.
+const COMMAND_BYTES: u64 = 20;
+/// Push constants of the culling shader: view_proj, info, screen.
+const CULL_PUSH: u32 = 96;
+
+/// Parameters of the Hi-Z culler.
+#[derive(Clone, Copy, Debug)]
+pub struct HizParams {
+    /// Test phase-1 objects against the previous frame's pyramid (else frustum only).
+    pub phase1_occlusion: bool,
+    /// Depth margin of the occlusion test: a box is culled only when its nearest depth minus
+    /// this is farther than the pyramid (guards against rounding between the projected box and
+    /// the rasterized depth).
+    pub depth_margin: f32,
+    /// Most pyramid texels per side read for one box: the test uses the finest level where
+    /// the box's screen rectangle spans at most this many (2 is the classic 2x2 fetch; more
+    /// fetches test against finer depth and cull more).
+    pub texels_per_side: u32,
+}
+
+impl Default for HizParams {
+    fn default() -> Self {
+        HizParams {
+            phase1_occlusion: true,
+            depth_margin: 1e-6,
+            texels_per_side: 4,
+        }
+    }
+}
+
+/// The two-phase Hi-Z culler for one [`Renderer`] (its scene and target size).
+pub struct HizCuller {
+    ctx: Arc<GpuContext>,
+    params: HizParams,
+    object_count: u32,
+    size: (u32, u32),
+    cull: ComputePipeline,
+    cull_layout: PipelineLayout,
+    cull_sets: DescriptorSets,
+    pyramid: DepthPyramid,
+    /// Whether the pyramid holds a previous frame's depth.
+    pyramid_valid: bool,
+    /// Objects drawn by phase 1 and phase 2 of the last frame (read back).
+    last_phases: [u32; 2],
+    /// Device time of each pass of the last frame ([`PASSES`]), from timestamps.
+    last_pass_ms: [f64; 5],
+    #[allow(dead_code)] // owned here; the descriptor set points at it
+    bounds: Buffer,
+    flags: Buffer,
+    draws: Buffer,
+    counters: Buffer,
+}
+
+impl HizCuller {
+    /// Creates the buffers, pyramid and pipelines for `renderer`'s scene and target. Fails
+    /// with [`Error::Unsupported`] when the device lacks a feature or limit it needs.
+    pub fn new(renderer: &Renderer, params: HizParams) -> Result<HizCuller> {
+        let ctx = renderer.context().clone();
+        let n = renderer.objects.len() as u32;
+        check_device(&ctx, n)?;
+        let mut records: Vec<u32> = Vec::with_capacity(n as usize * 12);
+        for o in &renderer.objects {
+            let (lo, hi) = (o.bounds.min, o.bounds.max);
+            let corners = [lo.x, lo.y, lo.z, 0.0, hi.x, hi.y, hi.z, 0.0];
+            records.extend(corners.map(f32::to_bits));
+            records.extend([o.index_count, o.first_index, o.vertex_offset as u32, 0]);
+        }
+        let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+        let indirect = storage | vk::BufferUsageFlags::INDIRECT_BUFFER;
+        let bounds = Buffer::with_data(&ctx, "hiz bounds", &as_bytes(&records), storage)?;
+        let flags = Buffer::with_data(&ctx, "hiz flags", &vec![0u8; 4 * n as usize], storage)?;
+        let draws = Buffer::new(
+            &ctx,
+            "hiz draws",
+            2 * n.max(1) as u64 * COMMAND_BYTES,
+            indirect,
+            MemoryLocation::GpuOnly,
+        )?;
+        let counters = Buffer::new(
+            &ctx,
+            "hiz counters",
+            16,
+            indirect | vk::BufferUsageFlags::TRANSFER_DST,
+            MemoryLocation::GpuToCpu,
+        )?;
+        let pyramid = DepthPyramid::new(&ctx, &renderer.target.depth)?;
+        let cull_layout = PipelineLayout::new(
+            &ctx,
+            &[
+                vk::DescriptorType::STORAGE_BUFFER,
+                vk::DescriptorType::STORAGE_BUFFER,
+                vk::DescriptorType::STORAGE_BUFFER,
+                vk::DescriptorType::STORAGE_BUFFER,
+                vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+            ],
+            CULL_PUSH,
+        )?;
+        let cull = ComputePipeline::new(&ctx, &cull_layout, "hiz cull", shaders::HIZ_CULL_COMP)?;
+        let cull_bindings = [
+            Binding::StorageBuffer(&bounds),
+            Binding::StorageBuffer(&flags),
+            Binding::StorageBuffer(&draws),
+            Binding::StorageBuffer(&counters),
+            Binding::SampledMips(&pyramid.image, None, &pyramid.sampler),
+        ];
+        let cull_sets = DescriptorSets::new(&ctx, &[(&cull_layout, &cull_bindings[..])])?;
+        Ok(HizCuller {
+            ctx,
+            params,
+            object_count: n,
+            size: renderer.size(),
+            cull,
+            cull_layout,
+            cull_sets,
+            pyramid,
+            pyramid_valid: false,
+            last_phases: [0; 2],
+            last_pass_ms: [0.0; 5],
+            bounds,
+            flags,
+            draws,
+            counters,
+        })
+    }
+
+    /// Forgets temporal state: no object counts as visible last frame, no pyramid is reused.
+    pub fn reset(&mut self) -> Result<()> {
+        self.ctx.wait_idle()?;
+        self.flags
+            .write(0, &vec![0u8; 4 * self.object_count as usize])?;
+        self.pyramid_valid = false;
+        Ok(())
+    }
+
+    /// Renders one frame into `r`'s target: phase 1, pyramid, phase 2, in one submission.
+    pub fn render_frame(&mut self, r: &mut Renderer, camera: &Camera) -> Result<FrameResult> {
+        if r.size() != self.size {
+            return Err(Error::Input(format!(
+                "hiz culler made for {}x{}, renderer is {}x{}",
+                self.size.0,
+                self.size.1,
+                r.size().0,
+                r.size().1
+            )));
+        }
+        r.begin_frame(camera)?;
+        let start = Instant::now();
+        let cmd = r.segments.begin_next()?;
+        r.recorder.set_command_buffer(cmd);
+        r.bound = None;
+        pass_timestamp(r)?;
+        let vp = camera.view_proj().to_cols_array();
+        // Moves a new pyramid to GENERAL before phase 1's set refers to it; later frames keep
+        // its contents (the previous frame's pyramid).
+        r.recorder.mip_barrier(
+            &mut self.pyramid.image,
+            Access::ComputeReadWrite,
+            Access::ComputeReadWrite,
+        );
+        self.record_phase(r, 1, &vp)?;
+        self.pyramid.record_build(&mut r.recorder, &r.target.depth);
+        pass_timestamp(r)?;
+        self.record_phase(r, 2, &vp)?;
+        r.recorder
+            .memory_barrier(Access::ComputeReadWrite, Access::HostRead);
+        let value = r.timeline.submit(&mut r.recorder)?;
+        r.segment_values.push(value);
+        r.timeline.wait_all()?;
+        let frame_ms = start.elapsed().as_secs_f64() * 1e3;
+        self.pyramid_valid = true;
+        let (phases, triangles) = self.read_counters()?;
+        self.last_phases = phases;
+        let objects = phases[0] + phases[1];
+        r.recorder.note_indirect_result(objects, triangles);
+        let gpu_ms = self.read_pass_times(r)?;
+        Ok(FrameResult {
+            frame_ms,
+            gpu_ms,
+            stall_ms: 0.0,
+            counts: r.recorder.take_counts(),
+            cull: CullStats {
+                objects_drawn: objects,
+                ..Default::default()
+            },
+            // The draws are generated on the GPU, so the recorder's object log does not see
+            // them: `walk --check` does not measure hiz (its tests compare images with vfc's).
+            check: None,
+        })
+    }
+
+    /// Records one phase: the culling dispatch that writes indirect draws, then the draw.
+    fn record_phase(&mut self, r: &mut Renderer, phase: u32, view_proj: &[f32; 16]) -> Result<()> {
+        let rec = &mut r.recorder;
+        if phase == 1 {
+            rec.fill_buffer(&self.counters, 0, 16, 0);
+            rec.memory_barrier(Access::TransferWrite, Access::ComputeReadWrite);
+        } else {
+            rec.memory_barrier(Access::IndirectRead, Access::ComputeReadWrite);
+        }
+        let levels = if phase == 2 || (self.pyramid_valid && self.params.phase1_occlusion) {
+            self.pyramid.image.levels()
+        } else {
+            0
+        };
+        let (w, h) = self.size;
+        let info = [
+            self.object_count,
+            phase,
+            levels,
+            self.params.texels_per_side.max(2),
+        ];
+        let screen = [w as f32, h as f32, self.params.depth_margin, 0.0];
+        let mut push = [0u8; CULL_PUSH as usize];
+        push[..64].copy_from_slice(bytes_of(view_proj));
+        push[64..80].copy_from_slice(bytes_of(&info));
+        push[80..].copy_from_slice(bytes_of(&screen));
+        rec.bind_compute_pipeline(&self.cull);
+        rec.bind_compute_set(&self.cull_layout, self.cull_sets.get(0));
+        rec.push_constants(&self.cull_layout, &push);
+        rec.dispatch(self.object_count.div_ceil(GROUP).max(1), 1, 1);
+        rec.memory_barrier(Access::ComputeReadWrite, Access::IndirectRead);
+        pass_timestamp(r)?;
+        let rec = &mut r.recorder;
+        let (color, depth) = (&r.target.color, &r.target.depth);
+        let (color_load, depth_load) = if phase == 1 {
+            rec.discard(color, ImageUse::ColorAttachment);
+            rec.discard(depth, ImageUse::DepthAttachment);
+            (Load::ClearColor(SKY), Load::ClearDepth(1.0))
+        } else {
+            rec.transition(color, ImageUse::ColorAttachment);
+            rec.transition(depth, ImageUse::DepthAttachment);
+            (Load::Keep, Load::Keep)
+        };
+        rec.begin_rendering(
+            &[Attachment {
+                image: color,
+                load: color_load,
+                store: true,
+            }],
+            Some(Attachment {
+                image: depth,
+                load: depth_load,
+                store: true,
+            }),
+            1,
+        )?;
+        let layout = &r.pipelines.layout;
+        rec.bind_pipeline(&r.pipelines.render);
+        rec.bind_graphics_set(layout, r.descriptors.get(0));
+        rec.push_constants(layout, &r.push);
+        rec.bind_buffers(&r.vertex_buffer, 0, Some(&r.index_buffer));
+        let first = (phase as u64 - 1) * self.object_count as u64 * COMMAND_BYTES;
+        let count_offset = (phase as u64 - 1) * 4;
+        rec.draw_indexed_indirect_count(
+            &self.draws,
+            first,
+            &self.counters,
+            count_offset,
+            self.object_count,
+        );
+        rec.end_rendering();
+        pass_timestamp(r)
+    }
+
+    /// Reads the frame's timestamps (it has completed): each pass's time, and the total.
+    fn read_pass_times(&mut self, r: &Renderer) -> Result<f64> {
+        let tick = r.ctx.info.timestamp_period_ns as f64 * 1e-6;
+        // Written at the start and after each pass.
+        let mut t = [0u64; 6];
+        for (i, v) in t.iter_mut().enumerate() {
+            *v = r.timestamps.poll(i as u32)?.unwrap_or(0);
+        }
+        for k in 0..5 {
+            self.last_pass_ms[k] = t[k + 1].saturating_sub(t[k]) as f64 * tick;
+        }
+        Ok(t[5].saturating_sub(t[0]) as f64 * tick)
+    }
+
+    /// Device time of each pass of the last frame, in the order of [`PASSES`] (timestamps
+    /// between passes; on lavapipe the device is the CPU).
+    pub fn last_pass_ms(&self) -> [f64; 5] {
+        self.last_pass_ms
+    }
+
+    /// Objects and triangles drawn by both phases of the last frame (it has completed).
+    fn read_counters(&self) -> Result<([u32; 2], u64)> {
+        let bytes = self
+            .counters
+            .mapped()
+            .ok_or_else(|| Error::Alloc("hiz counters are not mapped".into()))?;
+        let word = |i: usize| {
+            u32::from_le_bytes([
+                bytes[4 * i],
+                bytes[4 * i + 1],
+                bytes[4 * i + 2],
+                bytes[4 * i + 3],
+            ])
+        };
+        Ok(([word(0), word(1)], word(2) as u64 + word(3) as u64))
+    }
+
+    /// Objects drawn by phase 1 (visible last frame) and phase 2 (newly visible) in the last
+    /// frame, as the GPU counted them.
+    pub fn last_phase_objects(&self) -> [u32; 2] {
+        self.last_phases
+    }
+
+    /// Builds the pyramid from `r`'s depth buffer as it is now (one submission, waited for).
+    /// For tests and inspection; frames build their own.
+    pub fn build_pyramid(&mut self, r: &mut Renderer) -> Result<()> {
+        let (pyramid, depth) = (&mut self.pyramid, &r.target.depth);
+        r.oneshot.run(&mut r.recorder, |rec| {
+            pyramid.record_build(rec, depth);
+            Ok(())
+        })
+    }
+
+    /// Number of pyramid levels.
+    pub fn pyramid_levels(&self) -> u32 {
+        self.pyramid.image.levels()
+    }
+
+    /// The valid region of pyramid level `level` (the image is padded to powers of two).
+    pub fn pyramid_level_size(&self, level: u32) -> (u32, u32) {
+        self.pyramid.valid[level as usize]
+    }
+
+    /// Reads the valid region of pyramid level `level` back (row by row).
+    pub fn read_pyramid_level(&mut self, r: &mut Renderer, level: u32) -> Result<Vec<f32>> {
+        let (w, h) = self.pyramid_level_size(level);
+        let stride = self.pyramid.image.level_size(level).0;
+        let texels = self
+            .pyramid
+            .image
+            .read_level(&mut r.oneshot, &mut r.recorder, level)?;
+        Ok((0..h)
+            .flat_map(|y| (0..w).map(move |x| (y * stride + x) as usize))
+            .map(|i| texels[i])
+            .collect())
+    }
+}
+
+impl Drop for HizCuller {
+    fn drop(&mut self) {
+        // Nothing may be in flight when the buffers, sets and pyramid are destroyed.
+        let _ = self.ctx.wait_idle();
+    }
+}
+
+/// Names of the passes of a frame, in order ([`HizCuller::last_pass_ms`]).
+pub const PASSES: [&str; 5] = [
+    "phase-1 cull",
+    "phase-1 draw",
+    "pyramid",
+    "phase-2 cull",
+    "phase-2 draw",
+];
+
+/// Writes a timestamp after everything recorded so far (between passes).
+fn pass_timestamp(r: &mut Renderer) -> Result<()> {
+    let ts = r.timestamps.allocate()?;
+    r.recorder.write_timestamp(&r.timestamps, ts);
+    Ok(())
+}
+
+/// Checks the features and limits the culler relies on for `objects` objects.
+fn check_device(ctx: &GpuContext, objects: u32) -> Result<()> {
+    let i = &ctx.info;
+    let mut missing = Vec::new();
+    if !i.optional.draw_indirect_count {
+        missing.push("drawIndirectCount".to_string());
+    }
+    if !i.optional.multi_draw_indirect {
+        missing.push("multiDrawIndirect".to_string());
+    }
+    if !i.optional.draw_indirect_first_instance {
+        missing.push("drawIndirectFirstInstance".to_string());
+    }
+    if !i.optional.depth_sampled {
+        missing.push("SAMPLED_IMAGE on D32_SFLOAT".to_string());
+    }
+    if !i.optional.r32f_storage {
+        missing.push("STORAGE_IMAGE and SAMPLED_IMAGE on R32_SFLOAT".to_string());
+    }
+    if objects > i.max_draw_indirect_count {
+        missing.push(format!(
+            "maxDrawIndirectCount >= {objects} (device: {})",
+            i.max_draw_indirect_count
+        ));
+    }
+    if objects.div_ceil(GROUP) > i.max_compute_work_group_count[0]
+        || i.max_compute_work_group_size[0] < GROUP
+        || i.max_compute_work_group_invocations < GROUP
+    {
+        missing.push(format!(
+            "{} workgroups of {GROUP} (device: maxComputeWorkGroupCount[0] {})",
+            objects.div_ceil(GROUP),
+            i.max_compute_work_group_count[0]
+        ));
+    }
+    let largest = (objects as u64 * BOUNDS_BYTES).max(2 * objects as u64 * COMMAND_BYTES);
+    if largest > i.max_storage_buffer_range as u64 {
+        missing.push(format!(
+            "maxStorageBufferRange >= {largest} (device: {})",
+            i.max_storage_buffer_range
+        ));
+    }
+    if missing.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::Unsupported {
+            feature: format!("hiz: {}", missing.join(", ")),
+        })
+    }
+}
+
+impl Renderer {
+    /// Reads the depth target back (one f32 per pixel, row by row).
+    pub fn read_depth(&mut self) -> Result<Vec<f32>> {
+        let bytes = targets::read_image(
+            &self.ctx,
+            &mut self.oneshot,
+            &mut self.recorder,
+            &self.target.depth,
+        )?;
+        Ok(bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect())
+    }
+}
+
+/// Names `walk`, `render` and `view` accept: the [`culling::ALGORITHMS`] and `hiz`.
+pub fn algorithm_names() -> Vec<&'static str> {
+    let mut names = culling::ALGORITHMS.to_vec();
+    names.push("hiz");
+    names
+}
+
+/// Checks an algorithm name (and its parameters) without a renderer.
+pub fn check_algorithm(name: &str, params: &ChcppParams) -> Result<()> {
+    let _ = params;
+    if name == "hiz" {
+        return Ok(());
+    }
+    culling::check_name(name).map_err(|_| {
+        Error::Input(format!(
+            "unknown algorithm \"{name}\" (known: {})",
+            algorithm_names().join(", ")
+        ))
+    })
+}
+
+/// A culling algorithm by name: a CPU traversal ([`Culler`]) or the GPU-driven [`HizCuller`].
+pub enum FrameAlgorithm {
+    /// One of the query-based (or reference) algorithms.
+    Culler(Box<dyn Culler>),
+    /// Two-phase Hi-Z.
+    Hiz(Box<HizCuller>),
+}
+
+impl FrameAlgorithm {
+    /// Creates `name` for `renderer` (`hiz` needs its scene and target; `nohc` and `pvs` what
+    /// `setup` holds for them).
+    pub fn create(name: &str, setup: &culling::CullerSetup, renderer: &Renderer) -> Result<Self> {
+        if name == "hiz" {
+            let hiz = HizCuller::new(renderer, HizParams::default())?;
+            return Ok(FrameAlgorithm::Hiz(Box::new(hiz)));
+        }
+        check_algorithm(name, &setup.params)?;
+        Ok(FrameAlgorithm::Culler(culling::create_with(name, setup)?))
+    }
+
+    /// The algorithm's name.
+    pub fn name(&self) -> &str {
+        match self {
+            FrameAlgorithm::Culler(c) => c.name(),
+            FrameAlgorithm::Hiz(_) => "hiz",
+        }
+    }
+
+    /// Whether it needs the exact visible set (the oracle).
+    pub fn needs_exact_visibility(&self) -> bool {
+        match self {
+            FrameAlgorithm::Culler(c) => c.needs_exact_visibility(),
+            FrameAlgorithm::Hiz(_) => false,
+        }
+    }
+
+    /// Renders one frame.
+    pub fn render_frame(
+        &mut self,
+        r: &mut Renderer,
+        bvh: &ObjectBvh,
+        camera: &Camera,
+        frame: u64,
+    ) -> Result<FrameResult> {
+        match self {
+            FrameAlgorithm::Culler(c) => r.render_frame(c.as_mut(), bvh, camera, frame),
+            FrameAlgorithm::Hiz(h) => h.render_frame(r, camera),
+        }
+    }
+
+    /// Forgets temporal state.
+    pub fn reset(&mut self) -> Result<()> {
+        match self {
+            FrameAlgorithm::Culler(c) => {
+                c.reset();
+                Ok(())
+            }
+            FrameAlgorithm::Hiz(h) => h.reset(),
+        }
+    }
+}
