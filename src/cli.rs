@@ -11,6 +11,7 @@ use coherent::culling::{self, ChcppParams};
 use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::walk::{self, WalkConfig};
 use coherent::render::Renderer;
+use coherent::scene::movers::Movers;
 use coherent::scene::Scene;
 
 /// Flags shared by commands that load a scene.
@@ -54,6 +55,10 @@ pub struct RenderArgs {
     /// Turn the validation layer off (it is on by default for render).
     #[arg(long)]
     pub no_validation: bool,
+    /// Built-in moving objects (cars in city and parking, fans elsewhere), drawn where they are
+    /// at the rendered frame.
+    #[arg(long, default_value_t = 0)]
+    pub movers: usize,
 }
 
 /// `coherent walk`.
@@ -92,6 +97,11 @@ pub struct WalkArgs {
     pub validation: bool,
     #[command(flatten)]
     pub chcpp: ChcppArgs,
+    /// Built-in moving objects (cars in city and parking, fans elsewhere); the report adds
+    /// refit_ms_median, rebuilds and movers, and chcpp also runs on the scene without movers
+    /// (as chcpp-static) for comparison.
+    #[arg(long, default_value_t = 0)]
+    pub movers: usize,
 }
 
 /// `coherent view`.
@@ -132,6 +142,9 @@ pub struct ViewArgs {
     pub resize_at: Option<String>,
     #[command(flatten)]
     pub chcpp: ChcppArgs,
+    /// Built-in moving objects (key M stops and starts them).
+    #[arg(long, default_value_t = 0)]
+    pub movers: usize,
 }
 
 /// CHC++ parameters.
@@ -253,13 +266,14 @@ pub fn info() -> Result<()> {
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
     let mut culler = culling::create(&a.algorithm, &ChcppParams::default())?;
-    let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let movers = Movers::add(&mut scene, a.movers);
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),
     };
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let mut bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let ctx = context(!a.no_validation)?;
     {
         let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
@@ -270,6 +284,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         };
         let mut last = None;
         for f in first..=a.frame {
+            walk::place_movers(&movers, f as u64, &mut bvh, &mut renderer)?;
             let cam = renderer.camera(path.pose_at(f as f32), &bvh);
             last = Some(renderer.render_frame(culler.as_mut(), &bvh, &cam, f as u64)?);
         }
@@ -343,6 +358,9 @@ fn walk_scale(
     dir: &std::path::Path,
     (w, h): (u32, u32),
 ) -> Result<coherent::report::WalkSummary> {
+    if a.movers > 0 {
+        return walk_scale_movers(a, ctx, cfg, scale, dir, (w, h));
+    }
     let scene = load_scene(&a.scene, scale)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
@@ -392,6 +410,87 @@ fn walk_scale(
     Ok(summary)
 }
 
+/// [`walk_scale`] with `--movers N`: the scene with its movers, and the same scene without them
+/// for chcpp-static, in one interleaved walk.
+fn walk_scale_movers(
+    a: &WalkArgs,
+    ctx: &Arc<GpuContext>,
+    cfg: &WalkConfig,
+    scale: f32,
+    dir: &std::path::Path,
+    (w, h): (u32, u32),
+) -> Result<coherent::report::WalkSummary> {
+    let fixed = load_scene(&a.scene, scale)?;
+    let mut scene = fixed.clone();
+    let movers = Movers::add(&mut scene, a.movers);
+    let path = match &a.path {
+        Some(p) => scene.path(p)?.clone(),
+        None => scene.default_path()?.clone(),
+    };
+    let bvh_of = |s: &coherent::scene::Scene| {
+        let bounds: Vec<_> = s.objects.iter().map(|o| o.bounds).collect();
+        ObjectBvh::build(&bounds, a.scene.leaf_size)
+    };
+    let (mut bvh, fixed_bvh) = (bvh_of(&scene), bvh_of(&fixed));
+    let baseline: Vec<String> = a.algorithms.iter().filter(|x| *x == "chcpp").cloned().collect();
+    println!(
+        "walk: {} (scale {scale}: {} objects, {} of them movers), path {}, {} frames + {} warm-up, {w}x{h}, {} (+ {} without movers) on {}",
+        scene.name,
+        scene.objects.len(),
+        movers.len(),
+        path.name,
+        a.frames,
+        a.warmup,
+        a.algorithms.join(", "),
+        baseline.join(", "),
+        ctx.info.name
+    );
+    let (records, stats) = {
+        let mut renderer = Renderer::new(ctx, &scene, w, h)?;
+        let mut fixed_renderer = Renderer::new(ctx, &fixed, w, h)?;
+        let mut mw = walk::MoverWalk {
+            movers: &movers,
+            baseline: Some((&mut fixed_renderer, &fixed_bvh)),
+            baseline_algorithms: baseline.clone(),
+        };
+        let bar = progress_bar();
+        let out = walk::run_with_movers(&mut renderer, &mut bvh, &path, cfg, &mut mw, |d, t| {
+            bar.tick(d, t)
+        })?;
+        bar.finish();
+        out
+    };
+    let mut names = a.algorithms.clone();
+    names.extend(baseline.iter().map(|b| format!("{b}-static")));
+    let mut summary =
+        walk::write_report(dir, &scene, &path.name, &ctx.info.name, (w, h), &records, &names)?;
+    let ms = coherent::report::summary::mover_summary(
+        stats.movers,
+        &stats.refit_ms,
+        stats.rebuilds,
+        &records,
+    );
+    summary.movers = Some(ms.clone());
+    summary.write_json(&dir.join("summary.json"))?;
+    let reference = a.algorithms.iter().any(|x| x == "oracle").then_some("oracle");
+    println!("{}", summary.table(reference));
+    println!(
+        "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}",
+        ms.movers, ms.refit_ms_median, ms.refit_ms_max, ms.rebuilds
+    );
+    for (name, s) in &ms.vs_static {
+        println!(
+            "{name} with movers / without: {:.3} (min {:.3}, max {:.3})",
+            s.median, s.min, s.max
+        );
+    }
+    println!(
+        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
+        dir.display()
+    );
+    Ok(summary)
+}
+
 /// Prints the table comparing the scales of a walk and writes it to `out/scaling.txt`.
 fn write_scaling_table(
     out: &std::path::Path,
@@ -414,7 +513,8 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     }
     let params = a.chcpp.params()?;
     culling::create(&a.algorithm, &params)?;
-    let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let movers = Movers::add(&mut scene, a.movers);
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),
@@ -433,7 +533,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         }
         None => None,
     };
-    let outcome = coherent::render::viewer::run(coherent::render::viewer::ViewerConfig {
+    let config = coherent::render::viewer::ViewerConfig {
         scene,
         bvh,
         path,
@@ -448,7 +548,8 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         vsync: !a.no_vsync,
         visualize: a.visualize,
         resize_at,
-    })?;
+    };
+    let outcome = coherent::render::viewer::run_with_movers(config, movers)?;
     if outcome.validation_messages > 0 {
         bail!(
             "the validation layer reported {} messages (printed above)",

@@ -28,6 +28,7 @@ use crate::error::{Error, Result};
 use crate::gpu::swapchain::{self, Panel, Presented, Swapchain};
 use crate::gpu::{CommandCounts, ContextOptions, GpuContext, Recorder, ValidationLog};
 use crate::scene::camera::Camera;
+use crate::scene::movers::Movers;
 use crate::scene::{Aabb, CameraPath, CameraPose, Scene};
 
 /// What `coherent view` was asked to do.
@@ -72,11 +73,18 @@ pub struct ViewerOutcome {
 
 /// Runs the viewer until the window is closed (or, non-interactive, until the frames are done).
 pub fn run(cfg: ViewerConfig) -> Result<ViewerOutcome> {
+    run_with_movers(cfg, Movers::default())
+}
+
+/// [`run`] with built-in movers (objects of `cfg.scene`): they move every frame; key O stops
+/// and starts them.
+pub fn run_with_movers(cfg: ViewerConfig, movers: Movers) -> Result<ViewerOutcome> {
     let event_loop =
         EventLoop::new().map_err(|e| Error::Input(format!("cannot open a window: {e}")))?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {
         cfg,
+        movers,
         state: None,
         log: None,
         error: None,
@@ -96,6 +104,7 @@ pub fn run(cfg: ViewerConfig) -> Result<ViewerOutcome> {
 
 struct App {
     cfg: ViewerConfig,
+    movers: Movers,
     state: Option<Running>,
     log: Option<Arc<ValidationLog>>,
     error: Option<Error>,
@@ -127,6 +136,12 @@ struct Running {
     screenshot_requested: bool,
     screenshots: u32,
     resized: bool,
+    /// The hierarchy as the movers leave it (a copy of the configured one).
+    bvh: ObjectBvh,
+    movers: Movers,
+    /// Movers on the move (key O), and the frame of their motion.
+    movers_on: bool,
+    mover_frame: u64,
     _ctx: Arc<GpuContext>,
     window: Window,
 }
@@ -289,6 +304,10 @@ impl App {
             screenshot_requested: false,
             screenshots: 0,
             resized: false,
+            bvh: cfg.bvh.clone(),
+            movers: self.movers.clone(),
+            movers_on: true,
+            mover_frame: 0,
             _ctx: ctx,
             window,
         })
@@ -348,6 +367,7 @@ impl Running {
                 }
             }
             KeyCode::F12 | KeyCode::KeyK => self.screenshot_requested = true,
+            KeyCode::KeyO => self.movers_on = !self.movers_on,
             _ => {}
         }
         if matches!(
@@ -419,8 +439,19 @@ impl Running {
             return Ok(false);
         }
         let pose = self.pose(cfg, presented);
+        if !self.movers.is_empty() {
+            if self.movers_on {
+                self.mover_frame += 1;
+            }
+            super::walk::place_movers(
+                &self.movers,
+                self.mover_frame,
+                &mut self.bvh,
+                &mut self.renderer,
+            )?;
+        }
         // The offscreen image is stretched to the window: give the camera the window's aspect.
-        let mut camera = self.renderer.camera(pose, &cfg.bvh);
+        let mut camera = self.renderer.camera(pose, &self.bvh);
         camera.aspect = size.width as f32 / size.height as f32;
         let mut observed = Observed {
             inner: self.culler.as_mut(),
@@ -428,7 +459,7 @@ impl Running {
         };
         let result = self
             .renderer
-            .render_frame(&mut observed, &cfg.bvh, &camera, self.frame)?;
+            .render_frame(&mut observed, &self.bvh, &camera, self.frame)?;
         let log = observed.log;
         self.frame += 1;
         add_counts(&mut self.pending, &result.counts);
