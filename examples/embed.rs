@@ -888,8 +888,9 @@ impl Host {
     }
 }
 
-/// The moving object of the demo: a city car (the scene's last object), driving down the
-/// first street towards the camera. Its object-space box and its transform at `frame`.
+/// The moving object of the demo: the scene's last object (a piece of street furniture) driving
+/// down the first street towards the camera. An object-space box around it (the world box taken
+/// back through the inverse transform) and its transform at `frame`.
 fn mover_at(scene: &Scene, car: u32, frame: u32) -> (Aabb, glam::Mat4) {
     let o = &scene.objects[car as usize];
     let local = o.bounds.transformed(&o.transform.inverse());
@@ -902,7 +903,7 @@ fn main() -> Result<()> {
     let scene = Scene::load("city", 0.25, 4096)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let mut bvh = ObjectBvh::build(&bounds, 1);
-    // A parked car of the city that the host drives through the scene.
+    // An object of the city that the host moves through the scene.
     let car = (scene.objects.len() - 1) as u32;
     let path = scene.path("street")?.clone();
     let mut host = Host::new(&scene)?;

@@ -76,7 +76,7 @@ impl Movers {
         let local = mesh.bounds();
         let first = append_mesh(scene, &mesh);
         let mut movers = Movers::default();
-        for i in 0..count {
+        for _ in 0..count {
             let route = match (scene.name.as_str(), ground) {
                 ("city", Some(g)) => street_route(&mut rng, g),
                 ("parking", Some(g)) => aisle_route(&mut rng, g),
@@ -97,7 +97,6 @@ impl Movers {
                 ..first.clone()
             });
             movers.movers.push(mover);
-            let _ = i;
         }
         movers
     }
