@@ -849,7 +849,8 @@ mod tests {
         let mut rng = Rng::new(5);
         let boxes = grid(100, &mut rng);
         let mut bvh = ObjectBvh::build(&boxes, 1);
-        let a = bvh.insert(unit_box(Vec3::new(200.0, 0.0, 0.0)));
+        // Between the others: no box grows much, so no rebuild.
+        let a = bvh.insert(unit_box(Vec3::new(31.5, 0.5, 7.5)));
         assert_eq!(a, 100);
         bvh.remove(3).unwrap();
         assert!(bvh.remove(3).is_err(), "removed twice");
@@ -857,7 +858,11 @@ mod tests {
         let s = bvh.update();
         assert!(!s.rebuilt);
         bvh.validate().unwrap();
+        let far = bvh.insert(unit_box(Vec3::new(200.0, 0.0, 0.0)));
+        let s = bvh.update();
+        assert!(s.rebuilt, "a far object degrades the tree: rebuilt");
         assert!(bvh.nodes[0].bounds.max.x >= 201.0);
+        bvh.remove(far).unwrap();
         let in_leaves = |bvh: &ObjectBvh, o: u32| {
             (0..bvh.nodes.len() as u32).any(|n| bvh.nodes[n as usize].is_leaf() && bvh.objects(n).contains(&o))
         };
@@ -867,7 +872,7 @@ mod tests {
         let ids: Vec<u32> = (0..40)
             .map(|i| bvh.insert(unit_box(Vec3::new(-50.0 - i as f32 * 2.0, 0.0, 0.0))))
             .collect();
-        assert_eq!(ids[0], 3, "the freed id is reused");
+        assert_eq!(ids[0], far, "the freed id is reused");
         let s = bvh.update();
         assert!(s.rebuilt);
         bvh.validate().unwrap();
