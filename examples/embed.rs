@@ -876,8 +876,8 @@ impl Host {
         data[..16].copy_from_slice(&m.to_cols_array());
         data[16..].copy_from_slice(&m.inverse().transpose().to_cols_array());
         let (_, memory) = &self.buffers[2]; // vertices, indices, objects
-        // SAFETY: the object buffer is mapped and holds 36 floats per object; `object` is one
-        // of the scene's; the previous frame has completed (end of cull_frame waited for it).
+                                            // SAFETY: the object buffer is mapped and holds 36 floats per object; `object` is one
+                                            // of the scene's; the previous frame has completed (end of cull_frame waited for it).
         unsafe {
             std::ptr::copy_nonoverlapping(
                 data.as_ptr() as *const u8,

@@ -544,16 +544,27 @@ impl ObjectBvh {
             for c in n.children {
                 let child = &self.nodes[c as usize];
                 if child.parent != i as u32 {
-                    return Err(format!("node {c} is a child of {i} but has parent {}", child.parent));
+                    return Err(format!(
+                        "node {c} is a child of {i} but has parent {}",
+                        child.parent
+                    ));
                 }
                 if !encloses(&n.bounds, &child.bounds) {
                     return Err(format!("node {i} does not enclose its child {c}"));
                 }
             }
         }
-        let placed: usize = self.nodes.iter().filter(|n| n.is_leaf()).map(|n| n.object_count as usize).sum();
+        let placed: usize = self
+            .nodes
+            .iter()
+            .filter(|n| n.is_leaf())
+            .map(|n| n.object_count as usize)
+            .sum();
         if placed != self.dynamics.live {
-            return Err(format!("{placed} objects in leaves, {} live", self.dynamics.live));
+            return Err(format!(
+                "{placed} objects in leaves, {} live",
+                self.dynamics.live
+            ));
         }
         Ok(())
     }
@@ -589,7 +600,8 @@ impl ObjectBvh {
         d.live = 0;
         for (i, node) in self.nodes.iter().enumerate() {
             if node.is_leaf() {
-                let range = node.first_object as usize..(node.first_object + node.object_count) as usize;
+                let range =
+                    node.first_object as usize..(node.first_object + node.object_count) as usize;
                 for &o in &self.leaf_objects[range] {
                     d.object_leaf[o as usize] = i as u32;
                     d.live += 1;
@@ -605,13 +617,15 @@ impl ObjectBvh {
     fn refit_from(&mut self, leaf: u32) -> u32 {
         let n = &self.nodes[leaf as usize];
         let mut new = if n.is_leaf() {
-            self.objects(leaf)
-                .iter()
-                .fold(Aabb::EMPTY, |b, &o| b.union(&self.dynamics.object_bounds[o as usize]))
+            self.objects(leaf).iter().fold(Aabb::EMPTY, |b, &o| {
+                b.union(&self.dynamics.object_bounds[o as usize])
+            })
         } else {
             // A root leaf that was split since it was marked.
             let [a, b] = n.children;
-            self.nodes[a as usize].bounds.union(&self.nodes[b as usize].bounds)
+            self.nodes[a as usize]
+                .bounds
+                .union(&self.nodes[b as usize].bounds)
         };
         let mut node = leaf;
         let mut changed = 0;
@@ -647,8 +661,7 @@ impl ObjectBvh {
     fn needs_rebuild(&self) -> bool {
         let d = &self.dynamics;
         let churned = d.churn as f32 > d.policy.churn_fraction * d.live.max(1) as f32;
-        let degraded =
-            d.built_area > 0.0 && d.area > d.policy.area_factor as f64 * d.built_area;
+        let degraded = d.built_area > 0.0 && d.area > d.policy.area_factor as f64 * d.built_area;
         churned || degraded
     }
 
@@ -748,7 +761,11 @@ mod tests {
     fn grid(n: u32, rng: &mut Rng) -> Vec<Aabb> {
         (0..n)
             .map(|i| {
-                let p = Vec3::new((i % 20) as f32 * 3.0, rng.range(0.0, 2.0), (i / 20) as f32 * 3.0);
+                let p = Vec3::new(
+                    (i % 20) as f32 * 3.0,
+                    rng.range(0.0, 2.0),
+                    (i / 20) as f32 * 3.0,
+                );
                 unit_box(p)
             })
             .collect()
@@ -766,7 +783,11 @@ mod tests {
         let mut current = boxes.clone();
         for step in 0..1000 {
             let o = rng.below(400);
-            let d = Vec3::new(rng.range(-4.0, 4.0), rng.range(-1.0, 1.0), rng.range(-4.0, 4.0));
+            let d = Vec3::new(
+                rng.range(-4.0, 4.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-4.0, 4.0),
+            );
             current[o as usize] = unit_box(current[o as usize].min + d);
             bvh.set_bounds(o, current[o as usize]).unwrap();
             if step % 10 == 9 {
@@ -802,7 +823,10 @@ mod tests {
         let leaf = bvh.dynamics.object_leaf[5];
         assert!(bvh.changed_since(leaf, bvh.epoch() - 1));
         assert!(!bvh.grown_since(leaf, bvh.epoch() - 1));
-        assert!(!bvh.changed_since(0, bvh.epoch() - 1), "the root did not change");
+        assert!(
+            !bvh.changed_since(0, bvh.epoch() - 1),
+            "the root did not change"
+        );
     }
 
     #[test]
@@ -864,7 +888,8 @@ mod tests {
         assert!(bvh.nodes[0].bounds.max.x >= 201.0);
         bvh.remove(far).unwrap();
         let in_leaves = |bvh: &ObjectBvh, o: u32| {
-            (0..bvh.nodes.len() as u32).any(|n| bvh.nodes[n as usize].is_leaf() && bvh.objects(n).contains(&o))
+            (0..bvh.nodes.len() as u32)
+                .any(|n| bvh.nodes[n as usize].is_leaf() && bvh.objects(n).contains(&o))
         };
         assert!(in_leaves(&bvh, a));
         assert!(!in_leaves(&bvh, 3));

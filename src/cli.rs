@@ -432,7 +432,12 @@ fn walk_scale_movers(
         ObjectBvh::build(&bounds, a.scene.leaf_size)
     };
     let (mut bvh, fixed_bvh) = (bvh_of(&scene), bvh_of(&fixed));
-    let baseline: Vec<String> = a.algorithms.iter().filter(|x| *x == "chcpp").cloned().collect();
+    let baseline: Vec<String> = a
+        .algorithms
+        .iter()
+        .filter(|x| *x == "chcpp")
+        .cloned()
+        .collect();
     println!(
         "walk: {} (scale {scale}: {} objects, {} of them movers), path {}, {} frames + {} warm-up, {w}x{h}, {} (+ {} without movers) on {}",
         scene.name,
@@ -462,8 +467,15 @@ fn walk_scale_movers(
     };
     let mut names = a.algorithms.clone();
     names.extend(baseline.iter().map(|b| format!("{b}-static")));
-    let mut summary =
-        walk::write_report(dir, &scene, &path.name, &ctx.info.name, (w, h), &records, &names)?;
+    let mut summary = walk::write_report(
+        dir,
+        &scene,
+        &path.name,
+        &ctx.info.name,
+        (w, h),
+        &records,
+        &names,
+    )?;
     let ms = coherent::report::summary::mover_summary(
         stats.movers,
         &stats.refit_ms,
@@ -472,7 +484,11 @@ fn walk_scale_movers(
     );
     summary.movers = Some(ms.clone());
     summary.write_json(&dir.join("summary.json"))?;
-    let reference = a.algorithms.iter().any(|x| x == "oracle").then_some("oracle");
+    let reference = a
+        .algorithms
+        .iter()
+        .any(|x| x == "oracle")
+        .then_some("oracle");
     println!("{}", summary.table(reference));
     println!(
         "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}",

@@ -137,7 +137,12 @@ fn frame_all(
             None => reference = Some(px),
             Some(v) => {
                 let d = common::diff_pixels(v, &px);
-                assert_eq!(d, 0, "frame {f}: {} differs from vfc in {d} pixels", c.name());
+                assert_eq!(
+                    d,
+                    0,
+                    "frame {f}: {} differs from vfc in {d} pixels",
+                    c.name()
+                );
             }
         }
     }
@@ -195,7 +200,10 @@ fn city_movers_every_algorithm_matches_vfc_for_60_frames() {
             }
         }
         assert!(hidden && seen, "the car came out from behind the buildings");
-        assert!(behind && entered, "the car entered the view from behind the camera");
+        assert!(
+            behind && entered,
+            "the car entered the view from behind the camera"
+        );
     }
     common::assert_silent(&log);
 }
@@ -276,11 +284,19 @@ fn inserted_objects_are_drawn_and_removed_ones_never_again() {
                 if f < 8 {
                     assert!(c.drawn.contains(&template), "{} drew the car", c.name());
                 } else {
-                    assert!(!c.drawn.contains(&template), "{} drew a removed object", c.name());
+                    assert!(
+                        !c.drawn.contains(&template),
+                        "{} drew a removed object",
+                        c.name()
+                    );
                 }
                 if let Some(id) = inserted {
                     assert!(exact.contains(&id), "the inserted car is visible");
-                    assert!(c.drawn.contains(&id), "frame {f}: {} missed the inserted car", c.name());
+                    assert!(
+                        c.drawn.contains(&id),
+                        "frame {f}: {} missed the inserted car",
+                        c.name()
+                    );
                 }
             }
         }

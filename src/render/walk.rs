@@ -198,7 +198,10 @@ pub fn run_with_movers(
                     records.push(r.record(name, i - cfg.warmup, repeat));
                 }
                 k += 1;
-                progress(repeat as u64 * per_repeat + i as u64 * runs as u64 + k, per_repeat * cfg.repeats.max(1) as u64);
+                progress(
+                    repeat as u64 * per_repeat + i as u64 * runs as u64 + k,
+                    per_repeat * cfg.repeats.max(1) as u64,
+                );
             }
             if let Some((base, base_bvh)) = walk.baseline.as_mut() {
                 for (name, culler) in walk.baseline_algorithms.iter().zip(base_cullers.iter_mut()) {
@@ -207,7 +210,10 @@ pub fn run_with_movers(
                         records.push(r.record(&format!("{name}-static"), i - cfg.warmup, repeat));
                     }
                     k += 1;
-                    progress(repeat as u64 * per_repeat + i as u64 * runs as u64 + k, per_repeat * cfg.repeats.max(1) as u64);
+                    progress(
+                        repeat as u64 * per_repeat + i as u64 * runs as u64 + k,
+                        per_repeat * cfg.repeats.max(1) as u64,
+                    );
                 }
             }
         }

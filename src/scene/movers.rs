@@ -252,7 +252,11 @@ fn aisle_route(rng: &mut Rng, ground: Aabb) -> Route {
     let rows = ((depth / 9.0).round() as i32).max(1);
     let aisles = 1 + rows / 2;
     let a = rng.below(aisles as u32) as i32;
-    let z = if a == 0 { -3.0 } else { (2 * a - 1) as f32 * 9.0 + 7.0 };
+    let z = if a == 0 {
+        -3.0
+    } else {
+        (2 * a - 1) as f32 * 9.0 + 7.0
+    };
     let length = width + 50.0;
     Route::Aisle {
         z,
@@ -356,8 +360,14 @@ mod tests {
                 let t = movers.transform_at(i, f);
                 let p = t.transform_point3(Vec3::ZERO);
                 // On a street: x or z within the street of some centre line.
-                let off = |v: f32| ((v + CITY_STREET / 2.0).rem_euclid(pitch)).min(pitch - (v + CITY_STREET / 2.0).rem_euclid(pitch));
-                assert!(off(p.x) <= CITY_STREET / 2.0 || off(p.z) <= CITY_STREET / 2.0, "{p}");
+                let off = |v: f32| {
+                    ((v + CITY_STREET / 2.0).rem_euclid(pitch))
+                        .min(pitch - (v + CITY_STREET / 2.0).rem_euclid(pitch))
+                };
+                assert!(
+                    off(p.x) <= CITY_STREET / 2.0 || off(p.z) <= CITY_STREET / 2.0,
+                    "{p}"
+                );
                 let dir = t.transform_vector3(Vec3::X).round();
                 if last_dir.is_some_and(|d: Vec3| d != dir) {
                     turned += 1;
