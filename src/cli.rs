@@ -427,11 +427,10 @@ fn walk_scale_movers(
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),
     };
-    let bvh_of = |s: &coherent::scene::Scene| {
-        let bounds: Vec<_> = s.objects.iter().map(|o| o.bounds).collect();
-        ObjectBvh::build(&bounds, a.scene.leaf_size)
-    };
-    let (mut bvh, fixed_bvh) = (bvh_of(&scene), bvh_of(&fixed));
+    let (mut bvh, fixed_bvh) = (
+        bvh_of(&scene, a.scene.leaf_size),
+        bvh_of(&fixed, a.scene.leaf_size),
+    );
     let baseline: Vec<String> = a
         .algorithms
         .iter()
@@ -484,12 +483,24 @@ fn walk_scale_movers(
     );
     summary.movers = Some(ms.clone());
     summary.write_json(&dir.join("summary.json"))?;
-    let reference = a
-        .algorithms
-        .iter()
-        .any(|x| x == "oracle")
-        .then_some("oracle");
-    println!("{}", summary.table(reference));
+    let reference = a.algorithms.iter().any(|x| x == "oracle");
+    println!("{}", summary.table(reference.then_some("oracle")));
+    print_movers(&ms);
+    println!(
+        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
+        dir.display()
+    );
+    Ok(summary)
+}
+
+/// The object hierarchy of a scene.
+fn bvh_of(scene: &Scene, leaf_size: u32) -> ObjectBvh {
+    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
+    ObjectBvh::build(&bounds, leaf_size)
+}
+
+/// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.
+fn print_movers(ms: &coherent::report::summary::MoverSummary) {
     println!(
         "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}",
         ms.movers, ms.refit_ms_median, ms.refit_ms_max, ms.rebuilds
@@ -500,11 +511,6 @@ fn walk_scale_movers(
             s.median, s.min, s.max
         );
     }
-    println!(
-        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
-        dir.display()
-    );
-    Ok(summary)
 }
 
 /// Prints the table comparing the scales of a walk and writes it to `out/scaling.txt`.
