@@ -591,6 +591,8 @@ impl ObjectBvh {
         let n = self.nodes.len();
         let d = &mut self.dynamics;
         d.dirty.clear();
+        // Room for every leaf, so that marking what moved never allocates in a frame.
+        d.dirty.reserve(n);
         d.dirty_mark = vec![false; n];
         d.changed_at = vec![d.epoch; n];
         d.grown_at = vec![d.epoch; n];
