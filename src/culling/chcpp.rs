@@ -1023,6 +1023,37 @@ mod tests {
     }
 
     #[test]
+    fn visibility_survives_refits_and_rebuilds() {
+        let (mut bvh, cam) = row();
+        let mut c = Chcpp::new(ChcppParams::default());
+        let mut m = Mock {
+            visible: vec![Aabb::new(Vec3::splat(-100.0), Vec3::splat(100.0))],
+            ..Mock::default()
+        };
+        for f in 1..4 {
+            frame(&mut c, &bvh, &cam, &mut m, f);
+        }
+        // A refit (one box moved): node ids and their history stay; nothing visible last
+        // frame is queried as invisible.
+        let moved = Aabb::new(Vec3::new(0.0, 0.5, 0.0), Vec3::new(1.0, 1.5, 1.0));
+        bvh.set_bounds(0, moved).unwrap();
+        assert!(!bvh.update().rebuilt);
+        let s = frame(&mut c, &bvh, &cam, &mut m, 4);
+        assert_eq!(s.invisible_node_queries, 0);
+        assert_eq!(s.objects_drawn, 16);
+        // A rebuild renumbers the nodes: visibility is carried over through the objects
+        // drawn last frame, so again nothing is queried as invisible.
+        bvh.rebuild();
+        let s = frame(&mut c, &bvh, &cam, &mut m, 5);
+        assert_eq!(s.invisible_node_queries, 0);
+        assert_eq!(s.objects_drawn, 16);
+        // Without that history (a fresh culler), the root is queried first.
+        let mut fresh = Chcpp::new(ChcppParams::default());
+        let s = frame(&mut fresh, &bvh, &cam, &mut m, 1);
+        assert!(s.invisible_node_queries > 0);
+    }
+
+    #[test]
     fn frustum_culled_nodes_keep_their_age() {
         let (bvh, cam) = row();
         let mut c = Chcpp::new(ChcppParams::default());
