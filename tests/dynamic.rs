@@ -156,8 +156,8 @@ fn frame_all(
 fn city_movers_every_algorithm_matches_vfc_for_60_frames() {
     let (ctx, log) = common::context();
     {
-        let mut scene = Scene::load("city", 0.1, 4096).unwrap();
-        let movers = Movers::add(&mut scene, 40);
+        let mut scene = Scene::load("city", 0.05, 4096).unwrap();
+        let movers = Movers::add(&mut scene, 30);
         let template = movers.object(0);
         let out_of_hiding = add_car(&mut scene, template);
         let from_behind = add_car(&mut scene, template);
