@@ -562,6 +562,13 @@ impl Running {
             lines.push("MAP: GREEN DRAWN  RED QUERY-CULLED".into());
             lines.push("GRAY FRUSTUM  OTHER: MULTI-BOX QUERY".into());
         }
+        if !self.movers.is_empty() {
+            lines.push(format!(
+                "MOVERS {} {} (O)",
+                self.movers.len(),
+                on_off(self.movers_on)
+            ));
+        }
         if cfg.frames.is_none() {
             lines.push("1-5 ALG  BIMT PARTS  V VIS  P PATH".into());
         }
