@@ -303,3 +303,44 @@ fn inserted_objects_are_drawn_and_removed_ones_never_again() {
     }
     common::assert_silent(&log);
 }
+
+/// `coherent walk --movers N` (validation on): every algorithm plus chcpp on the scene without
+/// movers, and the movers' figures in `summary.json`.
+#[test]
+fn walk_with_movers_reports_refit_and_rebuilds() {
+    let dir = std::env::temp_dir().join(format!("coherent-movers-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
+        .args([
+            "walk", "--scene", "parking", "--scale", "0.25", "--movers", "20",
+        ])
+        .args([
+            "--frames",
+            "4",
+            "--warmup",
+            "1",
+            "--size",
+            "96x64",
+            "--validation",
+        ])
+        .args(["--out", dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    for a in culling::ALGORITHMS.iter().chain(["chcpp-static"].iter()) {
+        assert!(json["algorithms"][a]["frame_ms_median"].is_number(), "{a}");
+    }
+    let m = &json["movers"];
+    assert_eq!(m["movers"], 20);
+    assert!(m["refit_ms_median"].as_f64().unwrap() > 0.0);
+    assert!(m["rebuilds"].is_number());
+    assert!(m["vs_static"]["chcpp"]["median"].as_f64().unwrap() > 0.0);
+    let _ = std::fs::remove_dir_all(&dir);
+}
