@@ -53,6 +53,13 @@ enum Route {
     },
     /// Spinning about a vertical axis in place.
     Spin { at: Vec3, speed: f32, phase: f32 },
+    /// Back and forth between two points (a crane's trolley and hook).
+    Shuttle {
+        from: Vec3,
+        to: Vec3,
+        speed: f32,
+        phase: f32,
+    },
 }
 
 /// Unit steps of the four street directions: +x, +z, -x, -z.
@@ -75,12 +82,19 @@ impl Movers {
         };
         let local = mesh.bounds();
         let first = append_mesh(scene, &mesh);
+        let crane = append_mesh(scene, &crane_mesh());
         let mut movers = Movers::default();
-        for _ in 0..count {
+        for i in 0..count {
             let route = match (scene.name.as_str(), ground) {
                 ("city", Some(g)) => street_route(&mut rng, g),
                 ("parking", Some(g)) => aisle_route(&mut rng, g),
+                ("powerplant", _) if i % 8 == 0 => crane_route(&mut rng, &world),
                 _ => spin_route(&mut rng, &world),
+            };
+            let (local, first) = if matches!(route, Route::Shuttle { .. }) {
+                (crane.bounds, &crane)
+            } else {
+                (local, &first)
             };
             let tint = 0.6 + 0.4 * rng.f32();
             let object = scene.objects.len() as u32;
@@ -159,6 +173,16 @@ impl Mover {
             }
             Route::Spin { at, speed, phase } => {
                 Mat4::from_translation(at) * Mat4::from_rotation_y(phase + speed * frame as f32)
+            }
+            Route::Shuttle {
+                from,
+                to,
+                speed,
+                phase,
+            } => {
+                // Smooth back and forth: 0 at `from`, 1 at `to`.
+                let t = 0.5 - 0.5 * (phase + speed * frame as f32).cos();
+                Mat4::from_translation(from.lerp(to, t))
             }
         }
     }
@@ -287,6 +311,26 @@ fn spin_route(rng: &mut Rng, world: &Aabb) -> Route {
     }
 }
 
+/// A crane in the powerplant: its trolley runs 15 m along x below the ceiling (12 m walls).
+fn crane_route(rng: &mut Rng, world: &Aabb) -> Route {
+    let (lo, hi) = if world.is_valid() {
+        (world.min, world.max)
+    } else {
+        (Vec3::splat(-10.0), Vec3::splat(10.0))
+    };
+    let from = Vec3::new(
+        rng.range(lo.x, (hi.x - 15.0).max(lo.x)),
+        10.5,
+        rng.range(lo.z, hi.z),
+    );
+    Route::Shuttle {
+        from,
+        to: from + Vec3::new(15.0, 0.0, 0.0),
+        speed: rng.range(0.01, 0.03),
+        phase: rng.range(0.0, 6.3),
+    }
+}
+
 /// Stores `mesh` in the scene's buffers once; the returned object draws it (transform and
 /// bounds still to be set).
 fn append_mesh(scene: &mut Scene, mesh: &Mesh) -> Object {
@@ -325,6 +369,24 @@ fn car_mesh() -> Mesh {
     m
 }
 
+/// A crane's trolley with a cable and a hook block hanging 4 m below it.
+fn crane_mesh() -> Mesh {
+    let mut m = Mesh::default();
+    m.append(
+        &Mesh::cuboid(Vec3::new(-1.0, -0.4, -1.0), Vec3::new(1.0, 0.4, 1.0)),
+        Mat4::IDENTITY,
+    );
+    m.append(
+        &Mesh::cuboid(Vec3::new(-0.05, -4.0, -0.05), Vec3::new(0.05, -0.4, 0.05)),
+        Mat4::IDENTITY,
+    );
+    m.append(
+        &Mesh::cuboid(Vec3::new(-0.4, -4.6, -0.4), Vec3::new(0.4, -4.0, 0.4)),
+        Mat4::IDENTITY,
+    );
+    m
+}
+
 /// A fan: a hub and four blades in the xz plane.
 fn fan_mesh() -> Mesh {
     let mut m = Mesh::default();
@@ -345,6 +407,29 @@ fn fan_mesh() -> Mesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn powerplant_fans_spin_and_cranes_run() {
+        let mut scene = crate::scene::procedural::build("powerplant", 1.0).unwrap();
+        let movers = Movers::add(&mut scene, 16);
+        let (mut cranes, mut fans) = (0, 0);
+        for i in 0..movers.len() {
+            let (a, b) = (movers.transform_at(i, 0), movers.transform_at(i, 40));
+            let moved = a.transform_point3(Vec3::ZERO) != b.transform_point3(Vec3::ZERO);
+            let turned = a.transform_vector3(Vec3::X) != b.transform_vector3(Vec3::X);
+            match movers.movers[i].route {
+                Route::Shuttle { .. } => {
+                    assert!(moved && !turned);
+                    cranes += 1;
+                }
+                _ => {
+                    assert!(turned && !moved);
+                    fans += 1;
+                }
+            }
+        }
+        assert_eq!((cranes, fans), (2, 14));
+    }
 
     #[test]
     fn city_cars_stay_on_the_streets_and_turn() {
