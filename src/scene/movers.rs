@@ -82,7 +82,11 @@ impl Movers {
         };
         let local = mesh.bounds();
         let first = append_mesh(scene, &mesh);
-        let crane = append_mesh(scene, &crane_mesh());
+        let crane = if scene.name == "powerplant" {
+            append_mesh(scene, &crane_mesh())
+        } else {
+            first.clone()
+        };
         let mut movers = Movers::default();
         for i in 0..count {
             let route = match (scene.name.as_str(), ground) {
