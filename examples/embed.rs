@@ -868,10 +868,43 @@ impl Drop for Host {
     }
 }
 
+impl Host {
+    /// Moves `object`: rewrites its model and normal matrices in the (host-coherent) object
+    /// buffer. Called between frames, when no segment is in flight.
+    fn set_transform(&mut self, object: u32, m: &glam::Mat4) {
+        let mut data = [0f32; 32];
+        data[..16].copy_from_slice(&m.to_cols_array());
+        data[16..].copy_from_slice(&m.inverse().transpose().to_cols_array());
+        let (_, memory) = &self.buffers[2]; // vertices, indices, objects
+                                            // SAFETY: the object buffer is mapped and holds 36 floats per object; `object` is one
+                                            // of the scene's; the previous frame has completed (end of cull_frame waited for it).
+        unsafe {
+            std::ptr::copy_nonoverlapping(
+                data.as_ptr() as *const u8,
+                memory.ptr.add(object as usize * 36 * 4),
+                32 * 4,
+            );
+        }
+    }
+}
+
+/// The moving object of the demo: the scene's last object (a piece of street furniture) driving
+/// down the first street towards the camera. An object-space box around it (the world box taken
+/// back through the inverse transform) and its transform at `frame`.
+fn mover_at(scene: &Scene, car: u32, frame: u32) -> (Aabb, glam::Mat4) {
+    let o = &scene.objects[car as usize];
+    let local = o.bounds.transformed(&o.transform.inverse());
+    let m = glam::Mat4::from_translation(glam::Vec3::new(49.0, 0.0, 90.0 - frame as f32 * 3.0))
+        * glam::Mat4::from_rotation_y(std::f32::consts::FRAC_PI_2);
+    (local, m)
+}
+
 fn main() -> Result<()> {
     let scene = Scene::load("city", 0.25, 4096)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, 1);
+    let mut bvh = ObjectBvh::build(&bounds, 1);
+    // An object of the city that the host moves through the scene.
+    let car = (scene.objects.len() - 1) as u32;
     let path = scene.path("street")?.clone();
     let mut host = Host::new(&scene)?;
     let mut culler = coherent::culling::chcpp::Chcpp::new(ChcppParams::default());
@@ -881,8 +914,14 @@ fn main() -> Result<()> {
         scene.triangle_count(),
         culler.name()
     );
-    println!("frame  ms      draws  queries  visible  state-switches  submits");
+    println!("frame  ms      draws  queries  visible  state-switches  submits  refit-nodes");
     for frame in 0..12u32 {
+        // The host moves its object through the public API: new box into the hierarchy (then
+        // update: refit), new transform into its own object buffer.
+        let (local, m) = mover_at(&scene, car, frame);
+        bvh.set_bounds(car, local.transformed(&m))?;
+        let update = bvh.update();
+        host.set_transform(car, &m);
         let pose = path.pose_at(frame as f32 * 4.0);
         let far = bvh.nodes[0].bounds.extent().length() * 2.0;
         let camera = Camera::from_pose(pose, WIDTH as f32 / HEIGHT as f32, far);
@@ -897,8 +936,13 @@ fn main() -> Result<()> {
         let stats = culler.cull_frame(&input, &mut host)?;
         let ms = start.elapsed().as_secs_f64() * 1e3;
         println!(
-            "{frame:5}  {ms:6.1}  {:5}  {:7}  {:7}  {:14}  {:7}",
-            host.draws, stats.queries, stats.visible_results, host.switches, host.submits
+            "{frame:5}  {ms:6.1}  {:5}  {:7}  {:7}  {:14}  {:7}  {:11}",
+            host.draws,
+            stats.queries,
+            stats.visible_results,
+            host.switches,
+            host.submits,
+            update.refitted_nodes
         );
     }
     drop(host);

@@ -1,5 +1,17 @@
 //! The object hierarchy: a binary BVH over object bounds built with obvhs (PLOC), flattened into
 //! our own node array with parents and depths. Culling state lives beside it, indexed by node.
+//!
+//! The hierarchy follows a dynamic scene (see the README, "Moving objects"): a host calls
+//! [`ObjectBvh::set_bounds`], [`ObjectBvh::insert`] and [`ObjectBvh::remove`] between frames and
+//! then [`ObjectBvh::update`], which refits the boxes of what moved bottom-up (cost proportional
+//! to the moved objects times the depth) and rebuilds the whole tree when its quality, the summed
+//! surface area of its interior nodes, has grown past [`RebuildPolicy::area_factor`] times the
+//! value right after the last build (or when inserts and removals have touched more than
+//! [`RebuildPolicy::churn_fraction`] of the objects). Object ids are stable: an id names the same
+//! object until it is removed (a later insert may reuse it). Every update stamps the nodes whose
+//! boxes changed with the update's epoch, so that cullers can tell which nodes moved since they
+//! last looked ([`ObjectBvh::changed_since`], [`ObjectBvh::grown_since`]); node ids stay valid
+//! until the next rebuild ([`ObjectBvh::rebuilds`]) or insert ([`ObjectBvh::structure`]).
 
 use std::collections::BinaryHeap;
 
@@ -8,6 +20,7 @@ use obvhs::aabb::Aabb as OAabb;
 use obvhs::bvh2::Bvh2;
 use obvhs::{Boundable, BvhBuildParams};
 
+use crate::error::{Error, Result};
 use crate::scene::Aabb;
 
 /// One node: an interior node with two children, or a leaf with a range of objects.
@@ -30,19 +43,22 @@ pub struct BvhNode {
 impl BvhNode {
     /// Whether this is a leaf.
     pub fn is_leaf(&self) -> bool {
-        // No node has the root (0) as a child, so children [0, 0] mark a leaf too: the root of
-        // an empty hierarchy is a leaf without objects, not a node whose children are itself.
-        self.object_count > 0 || self.children == [0, 0]
+        // An interior node has two different children; leaves have [MAX, MAX] or, for the root
+        // of an empty hierarchy, [0, 0]. A leaf whose objects were all removed keeps being a
+        // leaf (with no objects and an empty box).
+        self.object_count > 0 || self.children[0] == self.children[1]
     }
 }
 
 /// The object BVH. Node 0 is the root.
 #[derive(Clone, Debug)]
 pub struct ObjectBvh {
-    /// All nodes; parents come before children.
+    /// All nodes; right after a build parents come before children (nodes added by
+    /// [`ObjectBvh::insert`] are appended, after their parents' position).
     pub nodes: Vec<BvhNode>,
     /// Object indices, grouped by leaf.
     pub leaf_objects: Vec<u32>,
+    dynamics: Dynamics,
 }
 
 struct Bounded(OAabb);
@@ -53,39 +69,46 @@ impl Boundable for Bounded {
 }
 
 impl ObjectBvh {
-    /// Builds the hierarchy over `bounds` (one per object) with at most `leaf_size` objects per
-    /// leaf. An empty input gives a root leaf with no objects.
+    /// Builds the hierarchy over `bounds` (one per object; object `i` gets id `i`) with at most
+    /// `leaf_size` objects per leaf. An empty input gives a root leaf with no objects.
     pub fn build(bounds: &[Aabb], leaf_size: u32) -> ObjectBvh {
-        if bounds.is_empty() {
-            return ObjectBvh::empty();
-        }
-        let bvh2 = build_bvh2(bounds, leaf_size);
-        let mut out = ObjectBvh::flatten(&bvh2, bounds);
-        out.fit_interior_bounds();
+        let object_bounds: Vec<Aabb> = bounds.iter().map(bounds_or_point).collect();
+        let ids: Vec<u32> = (0..bounds.len() as u32).collect();
+        let (nodes, leaf_objects) = build_nodes(&object_bounds, &ids, leaf_size);
+        let mut out = ObjectBvh {
+            nodes,
+            leaf_objects,
+            dynamics: Dynamics {
+                leaf_size,
+                object_leaf: vec![u32::MAX; bounds.len()],
+                object_bounds,
+                ..Dynamics::default()
+            },
+        };
+        out.after_build();
         out
     }
 
     /// A root leaf with no objects.
-    fn empty() -> ObjectBvh {
-        ObjectBvh {
-            nodes: vec![BvhNode {
-                bounds: Aabb::new(Vec3::ZERO, Vec3::ZERO),
-                parent: u32::MAX,
-                children: [0; 2],
-                first_object: 0,
-                object_count: 0,
-                depth: 0,
-            }],
-            leaf_objects: Vec::new(),
-        }
+    fn empty_nodes() -> Vec<BvhNode> {
+        vec![BvhNode {
+            bounds: Aabb::new(Vec3::ZERO, Vec3::ZERO),
+            parent: u32::MAX,
+            children: [0; 2],
+            first_object: 0,
+            object_count: 0,
+            depth: 0,
+        }]
     }
 
     /// Copies obvhs's tree into our node array, depth-first from its root (index 0) so that
-    /// parents come before children; leaves get their objects' bounds.
-    fn flatten(bvh2: &Bvh2, bounds: &[Aabb]) -> ObjectBvh {
+    /// parents come before children; leaves get their objects' bounds. Primitive `p` of the
+    /// obvhs tree is object `ids[p]`.
+    fn flatten(bvh2: &Bvh2, bounds: &[Aabb], ids: &[u32]) -> ObjectBvh {
         let mut out = ObjectBvh {
             nodes: Vec::with_capacity(bvh2.nodes.len()),
-            leaf_objects: Vec::with_capacity(bounds.len()),
+            leaf_objects: Vec::with_capacity(ids.len()),
+            dynamics: Dynamics::default(),
         };
         let mut stack = vec![(0usize, u32::MAX, 0u32)];
         while let Some((src, parent, depth)) = stack.pop() {
@@ -106,8 +129,9 @@ impl ObjectBvh {
                 node.first_object = out.leaf_objects.len() as u32;
                 let count = n.prim_count.max(1);
                 for k in 0..count {
-                    let obj = bvh2.primitive_indices[(n.first_index + k) as usize];
-                    node.bounds = node.bounds.union(&bounds_or_point(&bounds[obj as usize]));
+                    let prim = bvh2.primitive_indices[(n.first_index + k) as usize];
+                    let obj = ids[prim as usize];
+                    node.bounds = node.bounds.union(&bounds[obj as usize]);
                     out.leaf_objects.push(obj);
                 }
                 node.object_count = count;
@@ -181,17 +205,25 @@ impl ObjectBvh {
     }
 }
 
-/// obvhs's binary BVH (PLOC) over `bounds`, invalid boxes replaced by the origin.
-fn build_bvh2(bounds: &[Aabb], leaf_size: u32) -> Bvh2 {
-    let prims: Vec<Bounded> = bounds
+/// The nodes and leaf objects of a hierarchy over the objects `ids` (their boxes in `bounds`,
+/// indexed by id, all valid).
+fn build_nodes(bounds: &[Aabb], ids: &[u32], leaf_size: u32) -> (Vec<BvhNode>, Vec<u32>) {
+    if ids.is_empty() {
+        return (ObjectBvh::empty_nodes(), Vec::new());
+    }
+    let bvh2 = build_bvh2(bounds, ids, leaf_size);
+    let mut out = ObjectBvh::flatten(&bvh2, bounds, ids);
+    out.fit_interior_bounds();
+    (out.nodes, out.leaf_objects)
+}
+
+/// obvhs's binary BVH (PLOC) over the boxes of `ids`.
+fn build_bvh2(bounds: &[Aabb], ids: &[u32], leaf_size: u32) -> Bvh2 {
+    let prims: Vec<Bounded> = ids
         .iter()
-        .map(|b| {
-            let (min, max) = if b.is_valid() {
-                (b.min, b.max)
-            } else {
-                (Vec3::ZERO, Vec3::ZERO)
-            };
-            Bounded(OAabb::new(min.into(), max.into()))
+        .map(|&id| {
+            let b = bounds[id as usize];
+            Bounded(OAabb::new(b.min.into(), b.max.into()))
         })
         .collect();
     let mut params = BvhBuildParams::fast_build();
@@ -256,5 +288,639 @@ impl DistanceQueue {
     /// Empties the queue.
     pub fn clear(&mut self) {
         self.heap.clear();
+    }
+}
+
+/// When [`ObjectBvh::update`] rebuilds the whole tree instead of refitting it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RebuildPolicy {
+    /// Rebuild when the summed surface area of the interior nodes exceeds this many times its
+    /// value right after the last build (default 1.5: refitted boxes have grown by half, so a
+    /// traversal opens about that many more nodes than a fresh tree would).
+    pub area_factor: f32,
+    /// Rebuild when inserts and removals since the last build exceed this fraction of the
+    /// objects (default 0.25): inserted objects hang below their nearest leaf and removed ones
+    /// leave empty leaves behind.
+    pub churn_fraction: f32,
+}
+
+impl Default for RebuildPolicy {
+    fn default() -> Self {
+        RebuildPolicy {
+            area_factor: 1.5,
+            churn_fraction: 0.25,
+        }
+    }
+}
+
+/// What one [`ObjectBvh::update`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct UpdateStats {
+    /// Leaves whose objects moved, appeared or vanished.
+    pub dirty_leaves: u32,
+    /// Nodes whose box the refit changed.
+    pub refitted_nodes: u32,
+    /// Whether the tree was rebuilt (node ids changed).
+    pub rebuilt: bool,
+    /// Summed interior surface area over its value after the last build (after this update).
+    pub quality: f32,
+}
+
+/// The dynamic side of the hierarchy: object boxes by id, the leaf of each object, what moved.
+#[derive(Clone, Debug, Default)]
+struct Dynamics {
+    leaf_size: u32,
+    /// Box of each object id (EMPTY once removed).
+    object_bounds: Vec<Aabb>,
+    /// Leaf of each object id (`u32::MAX`: removed).
+    object_leaf: Vec<u32>,
+    /// Removed ids, reused by inserts.
+    free: Vec<u32>,
+    /// Leaves to refit at the next update, and a mark per node so each is listed once.
+    dirty: Vec<u32>,
+    dirty_mark: Vec<bool>,
+    /// Per node: the epoch of the last update that changed its box, and of the last one that
+    /// grew it beyond its previous box.
+    changed_at: Vec<u64>,
+    grown_at: Vec<u64>,
+    epoch: u64,
+    /// Bumped when nodes are added or renumbered.
+    structure: u64,
+    rebuilds: u32,
+    /// Summed interior surface area now and right after the last build.
+    area: f64,
+    built_area: f64,
+    /// Inserts and removals since the last build.
+    churn: usize,
+    live: usize,
+    policy: RebuildPolicy,
+}
+
+/// Whether `outer` encloses `inner` (an empty `inner` is enclosed by anything).
+fn encloses(outer: &Aabb, inner: &Aabb) -> bool {
+    !inner.is_valid() || (outer.min.cmple(inner.min).all() && inner.max.cmple(outer.max).all())
+}
+
+/// Scene updates: set_bounds / insert / remove between frames, then update.
+impl ObjectBvh {
+    /// Sets an object's world bounds (it moved); the next [`ObjectBvh::update`] refits.
+    pub fn set_bounds(&mut self, object: u32, bounds: Aabb) -> Result<()> {
+        let leaf = self.leaf_of(object)?;
+        self.dynamics.object_bounds[object as usize] = bounds_or_point(&bounds);
+        self.mark_dirty(leaf);
+        Ok(())
+    }
+
+    /// Adds an object with world `bounds` and returns its id, stable until it is removed. It
+    /// hangs below the leaf whose box grows least; the next [`ObjectBvh::update`] refits.
+    pub fn insert(&mut self, bounds: Aabb) -> u32 {
+        let b = bounds_or_point(&bounds);
+        let d = &mut self.dynamics;
+        let id = match d.free.pop() {
+            Some(id) => id,
+            None => {
+                d.object_bounds.push(Aabb::EMPTY);
+                d.object_leaf.push(u32::MAX);
+                d.object_bounds.len() as u32 - 1
+            }
+        };
+        d.object_bounds[id as usize] = b;
+        d.churn += 1;
+        d.live += 1;
+        let leaf = self.best_leaf(&b);
+        let target = if self.nodes[leaf as usize].object_count == 0 {
+            leaf // an empty leaf (or the empty root) takes the object
+        } else {
+            self.split_leaf(leaf)
+        };
+        let node = &mut self.nodes[target as usize];
+        node.first_object = self.leaf_objects.len() as u32;
+        node.object_count = 1;
+        self.leaf_objects.push(id);
+        self.dynamics.object_leaf[id as usize] = target;
+        self.mark_dirty(target);
+        id
+    }
+
+    /// Removes an object: it is in no leaf from now on (its leaf may stay empty until the next
+    /// rebuild). Its id may be handed out again by a later insert.
+    pub fn remove(&mut self, object: u32) -> Result<()> {
+        let leaf = self.leaf_of(object)?;
+        let n = &mut self.nodes[leaf as usize];
+        let range = n.first_object as usize..(n.first_object + n.object_count) as usize;
+        let last = range.end - 1;
+        if let Some(pos) = self.leaf_objects[range].iter().position(|&o| o == object) {
+            self.leaf_objects.swap(n.first_object as usize + pos, last);
+            n.object_count -= 1;
+        }
+        let d = &mut self.dynamics;
+        d.object_leaf[object as usize] = u32::MAX;
+        d.object_bounds[object as usize] = Aabb::EMPTY;
+        d.free.push(object);
+        d.churn += 1;
+        d.live -= 1;
+        self.mark_dirty(leaf);
+        Ok(())
+    }
+
+    /// Applies the changes since the last update: refits the boxes above every changed leaf
+    /// (bottom-up, stopping where a box does not change), then rebuilds the whole tree if its
+    /// quality has degraded past the [`RebuildPolicy`].
+    pub fn update(&mut self) -> UpdateStats {
+        self.dynamics.epoch += 1;
+        let mut stats = UpdateStats {
+            dirty_leaves: self.dynamics.dirty.len() as u32,
+            ..UpdateStats::default()
+        };
+        let dirty = std::mem::take(&mut self.dynamics.dirty);
+        for &leaf in &dirty {
+            self.dynamics.dirty_mark[leaf as usize] = false;
+            stats.refitted_nodes += self.refit_from(leaf);
+        }
+        self.dynamics.dirty = dirty;
+        self.dynamics.dirty.clear();
+        if self.needs_rebuild() {
+            self.rebuild();
+            stats.rebuilt = true;
+        }
+        stats.quality = self.quality();
+        stats
+    }
+
+    /// Rebuilds the tree over the live objects (node ids change; object ids do not).
+    pub fn rebuild(&mut self) {
+        let d = &self.dynamics;
+        let ids: Vec<u32> = (0..d.object_leaf.len() as u32)
+            .filter(|&i| d.object_leaf[i as usize] != u32::MAX)
+            .collect();
+        let (nodes, leaf_objects) = build_nodes(&d.object_bounds, &ids, d.leaf_size);
+        self.nodes = nodes;
+        self.leaf_objects = leaf_objects;
+        self.dynamics.rebuilds += 1;
+        self.after_build();
+    }
+
+    /// Summed interior surface area over its value right after the last build (1 when fresh).
+    pub fn quality(&self) -> f32 {
+        let d = &self.dynamics;
+        if d.built_area > 0.0 {
+            (d.area / d.built_area) as f32
+        } else {
+            1.0
+        }
+    }
+
+    /// The rebuild policy.
+    pub fn policy(&self) -> RebuildPolicy {
+        self.dynamics.policy
+    }
+
+    /// Sets the rebuild policy.
+    pub fn set_policy(&mut self, policy: RebuildPolicy) {
+        self.dynamics.policy = policy;
+    }
+
+    /// The number of updates so far: the epoch the nodes' change stamps refer to.
+    pub fn epoch(&self) -> u64 {
+        self.dynamics.epoch
+    }
+
+    /// Whether `node`'s box changed in an update after `epoch`.
+    pub fn changed_since(&self, node: u32, epoch: u64) -> bool {
+        self.dynamics.changed_at[node as usize] > epoch
+    }
+
+    /// Whether `node`'s box grew beyond its previous box in an update after `epoch` (it may now
+    /// cover space it did not cover then).
+    pub fn grown_since(&self, node: u32, epoch: u64) -> bool {
+        self.dynamics.grown_at[node as usize] > epoch
+    }
+
+    /// Full rebuilds so far (each renumbers the nodes).
+    pub fn rebuilds(&self) -> u32 {
+        self.dynamics.rebuilds
+    }
+
+    /// Bumped whenever nodes are added (insert) or renumbered (rebuild): per-node state sized
+    /// or indexed by an older structure must be extended or rebuilt.
+    pub fn structure(&self) -> u64 {
+        self.dynamics.structure
+    }
+
+    /// One past the largest object id ever handed out (per-object arrays need this length).
+    pub fn object_capacity(&self) -> usize {
+        self.dynamics.object_bounds.len()
+    }
+
+    /// Objects in the hierarchy now.
+    pub fn live_objects(&self) -> usize {
+        self.dynamics.live
+    }
+
+    /// An object's current box, or `None` if the id is not in the hierarchy.
+    pub fn object_bounds(&self, object: u32) -> Option<Aabb> {
+        self.leaf_of(object)
+            .ok()
+            .map(|_| self.dynamics.object_bounds[object as usize])
+    }
+
+    /// Checks the invariants: links agree, every leaf's box encloses its objects' boxes, every
+    /// interior box encloses its children's, every live object is in its leaf. The first
+    /// violation, in words.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        for (i, n) in self.nodes.iter().enumerate() {
+            if n.is_leaf() {
+                for &o in self.objects(i as u32) {
+                    let b = &self.dynamics.object_bounds[o as usize];
+                    if !encloses(&n.bounds, b) {
+                        return Err(format!("leaf {i} does not enclose object {o}"));
+                    }
+                    if self.dynamics.object_leaf[o as usize] != i as u32 {
+                        return Err(format!("object {o} is in leaf {i} but not mapped to it"));
+                    }
+                }
+                continue;
+            }
+            for c in n.children {
+                let child = &self.nodes[c as usize];
+                if child.parent != i as u32 {
+                    return Err(format!(
+                        "node {c} is a child of {i} but has parent {}",
+                        child.parent
+                    ));
+                }
+                if !encloses(&n.bounds, &child.bounds) {
+                    return Err(format!("node {i} does not enclose its child {c}"));
+                }
+            }
+        }
+        let placed: usize = self
+            .nodes
+            .iter()
+            .filter(|n| n.is_leaf())
+            .map(|n| n.object_count as usize)
+            .sum();
+        if placed != self.dynamics.live {
+            return Err(format!(
+                "{placed} objects in leaves, {} live",
+                self.dynamics.live
+            ));
+        }
+        Ok(())
+    }
+
+    fn leaf_of(&self, object: u32) -> Result<u32> {
+        match self.dynamics.object_leaf.get(object as usize) {
+            Some(&leaf) if leaf != u32::MAX => Ok(leaf),
+            _ => Err(Error::Input(format!(
+                "object {object} is not in the hierarchy"
+            ))),
+        }
+    }
+
+    fn mark_dirty(&mut self, leaf: u32) {
+        let d = &mut self.dynamics;
+        if !d.dirty_mark[leaf as usize] {
+            d.dirty_mark[leaf as usize] = true;
+            d.dirty.push(leaf);
+        }
+    }
+
+    /// Per-node and per-object bookkeeping after a (re)build.
+    fn after_build(&mut self) {
+        let n = self.nodes.len();
+        let d = &mut self.dynamics;
+        d.dirty.clear();
+        // Room for every leaf, so that marking what moved never allocates in a frame.
+        d.dirty.reserve(n);
+        d.dirty_mark = vec![false; n];
+        d.changed_at = vec![d.epoch; n];
+        d.grown_at = vec![d.epoch; n];
+        d.structure += 1;
+        d.churn = 0;
+        d.object_leaf.iter_mut().for_each(|l| *l = u32::MAX);
+        d.live = 0;
+        for (i, node) in self.nodes.iter().enumerate() {
+            if node.is_leaf() {
+                let range =
+                    node.first_object as usize..(node.first_object + node.object_count) as usize;
+                for &o in &self.leaf_objects[range] {
+                    d.object_leaf[o as usize] = i as u32;
+                    d.live += 1;
+                }
+            }
+        }
+        d.area = interior_area(&self.nodes);
+        d.built_area = d.area;
+    }
+
+    /// Refits `leaf` from its objects and its ancestors from their children, up to the first
+    /// box that does not change. Returns the nodes changed.
+    fn refit_from(&mut self, leaf: u32) -> u32 {
+        let n = &self.nodes[leaf as usize];
+        let mut new = if n.is_leaf() {
+            self.objects(leaf).iter().fold(Aabb::EMPTY, |b, &o| {
+                b.union(&self.dynamics.object_bounds[o as usize])
+            })
+        } else {
+            // A root leaf that was split since it was marked.
+            let [a, b] = n.children;
+            self.nodes[a as usize]
+                .bounds
+                .union(&self.nodes[b as usize].bounds)
+        };
+        let mut node = leaf;
+        let mut changed = 0;
+        loop {
+            let n = &mut self.nodes[node as usize];
+            let old = n.bounds;
+            if old == new {
+                break;
+            }
+            n.bounds = new;
+            changed += 1;
+            let d = &mut self.dynamics;
+            d.changed_at[node as usize] = d.epoch;
+            if !encloses(&old, &new) {
+                d.grown_at[node as usize] = d.epoch;
+            }
+            if !n.is_leaf() {
+                d.area += (new.surface_area() - old.surface_area()) as f64;
+            }
+            let parent = n.parent;
+            if parent == u32::MAX {
+                break;
+            }
+            let [a, b] = self.nodes[parent as usize].children;
+            new = self.nodes[a as usize]
+                .bounds
+                .union(&self.nodes[b as usize].bounds);
+            node = parent;
+        }
+        changed
+    }
+
+    fn needs_rebuild(&self) -> bool {
+        let d = &self.dynamics;
+        let churned = d.churn as f32 > d.policy.churn_fraction * d.live.max(1) as f32;
+        let degraded = d.built_area > 0.0 && d.area > d.policy.area_factor as f64 * d.built_area;
+        churned || degraded
+    }
+
+    /// The leaf whose box grows least (in surface area) when `b` joins it, found by descending
+    /// into the child that grows least.
+    fn best_leaf(&self, b: &Aabb) -> u32 {
+        let mut node = 0u32;
+        while !self.nodes[node as usize].is_leaf() {
+            let [x, y] = self.nodes[node as usize].children;
+            let growth = |c: u32| {
+                let cb = &self.nodes[c as usize].bounds;
+                cb.union(b).surface_area() - cb.surface_area().max(0.0)
+            };
+            node = if growth(x) <= growth(y) { x } else { y };
+        }
+        node
+    }
+
+    /// Turns `leaf` into an interior node's first child and adds an empty leaf as its second;
+    /// returns the new leaf. The root stays node 0 (a root leaf moves to a new index).
+    fn split_leaf(&mut self, leaf: u32) -> u32 {
+        let old = self.nodes[leaf as usize].clone();
+        let (kept, parent) = if leaf == 0 {
+            let moved = self.push_node(BvhNode {
+                parent: 0,
+                depth: 1,
+                ..old.clone()
+            });
+            for k in 0..old.object_count {
+                let o = self.leaf_objects[(old.first_object + k) as usize];
+                self.dynamics.object_leaf[o as usize] = moved;
+            }
+            self.mark_dirty(moved);
+            (moved, 0)
+        } else {
+            let p = self.push_node(BvhNode {
+                children: [leaf, u32::MAX],
+                first_object: 0,
+                object_count: 0,
+                ..old.clone()
+            });
+            let grand = &mut self.nodes[old.parent as usize];
+            let slot = usize::from(grand.children[0] != leaf);
+            grand.children[slot] = p;
+            let l = &mut self.nodes[leaf as usize];
+            l.parent = p;
+            l.depth += 1;
+            (leaf, p)
+        };
+        let depth = self.nodes[kept as usize].depth;
+        let new_leaf = self.push_node(BvhNode {
+            bounds: Aabb::EMPTY,
+            parent,
+            children: [u32::MAX; 2],
+            first_object: 0,
+            object_count: 0,
+            depth,
+        });
+        let p = &mut self.nodes[parent as usize];
+        p.children = [kept, new_leaf];
+        p.object_count = 0;
+        p.bounds = old.bounds;
+        self.dynamics.area += old.bounds.surface_area() as f64;
+        self.dynamics.structure += 1;
+        new_leaf
+    }
+
+    fn push_node(&mut self, node: BvhNode) -> u32 {
+        self.nodes.push(node);
+        let d = &mut self.dynamics;
+        d.dirty_mark.push(false);
+        d.changed_at.push(d.epoch + 1);
+        d.grown_at.push(d.epoch + 1);
+        self.nodes.len() as u32 - 1
+    }
+}
+
+/// Summed surface area of the interior nodes.
+fn interior_area(nodes: &[BvhNode]) -> f64 {
+    nodes
+        .iter()
+        .filter(|n| !n.is_leaf())
+        .map(|n| n.bounds.surface_area() as f64)
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::mesh::Rng;
+
+    fn unit_box(p: Vec3) -> Aabb {
+        Aabb::new(p, p + Vec3::ONE)
+    }
+
+    /// `n` unit boxes on a jittered grid.
+    fn grid(n: u32, rng: &mut Rng) -> Vec<Aabb> {
+        (0..n)
+            .map(|i| {
+                let p = Vec3::new(
+                    (i % 20) as f32 * 3.0,
+                    rng.range(0.0, 2.0),
+                    (i / 20) as f32 * 3.0,
+                );
+                unit_box(p)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn refit_keeps_every_box_enclosing_after_1000_random_moves() {
+        let mut rng = Rng::new(7);
+        let boxes = grid(400, &mut rng);
+        let mut bvh = ObjectBvh::build(&boxes, 1);
+        bvh.set_policy(RebuildPolicy {
+            area_factor: f32::INFINITY,
+            churn_fraction: f32::INFINITY,
+        });
+        let mut current = boxes.clone();
+        for step in 0..1000 {
+            let o = rng.below(400);
+            let d = Vec3::new(
+                rng.range(-4.0, 4.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-4.0, 4.0),
+            );
+            current[o as usize] = unit_box(current[o as usize].min + d);
+            bvh.set_bounds(o, current[o as usize]).unwrap();
+            if step % 10 == 9 {
+                let s = bvh.update();
+                assert!(!s.rebuilt);
+                bvh.validate().unwrap();
+            }
+        }
+        bvh.update();
+        bvh.validate().unwrap();
+        for (o, b) in current.iter().enumerate() {
+            assert_eq!(bvh.object_bounds(o as u32), Some(*b));
+        }
+        // The root is exactly the union of all boxes (refit is tight, not only enclosing).
+        let all = current.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+        assert_eq!(bvh.nodes[0].bounds, all);
+        assert_eq!(bvh.rebuilds(), 0);
+    }
+
+    #[test]
+    fn refit_cost_follows_what_moved() {
+        let mut rng = Rng::new(3);
+        let boxes = grid(400, &mut rng);
+        let mut bvh = ObjectBvh::build(&boxes, 1);
+        let s = bvh.update();
+        assert_eq!((s.dirty_leaves, s.refitted_nodes), (0, 0));
+        // A move inside its own box changes only the leaf.
+        bvh.set_bounds(5, Aabb::new(boxes[5].min, boxes[5].max - Vec3::splat(0.5)))
+            .unwrap();
+        let s = bvh.update();
+        assert_eq!(s.dirty_leaves, 1);
+        assert!(s.refitted_nodes <= bvh.nodes[bvh.dynamics.object_leaf[5] as usize].depth + 1);
+        let leaf = bvh.dynamics.object_leaf[5];
+        assert!(bvh.changed_since(leaf, bvh.epoch() - 1));
+        assert!(!bvh.grown_since(leaf, bvh.epoch() - 1));
+        assert!(
+            !bvh.changed_since(0, bvh.epoch() - 1),
+            "the root did not change"
+        );
+    }
+
+    #[test]
+    fn rebuild_when_quality_degrades_and_not_otherwise() {
+        let mut rng = Rng::new(11);
+        let boxes = grid(400, &mut rng);
+        let mut bvh = ObjectBvh::build(&boxes, 1);
+        // Small jitter for many frames: the tree stays good, no rebuild.
+        let mut current = boxes.clone();
+        for _ in 0..50 {
+            for (o, b) in current.iter_mut().enumerate() {
+                let home = boxes[o].min;
+                let d = Vec3::new(rng.range(-0.2, 0.2), 0.0, rng.range(-0.2, 0.2));
+                *b = unit_box(home + d);
+                bvh.set_bounds(o as u32, *b).unwrap();
+            }
+            let s = bvh.update();
+            assert!(!s.rebuilt, "quality {}", s.quality);
+        }
+        assert_eq!(bvh.rebuilds(), 0);
+        // Shuffle the objects across the grid: the refitted boxes overlap, quality degrades.
+        let mut rebuilt_at = None;
+        for step in 0..400u32 {
+            let o = (step * 37) % 400;
+            let to = boxes[((o * 211 + 101) % 400) as usize].min;
+            bvh.set_bounds(o, unit_box(to)).unwrap();
+            let before = bvh.quality();
+            let s = bvh.update();
+            if s.rebuilt {
+                assert!(bvh.quality() <= 1.0 + 1e-3, "fresh after a rebuild");
+                assert!(before <= bvh.policy().area_factor);
+                rebuilt_at = Some(step);
+                break;
+            }
+            assert!(s.quality <= bvh.policy().area_factor);
+        }
+        assert!(rebuilt_at.is_some(), "degraded tree was rebuilt");
+        bvh.validate().unwrap();
+        assert_eq!(bvh.rebuilds(), 1);
+    }
+
+    #[test]
+    fn insert_and_remove_keep_ids_and_invariants() {
+        let mut rng = Rng::new(5);
+        let boxes = grid(100, &mut rng);
+        let mut bvh = ObjectBvh::build(&boxes, 1);
+        // Between the others: no box grows much, so no rebuild.
+        let a = bvh.insert(unit_box(Vec3::new(31.5, 0.5, 7.5)));
+        assert_eq!(a, 100);
+        bvh.remove(3).unwrap();
+        assert!(bvh.remove(3).is_err(), "removed twice");
+        assert!(bvh.set_bounds(3, boxes[0]).is_err());
+        let s = bvh.update();
+        assert!(!s.rebuilt);
+        bvh.validate().unwrap();
+        let far = bvh.insert(unit_box(Vec3::new(200.0, 0.0, 0.0)));
+        let s = bvh.update();
+        assert!(s.rebuilt, "a far object degrades the tree: rebuilt");
+        assert!(bvh.nodes[0].bounds.max.x >= 201.0);
+        bvh.remove(far).unwrap();
+        let in_leaves = |bvh: &ObjectBvh, o: u32| {
+            (0..bvh.nodes.len() as u32)
+                .any(|n| bvh.nodes[n as usize].is_leaf() && bvh.objects(n).contains(&o))
+        };
+        assert!(in_leaves(&bvh, a));
+        assert!(!in_leaves(&bvh, 3));
+        // Many inserts: the churn rule rebuilds, ids survive it.
+        let ids: Vec<u32> = (0..40)
+            .map(|i| bvh.insert(unit_box(Vec3::new(-50.0 - i as f32 * 2.0, 0.0, 0.0))))
+            .collect();
+        assert_eq!(ids[0], far, "the freed id is reused");
+        let s = bvh.update();
+        assert!(s.rebuilt);
+        bvh.validate().unwrap();
+        for &id in ids.iter().chain([a].iter()) {
+            assert!(in_leaves(&bvh, id));
+        }
+        assert_eq!(bvh.live_objects(), 140);
+    }
+
+    #[test]
+    fn an_empty_hierarchy_grows_and_shrinks() {
+        let mut bvh = ObjectBvh::build(&[], 1);
+        let a = bvh.insert(unit_box(Vec3::ZERO));
+        let b = bvh.insert(unit_box(Vec3::splat(5.0)));
+        bvh.update();
+        bvh.validate().unwrap();
+        assert_eq!(bvh.nodes[0].bounds, Aabb::new(Vec3::ZERO, Vec3::splat(6.0)));
+        bvh.remove(a).unwrap();
+        bvh.remove(b).unwrap();
+        bvh.update();
+        bvh.validate().unwrap();
+        assert_eq!(bvh.live_objects(), 0);
     }
 }

@@ -12,6 +12,7 @@ use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
 use coherent::render::walk::{self, WalkConfig};
 use coherent::render::Renderer;
+use coherent::scene::movers::Movers;
 use coherent::scene::Scene;
 
 /// Flags shared by commands that load a scene.
@@ -59,6 +60,10 @@ pub struct RenderArgs {
     pub pvs: crate::cli_setup::PvsArgs,
     #[command(flatten)]
     pub cache: crate::cli_setup::CacheArgs,
+    /// Built-in moving objects (cars in city and parking, fans elsewhere), drawn where they are
+    /// at the rendered frame.
+    #[arg(long, default_value_t = 0)]
+    pub movers: usize,
 }
 
 /// `coherent walk`.
@@ -105,6 +110,11 @@ pub struct WalkArgs {
     pub pvs: crate::cli_setup::PvsArgs,
     #[command(flatten)]
     pub cache: crate::cli_setup::CacheArgs,
+    /// Built-in moving objects (cars in city and parking, fans elsewhere); the report adds
+    /// refit_ms_median, rebuilds and movers, and chcpp also runs on the scene without movers
+    /// (as chcpp-static) for comparison.
+    #[arg(long, default_value_t = 0)]
+    pub movers: usize,
 }
 
 /// `coherent view`.
@@ -145,6 +155,9 @@ pub struct ViewArgs {
     pub resize_at: Option<String>,
     #[command(flatten)]
     pub chcpp: ChcppArgs,
+    /// Built-in moving objects (key M stops and starts them).
+    #[arg(long, default_value_t = 0)]
+    pub movers: usize,
 }
 
 /// CHC++ parameters.
@@ -277,13 +290,14 @@ pub fn info() -> Result<()> {
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
     check_algorithm(&a.algorithm, &ChcppParams::default())?;
-    let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let movers = Movers::add(&mut scene, a.movers);
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),
     };
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let mut bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let ctx = context(!a.no_validation)?;
     {
         let scale = single_scale(&a.scene)?;
@@ -312,6 +326,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         };
         let mut last = None;
         for f in first..=a.frame {
+            walk::place_movers(&movers, f as u64, &mut bvh, &mut renderer)?;
             let cam = renderer.camera(path.pose_at(f as f32), &bvh);
             last = Some(culler.render_frame(&mut renderer, &bvh, &cam, f as u64)?);
         }
@@ -388,6 +403,9 @@ fn walk_scale(
     dir: &std::path::Path,
     (w, h): (u32, u32),
 ) -> Result<coherent::report::WalkSummary> {
+    if a.movers > 0 {
+        return walk_scale_movers(a, ctx, cfg, scale, dir, (w, h));
+    }
     let scene = load_scene(&a.scene, scale)?;
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
@@ -463,6 +481,124 @@ fn walk_scale(
     Ok(summary)
 }
 
+/// [`walk_scale`] with `--movers N`: the scene with its movers, and the same scene without them
+/// for chcpp-static, in one interleaved walk.
+fn walk_scale_movers(
+    a: &WalkArgs,
+    ctx: &Arc<GpuContext>,
+    cfg: &WalkConfig,
+    scale: f32,
+    dir: &std::path::Path,
+    (w, h): (u32, u32),
+) -> Result<coherent::report::WalkSummary> {
+    let fixed = load_scene(&a.scene, scale)?;
+    let mut scene = fixed.clone();
+    let movers = Movers::add(&mut scene, a.movers);
+    let path = match &a.path {
+        Some(p) => scene.path(p)?.clone(),
+        None => scene.default_path()?.clone(),
+    };
+    let (mut bvh, fixed_bvh) = (
+        bvh_of(&scene, a.scene.leaf_size),
+        bvh_of(&fixed, a.scene.leaf_size),
+    );
+    let baseline: Vec<String> = a
+        .algorithms
+        .iter()
+        .filter(|x| *x == "chcpp")
+        .cloned()
+        .collect();
+    let mut cfg = cfg.clone();
+    let uses = |name: &str| a.algorithms.iter().any(|x| x == name);
+    if uses("nohc") {
+        let p = crate::cli_setup::nohc_params(ctx, &a.cache, &scene, (w, h))?;
+        cfg.nohc = Some(p);
+    }
+    if uses("pvs") {
+        // Built on the scene without movers: pvs cannot know where they go, so it draws them
+        // frustum-culled only (their ids lie past the PVS's objects).
+        let b = crate::cli_setup::pvs(
+            ctx, &a.scene, scale, &fixed, &fixed_bvh, &path, &a.pvs, &a.cache,
+        )?;
+        cfg.pvs = Some(b.pvs);
+    }
+    let cfg = &cfg;
+    println!(
+        "walk: {} (scale {scale}: {} objects, {} of them movers), path {}, {} frames + {} warm-up, {w}x{h}, {} (+ {} without movers) on {}",
+        scene.name,
+        scene.objects.len(),
+        movers.len(),
+        path.name,
+        a.frames,
+        a.warmup,
+        a.algorithms.join(", "),
+        baseline.join(", "),
+        ctx.info.name
+    );
+    let (records, stats) = {
+        let mut renderer = Renderer::new(ctx, &scene, w, h)?;
+        let mut fixed_renderer = Renderer::new(ctx, &fixed, w, h)?;
+        let mut mw = walk::MoverWalk {
+            movers: &movers,
+            baseline: Some((&mut fixed_renderer, &fixed_bvh)),
+            baseline_algorithms: baseline.clone(),
+        };
+        let bar = progress_bar();
+        let out = walk::run_with_movers(&mut renderer, &mut bvh, &path, cfg, &mut mw, |d, t| {
+            bar.tick(d, t)
+        })?;
+        bar.finish();
+        out
+    };
+    let mut names = a.algorithms.clone();
+    names.extend(baseline.iter().map(|b| format!("{b}-static")));
+    let mut summary = walk::write_report(
+        dir,
+        &scene,
+        &path.name,
+        &ctx.info.name,
+        (w, h),
+        &records,
+        &names,
+    )?;
+    let ms = coherent::report::summary::mover_summary(
+        stats.movers,
+        &stats.refit_ms,
+        stats.rebuilds,
+        &records,
+    );
+    summary.movers = Some(ms.clone());
+    summary.write_json(&dir.join("summary.json"))?;
+    let reference = a.algorithms.iter().any(|x| x == "oracle");
+    println!("{}", summary.table(reference.then_some("oracle")));
+    print_movers(&ms);
+    println!(
+        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
+        dir.display()
+    );
+    Ok(summary)
+}
+
+/// The object hierarchy of a scene.
+fn bvh_of(scene: &Scene, leaf_size: u32) -> ObjectBvh {
+    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
+    ObjectBvh::build(&bounds, leaf_size)
+}
+
+/// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.
+fn print_movers(ms: &coherent::report::summary::MoverSummary) {
+    println!(
+        "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}",
+        ms.movers, ms.refit_ms_median, ms.refit_ms_max, ms.rebuilds
+    );
+    for (name, s) in &ms.vs_static {
+        println!(
+            "{name} with movers / without: {:.3} (min {:.3}, max {:.3})",
+            s.median, s.min, s.max
+        );
+    }
+}
+
 /// Prints the table comparing the scales of a walk and writes it to `out/scaling.txt`.
 fn write_scaling_table(
     out: &std::path::Path,
@@ -485,7 +621,8 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     }
     let params = a.chcpp.params()?;
     check_algorithm(&a.algorithm, &params)?;
-    let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let movers = Movers::add(&mut scene, a.movers);
     let path = match &a.path {
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),
@@ -504,7 +641,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         }
         None => None,
     };
-    let outcome = coherent::render::viewer::run(coherent::render::viewer::ViewerConfig {
+    let config = coherent::render::viewer::ViewerConfig {
         scene,
         bvh,
         path,
@@ -519,7 +656,8 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         vsync: !a.no_vsync,
         visualize: a.visualize,
         resize_at,
-    })?;
+    };
+    let outcome = coherent::render::viewer::run_with_movers(config, movers)?;
     if outcome.validation_messages > 0 {
         bail!(
             "the validation layer reported {} messages (printed above)",

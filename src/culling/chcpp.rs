@@ -122,6 +122,9 @@ struct NodeState {
     /// The node has been tested inside the frustum at least once. Until then, frames outside
     /// the frustum are no evidence of occlusion and do not age it.
     tested: bool,
+    /// The hierarchy's epoch when the node was last visited: if its box has grown since, what
+    /// was learnt about it then is about other space (see the motion rule in `culling`).
+    seen_epoch: u64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -146,7 +149,14 @@ pub struct Chcpp {
     name: &'static str,
     params: ChcppParams,
     state: Vec<NodeState>,
-    tight: Vec<Option<Vec<Aabb>>>,
+    /// Tight bounding volume of each node as descendant node ids (their current boxes are
+    /// queried, so refits keep it covering the subtree; recomputed when nodes are added).
+    tight: Vec<Option<Vec<u32>>>,
+    /// The hierarchy's structure and rebuild count that `state` and `tight` were made for.
+    structure: u64,
+    rebuilds: u32,
+    /// Per object id: the last frame it was drawn (carries visibility across rebuilds).
+    drawn: Vec<u64>,
     frame: u64,
     rng: Rng,
     traversal: DistanceQueue,
@@ -181,6 +191,9 @@ impl Chcpp {
             params,
             state: Vec::new(),
             tight: Vec::new(),
+            structure: u64::MAX,
+            rebuilds: 0,
+            drawn: Vec::new(),
             frame: 0,
             rng,
             traversal: DistanceQueue::default(),
@@ -229,17 +242,52 @@ impl Chcpp {
         &self.params
     }
 
+    /// Fits the per-node state to the hierarchy. Refits keep it as it is (node ids are
+    /// stable); inserted nodes start unknown; after a rebuild (new node ids) a leaf counts as
+    /// visible last frame if one of its objects was drawn then, and that pulls up.
     fn prepare(&mut self, bvh: &ObjectBvh) {
-        if self.state.len() != bvh.nodes.len() {
-            self.state = vec![NodeState::default(); bvh.nodes.len()];
-            self.tight = vec![None; bvh.nodes.len()];
+        if self.drawn.len() < bvh.object_capacity() {
+            self.drawn.resize(bvh.object_capacity(), 0);
+        }
+        if self.structure == bvh.structure() && self.state.len() == bvh.nodes.len() {
+            return;
+        }
+        let renumbered = self.rebuilds != bvh.rebuilds() || self.state.len() > bvh.nodes.len();
+        if self.state.is_empty() {
             self.frame = 0;
-            if self.params.tight_bounds {
-                for id in 0..bvh.nodes.len() as u32 {
-                    self.tight[id as usize] = tight_boxes(bvh, id, &self.params);
-                }
+        }
+        if renumbered {
+            self.state.clear();
+        }
+        self.state.resize(bvh.nodes.len(), NodeState::default());
+        if renumbered && self.frame > 0 {
+            self.carry_visibility(bvh);
+        }
+        self.tight = vec![None; bvh.nodes.len()];
+        if self.params.tight_bounds {
+            for id in 0..bvh.nodes.len() as u32 {
+                self.tight[id as usize] = tight_boxes(bvh, id, &self.params);
             }
-            self.reserve(bvh);
+        }
+        self.structure = bvh.structure();
+        self.rebuilds = bvh.rebuilds();
+        self.reserve(bvh);
+    }
+
+    /// After a rebuild: leaves with an object drawn last frame were visible last frame.
+    fn carry_visibility(&mut self, bvh: &ObjectBvh) {
+        for id in 0..bvh.nodes.len() as u32 {
+            let n = &bvh.nodes[id as usize];
+            let seen = bvh
+                .objects(id)
+                .iter()
+                .any(|&o| self.drawn[o as usize] == self.frame);
+            if n.is_leaf() && seen {
+                self.pull_up_visibility(bvh, id);
+                let s = &mut self.state[id as usize];
+                s.next_query = self.frame + 1;
+                s.tested = true;
+            }
         }
     }
 
@@ -249,6 +297,7 @@ impl Chcpp {
     fn reserve(&mut self, bvh: &ObjectBvh) {
         let nodes = bvh.nodes.len();
         let most_boxes = self.tight.iter().flatten().map(Vec::len).max().unwrap_or(1);
+        self.drawn.reserve(bvh.object_capacity());
         let batch = self.params.batch_size.max(1);
         self.traversal.reserve(nodes);
         self.query_queue.reserve(2 * nodes);
@@ -280,6 +329,9 @@ impl Chcpp {
             let objects = bvh.objects(node);
             stats.objects_drawn += objects.len() as u32;
             self.render_queue.extend_from_slice(objects);
+            for &o in objects {
+                self.drawn[o as usize] = self.frame;
+            }
         } else {
             self.state[node as usize].visible = false;
             for c in n.children {
@@ -306,9 +358,15 @@ impl Chcpp {
         }
     }
 
+    /// The boxes a node is queried with: its tight volume's current boxes (empty leaves left
+    /// by removals skipped), or its own box.
     fn query_boxes(&self, bvh: &ObjectBvh, node: u32, out: &mut Vec<Aabb>) {
         match &self.tight[node as usize] {
-            Some(b) if self.params.tight_bounds => out.extend_from_slice(b),
+            Some(t) if self.params.tight_bounds => out.extend(
+                t.iter()
+                    .map(|&d| bvh.nodes[d as usize].bounds)
+                    .filter(Aabb::is_valid),
+            ),
             _ => out.push(bvh.nodes[node as usize].bounds),
         }
     }
@@ -655,6 +713,7 @@ impl Chcpp {
         } else {
             self.traverse_previously_visible(bvh, node, view.eye, backend, stats)?;
         }
+        self.state[node as usize].seen_epoch = bvh.epoch();
         Ok(())
     }
 
@@ -710,8 +769,9 @@ impl Chcpp {
                 return Ok(());
             }
         }
+        let grown = bvh.grown_since(node, self.state[node as usize].seen_epoch);
         let s = &mut self.state[node as usize];
-        s.unknown = s.last_visited + 1 < self.frame;
+        s.unknown = s.last_visited + 1 < self.frame || grown;
         s.last_visited = self.frame;
         s.tested = true;
         if self.params.batching {
@@ -812,7 +872,7 @@ impl Chcpp {
 /// time (leaves stand for themselves), as long as their total surface area stays within
 /// `tight_area_factor` times the node's, up to `tight_depth` levels; the deepest level that
 /// passes wins. `None` when already the first level fails (query the node's own box).
-fn tight_boxes(bvh: &ObjectBvh, node: u32, params: &ChcppParams) -> Option<Vec<Aabb>> {
+fn tight_boxes(bvh: &ObjectBvh, node: u32, params: &ChcppParams) -> Option<Vec<u32>> {
     let root = &bvh.nodes[node as usize];
     if root.is_leaf() {
         return None;
@@ -840,7 +900,7 @@ fn tight_boxes(bvh: &ObjectBvh, node: u32, params: &ChcppParams) -> Option<Vec<A
         if area > limit {
             break;
         }
-        best = Some(next.iter().map(|&n| bvh.nodes[n as usize].bounds).collect());
+        best = Some(next.clone());
         level = next;
     }
     best
@@ -889,6 +949,7 @@ impl Culler for Chcpp {
         if let Some(rule) = self.nohc.as_mut() {
             rule.reset();
         }
+        self.structure = u64::MAX;
         self.rng = Rng::new(self.params.seed);
     }
 }
@@ -1016,6 +1077,37 @@ mod tests {
         for l in leaves(&bvh) {
             assert!(c.state[l as usize].visible, "leaf {l} found visible again");
         }
+    }
+
+    #[test]
+    fn visibility_survives_refits_and_rebuilds() {
+        let (mut bvh, cam) = row();
+        let mut c = Chcpp::new(ChcppParams::default());
+        let mut m = Mock {
+            visible: vec![Aabb::new(Vec3::splat(-100.0), Vec3::splat(100.0))],
+            ..Mock::default()
+        };
+        for f in 1..4 {
+            frame(&mut c, &bvh, &cam, &mut m, f);
+        }
+        // A refit (one box moved): node ids and their history stay; nothing visible last
+        // frame is queried as invisible.
+        let moved = Aabb::new(Vec3::new(0.0, 0.5, 0.0), Vec3::new(1.0, 1.5, 1.0));
+        bvh.set_bounds(0, moved).unwrap();
+        assert!(!bvh.update().rebuilt);
+        let s = frame(&mut c, &bvh, &cam, &mut m, 4);
+        assert_eq!(s.invisible_node_queries, 0);
+        assert_eq!(s.objects_drawn, 16);
+        // A rebuild renumbers the nodes: visibility is carried over through the objects
+        // drawn last frame, so again nothing is queried as invisible.
+        bvh.rebuild();
+        let s = frame(&mut c, &bvh, &cam, &mut m, 5);
+        assert_eq!(s.invisible_node_queries, 0);
+        assert_eq!(s.objects_drawn, 16);
+        // Without that history (a fresh culler), the root is queried first.
+        let mut fresh = Chcpp::new(ChcppParams::default());
+        let s = frame(&mut fresh, &bvh, &cam, &mut m, 1);
+        assert!(s.invisible_node_queries > 0);
     }
 
     #[test]

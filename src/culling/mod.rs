@@ -1,5 +1,37 @@
 //! Occlusion culling: one trait ([`Culler`]) and one file per algorithm. Algorithms never call
 //! Vulkan; they speak to an [`OcclusionBackend`], which the renderer (or a host engine) implements.
+//!
+//! # Moving objects
+//!
+//! The hierarchy ([`ObjectBvh`]) follows the scene: between frames a host moves, inserts and
+//! removes objects and calls [`ObjectBvh::update`], which refits the boxes of what changed (or
+//! rebuilds a degraded tree). The next `cull_frame` sees the new boxes. The rules that keep
+//! temporal culling exact with motion, in the terms of ALGORITHMS.md:
+//!
+//! 1. *Every test uses the current boxes.* Frustum tests, queries and tight bounding volumes
+//!    read the refitted node boxes of this frame (CHC++'s tight volumes are stored as descendant
+//!    node ids, not as boxes), so an object that was invisible and moved into view is covered by
+//!    the box the next query tests.
+//! 2. *Nothing is assumed invisible without a query of its current box.* CHC and CHC++ satisfy
+//!    this by construction: a node invisible last frame is always queried before it may be
+//!    culled; only *visibility* is carried across frames (a previously visible node is opened
+//!    and drawn without waiting), and assuming visible is never wrong, only slower. An algorithm
+//!    that skips queries for nodes it believes invisible (a query interval for invisible nodes,
+//!    a precomputed set) must re-test a node whose box changed since its last test:
+//!    [`ObjectBvh::changed_since`]`(node, epoch_of_last_test)`; one that cannot know where
+//!    movers are (a PVS) draws them frustum-culled only.
+//! 3. *What was learnt about a node whose box grew is not known.* A node whose box grew beyond
+//!    its box at the last visit ([`ObjectBvh::grown_since`]) covers space it was never tested
+//!    in: CHC++ gives it no invisibility history (`k = 0`), so it is not grouped into a
+//!    multiquery that would likely fail. Its visibility flag is kept (rule 2: harmless).
+//! 4. *Node state survives refits* (node ids are stable); nodes added by an insert start
+//!    unknown (not visible: queried); after a full rebuild (new node ids) a leaf counts as
+//!    visible last frame if one of its objects was drawn then, and that pulls up.
+//!
+//! Stateless algorithms (vfc, stop-and-wait, the oracle) are exact with motion as they are: they
+//! test this frame's boxes. To make another algorithm mover-aware: keep per node the
+//! [`ObjectBvh::epoch`] of its last test, apply rule 2 with `changed_since` wherever it would
+//! skip a test, and refit its per-node caches when [`ObjectBvh::structure`] changes.
 
 pub mod chc;
 pub mod chcpp;

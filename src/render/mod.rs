@@ -71,8 +71,11 @@ pub struct Renderer {
     descriptors: DescriptorSets,
     vertex_buffer: Buffer,
     index_buffer: Buffer,
-    #[allow(dead_code)] // owned here; the descriptor set points at it
+    /// Per-object data (the descriptor set points at it); host-visible, rewritten between
+    /// frames for objects that move.
     object_buffer: Buffer,
+    /// Object slots the per-object buffer holds.
+    object_slots: usize,
     box_index_buffer: Buffer,
     box_chunks: Vec<Buffer>,
     box_chunk: usize,
@@ -98,8 +101,20 @@ pub struct Renderer {
 impl Renderer {
     /// Uploads `scene` and creates pipelines and a `width`x`height` target.
     pub fn new(ctx: &Arc<GpuContext>, scene: &Scene, width: u32, height: u32) -> Result<Renderer> {
+        Renderer::with_spare_objects(ctx, scene, width, height, 0)
+    }
+
+    /// [`Renderer::new`] with room for `spare` objects beyond the scene's, added later with
+    /// [`Renderer::set_object`] (for objects a host inserts).
+    pub fn with_spare_objects(
+        ctx: &Arc<GpuContext>,
+        scene: &Scene,
+        width: u32,
+        height: u32,
+        spare: usize,
+    ) -> Result<Renderer> {
         let target = Target::new(ctx, width, height)?;
-        let uploaded = upload::upload_scene(ctx, scene)?;
+        let uploaded = upload::upload_scene_with_spare(ctx, scene, spare)?;
         let pipelines = ScenePipelines::new(ctx)?;
         let descriptors = DescriptorSets::new(
             ctx,
@@ -136,6 +151,7 @@ impl Renderer {
             vertex_buffer: uploaded.vertices,
             index_buffer: uploaded.indices,
             object_buffer: uploaded.objects,
+            object_slots: (scene.objects.len() + spare).max(1),
             box_index_buffer,
             box_chunks: vec![box_chunk(ctx)?],
             box_chunk: 0,
@@ -155,6 +171,47 @@ impl Renderer {
             prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
         })
+    }
+
+    /// Moves object `object`: its model matrix (and normal matrix) from the next frame on. Call
+    /// between frames (a frame has completed on the device when `render_frame` returns).
+    pub fn set_object_transform(&mut self, object: u32, transform: &glam::Mat4) -> Result<()> {
+        if object as usize >= self.objects.len() {
+            return Err(Error::Input(format!(
+                "object {object} does not exist (renderer has {})",
+                self.objects.len()
+            )));
+        }
+        let offset = object as usize * upload::OBJECT_FLOATS * 4;
+        let data = upload::object_data(transform, glam::Vec4::ZERO);
+        self.object_buffer.write(offset, bytes_of(&data[..32]))
+    }
+
+    /// Makes object slot `object` draw the mesh and color of object `template` with
+    /// `transform` (for an object a host inserts: use the id the hierarchy's `insert` gave). A
+    /// new slot must be the next one; the renderer holds as many as it was created with.
+    pub fn set_object(&mut self, object: u32, template: u32, transform: &glam::Mat4) -> Result<()> {
+        let (slot, t) = (object as usize, template as usize);
+        if t >= self.objects.len() || slot > self.objects.len() || slot >= self.object_slots {
+            return Err(Error::Input(format!(
+                "cannot make object {object} a copy of {template} ({} objects, room for {})",
+                self.objects.len(),
+                self.object_slots
+            )));
+        }
+        let stride = upload::OBJECT_FLOATS * 4;
+        let mut color = [0u8; 16];
+        if let Some(m) = self.object_buffer.mapped() {
+            color.copy_from_slice(&m[t * stride + 128..t * stride + 144]);
+        }
+        let draw = self.objects[t];
+        if slot == self.objects.len() {
+            self.objects.push(draw);
+        } else {
+            self.objects[slot] = draw;
+        }
+        self.object_buffer.write(slot * stride + 128, &color)?;
+        self.set_object_transform(object, transform)
     }
 
     /// The context.

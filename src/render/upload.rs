@@ -3,7 +3,7 @@
 use std::sync::Arc;
 
 use ash::vk;
-use glam::Vec3;
+use glam::{Mat4, Vec3, Vec4};
 
 use crate::error::Result;
 use crate::gpu::memory::Buffer;
@@ -22,8 +22,30 @@ pub struct UploadedScene {
 
 pub use crate::gpu::{as_bytes, Pod};
 
+/// Floats of one object's data: model matrix, normal matrix, color.
+pub const OBJECT_FLOATS: usize = 36;
+
+/// One object's data as the scene shaders read it.
+pub fn object_data(transform: &Mat4, color: Vec4) -> [f32; OBJECT_FLOATS] {
+    let mut out = [0.0; OBJECT_FLOATS];
+    out[..16].copy_from_slice(&transform.to_cols_array());
+    out[16..32].copy_from_slice(&transform.inverse().transpose().to_cols_array());
+    out[32..].copy_from_slice(&color.to_array());
+    out
+}
+
 /// Uploads vertices, indices and per-object data.
 pub fn upload_scene(ctx: &Arc<GpuContext>, scene: &Scene) -> Result<UploadedScene> {
+    upload_scene_with_spare(ctx, scene, 0)
+}
+
+/// [`upload_scene`] with room for `spare` more objects in the per-object buffer (which stays
+/// host-visible, so transforms can be rewritten between frames).
+pub fn upload_scene_with_spare(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    spare: usize,
+) -> Result<UploadedScene> {
     let vertices = Buffer::with_data(
         ctx,
         "scene vertices",
@@ -36,15 +58,12 @@ pub fn upload_scene(ctx: &Arc<GpuContext>, scene: &Scene) -> Result<UploadedScen
         &as_bytes(&scene.indices),
         vk::BufferUsageFlags::INDEX_BUFFER,
     )?;
-    let mut data: Vec<f32> = Vec::with_capacity(scene.objects.len() * 36);
+    let slots = (scene.objects.len() + spare).max(1);
+    let mut data: Vec<f32> = Vec::with_capacity(slots * OBJECT_FLOATS);
     for o in &scene.objects {
-        data.extend_from_slice(&o.transform.to_cols_array());
-        data.extend_from_slice(&o.transform.inverse().transpose().to_cols_array());
-        data.extend_from_slice(&o.color.to_array());
+        data.extend_from_slice(&object_data(&o.transform, o.color));
     }
-    if data.is_empty() {
-        data.resize(36, 0.0);
-    }
+    data.resize(slots * OBJECT_FLOATS, 0.0);
     let objects = Buffer::with_data(
         ctx,
         "scene objects",

@@ -29,6 +29,7 @@ use crate::error::{Error, Result};
 use crate::gpu::swapchain::{self, Panel, Presented, Swapchain};
 use crate::gpu::{CommandCounts, ContextOptions, GpuContext, Recorder, ValidationLog};
 use crate::scene::camera::Camera;
+use crate::scene::movers::Movers;
 use crate::scene::{Aabb, CameraPath, CameraPose, Scene};
 
 /// What `coherent view` was asked to do.
@@ -73,11 +74,18 @@ pub struct ViewerOutcome {
 
 /// Runs the viewer until the window is closed (or, non-interactive, until the frames are done).
 pub fn run(cfg: ViewerConfig) -> Result<ViewerOutcome> {
+    run_with_movers(cfg, Movers::default())
+}
+
+/// [`run`] with built-in movers (objects of `cfg.scene`): they move every frame; key O stops
+/// and starts them.
+pub fn run_with_movers(cfg: ViewerConfig, movers: Movers) -> Result<ViewerOutcome> {
     let event_loop =
         EventLoop::new().map_err(|e| Error::Input(format!("cannot open a window: {e}")))?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {
         cfg,
+        movers,
         state: None,
         log: None,
         error: None,
@@ -97,6 +105,7 @@ pub fn run(cfg: ViewerConfig) -> Result<ViewerOutcome> {
 
 struct App {
     cfg: ViewerConfig,
+    movers: Movers,
     state: Option<Running>,
     log: Option<Arc<ValidationLog>>,
     error: Option<Error>,
@@ -130,6 +139,12 @@ struct Running {
     screenshot_requested: bool,
     screenshots: u32,
     resized: bool,
+    /// The hierarchy as the movers leave it (a copy of the configured one).
+    bvh: ObjectBvh,
+    movers: Movers,
+    /// Movers on the move (key O), and the frame of their motion.
+    movers_on: bool,
+    mover_frame: u64,
     _ctx: Arc<GpuContext>,
     window: Window,
 }
@@ -297,6 +312,10 @@ impl App {
             screenshot_requested: false,
             screenshots: 0,
             resized: false,
+            bvh: cfg.bvh.clone(),
+            movers: self.movers.clone(),
+            movers_on: true,
+            mover_frame: 0,
             _ctx: ctx,
             window,
         })
@@ -357,6 +376,7 @@ impl Running {
                 }
             }
             KeyCode::F12 | KeyCode::KeyK => self.screenshot_requested = true,
+            KeyCode::KeyO => self.movers_on = !self.movers_on,
             _ => {}
         }
         if matches!(
@@ -431,8 +451,19 @@ impl Running {
             return Ok(false);
         }
         let pose = self.pose(cfg, presented);
+        if !self.movers.is_empty() {
+            if self.movers_on {
+                self.mover_frame += 1;
+            }
+            super::walk::place_movers(
+                &self.movers,
+                self.mover_frame,
+                &mut self.bvh,
+                &mut self.renderer,
+            )?;
+        }
         // The offscreen image is stretched to the window: give the camera the window's aspect.
-        let mut camera = self.renderer.camera(pose, &cfg.bvh);
+        let mut camera = self.renderer.camera(pose, &self.bvh);
         camera.aspect = size.width as f32 / size.height as f32;
         let (result, log) = match self.hiz.as_mut() {
             Some(hiz) => (
@@ -446,7 +477,7 @@ impl Running {
                 };
                 let result =
                     self.renderer
-                        .render_frame(&mut observed, &cfg.bvh, &camera, self.frame)?;
+                        .render_frame(&mut observed, &self.bvh, &camera, self.frame)?;
                 (result, observed.log)
             }
         };
@@ -550,6 +581,13 @@ impl Running {
         if self.visualize {
             lines.push("MAP: GREEN DRAWN  RED QUERY-CULLED".into());
             lines.push("GRAY FRUSTUM  OTHER: MULTI-BOX QUERY".into());
+        }
+        if !self.movers.is_empty() {
+            lines.push(format!(
+                "MOVERS {} {} (O)",
+                self.movers.len(),
+                on_off(self.movers_on)
+            ));
         }
         if cfg.frames.is_none() {
             lines.push("1-5 ALG  BIMT PARTS  V VIS  P PATH".into());

@@ -157,3 +157,141 @@ pub fn write_report(
     )?;
     Ok(summary)
 }
+
+/// Movers in a walk: the scene's built-in movers, and a copy of the scene without them on which
+/// some algorithms run too, interleaved in the same walk, for comparison.
+pub struct MoverWalk<'a> {
+    /// The movers (objects of the walked scene).
+    pub movers: &'a crate::scene::movers::Movers,
+    /// The scene without movers, its renderer and hierarchy, for the baseline algorithms.
+    pub baseline: Option<(&'a mut Renderer, &'a ObjectBvh)>,
+    /// Algorithms that also run on the baseline (reported as `NAME-static`).
+    pub baseline_algorithms: Vec<String>,
+}
+
+/// What maintaining the hierarchy cost in a walk with movers.
+#[derive(Clone, Debug, Default)]
+pub struct MoverStats {
+    /// Number of movers.
+    pub movers: usize,
+    /// Per recorded frame: milliseconds to put the movers' boxes into the hierarchy and
+    /// update it (refit, and rebuild when one was due).
+    pub refit_ms: Vec<f64>,
+    /// Full rebuilds during the walk.
+    pub rebuilds: u32,
+}
+
+/// [`run`] with movers: before each pose, every mover goes to its place for that frame (its
+/// box into `bvh`, which is then updated, its transform into the renderer's object buffer);
+/// then every algorithm renders the pose, and the baseline algorithms render it on the scene
+/// without movers.
+pub fn run_with_movers(
+    renderer: &mut Renderer,
+    bvh: &mut ObjectBvh,
+    path: &CameraPath,
+    cfg: &WalkConfig,
+    walk: &mut MoverWalk,
+    mut progress: impl FnMut(u64, u64),
+) -> Result<(Vec<FrameRecord>, MoverStats)> {
+    renderer.visibility_threshold = cfg.params.pixel_threshold;
+    if let Some((base, _)) = walk.baseline.as_mut() {
+        base.visibility_threshold = cfg.params.pixel_threshold;
+    }
+    let total = cfg.warmup + cfg.frames;
+    let runs = cfg.algorithms.len() + walk.baseline_algorithms.len();
+    let per_repeat = total as u64 * runs as u64;
+    let mut records = Vec::new();
+    let mut stats = MoverStats {
+        movers: walk.movers.len(),
+        ..MoverStats::default()
+    };
+    let rebuilds_before = bvh.rebuilds();
+    renderer.log_drawn_objects(cfg.check);
+    let mut owned = Vec::new();
+    for repeat in 0..cfg.repeats.max(1) {
+        let mut cullers = create_all(&cfg.algorithms, cfg, renderer)?;
+        let mut base_cullers = match walk.baseline.as_mut() {
+            Some((base, _)) => create_all(&walk.baseline_algorithms, cfg, base)?,
+            None => Vec::new(),
+        };
+        for i in 0..total {
+            let ms = place_movers(walk.movers, i as u64, bvh, renderer)?;
+            if i >= cfg.warmup {
+                stats.refit_ms.push(ms);
+            }
+            let pose = path.sample(i, total);
+            let camera = renderer.camera(pose, bvh);
+            if cfg.check {
+                renderer.object_pixels(bvh, &camera, &mut owned)?;
+            }
+            let mut k = 0u64;
+            for (name, culler) in cfg.algorithms.iter().zip(cullers.iter_mut()) {
+                let mut r = culler.render_frame(renderer, bvh, &camera, i as u64)?;
+                if cfg.check && matches!(culler, FrameAlgorithm::Culler(_)) {
+                    r.check = Some(renderer.check_drawn(&owned));
+                }
+                if i >= cfg.warmup {
+                    records.push(r.record(name, i - cfg.warmup, repeat));
+                }
+                k += 1;
+                progress(
+                    repeat as u64 * per_repeat + i as u64 * runs as u64 + k,
+                    per_repeat * cfg.repeats.max(1) as u64,
+                );
+            }
+            if let Some((base, base_bvh)) = walk.baseline.as_mut() {
+                for (name, culler) in walk.baseline_algorithms.iter().zip(base_cullers.iter_mut()) {
+                    let r = culler.render_frame(base, base_bvh, &camera, i as u64)?;
+                    if i >= cfg.warmup {
+                        records.push(r.record(&format!("{name}-static"), i - cfg.warmup, repeat));
+                    }
+                    k += 1;
+                    progress(
+                        repeat as u64 * per_repeat + i as u64 * runs as u64 + k,
+                        per_repeat * cfg.repeats.max(1) as u64,
+                    );
+                }
+            }
+        }
+    }
+    stats.rebuilds = bvh.rebuilds() - rebuilds_before;
+    Ok((records, stats))
+}
+
+/// The named algorithms for `renderer`, with what `cfg` holds for nohc and pvs.
+fn create_all(
+    names: &[String],
+    cfg: &WalkConfig,
+    renderer: &Renderer,
+) -> Result<Vec<FrameAlgorithm>> {
+    let setup = culling::CullerSetup {
+        params: cfg.params.clone(),
+        nohc: cfg.nohc.clone(),
+        pvs: cfg.pvs.clone(),
+    };
+    names
+        .iter()
+        .map(|a| FrameAlgorithm::create(a, &setup, renderer))
+        .collect()
+}
+
+/// Puts every mover at its place for `frame` (box into `bvh`, transform into the renderer),
+/// updates `bvh`, and returns the milliseconds spent on the hierarchy (set_bounds + update).
+pub fn place_movers(
+    movers: &crate::scene::movers::Movers,
+    frame: u64,
+    bvh: &mut ObjectBvh,
+    renderer: &mut Renderer,
+) -> Result<f64> {
+    let mut hierarchy = std::time::Duration::ZERO;
+    movers.for_each_at(frame, |object, bounds, transform| {
+        let t = std::time::Instant::now();
+        bvh.set_bounds(object, bounds)?;
+        hierarchy += t.elapsed();
+        renderer.set_object_transform(object, transform)
+    })?;
+    let t = std::time::Instant::now();
+    bvh.update();
+    hierarchy += t.elapsed();
+    Ok(hierarchy.as_secs_f64() * 1e3)
+}

@@ -125,6 +125,76 @@ pub struct WalkSummary {
     /// its min–max over the repeats.
     #[serde(serialize_with = "serialize_ordered")]
     pub ratios: Vec<(String, Ratios)>,
+    /// Moving objects (`walk --movers N`), if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub movers: Option<MoverSummary>,
+}
+
+/// What moving objects cost in a walk (`walk --movers N`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct MoverSummary {
+    /// Number of movers.
+    pub movers: usize,
+    /// Median milliseconds per frame to put the movers' boxes into the hierarchy and update it
+    /// (refit, and rebuild when one was due).
+    pub refit_ms_median: f64,
+    /// The slowest such frame.
+    pub refit_ms_max: f64,
+    /// Full rebuilds of the hierarchy during the walk.
+    pub rebuilds: u32,
+    /// For each algorithm that also ran on the scene without movers (as `NAME-static`): its
+    /// median frame time with movers over its median without, per repeat.
+    #[serde(serialize_with = "serialize_ordered")]
+    pub vs_static: Vec<(String, Spread)>,
+}
+
+/// The [`MoverSummary`] of a walk: `refit_ms` per recorded frame, and for every algorithm
+/// `NAME` with records of `NAME-static` too, the ratio of their medians in each repeat.
+pub fn mover_summary(
+    movers: usize,
+    refit_ms: &[f64],
+    rebuilds: u32,
+    records: &[FrameRecord],
+) -> MoverSummary {
+    let mut refit = refit_ms.to_vec();
+    let refit_ms_max = refit.iter().copied().fold(0.0, f64::max);
+    let mut names: Vec<&str> = Vec::new();
+    for r in records {
+        if let Some(base) = r.algorithm.strip_suffix("-static") {
+            if !names.contains(&base) {
+                names.push(base);
+            }
+        }
+    }
+    let repeats = records.iter().map(|r| r.repeat + 1).max().unwrap_or(1);
+    let median_of = |name: &str, repeat: u32| {
+        let mut v: Vec<f64> = records
+            .iter()
+            .filter(|r| r.algorithm == name && r.repeat == repeat)
+            .map(|r| r.frame_ms)
+            .collect();
+        (!v.is_empty()).then(|| crate::report::median(&mut v))
+    };
+    let vs_static = names
+        .iter()
+        .filter_map(|&name| {
+            let mut ratios: Vec<f64> = (0..repeats)
+                .filter_map(|k| {
+                    let moving = median_of(name, k)?;
+                    let fixed = median_of(&format!("{name}-static"), k)?;
+                    (fixed > 0.0).then_some(moving / fixed)
+                })
+                .collect();
+            Spread::of(&mut ratios).map(|s| (name.to_string(), s))
+        })
+        .collect();
+    MoverSummary {
+        movers,
+        refit_ms_median: crate::report::median(&mut refit),
+        refit_ms_max,
+        rebuilds,
+        vs_static,
+    }
 }
 
 /// The median and the min–max of one ratio over the repeats.
@@ -228,6 +298,7 @@ pub fn summarize(
         size: format!("{}x{}", size.0, size.1),
         frames,
         algorithms,
+        movers: None,
     }
 }
 

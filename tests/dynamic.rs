@@ -1,0 +1,346 @@
+//! Moving objects: with the built-in movers and with objects moved, inserted and removed through
+//! the public API between frames, every algorithm renders what vfc renders, frame after frame,
+//! under the validation layer.
+
+mod common;
+
+use coherent::bvh::ObjectBvh;
+use coherent::culling::{
+    self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose,
+};
+use coherent::render::{walk, Renderer};
+use coherent::scene::movers::Movers;
+use coherent::scene::{Aabb, CameraPose, Scene};
+use coherent::Result;
+use glam::{Mat4, Vec3};
+
+/// A culler that records which objects its inner culler drew this frame.
+struct Spy {
+    inner: Box<dyn Culler>,
+    drawn: Vec<u32>,
+}
+
+struct SpyBackend<'a> {
+    inner: &'a mut dyn OcclusionBackend,
+    drawn: &'a mut Vec<u32>,
+}
+
+impl OcclusionBackend for SpyBackend<'_> {
+    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
+        self.drawn.extend_from_slice(objects);
+        self.inner.draw_objects(objects)
+    }
+    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+        self.inner.issue_query(boxes)
+    }
+    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+        self.inner.issue_query_for(boxes, purpose)
+    }
+    fn restore_render_state(&mut self) -> Result<()> {
+        self.inner.restore_render_state()
+    }
+    fn flush(&mut self) -> Result<()> {
+        self.inner.flush()
+    }
+    fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+        self.inner.query_result(query)
+    }
+    fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+        self.inner.wait_query(query)
+    }
+    fn finish(&mut self) -> Result<()> {
+        self.inner.finish()
+    }
+}
+
+impl Culler for Spy {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn needs_exact_visibility(&self) -> bool {
+        self.inner.needs_exact_visibility()
+    }
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats> {
+        self.drawn.clear();
+        let mut spy = SpyBackend {
+            inner: backend,
+            drawn: &mut self.drawn,
+        };
+        self.inner.cull_frame(input, &mut spy)
+    }
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+}
+
+fn spies() -> Vec<Spy> {
+    culling::ALGORITHMS
+        .iter()
+        .map(|a| Spy {
+            inner: culling::create(a, &ChcppParams::default()).unwrap(),
+            drawn: Vec::new(),
+        })
+        .collect()
+}
+
+fn bvh_of(s: &Scene) -> ObjectBvh {
+    let b: Vec<_> = s.objects.iter().map(|o| o.bounds).collect();
+    ObjectBvh::build(&b, 1)
+}
+
+/// A car of the scene's movers, copied as a scripted object: returns its id and object-space box.
+fn add_car(scene: &mut Scene, template: u32) -> (u32, Aabb) {
+    let mut o = scene.objects[template as usize].clone();
+    let local = o.bounds.transformed(&o.transform.inverse());
+    o.transform = Mat4::from_translation(Vec3::new(0.0, -100.0, 0.0));
+    o.bounds = local.transformed(&o.transform);
+    scene.objects.push(o);
+    ((scene.objects.len() - 1) as u32, local)
+}
+
+/// A car facing along +x placed at `p` (or, for `along_z`, facing +z).
+fn car_at(p: Vec3, along_z: bool) -> Mat4 {
+    let yaw = if along_z {
+        -std::f32::consts::FRAC_PI_2
+    } else {
+        0.0
+    };
+    Mat4::from_translation(p) * Mat4::from_rotation_y(yaw)
+}
+
+/// Moves a scripted object: its box into the hierarchy, its transform into the renderer.
+fn place(bvh: &mut ObjectBvh, r: &mut Renderer, (id, local): (u32, Aabb), m: Mat4) {
+    bvh.set_bounds(id, local.transformed(&m)).unwrap();
+    r.set_object_transform(id, &m).unwrap();
+}
+
+/// Renders frame `f` with every culler and checks each image against vfc's (the first).
+/// Returns the objects vfc drew and the exact visible set.
+fn frame_all(
+    r: &mut Renderer,
+    cullers: &mut [Spy],
+    bvh: &ObjectBvh,
+    pose: CameraPose,
+    f: u64,
+) -> Vec<u32> {
+    let cam = r.camera(pose, bvh);
+    let exact = r.exact_visible(bvh, &cam).unwrap();
+    let mut reference: Option<Vec<u8>> = None;
+    for c in cullers.iter_mut() {
+        r.render_frame(c, bvh, &cam, f).unwrap();
+        let px = r.read_color().unwrap();
+        match &reference {
+            None => reference = Some(px),
+            Some(v) => {
+                let d = common::diff_pixels(v, &px);
+                assert_eq!(
+                    d,
+                    0,
+                    "frame {f}: {} differs from vfc in {d} pixels",
+                    c.name()
+                );
+            }
+        }
+    }
+    exact
+}
+
+/// City with built-in movers and two scripted cars: one drives along a cross street out from
+/// behind a block of buildings into full view, one drives from behind the camera into the
+/// frustum. 60 frames, every algorithm's image equals vfc's.
+#[test]
+fn city_movers_every_algorithm_matches_vfc_for_60_frames() {
+    let (ctx, log) = common::context();
+    {
+        let mut scene = Scene::load("city", 0.05, 4096).unwrap();
+        let movers = Movers::add(&mut scene, 30);
+        let template = movers.object(0);
+        let out_of_hiding = add_car(&mut scene, template);
+        let from_behind = add_car(&mut scene, template);
+        let mut bvh = bvh_of(&scene);
+        let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+        let mut cullers = spies();
+        // The camera stands in the first street (x = 47) looking down it (+z); the cross street
+        // runs along z = 47, behind the first block's buildings (x in [0, 40]).
+        let (mut hidden, mut seen, mut behind, mut entered) = (false, false, false, false);
+        for f in 0..60u64 {
+            let z = 2.0 + f as f32 * 0.1;
+            let pose = CameraPose {
+                eye: Vec3::new(47.0, 1.7, z),
+                target: Vec3::new(47.0, 1.7, z + 40.0),
+            };
+            walk::place_movers(&movers, f, &mut bvh, &mut r).unwrap();
+            let a = car_at(Vec3::new(5.0 + f as f32 * 0.9, 0.0, 49.0), false);
+            place(&mut bvh, &mut r, out_of_hiding, a);
+            let b = car_at(Vec3::new(49.0, 0.0, -25.0 + f as f32 * 1.2), true);
+            place(&mut bvh, &mut r, from_behind, b);
+            bvh.update();
+            bvh.validate().unwrap();
+            let exact = frame_all(&mut r, &mut cullers, &bvh, pose, f);
+            let visible = |o: (u32, Aabb)| exact.contains(&o.0);
+            if f < 20 {
+                hidden |= !visible(out_of_hiding);
+            }
+            seen |= hidden && visible(out_of_hiding);
+            behind |= f < 10 && !visible(from_behind);
+            entered |= behind && visible(from_behind);
+            for c in &cullers {
+                for o in [out_of_hiding, from_behind] {
+                    assert!(
+                        !visible(o) || c.drawn.contains(&o.0),
+                        "frame {f}: {} missed the visible car {}",
+                        c.name(),
+                        o.0
+                    );
+                }
+            }
+        }
+        assert!(hidden && seen, "the car came out from behind the buildings");
+        assert!(
+            behind && entered,
+            "the car entered the view from behind the camera"
+        );
+    }
+    common::assert_silent(&log);
+}
+
+/// Parking with built-in movers (cars driving along the aisles, out of the lot and back in):
+/// 60 frames of the default path, every algorithm's image equals vfc's.
+#[test]
+fn parking_movers_every_algorithm_matches_vfc_for_60_frames() {
+    let (ctx, log) = common::context();
+    {
+        let mut scene = Scene::load("parking", 0.5, 4096).unwrap();
+        let movers = Movers::add(&mut scene, 30);
+        let path = scene.default_path().unwrap().clone();
+        let mut bvh = bvh_of(&scene);
+        let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+        let mut cullers = spies();
+        let mut movers_seen = 0;
+        for f in 0..60u64 {
+            walk::place_movers(&movers, f, &mut bvh, &mut r).unwrap();
+            let exact = frame_all(&mut r, &mut cullers, &bvh, path.pose_at(f as f32), f);
+            movers_seen += (0..movers.len())
+                .filter(|&i| exact.contains(&movers.object(i)))
+                .count();
+        }
+        assert!(movers_seen > 0, "movers were in view");
+    }
+    common::assert_silent(&log);
+}
+
+/// Insert and remove through the public API between frames: an inserted car is drawn by every
+/// algorithm the first frame it is visible; a removed one is never drawn again (its id is not
+/// reused here: no insert follows the removal).
+#[test]
+fn inserted_objects_are_drawn_and_removed_ones_never_again() {
+    let (ctx, log) = common::context();
+    {
+        let mut scene = Scene::load("city", 0.1, 4096).unwrap();
+        let movers = Movers::add(&mut scene, 1);
+        let template = movers.object(0);
+        let local = scene.objects[template as usize]
+            .bounds
+            .transformed(&scene.objects[template as usize].transform.inverse());
+        let mut bvh = bvh_of(&scene);
+        let mut r = Renderer::with_spare_objects(&ctx, &scene, 160, 90, 4).unwrap();
+        let mut cullers = spies();
+        let pose = CameraPose {
+            eye: Vec3::new(47.0, 1.7, 2.0),
+            target: Vec3::new(47.0, 1.7, 42.0),
+        };
+        // The mover stands in view for the first frames, so it is drawn, then it is removed.
+        let in_view = car_at(Vec3::new(49.0, 0.0, 20.0), true);
+        place(&mut bvh, &mut r, (template, local), in_view);
+        bvh.update();
+        let mut inserted = None;
+        for f in 0..24u64 {
+            if f == 8 {
+                bvh.remove(template).unwrap();
+            }
+            if f == 4 {
+                // A new car right in front of the camera.
+                let m = car_at(Vec3::new(45.0, 0.0, 15.0), true);
+                let id = bvh.insert(local.transformed(&m));
+                assert_eq!(id as usize, scene.objects.len(), "a fresh id");
+                r.set_object(id, template, &m).unwrap();
+                inserted = Some(id);
+            }
+            if f == 18 {
+                // Drive it further away: still visible, its box refitted.
+                let id = inserted.unwrap();
+                let m = car_at(Vec3::new(45.0, 0.0, 30.0), true);
+                bvh.set_bounds(id, local.transformed(&m)).unwrap();
+                r.set_object_transform(id, &m).unwrap();
+            }
+            bvh.update();
+            bvh.validate().unwrap();
+            let exact = frame_all(&mut r, &mut cullers, &bvh, pose, f);
+            for c in &cullers {
+                if f < 8 {
+                    assert!(c.drawn.contains(&template), "{} drew the car", c.name());
+                } else {
+                    assert!(
+                        !c.drawn.contains(&template),
+                        "{} drew a removed object",
+                        c.name()
+                    );
+                }
+                if let Some(id) = inserted {
+                    assert!(exact.contains(&id), "the inserted car is visible");
+                    assert!(
+                        c.drawn.contains(&id),
+                        "frame {f}: {} missed the inserted car",
+                        c.name()
+                    );
+                }
+            }
+        }
+    }
+    common::assert_silent(&log);
+}
+
+/// `coherent walk --movers N` (validation on): every algorithm plus chcpp on the scene without
+/// movers, and the movers' figures in `summary.json`.
+#[test]
+fn walk_with_movers_reports_refit_and_rebuilds() {
+    let dir = std::env::temp_dir().join(format!("coherent-movers-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
+        .args([
+            "walk", "--scene", "parking", "--scale", "0.25", "--movers", "20",
+        ])
+        .args([
+            "--frames",
+            "4",
+            "--warmup",
+            "1",
+            "--size",
+            "96x64",
+            "--validation",
+        ])
+        .args(["--out", dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    for a in culling::ALGORITHMS.iter().chain(["chcpp-static"].iter()) {
+        assert!(json["algorithms"][a]["frame_ms_median"].is_number(), "{a}");
+    }
+    let m = &json["movers"];
+    assert_eq!(m["movers"], 20);
+    assert!(m["refit_ms_median"].as_f64().unwrap() > 0.0);
+    assert!(m["rebuilds"].is_number());
+    assert!(m["vs_static"]["chcpp"]["median"].as_f64().unwrap() > 0.0);
+    let _ = std::fs::remove_dir_all(&dir);
+}
