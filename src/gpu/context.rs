@@ -133,6 +133,8 @@ pub struct DeviceInfo {
     pub max_image_array_layers: u32,
     /// Largest layer count of a (layered) rendering.
     pub max_framebuffer_layers: u32,
+    /// Most storage images one shader stage may access.
+    pub max_per_stage_storage_images: u32,
 }
 
 /// The features `coherent` relies on, for `coherent info`.
@@ -537,6 +539,7 @@ fn describe(
         validation: false,
         max_image_array_layers: props.limits.max_image_array_layers,
         max_framebuffer_layers: props.limits.max_framebuffer_layers,
+        max_per_stage_storage_images: props.limits.max_per_stage_descriptor_storage_images,
     };
     (props, info)
 }
