@@ -406,8 +406,7 @@ impl GiRenderer {
         let mut chunks = Vec::with_capacity(chunk_count as usize);
         for c in 0..chunk_count {
             let first_slot = (slot_data.len() / SLOT_FLOATS) as u32;
-            slot_data.extend_from_slice(&spot.to_floats());
-            let (mut layers, mut ism_slots) = (Vec::new(), 0);
+            let mut vpl_slots = Vec::new();
             let mut vpl_count = 0;
             for v in vpls.iter().filter(|v| v.layer / cap == c) {
                 let local = v.layer - c * cap;
@@ -415,18 +414,32 @@ impl GiRenderer {
                 vpl_data[at..at + VPL_FLOATS].copy_from_slice(&vpl_floats(light, v, local, ism));
                 vpl_count = vpl_count.max(local + 1);
                 if ism || chunk_count > 1 || new.contains(&v.layer) {
-                    let slot = ShadowSlot {
+                    vpl_slots.push(ShadowSlot {
                         position: v.position,
                         normal: v.normal,
                         layer: local,
-                    };
-                    slot_data.extend_from_slice(&slot.to_floats());
-                    if ism {
-                        ism_slots += 1;
-                    } else {
-                        layers.push(local);
-                    }
+                    });
                 }
+            }
+            let (layers, ism_slots) = if ism {
+                (Vec::new(), vpl_slots.len() as u32)
+            } else {
+                (vpl_slots.iter().map(|s| s.layer).collect(), 0)
+            };
+            // A staged pass renders into the staging image's layers 0 (spotlight), 1, 2, ..
+            let staged = self.shadow.staged(layers.len());
+            let spot_slot = ShadowSlot {
+                layer: if staged { 0 } else { cap },
+                ..spot
+            };
+            slot_data.extend_from_slice(&spot_slot.to_floats());
+            for (i, slot) in vpl_slots.iter().enumerate() {
+                let layer = if staged && !ism {
+                    i as u32 + 1
+                } else {
+                    slot.layer
+                };
+                slot_data.extend_from_slice(&ShadowSlot { layer, ..*slot }.to_floats());
             }
             chunks.push(Chunk {
                 first_vpl: c * cap,
