@@ -193,7 +193,9 @@ pub struct ModeSummary {
     pub shadow_ms_median: f64,
     /// Median GPU time of the gather, ms (timestamps).
     pub gather_ms_median: f64,
-    /// Median GPU time of the resolve (blur, direct light, tone mapping), ms.
+    /// Median GPU time of the half-resolution blur of the gathered light, ms.
+    pub blur_ms_median: f64,
+    /// Median GPU time of the resolve (upsample, direct light, tone mapping), ms.
     pub resolve_ms_median: f64,
     /// Median GPU time of the G-buffer pass, ms.
     pub gbuffer_ms_median: f64,
@@ -532,6 +534,7 @@ fn summarize_mode(r: &ModeRun, reference: &[Vec<u8>], opts: &GiRunOptions) -> Mo
         shadow_maps_rendered_median: percentile(&maps, 0.5),
         shadow_ms_median: median_of(|f| f.shadow_ms),
         gather_ms_median: median_of(|f| f.gather_ms),
+        blur_ms_median: median_of(|f| f.blur_ms),
         resolve_ms_median: median_of(|f| f.resolve_ms),
         gbuffer_ms_median: median_of(|f| f.gbuffer_ms),
         vpls: opts.vpls,
