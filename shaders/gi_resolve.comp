@@ -1,12 +1,48 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Resolve: geometry-aware 4x4 blur of the interleaved indirect irradiance (a 4x4 window holds
-// each of the 16 VPL classes once; neighbours whose normal or plane differ are skipped), direct
-// light from the spotlight with its paraboloid shadow map, receiver albedo, Reinhard tone mapping
-// and gamma 2.2 into RGBA8.
+// Resolve at full resolution: geometry-aware upsample of the blurred half-resolution indirect
+// irradiance (bilinear weights over the four nearest half-resolution samples, keeping only those
+// on the pixel's surface; if none is, any on it in the 3x3 around, else the pixel's own block),
+// direct light from the spotlight with its paraboloid shadow map, receiver albedo, Reinhard tone
+// mapping and gamma 2.2 into RGBA8.
 layout(local_size_x = 8, local_size_y = 8) in;
 
 #include "include/gi_shading.glsl"
+
+// The blurred irradiance at pixel px (position p, normal n).
+vec3 upsample(ivec2 px, vec3 p, vec3 n) {
+    ivec2 half_size = imageSize(blurred);
+    // Half-resolution sample i covers pixels 2i and 2i+1: its centre is at pixel 2i + 0.5.
+    vec2 f = (vec2(px) - 0.5) * 0.5;
+    ivec2 base = ivec2(floor(f));
+    vec2 t = f - vec2(base);
+    vec3 sum = vec3(0.0);
+    float weight = 0.0;
+    for (int k = 0; k < 4; k++) {
+        ivec2 o = ivec2(k & 1, k >> 1);
+        ivec2 q = clamp(base + o, ivec2(0), half_size - 1);
+        if (!same_surface(p, n, imageLoad(half_position, q), imageLoad(half_normal, q).xyz)) {
+            continue;
+        }
+        float w = (o.x == 1 ? t.x : 1.0 - t.x) * (o.y == 1 ? t.y : 1.0 - t.y) + 1e-3;
+        sum += w * imageLoad(blurred, q).rgb;
+        weight += w;
+    }
+    if (weight > 0.0) {
+        return sum / weight;
+    }
+    ivec2 own = min(px / 2, half_size - 1);
+    for (int dy = -1; dy <= 1; dy++) {
+        for (int dx = -1; dx <= 1; dx++) {
+            ivec2 q = clamp(own + ivec2(dx, dy), ivec2(0), half_size - 1);
+            if (same_surface(p, n, imageLoad(half_position, q), imageLoad(half_normal, q).xyz)) {
+                sum += imageLoad(blurred, q).rgb;
+                weight += 1.0;
+            }
+        }
+    }
+    return weight > 0.0 ? sum / weight : imageLoad(blurred, own).rgb;
+}
 
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
@@ -24,30 +60,7 @@ void main() {
     vec3 albedo = imageLoad(g_albedo, px).rgb;
     int mode = int(pc.spot_power.w);
 
-    vec3 e_indirect = vec3(0.0);
-    if (mode != 2) {
-        float weight = 0.0;
-        for (int dy = -2; dy <= 1; dy++) {
-            for (int dx = -2; dx <= 1; dx++) {
-                ivec2 q = px + ivec2(dx, dy);
-                if (q.x < 0 || q.y < 0 || q.x >= size.x || q.y >= size.y) {
-                    continue;
-                }
-                vec4 q4 = imageLoad(g_position, q);
-                if (q4.w < 0.5) {
-                    continue;
-                }
-                vec3 nq = imageLoad(g_normal, q).xyz;
-                if (dot(n, nq) < 0.9 || abs(dot(q4.xyz - p, n)) > pc.misc.w) {
-                    continue;
-                }
-                e_indirect += imageLoad(indirect, q).rgb;
-                weight += 1.0;
-            }
-        }
-        // Each pixel saw 1/16 of the VPLs: the average times 16 estimates the full sum.
-        e_indirect *= 16.0 / max(weight, 1.0);
-    }
+    vec3 e_indirect = mode != 2 ? upsample(px, p, n) : vec3(0.0);
 
     vec3 e_direct = vec3(0.0);
     if (mode != 1) {

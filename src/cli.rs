@@ -746,9 +746,18 @@ pub struct GiArgs {
     /// Image size WxH.
     #[arg(long, default_value = "640x480")]
     pub size: String,
-    /// incremental, full or both.
+    /// incremental, full, both (incremental and full) or all.
     #[arg(long, default_value = "both")]
     pub mode: String,
+    /// Frames compared with the reference (evenly spaced over the frames after the first).
+    #[arg(long, default_value_t = 8)]
+    pub samples: u32,
+    /// Imperfect shadow map edge in texels (ism mode; a power of two, 4 to 32).
+    #[arg(long, default_value_t = 32)]
+    pub ism_size: u32,
+    /// Surface points splatted into each imperfect shadow map (ism mode).
+    #[arg(long, default_value_t = 2048)]
+    pub ism_points: u32,
     /// Shadow-map resolution (per VPL layer).
     #[arg(long, default_value_t = 256)]
     pub shadow_size: u32,
@@ -778,7 +787,11 @@ pub fn gi(a: &GiArgs) -> Result<()> {
         height,
         modes,
         shadow_size: a.shadow_size,
-        sample_frames: 5,
+        sample_frames: a.samples,
+        ism: coherent::gi::IsmOptions {
+            map_size: a.ism_size,
+            points_per_vpl: a.ism_points,
+        },
     };
     let summary = session::run(&ctx, &scene, &opts, a.out.as_deref())?;
     print!("{}", summary.table());

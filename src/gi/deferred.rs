@@ -1,6 +1,6 @@
 //! Deferred shading for GI: the G-buffer (world position, normal, albedo) rendered from the
-//! camera, the interleaved VPL gather (compute), and the resolve pass (geometry-aware blur,
-//! direct spotlight, tone mapping into RGBA8).
+//! camera, the interleaved VPL gather and its geometry-aware blur at half resolution (compute),
+//! and the resolve pass (geometry-aware upsample, direct spotlight, tone mapping into RGBA8).
 
 use std::sync::Arc;
 
@@ -29,12 +29,20 @@ pub struct GBuffer {
     pub albedo: Image,
     /// Depth for the G-buffer pass.
     pub depth: Image,
-    /// Interleaved indirect irradiance (gather output, resolve input).
+    /// Half resolution: interleaved indirect irradiance (gather output, blur input).
     pub indirect: Image,
+    /// Half resolution: each sample's G-buffer position (written by the gather).
+    pub half_position: Image,
+    /// Half resolution: each sample's G-buffer normal (written by the gather).
+    pub half_normal: Image,
+    /// Half resolution: blurred irradiance from all VPLs (blur output, resolve input).
+    pub blurred: Image,
     /// Tone-mapped RGBA8 result.
     pub output: Image,
     /// Width and height.
     pub size: (u32, u32),
+    /// Width and height of the half-resolution images (rounded up).
+    pub half_size: (u32, u32),
 }
 
 impl GBuffer {
@@ -58,14 +66,12 @@ impl GBuffer {
             1,
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
         )?;
-        let indirect = Image::new(
-            ctx,
-            "indirect",
-            FLOAT_FORMAT,
-            extent,
-            1,
-            vk::ImageUsageFlags::STORAGE,
-        )?;
+        let half_size = (width.div_ceil(2), height.div_ceil(2));
+        let storage = vk::ImageUsageFlags::STORAGE;
+        let indirect = Image::new(ctx, "indirect", FLOAT_FORMAT, half_size, 1, storage)?;
+        let half_position = Image::new(ctx, "half position", FLOAT_FORMAT, half_size, 1, storage)?;
+        let half_normal = Image::new(ctx, "half normal", FLOAT_FORMAT, half_size, 1, storage)?;
+        let blurred = Image::new(ctx, "blurred indirect", FLOAT_FORMAT, half_size, 1, storage)?;
         let output = Image::new(
             ctx,
             "gi output",
@@ -100,8 +106,12 @@ impl GBuffer {
             albedo,
             depth,
             indirect,
+            half_position,
+            half_normal,
+            blurred,
             output,
             size: extent,
+            half_size,
         })
     }
 
@@ -121,7 +131,9 @@ impl GBuffer {
             rec.discard(image, ImageUse::ColorAttachment);
         }
         rec.discard(&self.depth, ImageUse::DepthAttachment);
-        rec.discard(&self.indirect, ImageUse::ComputeReadWrite);
+        for image in self.half_images() {
+            rec.discard(image, ImageUse::ComputeReadWrite);
+        }
         rec.discard(&self.output, ImageUse::ComputeReadWrite);
         let color = targets.map(|image| Attachment {
             image,
@@ -147,14 +159,36 @@ impl GBuffer {
         Ok(())
     }
 
-    /// Barrier between two compute passes that read and write the indirect image.
-    pub fn record_compute_barrier(&self, rec: &mut Recorder) {
-        rec.transition(&self.indirect, ImageUse::ComputeReadWrite);
+    /// The half-resolution images the gather and the blur write.
+    fn half_images(&self) -> [&Image; 4] {
+        [
+            &self.indirect,
+            &self.half_position,
+            &self.half_normal,
+            &self.blurred,
+        ]
     }
 
-    /// Dispatches `pipeline` over the image in 8x8 groups.
+    /// Barrier between two compute passes that read and write the half-resolution images.
+    pub fn record_compute_barrier(&self, rec: &mut Recorder) {
+        for image in self.half_images() {
+            rec.transition(image, ImageUse::ComputeReadWrite);
+        }
+    }
+
+    /// Dispatches `pipeline` over the full-resolution image in 8x8 groups.
     pub fn record_dispatch(&self, rec: &mut Recorder, pipeline: &ComputePipeline) {
         rec.bind_compute_pipeline(pipeline);
         rec.dispatch(self.size.0.div_ceil(8), self.size.1.div_ceil(8), 1);
+    }
+
+    /// Dispatches `pipeline` over the half-resolution images in 8x8 groups.
+    pub fn record_half_dispatch(&self, rec: &mut Recorder, pipeline: &ComputePipeline) {
+        rec.bind_compute_pipeline(pipeline);
+        rec.dispatch(
+            self.half_size.0.div_ceil(8),
+            self.half_size.1.div_ceil(8),
+            1,
+        );
     }
 }

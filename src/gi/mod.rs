@@ -1,5 +1,6 @@
 //! Incremental instant radiosity (Laine et al. 2007): a spotlight, CPU ray casting, the VPL set in
-//! the unit-disk domain, and (in the renderer) layered paraboloid shadow maps and deferred shading.
+//! the unit-disk domain, and (in the renderer) layered paraboloid shadow maps or imperfect shadow
+//! maps, and deferred shading.
 
 pub mod light;
 pub mod raycast;
@@ -7,8 +8,10 @@ pub mod vpl;
 
 pub mod deferred;
 pub mod geometry;
+pub mod ism;
 pub mod renderer;
 pub mod session;
 pub mod shadow;
 
+pub use ism::IsmOptions;
 pub use renderer::{GiFrame, GiOptions, GiRenderer, OutputMode};

@@ -13,13 +13,16 @@ use gpu_allocator::MemoryLocation;
 
 use super::deferred::GBuffer;
 use super::geometry::{WorldGeometry, VERTEX_FLOATS};
+use super::ism::{self, ImperfectShadowMaps, IsmOptions};
 use super::light::Spotlight;
 use super::shadow::{ShadowMaps, ShadowPass, ShadowSlot};
 use super::vpl::Vpl;
 use crate::error::{Error, Result};
+use crate::gpu::queries::QueryPools;
 use crate::gpu::{
     as_bytes, shaders, targets, Binding, Buffer, CommandCounts, CommandPool, ComputePipeline,
-    DescriptorSets, GpuContext, OneShot, PipelineLayout, Recorder, Sampler, Timeline,
+    DescriptorSets, GpuContext, Image, ImageUse, OneShot, PipelineLayout, Recorder, Sampler,
+    Timeline,
 };
 use crate::scene::camera::Camera;
 
@@ -34,6 +37,10 @@ const MAX_EDGE_FRACTION: f32 = 1.0 / 16.0;
 /// The compute passes.
 const GATHER: &[u8] = shaders::GI_GATHER_COMP;
 const RESOLVE: &[u8] = shaders::GI_RESOLVE_COMP;
+const BLUR: &[u8] = shaders::GI_BLUR_COMP;
+/// Storage images of the compute passes (G-buffer 3, indirect, output, half position, half
+/// normal, blurred).
+const STORAGE_IMAGES: u32 = 8;
 /// Compute push block: five vec4.
 const COMPUTE_PUSH: u32 = 80;
 
@@ -71,10 +78,22 @@ pub struct GiFrame {
     pub frame_ms: f64,
     /// VPL shadow maps rendered (from the triangles the recorder counted).
     pub shadow_maps_rendered: u32,
+    /// VPL imperfect shadow maps built from points (every VPL's, in ism mode).
+    pub ism_maps: u32,
     /// Shadow/gather chunks (1 unless the VPLs need more layers than the array has).
     pub chunks: u32,
     /// VPLs shaded.
     pub vpls: u32,
+    /// GPU time of the G-buffer pass, ms (timestamps).
+    pub gbuffer_ms: f64,
+    /// GPU time of the shadow-map passes (spotlight and VPLs), ms.
+    pub shadow_ms: f64,
+    /// GPU time of the gather passes, ms.
+    pub gather_ms: f64,
+    /// GPU time of the blur of the gathered light, ms.
+    pub blur_ms: f64,
+    /// GPU time of the resolve pass, ms.
+    pub resolve_ms: f64,
     /// Everything the recorder counted.
     pub counts: CommandCounts,
 }
@@ -87,7 +106,12 @@ pub struct GiRenderer {
     commands: CommandPool,
     // Sets before the pipelines, pipelines and images before the layouts.
     descriptors: DescriptorSets,
+    /// Imperfect shadow maps (the `ism` mode), or none.
+    ism: Option<ImperfectShadowMaps>,
+    /// The image the gather's ISM binding points at when there are none.
+    ism_unused: Option<Image>,
     gather: ComputePipeline,
+    blur: ComputePipeline,
     resolve: ComputePipeline,
     shadow: ShadowMaps,
     gbuffer: GBuffer,
@@ -100,10 +124,16 @@ pub struct GiRenderer {
     slots: Buffer,
     vpl_buffer: Buffer,
     recorder: Recorder,
+    /// Timestamps around the passes of a frame (see [`Stamp`]).
+    timestamps: QueryPools,
+    /// What each timestamp of the frame being recorded ends.
+    stamps: Vec<Stamp>,
     oneshot: OneShot,
     vertex_count: u32,
     max_vpls: u32,
     max_slots: u32,
+    /// Entries of the VPL buffer (indexed by layer).
+    vpl_entries: u32,
     far: f32,
     /// What the resolve pass writes.
     pub output: OutputMode,
@@ -119,6 +149,17 @@ pub struct GiRenderer {
     pub blur_threshold: f32,
 }
 
+/// The pass a timestamp ends (the time since the previous timestamp is charged to it).
+#[derive(Clone, Copy, Debug)]
+enum Stamp {
+    Start,
+    GBuffer,
+    Shadow,
+    Gather,
+    Blur,
+    Resolve,
+}
+
 /// One chunk of a frame: the VPLs it gathers and the shadow maps it renders first.
 struct Chunk {
     first_vpl: u32,
@@ -126,6 +167,8 @@ struct Chunk {
     first_slot: u32,
     /// Layers (within the chunk) whose maps are rendered.
     layers: Vec<u32>,
+    /// VPL slots after the spotlight's whose imperfect shadow maps are built (ISM only).
+    ism_slots: u32,
 }
 
 impl GiRenderer {
@@ -135,11 +178,33 @@ impl GiRenderer {
         geometry: &WorldGeometry,
         options: GiOptions,
     ) -> Result<GiRenderer> {
-        if options.vpl_layers == 0 || options.shadow_size == 0 {
+        Self::build(ctx, geometry, options, None)
+    }
+
+    /// Like [`GiRenderer::new`], with imperfect shadow maps for the VPLs: every frame rebuilds
+    /// every VPL's map from the scene's surface points (see [`super::ism`]) instead of rendering
+    /// the new VPLs' maps from triangles.
+    pub fn with_ism(
+        ctx: &Arc<GpuContext>,
+        geometry: &WorldGeometry,
+        options: GiOptions,
+        ism: IsmOptions,
+    ) -> Result<GiRenderer> {
+        if options.max_vpls > options.vpl_layers {
             return Err(Error::Input(
-                "GI needs at least one VPL layer and a non-empty shadow map".into(),
+                "imperfect shadow maps need every VPL in one chunk (max_vpls <= vpl_layers)".into(),
             ));
         }
+        Self::build(ctx, geometry, options, Some(ism))
+    }
+
+    fn build(
+        ctx: &Arc<GpuContext>,
+        geometry: &WorldGeometry,
+        options: GiOptions,
+        ism_options: Option<IsmOptions>,
+    ) -> Result<GiRenderer> {
+        check_device(ctx, &options)?;
         let (vertex_data, vertex_count) = gpu_vertices(geometry)?;
         let (graphics_layout, compute_layout) = create_layouts(ctx)?;
         let shadow = ShadowMaps::new(
@@ -148,37 +213,44 @@ impl GiRenderer {
             options.vpl_layers,
             options.shadow_size,
         )?;
+        let (ism, ism_unused) = create_ism(
+            ctx,
+            &graphics_layout,
+            geometry,
+            options.vpl_layers,
+            ism_options,
+        )?;
         let gbuffer = GBuffer::new(ctx, &graphics_layout, options.width, options.height)?;
         let mut vertices = host_storage(ctx, "gi vertices", vertex_data.len())?;
         vertices.write(0, &as_bytes(&vertex_data))?;
         let max_vpls = options.max_vpls.max(options.vpl_layers);
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
         let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
-        let vpl_buffer = host_storage(ctx, "gi vpls", max_vpls as usize * VPL_FLOATS)?;
+        // Entries are indexed by layer, a whole number of chunks of `vpl_layers`.
+        let vpl_entries = max_vpls.div_ceil(options.vpl_layers) * options.vpl_layers;
+        let vpl_buffer = host_storage(ctx, "gi vpls", vpl_entries as usize * VPL_FLOATS)?;
         let sampler = Sampler::nearest_clamp(ctx)?;
-        let descriptors = DescriptorSets::new(
-            ctx,
-            &[
-                (
-                    &graphics_layout,
-                    &[
-                        Binding::StorageBuffer(&vertices),
-                        Binding::StorageBuffer(&slots),
-                    ],
-                ),
-                (
-                    &compute_layout,
-                    &compute_bindings(&gbuffer, &vpl_buffer, &shadow, &sampler),
-                ),
-            ],
-        )?;
+        let resources = Resources {
+            vertices: &vertices,
+            slots: &slots,
+            vpls: &vpl_buffer,
+            gbuffer: &gbuffer,
+            shadow: &shadow,
+            sampler: &sampler,
+            ism: ism.as_ref(),
+            ism_unused: ism_unused.as_ref(),
+        };
+        let descriptors = create_sets(ctx, &graphics_layout, &compute_layout, &resources)?;
         let diag = geometry.diagonal();
         Ok(GiRenderer {
             ctx: ctx.clone(),
             timeline: Timeline::new(ctx)?,
             commands: CommandPool::new(ctx)?,
             descriptors,
+            ism,
+            ism_unused,
             gather: ComputePipeline::new(ctx, &compute_layout, "gi gather", GATHER)?,
+            blur: ComputePipeline::new(ctx, &compute_layout, "gi blur", BLUR)?,
             resolve: ComputePipeline::new(ctx, &compute_layout, "gi resolve", RESOLVE)?,
             shadow,
             gbuffer,
@@ -189,10 +261,13 @@ impl GiRenderer {
             slots,
             vpl_buffer,
             recorder: Recorder::new(ctx.device.clone()),
+            timestamps: QueryPools::new(ctx, vk::QueryType::TIMESTAMP, 64)?,
+            stamps: Vec::new(),
             oneshot: OneShot::new(ctx)?,
             vertex_count,
             max_vpls,
             max_slots,
+            vpl_entries,
             far: diag * 1.5,
             output: OutputMode::Full,
             exposure: 1.0,
@@ -201,6 +276,11 @@ impl GiRenderer {
             normal_offset: 0.002 * diag,
             blur_threshold: 0.01 * diag,
         })
+    }
+
+    /// Whether VPL visibility comes from imperfect shadow maps.
+    pub fn uses_ism(&self) -> bool {
+        self.ism.is_some()
     }
 
     /// VPL layers of the shadow array.
@@ -226,9 +306,11 @@ impl GiRenderer {
         let start = Instant::now();
         let chunks = self.upload_chunks(light, vpls, new_layers)?;
         self.commands.reset(&self.timeline)?;
+        self.timestamps.reset();
         self.recorder.take_counts();
         self.recorder
             .set_command_buffer(self.commands.begin_next()?);
+        self.stamp(Stamp::Start)?;
         let mut gpush = [0f32; 24];
         gpush[..16].copy_from_slice(&camera.view_proj().to_cols_array());
         gpush[16..19].copy_from_slice(&camera.eye.to_array());
@@ -239,22 +321,65 @@ impl GiRenderer {
             &gpush,
             self.vertex_count,
         )?;
+        self.stamp(Stamp::GBuffer)?;
         let mut cpush = self.compute_push(light);
         let mut maps = 0;
         for (c, chunk) in chunks.iter().enumerate() {
             maps += self.record_chunk(chunk, c > 0, &mut gpush, &mut cpush)?;
         }
+        let ism_maps = chunks.iter().map(|c| c.ism_slots).sum();
+        self.gbuffer
+            .record_half_dispatch(&mut self.recorder, &self.blur);
+        self.gbuffer.record_compute_barrier(&mut self.recorder);
+        self.stamp(Stamp::Blur)?;
         self.gbuffer
             .record_dispatch(&mut self.recorder, &self.resolve);
+        self.stamp(Stamp::Resolve)?;
         let submitted = self.timeline.submit(&mut self.recorder)?;
         self.timeline.wait(submitted)?;
-        Ok(GiFrame {
-            frame_ms: start.elapsed().as_secs_f64() * 1e3,
+        let frame_ms = start.elapsed().as_secs_f64() * 1e3;
+        let mut frame = GiFrame {
+            frame_ms,
             shadow_maps_rendered: maps,
+            ism_maps,
             chunks: chunks.len() as u32,
             vpls: vpls.len() as u32,
             counts: self.recorder.take_counts(),
-        })
+            ..GiFrame::default()
+        };
+        self.read_pass_times(&mut frame)?;
+        Ok(frame)
+    }
+
+    /// Writes the next timestamp, recording which pass it ends.
+    fn stamp(&mut self, stamp: Stamp) -> Result<()> {
+        let id = self.timestamps.allocate()?;
+        self.recorder.write_timestamp(&self.timestamps, id);
+        self.stamps.push(stamp);
+        Ok(())
+    }
+
+    /// Sums the time between consecutive timestamps into the pass each one ends.
+    fn read_pass_times(&mut self, frame: &mut GiFrame) -> Result<()> {
+        let tick_ms = f64::from(self.ctx.info.timestamp_period_ns) * 1e-6;
+        let mut prev = None;
+        for (id, stamp) in std::mem::take(&mut self.stamps).into_iter().enumerate() {
+            // The frame was waited for: every timestamp is available.
+            let Some(t) = self.timestamps.poll(id as u32)? else {
+                continue;
+            };
+            let ms = prev.map_or(0.0, |p: u64| t.saturating_sub(p) as f64 * tick_ms);
+            match stamp {
+                Stamp::Start => {}
+                Stamp::GBuffer => frame.gbuffer_ms += ms,
+                Stamp::Shadow => frame.shadow_ms += ms,
+                Stamp::Gather => frame.gather_ms += ms,
+                Stamp::Blur => frame.blur_ms += ms,
+                Stamp::Resolve => frame.resolve_ms += ms,
+            }
+            prev = Some(t);
+        }
+        Ok(())
     }
 
     /// Checks the VPLs against this renderer's capacity, splits them into chunks of at most
@@ -265,6 +390,73 @@ impl GiRenderer {
         vpls: &[Vpl],
         new_layers: &[u32],
     ) -> Result<Vec<Chunk>> {
+        let (cap, chunk_count) = self.check_capacity(vpls)?;
+        let ism = self.ism.is_some();
+        let new: HashSet<u32> = new_layers.iter().copied().collect();
+        let spot = ShadowSlot {
+            position: light.position,
+            normal: light.axis(),
+            layer: cap,
+        };
+        // The VPL buffer is indexed by layer, so a VPL's interleave class (its chunk-local
+        // layer mod 16) stays the same for as long as it lives; free layers stay empty.
+        let mut vpl_data = vec![0f32; (chunk_count * cap) as usize * VPL_FLOATS];
+        let mut slot_data: Vec<f32> =
+            Vec::with_capacity((vpls.len() + chunk_count as usize) * SLOT_FLOATS);
+        let mut chunks = Vec::with_capacity(chunk_count as usize);
+        for c in 0..chunk_count {
+            let first_slot = (slot_data.len() / SLOT_FLOATS) as u32;
+            let mut vpl_slots = Vec::new();
+            let mut vpl_count = 0;
+            for v in vpls.iter().filter(|v| v.layer / cap == c) {
+                let local = v.layer - c * cap;
+                let at = v.layer as usize * VPL_FLOATS;
+                vpl_data[at..at + VPL_FLOATS].copy_from_slice(&vpl_floats(light, v, local, ism));
+                vpl_count = vpl_count.max(local + 1);
+                if ism || chunk_count > 1 || new.contains(&v.layer) {
+                    vpl_slots.push(ShadowSlot {
+                        position: v.position,
+                        normal: v.normal,
+                        layer: local,
+                    });
+                }
+            }
+            let (layers, ism_slots) = if ism {
+                (Vec::new(), vpl_slots.len() as u32)
+            } else {
+                (vpl_slots.iter().map(|s| s.layer).collect(), 0)
+            };
+            // A staged pass renders into the staging image's layers 0 (spotlight), 1, 2, ..
+            let staged = self.shadow.staged(layers.len());
+            let spot_slot = ShadowSlot {
+                layer: if staged { 0 } else { cap },
+                ..spot
+            };
+            slot_data.extend_from_slice(&spot_slot.to_floats());
+            for (i, slot) in vpl_slots.iter().enumerate() {
+                let layer = if staged && !ism {
+                    i as u32 + 1
+                } else {
+                    slot.layer
+                };
+                slot_data.extend_from_slice(&ShadowSlot { layer, ..*slot }.to_floats());
+            }
+            chunks.push(Chunk {
+                first_vpl: c * cap,
+                vpl_count,
+                first_slot,
+                layers,
+                ism_slots,
+            });
+        }
+        self.vpl_buffer.write(0, &as_bytes(&vpl_data))?;
+        self.slots.write(0, &as_bytes(&slot_data))?;
+        Ok(chunks)
+    }
+
+    /// Checks the VPLs against this renderer's capacity; returns the VPL layers of a chunk and
+    /// the number of chunks the VPLs' layers need.
+    fn check_capacity(&self, vpls: &[Vpl]) -> Result<(u32, u32)> {
         if vpls.len() > self.max_vpls as usize {
             return Err(Error::Input(format!(
                 "{} VPLs exceed this renderer's {}",
@@ -275,51 +467,23 @@ impl GiRenderer {
         let cap = self.shadow.vpl_layers;
         let max_layer = vpls.iter().map(|v| v.layer).max().unwrap_or(0);
         let chunk_count = max_layer / cap + 1;
+        if chunk_count * cap > self.vpl_entries {
+            return Err(Error::Input(format!(
+                "VPL layer {max_layer} exceeds this renderer's {} VPL entries",
+                self.vpl_entries
+            )));
+        }
         if vpls.len() as u32 + chunk_count > self.max_slots {
             return Err(Error::Input(format!(
                 "VPL layers up to {max_layer} need too many chunks"
             )));
         }
-        let new: HashSet<u32> = new_layers.iter().copied().collect();
-        let spot = ShadowSlot {
-            position: light.position,
-            normal: light.axis(),
-            layer: cap,
-        };
-        let mut vpl_data: Vec<f32> = Vec::with_capacity(vpls.len() * VPL_FLOATS);
-        let mut slot_data: Vec<f32> =
-            Vec::with_capacity((vpls.len() + chunk_count as usize) * SLOT_FLOATS);
-        let mut chunks = Vec::with_capacity(chunk_count as usize);
-        for c in 0..chunk_count {
-            let first_vpl = (vpl_data.len() / VPL_FLOATS) as u32;
-            let first_slot = (slot_data.len() / SLOT_FLOATS) as u32;
-            slot_data.extend_from_slice(&spot.to_floats());
-            let mut layers = Vec::new();
-            for v in vpls.iter().filter(|v| v.layer / cap == c) {
-                let local = v.layer - c * cap;
-                vpl_data.extend_from_slice(&vpl_floats(light, v, local));
-                if chunk_count > 1 || new.contains(&v.layer) {
-                    let slot = ShadowSlot {
-                        position: v.position,
-                        normal: v.normal,
-                        layer: local,
-                    };
-                    slot_data.extend_from_slice(&slot.to_floats());
-                    layers.push(local);
-                }
-            }
-            chunks.push(Chunk {
-                first_vpl,
-                vpl_count: (vpl_data.len() / VPL_FLOATS) as u32 - first_vpl,
-                first_slot,
-                layers,
-            });
+        if self.ism.is_some() && chunk_count > 1 {
+            return Err(Error::Input(format!(
+                "VPL layer {max_layer} is beyond the imperfect shadow maps' {cap} layers"
+            )));
         }
-        if !vpl_data.is_empty() {
-            self.vpl_buffer.write(0, &as_bytes(&vpl_data))?;
-        }
-        self.slots.write(0, &as_bytes(&slot_data))?;
-        Ok(chunks)
+        Ok((cap, chunk_count))
     }
 
     /// The compute push block: spotlight, far distance, power, output mode and the biases;
@@ -367,6 +531,19 @@ impl GiRenderer {
             chunk.first_slot,
             &chunk.layers,
         )?;
+        match (&self.ism, &self.ism_unused) {
+            (Some(ism), _) => ism.record(
+                &mut self.recorder,
+                &self.graphics_layout,
+                (self.descriptors.get(2), self.descriptors.get(3)),
+                gpush,
+                (chunk.first_slot + 1, chunk.ism_slots),
+                self.far,
+            )?,
+            (None, Some(unused)) => self.recorder.transition(unused, ImageUse::SampledByCompute),
+            (None, None) => {}
+        }
+        self.stamp(Stamp::Shadow)?;
         self.recorder
             .bind_compute_set(&self.compute_layout, self.descriptors.get(1));
         cpush[12..16].copy_from_slice(&[
@@ -378,8 +555,9 @@ impl GiRenderer {
         self.recorder
             .push_constants(&self.compute_layout, &as_bytes(&cpush[..]));
         self.gbuffer
-            .record_dispatch(&mut self.recorder, &self.gather);
+            .record_half_dispatch(&mut self.recorder, &self.gather);
         self.gbuffer.record_compute_barrier(&mut self.recorder);
+        self.stamp(Stamp::Gather)?;
         Ok(maps)
     }
 
@@ -394,8 +572,10 @@ impl GiRenderer {
     }
 }
 
-/// The gather's three vec4 for one VPL: position and chunk-local layer, normal, flux.
-fn vpl_floats(light: &Spotlight, v: &Vpl, local_layer: u32) -> [f32; VPL_FLOATS] {
+/// The gather's three vec4 for one VPL: position and chunk-local layer, normal and 1 (an
+/// occupied entry; free layers are all zero), flux and 1 if its visibility comes from the
+/// imperfect shadow maps.
+fn vpl_floats(light: &Spotlight, v: &Vpl, local_layer: u32, ism: bool) -> [f32; VPL_FLOATS] {
     let flux = light.power * v.weight * v.albedo;
     let (p, n) = (v.position, v.normal);
     [
@@ -406,16 +586,17 @@ fn vpl_floats(light: &Spotlight, v: &Vpl, local_layer: u32) -> [f32; VPL_FLOATS]
         n.x,
         n.y,
         n.z,
-        0.0,
+        1.0,
         flux.x,
         flux.y,
         flux.z,
-        0.0,
+        if ism { 1.0 } else { 0.0 },
     ]
 }
 
 /// The graphics layout (set 0: world-space vertices, shadow slots) and the compute layout
-/// (G-buffer position, normal, albedo; VPLs; shadow maps; indirect; output).
+/// (G-buffer position, normal, albedo; VPLs; shadow maps; indirect; output; half-resolution
+/// position and normal; blurred indirect; imperfect shadow maps).
 fn create_layouts(ctx: &Arc<GpuContext>) -> Result<(PipelineLayout, PipelineLayout)> {
     let storage = vk::DescriptorType::STORAGE_BUFFER;
     let image = vk::DescriptorType::STORAGE_IMAGE;
@@ -423,28 +604,120 @@ fn create_layouts(ctx: &Arc<GpuContext>) -> Result<(PipelineLayout, PipelineLayo
     let graphics = PipelineLayout::new(ctx, &[storage, storage], GRAPHICS_PUSH)?;
     let compute = PipelineLayout::new(
         ctx,
-        &[image, image, image, storage, sampled, image, image],
+        &[
+            image, image, image, storage, sampled, image, image, image, image, image, sampled,
+        ],
         COMPUTE_PUSH,
     )?;
     Ok((graphics, compute))
 }
 
-/// The compute set's bindings, in the order of [`create_layouts`].
-fn compute_bindings<'a>(
-    gbuffer: &'a GBuffer,
+/// What the descriptor sets point at.
+struct Resources<'a> {
+    vertices: &'a Buffer,
+    slots: &'a Buffer,
     vpls: &'a Buffer,
+    gbuffer: &'a GBuffer,
     shadow: &'a ShadowMaps,
     sampler: &'a Sampler,
-) -> [Binding<'a>; 7] {
-    [
-        Binding::StorageImage(&gbuffer.position),
-        Binding::StorageImage(&gbuffer.normal),
-        Binding::StorageImage(&gbuffer.albedo),
-        Binding::StorageBuffer(vpls),
-        Binding::Sampled(&shadow.image, sampler),
-        Binding::StorageImage(&gbuffer.indirect),
-        Binding::StorageImage(&gbuffer.output),
-    ]
+    ism: Option<&'a ImperfectShadowMaps>,
+    ism_unused: Option<&'a Image>,
+}
+
+/// Set 0: the graphics set (vertices, slots); set 1: the compute set (in the order of
+/// [`create_layouts`]); with imperfect shadow maps, set 2: the splat set (points, slots) and
+/// set 3: the pull-push set (splats sampled, maps as storage).
+fn create_sets(
+    ctx: &Arc<GpuContext>,
+    graphics: &PipelineLayout,
+    compute: &PipelineLayout,
+    r: &Resources,
+) -> Result<DescriptorSets> {
+    let ism_maps = match (r.ism, r.ism_unused) {
+        (Some(ism), _) => &ism.maps,
+        (None, Some(unused)) => unused,
+        (None, None) => return Err(Error::Input("GI needs an ISM map image".into())),
+    };
+    let g = r.gbuffer;
+    let graphics_set = [
+        Binding::StorageBuffer(r.vertices),
+        Binding::StorageBuffer(r.slots),
+    ];
+    let compute_set = [
+        Binding::StorageImage(&g.position),
+        Binding::StorageImage(&g.normal),
+        Binding::StorageImage(&g.albedo),
+        Binding::StorageBuffer(r.vpls),
+        Binding::Sampled(&r.shadow.image, r.sampler),
+        Binding::StorageImage(&g.indirect),
+        Binding::StorageImage(&g.output),
+        Binding::StorageImage(&g.half_position),
+        Binding::StorageImage(&g.half_normal),
+        Binding::StorageImage(&g.blurred),
+        Binding::Sampled(ism_maps, r.sampler),
+    ];
+    let Some(ism) = r.ism else {
+        return DescriptorSets::new(ctx, &[(graphics, &graphics_set), (compute, &compute_set)]);
+    };
+    let splat_set = [
+        Binding::StorageBuffer(&ism.points),
+        Binding::StorageBuffer(r.slots),
+    ];
+    let pull_push_set = [
+        Binding::Sampled(&ism.depth, r.sampler),
+        Binding::StorageImage(&ism.maps),
+    ];
+    DescriptorSets::new(
+        ctx,
+        &[
+            (graphics, &graphics_set),
+            (compute, &compute_set),
+            (graphics, &splat_set),
+            (ism.pull_push_layout(), &pull_push_set),
+        ],
+    )
+}
+
+/// The imperfect shadow maps if `options` asks for them; without them, the unused image the
+/// gather's ISM binding points at instead.
+fn create_ism(
+    ctx: &Arc<GpuContext>,
+    graphics_layout: &PipelineLayout,
+    geometry: &WorldGeometry,
+    vpl_layers: u32,
+    options: Option<IsmOptions>,
+) -> Result<(Option<ImperfectShadowMaps>, Option<Image>)> {
+    if let Some(o) = options {
+        let ism = ImperfectShadowMaps::new(ctx, graphics_layout, geometry, vpl_layers, o)?;
+        return Ok((Some(ism), None));
+    }
+    let unused = Image::new(
+        ctx,
+        "ism maps (unused)",
+        ism::MAP_FORMAT,
+        (1, 1),
+        2,
+        vk::ImageUsageFlags::SAMPLED,
+    )?;
+    Ok((None, Some(unused)))
+}
+
+/// The device limits the renderer relies on beyond the baseline, and its own inputs.
+fn check_device(ctx: &GpuContext, options: &GiOptions) -> Result<()> {
+    if options.vpl_layers == 0 || options.shadow_size == 0 {
+        return Err(Error::Input(
+            "GI needs at least one VPL layer and a non-empty shadow map".into(),
+        ));
+    }
+    if ctx.info.max_per_stage_storage_images < STORAGE_IMAGES {
+        return Err(Error::Unsupported {
+            feature: format!(
+                "{STORAGE_IMAGES} storage images in a compute shader (the device allows {})",
+                ctx.info.max_per_stage_storage_images
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// The geometry's triangles as the shaders' vertex floats, long triangles split so the

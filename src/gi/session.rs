@@ -10,6 +10,7 @@ use glam::Vec3;
 use serde::Serialize;
 
 use super::geometry::WorldGeometry;
+use super::ism::IsmOptions;
 use super::light::Spotlight;
 use super::raycast::RayScene;
 use super::renderer::{GiFrame, GiOptions, GiRenderer};
@@ -26,6 +27,9 @@ pub enum GiMode {
     Incremental,
     /// Keller's instant radiosity: all N VPLs and shadow maps every frame.
     Full,
+    /// Imperfect shadow maps (Ritschel et al. 2008): all N VPLs every frame, their maps splatted
+    /// from surface points and hole-filled, all rebuilt every frame.
+    Ism,
 }
 
 impl GiMode {
@@ -34,17 +38,20 @@ impl GiMode {
         match self {
             GiMode::Incremental => "incremental",
             GiMode::Full => "full",
+            GiMode::Ism => "ism",
         }
     }
 
-    /// Parses `incremental`, `full` or `both`.
+    /// Parses `incremental`, `full`, `ism`, `both` (incremental and full) or `all`.
     pub fn parse_list(s: &str) -> Result<Vec<GiMode>> {
         match s {
             "incremental" => Ok(vec![GiMode::Incremental]),
             "full" => Ok(vec![GiMode::Full]),
+            "ism" => Ok(vec![GiMode::Ism]),
             "both" => Ok(vec![GiMode::Incremental, GiMode::Full]),
+            "all" => Ok(vec![GiMode::Incremental, GiMode::Full, GiMode::Ism]),
             other => Err(Error::Input(format!(
-                "unknown GI mode \"{other}\" (incremental, full, both)"
+                "unknown GI mode \"{other}\" (incremental, full, ism, both, all)"
             ))),
         }
     }
@@ -163,8 +170,11 @@ pub struct GiRunOptions {
     pub modes: Vec<GiMode>,
     /// Shadow-map resolution.
     pub shadow_size: u32,
-    /// Frames compared with the reference (and shown in the strip).
+    /// Frames compared with the reference (and shown in the strip), spread over the frames
+    /// after the first.
     pub sample_frames: u32,
+    /// Imperfect shadow map sizes (ism mode).
+    pub ism: IsmOptions,
 }
 
 /// One mode's summary, in `summary.json`.
@@ -176,14 +186,28 @@ pub struct ModeSummary {
     pub frame_ms_p95: f64,
     /// Median of the VPL update alone, ms.
     pub update_ms_median: f64,
-    /// Median VPL shadow maps rendered per frame.
+    /// Median VPL shadow maps rendered per frame (imperfect ones in ism mode).
     pub shadow_maps_rendered_median: f64,
+    /// Median GPU time of the shadow-map passes, ms (timestamps; in ism mode the spotlight's
+    /// map, the splats and the pull-push).
+    pub shadow_ms_median: f64,
+    /// Median GPU time of the gather, ms (timestamps).
+    pub gather_ms_median: f64,
+    /// Median GPU time of the half-resolution blur of the gathered light, ms.
+    pub blur_ms_median: f64,
+    /// Median GPU time of the resolve (upsample, direct light, tone mapping), ms.
+    pub resolve_ms_median: f64,
+    /// Median GPU time of the G-buffer pass, ms.
+    pub gbuffer_ms_median: f64,
     /// N.
     pub vpls: usize,
     /// B.
     pub budget: usize,
-    /// Mean RMSE (tone-mapped RGB in 0..1) against the 4N-VPL full-recompute reference.
+    /// Mean RMSE (tone-mapped RGB in 0..1) against the 4N-VPL full-recompute reference over
+    /// the summary's `rmse_frames` (frames after the first, where the modes differ).
     pub rmse_vs_reference: f64,
+    /// The RMSE at each of `rmse_frames`, in order.
+    pub rmse_per_frame: Vec<f64>,
 }
 
 /// The report of a run.
@@ -201,6 +225,8 @@ pub struct GiSummary {
     pub size: String,
     /// Frames per mode.
     pub frames: u32,
+    /// The frames compared with the reference (all after the first, evenly spaced).
+    pub rmse_frames: Vec<u32>,
     /// Per mode, in run order.
     #[serde(serialize_with = "ordered")]
     pub algorithms: Vec<(String, ModeSummary)>,
@@ -222,7 +248,7 @@ impl GiSummary {
     /// A short table for the terminal.
     pub fn table(&self) -> String {
         let mut out = format!(
-            "{} ({} objects, {} triangles) on {}, {}, {} frames\n{:<12} {:>10} {:>10} {:>10} {:>8} {:>6} {:>6} {:>8}\n",
+            "{} ({} objects, {} triangles) on {}, {}, {} frames\n{:<12} {:>10} {:>10} {:>10} {:>10} {:>10} {:>8} {:>6} {:>6} {:>8}\n",
             self.scene,
             self.objects,
             self.triangles,
@@ -233,6 +259,8 @@ impl GiSummary {
             "median ms",
             "p95 ms",
             "update ms",
+            "shadow ms",
+            "gather ms",
             "maps",
             "N",
             "B",
@@ -240,32 +268,40 @@ impl GiSummary {
         );
         for (name, m) in &self.algorithms {
             out += &format!(
-                "{:<12} {:>10.2} {:>10.2} {:>10.2} {:>8.1} {:>6} {:>6} {:>8.4}\n",
+                "{:<12} {:>10.2} {:>10.2} {:>10.2} {:>10.2} {:>10.2} {:>8.1} {:>6} {:>6} {:>8.4}\n",
                 name,
                 m.frame_ms_median,
                 m.frame_ms_p95,
                 m.update_ms_median,
+                m.shadow_ms_median,
+                m.gather_ms_median,
                 m.shadow_maps_rendered_median,
                 m.vpls,
                 m.budget,
                 m.rmse_vs_reference
             );
         }
+        out += &format!(
+            "rmse: mean over frames {:?} (frame 0 excluded)\n",
+            self.rmse_frames
+        );
         out
     }
 }
 
-/// Frames sampled for the reference and the strip: `n` evenly spaced in `0..frames`.
+/// Frames sampled for the reference and the strip: `n` evenly spaced over the frames after the
+/// first (frame 0 is the same image in every mode, so it would flatter the comparison), the last
+/// frame included. A one-frame run samples frame 0.
 pub fn sample_frames(frames: u32, n: u32) -> Vec<u32> {
     if frames == 0 || n == 0 {
         return Vec::new();
     }
-    let n = n.min(frames);
-    if n == 1 {
-        return vec![frames - 1];
+    if frames == 1 {
+        return vec![0];
     }
-    let mut v: Vec<u32> = (0..n)
-        .map(|i| ((i as u64 * (frames - 1) as u64) / (n - 1) as u64) as u32)
+    let n = n.min(frames - 1);
+    let mut v: Vec<u32> = (1..=n)
+        .map(|k| 1 + ((k as u64 * (frames - 2) as u64) / n as u64) as u32)
         .collect();
     v.dedup();
     v
@@ -364,17 +400,17 @@ fn run_mode(
     mode: GiMode,
     sampled: &[u32],
 ) -> Result<ModeRun> {
-    let mut renderer = GiRenderer::new(
-        ctx,
-        geometry,
-        GiOptions {
-            width: opts.width,
-            height: opts.height,
-            vpl_layers: opts.vpls as u32,
-            max_vpls: opts.vpls as u32,
-            shadow_size: opts.shadow_size,
-        },
-    )?;
+    let options = GiOptions {
+        width: opts.width,
+        height: opts.height,
+        vpl_layers: opts.vpls as u32,
+        max_vpls: opts.vpls as u32,
+        shadow_size: opts.shadow_size,
+    };
+    let mut renderer = match mode {
+        GiMode::Ism => GiRenderer::with_ism(ctx, geometry, options, opts.ism)?,
+        _ => GiRenderer::new(ctx, geometry, options)?,
+    };
     let mut set = VplSet::new(opts.vpls, opts.budget);
     let mut run = ModeRun {
         mode,
@@ -388,7 +424,7 @@ fn run_mode(
         let start = Instant::now();
         let stats = match mode {
             GiMode::Incremental => set.update(&light, rays),
-            GiMode::Full => set.recompute_all(&light, rays),
+            GiMode::Full | GiMode::Ism => set.recompute_all(&light, rays),
         };
         let update = start.elapsed().as_secs_f64() * 1e3;
         let frame = renderer.frame(&light, set.vpls(), &stats.new_layers, camera)?;
@@ -442,17 +478,24 @@ pub fn run(
         device: ctx.info.name.clone(),
         size: format!("{}x{}", opts.width, opts.height),
         frames: opts.frames,
+        rmse_frames: sampled.clone(),
         algorithms: Vec::new(),
     };
+    // The last sampled frame of the reference and of every mode, side by side.
+    let mut side_by_side: Vec<Vec<u8>> = reference.last().cloned().into_iter().collect();
     for &mode in &opts.modes {
         let r = run_mode(ctx, &geometry, &rays, &path, &camera, opts, mode, &sampled)?;
         let m = summarize_mode(&r, &reference, opts);
         if let Some(dir) = out {
             save_mode_images(dir, opts, &r)?;
         }
+        side_by_side.extend(r.samples.last().cloned());
         summary.algorithms.push((mode.name().to_string(), m));
     }
     if let Some(dir) = out {
+        let (w, h) = (opts.width, opts.height);
+        save_strip(&dir.join("modes_strip.png"), w, h, &side_by_side)?;
+        plot_rmse(&dir.join("rmse.png"), &summary)?;
         let json = serde_json::to_string_pretty(&summary)
             .map_err(|e| Error::Input(format!("summary.json: {e}")))?;
         std::fs::write(dir.join("summary.json"), json)?;
@@ -472,7 +515,7 @@ fn summarize_mode(r: &ModeRun, reference: &[Vec<u8>], opts: &GiRunOptions) -> Mo
     let maps: Vec<f64> = r
         .frames
         .iter()
-        .map(|f| f.shadow_maps_rendered as f64)
+        .map(|f| (f.shadow_maps_rendered + f.ism_maps) as f64)
         .collect();
     let errors: Vec<f64> = r
         .samples
@@ -480,19 +523,51 @@ fn summarize_mode(r: &ModeRun, reference: &[Vec<u8>], opts: &GiRunOptions) -> Mo
         .zip(reference)
         .map(|(a, b)| rmse(a, b))
         .collect();
+    let median_of = |f: fn(&GiFrame) -> f64| {
+        let v: Vec<f64> = r.frames.iter().map(f).collect();
+        percentile(&v, 0.5)
+    };
     ModeSummary {
         frame_ms_median: percentile(&totals, 0.5),
         frame_ms_p95: percentile(&totals, 0.95),
         update_ms_median: percentile(&r.update_ms, 0.5),
         shadow_maps_rendered_median: percentile(&maps, 0.5),
+        shadow_ms_median: median_of(|f| f.shadow_ms),
+        gather_ms_median: median_of(|f| f.gather_ms),
+        blur_ms_median: median_of(|f| f.blur_ms),
+        resolve_ms_median: median_of(|f| f.resolve_ms),
+        gbuffer_ms_median: median_of(|f| f.gbuffer_ms),
         vpls: opts.vpls,
-        budget: if r.mode == GiMode::Full {
-            opts.vpls
-        } else {
+        budget: if r.mode == GiMode::Incremental {
             opts.budget
+        } else {
+            opts.vpls
         },
         rmse_vs_reference: errors.iter().sum::<f64>() / errors.len().max(1) as f64,
+        rmse_per_frame: errors,
     }
+}
+
+/// `rmse.png`: each mode's RMSE against the reference at the sampled frames.
+fn plot_rmse(path: &Path, summary: &GiSummary) -> Result<()> {
+    let series: Vec<(String, Vec<(u32, f64)>)> = summary
+        .algorithms
+        .iter()
+        .map(|(name, m)| {
+            let pts = summary
+                .rmse_frames
+                .iter()
+                .copied()
+                .zip(m.rmse_per_frame.iter().copied())
+                .collect();
+            (name.clone(), pts)
+        })
+        .collect();
+    let title = format!(
+        "{}: RMSE against the 4N reference along the light path",
+        summary.scene
+    );
+    crate::report::plot::plot_lines(path, &title, "RMSE (tone-mapped RGB)", &series)
 }
 
 /// Writes a mode's last frame (`<mode>.png`) and its sampled frames (`<mode>_strip.png`).

@@ -14,6 +14,10 @@ use crate::gpu::{
 
 /// Shadow-map depth format.
 pub const SHADOW_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
+/// Layers of the staging image: a pass that renders at most this many maps (the spotlight's
+/// included) renders them there and copies them into the array, so the rendering spans a few
+/// layers instead of all of them (lavapipe's cost grows with a rendering's layers).
+pub const STAGING_LAYERS: u32 = 16;
 
 /// One shadow map to render this pass: an origin, the hemisphere's axis and its layer.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -40,6 +44,8 @@ pub struct ShadowMaps {
     pipeline: Pipeline,
     /// The D32 array: layers `0..vpl_layers` for VPLs, layer `vpl_layers` for the spotlight.
     pub image: Image,
+    /// Small passes render here first (layer 0 the spotlight, then the VPLs in order).
+    staging: Image,
     /// Width and height of each layer.
     pub size: u32,
     /// Layers available to VPLs.
@@ -76,7 +82,17 @@ impl ShadowMaps {
             SHADOW_FORMAT,
             (size, size),
             layers,
-            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::SAMPLED,
+            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT
+                | vk::ImageUsageFlags::SAMPLED
+                | vk::ImageUsageFlags::TRANSFER_DST,
+        )?;
+        let staging = Image::new(
+            ctx,
+            "shadow map staging",
+            SHADOW_FORMAT,
+            (size, size),
+            STAGING_LAYERS.min(layers).max(2),
+            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
         )?;
         let pipeline = Pipeline::graphics(
             ctx,
@@ -102,6 +118,7 @@ impl ShadowMaps {
         Ok(ShadowMaps {
             pipeline,
             image,
+            staging,
             size,
             vpl_layers,
         })
@@ -110,6 +127,13 @@ impl ShadowMaps {
     /// The spotlight's layer.
     pub fn spot_layer(&self) -> u32 {
         self.vpl_layers
+    }
+
+    /// Whether a pass of `vpl_maps` VPL maps (plus the spotlight's) renders into the staging
+    /// image: then the spotlight's slot must name layer 0 and the VPLs' slots layers 1, 2, ..
+    /// in the order of the pass's layers.
+    pub fn staged(&self, vpl_maps: usize) -> bool {
+        vpl_maps < self.staging.layers as usize
     }
 
     /// Records one layered pass that clears and renders the spotlight's layer and the layers of
@@ -131,7 +155,18 @@ impl ShadowMaps {
                 self.vpl_layers
             )));
         }
-        self.begin(rec, vpl_layers)?;
+        let staged = self.staged(vpl_layers.len());
+        if staged {
+            rec.discard(&self.staging, ImageUse::DepthAttachment);
+            let depth = Attachment {
+                image: &self.staging,
+                load: Load::ClearDepth(1.0),
+                store: true,
+            };
+            rec.begin_rendering(&[], Some(depth), vpl_layers.len() as u32 + 1)?;
+        } else {
+            self.begin(rec, vpl_layers)?;
+        }
         rec.bind_pipeline(&self.pipeline);
         rec.bind_graphics_set(pass.layout, pass.set);
         // The spotlight's map: one instance.
@@ -148,6 +183,16 @@ impl ShadowMaps {
         }
         let maps = (rec.counts.triangles - before) / (pass.vertex_count as u64 / 3).max(1);
         rec.end_rendering();
+        if staged {
+            rec.transition(&self.staging, ImageUse::TransferSrc);
+            rec.transition(&self.image, ImageUse::TransferDst);
+            let pairs: Vec<(u32, u32)> = std::iter::once(self.spot_layer())
+                .chain(vpl_layers.iter().copied())
+                .enumerate()
+                .map(|(i, l)| (i as u32, l))
+                .collect();
+            rec.copy_layers(&self.staging, &self.image, &pairs)?;
+        }
         rec.transition(&self.image, ImageUse::SampledByCompute);
         Ok(maps as u32)
     }

@@ -654,6 +654,63 @@ impl Recorder {
         self.barrier(&[], &[b]);
     }
 
+    /// Copies whole layers of `src` (in [`ImageUse::TransferSrc`]) to layers of `dst` (in
+    /// [`ImageUse::TransferDst`]): each pair is (source layer, destination layer). The images
+    /// must have the same format and extent, and the layers must exist (checked here).
+    pub fn copy_layers(&mut self, src: &Image, dst: &Image, pairs: &[(u32, u32)]) -> Result<()> {
+        if src.format != dst.format || src.extent != dst.extent {
+            return Err(Error::Input(
+                "layer copy between images of different format or size".into(),
+            ));
+        }
+        if let Some(&(s, d)) = pairs
+            .iter()
+            .find(|&&(s, d)| s >= src.layers || d >= dst.layers)
+        {
+            return Err(Error::Input(format!(
+                "layer copy {s} -> {d} outside {} / {} layers",
+                src.layers, dst.layers
+            )));
+        }
+        let layer = |l: u32| vk::ImageSubresourceLayers {
+            aspect_mask: src.aspect(),
+            mip_level: 0,
+            base_array_layer: l,
+            layer_count: 1,
+        };
+        let extent = vk::Extent3D {
+            width: src.extent.width,
+            height: src.extent.height,
+            depth: 1,
+        };
+        let regions: Vec<vk::ImageCopy> = pairs
+            .iter()
+            .map(|&(s, d)| vk::ImageCopy {
+                src_subresource: layer(s),
+                src_offset: vk::Offset3D::default(),
+                dst_subresource: layer(d),
+                dst_offset: vk::Offset3D::default(),
+                extent,
+            })
+            .collect();
+        if regions.is_empty() {
+            return Ok(());
+        }
+        // SAFETY: recording outside rendering; the images are in the transfer layouts named
+        // above (the caller's transitions), same format and extent, layers checked.
+        unsafe {
+            self.device.cmd_copy_image(
+                self.cmd,
+                src.handle,
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                dst.handle,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &regions,
+            )
+        };
+        Ok(())
+    }
+
     /// Copies an image layer to a buffer.
     pub(crate) fn copy_image_to_buffer(
         &mut self,

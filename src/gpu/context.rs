@@ -237,6 +237,8 @@ pub struct DeviceInfo {
     pub max_compute_work_group_count: [u32; 3],
     /// Largest draw count of one indirect draw.
     pub max_draw_indirect_count: u32,
+    /// Most storage images one shader stage may access.
+    pub max_per_stage_storage_images: u32,
     /// Optional features found on the device (and enabled when present).
     pub optional: OptionalFeatures,
 }
@@ -840,6 +842,7 @@ fn describe(
         max_compute_work_group_count: props.limits.max_compute_work_group_count,
         max_draw_indirect_count: props.limits.max_draw_indirect_count,
         optional: OptionalFeatures::default(),
+        max_per_stage_storage_images: props.limits.max_per_stage_descriptor_storage_images,
     };
     (props, info)
 }

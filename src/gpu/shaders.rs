@@ -32,6 +32,12 @@ pub const GI_SHADOW_VERT: &[u8] = spirv!("gi_shadow.vert");
 pub const GI_GATHER_COMP: &[u8] = spirv!("gi_gather.comp");
 /// GI resolve: blur, direct light, tone mapping (compute).
 pub const GI_RESOLVE_COMP: &[u8] = spirv!("gi_resolve.comp");
+/// GI blur of the gathered light (compute).
+pub const GI_BLUR_COMP: &[u8] = spirv!("gi_blur.comp");
+/// GI imperfect shadow maps: point splats (vertex).
+pub const GI_ISM_SPLAT_VERT: &[u8] = spirv!("gi_ism_splat.vert");
+/// GI imperfect shadow maps: pull-push hole filling (compute).
+pub const GI_ISM_PULL_PUSH_COMP: &[u8] = spirv!("gi_ism_pull_push.comp");
 
 /// Hi-Z: one level of the depth pyramid (farthest depth of 2x2 blocks) (compute).
 pub const HIZ_REDUCE_COMP: &[u8] = spirv!("hiz_reduce.comp");

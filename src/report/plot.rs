@@ -95,8 +95,10 @@ fn draw_chart(
         .y_label_formatter(&|v: &f64| {
             if top >= 20.0 {
                 format!("{v:.0}")
-            } else {
+            } else if top >= 2.0 {
                 format!("{v:.1}")
+            } else {
+                format!("{v:.3}")
             }
         })
         .draw()
@@ -142,6 +144,25 @@ pub fn plot_frametime(
         .map(|(name, pts)| (name.as_str(), pts.clone()))
         .collect();
     draw_chart(&root, title, "frame time [ms]", &lines).map_err(|e| plot_err(path, e))?;
+    root.present().map_err(|e| plot_err(path, e))
+}
+
+/// Line plot (1280x720) of any per-frame value: one line per series over the frame index,
+/// with `title`, the y axis named `y_desc`, and a legend.
+pub fn plot_lines(
+    path: &Path,
+    title: &str,
+    y_desc: &str,
+    series: &[(String, Vec<(u32, f64)>)],
+) -> Result<(), Error> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, (1280, 720)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+    let lines: Vec<(&str, Vec<(u32, f64)>)> = series
+        .iter()
+        .map(|(name, pts)| (name.as_str(), pts.clone()))
+        .collect();
+    draw_chart(&root, title, y_desc, &lines).map_err(|e| plot_err(path, e))?;
     root.present().map_err(|e| plot_err(path, e))
 }
 

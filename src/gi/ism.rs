@@ -1,0 +1,250 @@
+//! Imperfect shadow maps (Ritschel et al. 2008): the scene as a fixed set of surface points,
+//! sampled once (area-weighted); every frame each VPL's small paraboloid map is splatted from its
+//! own subset of the points (point i belongs to VPL i mod n), all maps in one pass into one
+//! layered depth image, then holes are filled by pull-push into a float map array that the
+//! gather samples. Every map is rebuilt every frame, so moving geometry needs no bookkeeping.
+
+use std::sync::Arc;
+
+use ash::vk;
+use glam::Vec3;
+use gpu_allocator::MemoryLocation;
+
+use super::geometry::WorldGeometry;
+use crate::error::{Error, Result};
+use crate::gpu::{
+    as_bytes, shaders, Attachment, Buffer, ComputePipeline, DescriptorSet, GpuContext, Image,
+    ImageUse, Load, Pipeline, PipelineDesc, PipelineKind, PipelineLayout, Recorder,
+};
+use crate::scene::mesh::Rng;
+
+/// Depth format of the splatted maps.
+const SPLAT_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
+/// Format of the hole-filled maps the gather samples.
+pub const MAP_FORMAT: vk::Format = vk::Format::R32_SFLOAT;
+/// Workgroup edge of the pull-push shader (one workgroup per map).
+const PULL_PUSH_GROUP: u32 = 8;
+/// Largest map edge the pull-push shader's shared-memory pyramid holds.
+pub const MAX_MAP_SIZE: u32 = 32;
+/// Shared memory the pull-push pyramid needs: values and weights of a 32² pyramid.
+const PULL_PUSH_SHARED_BYTES: u32 = 2 * 4 * 1365;
+
+/// Sizes of the imperfect shadow maps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IsmOptions {
+    /// Edge of each VPL's map in texels (a power of two, at most [`MAX_MAP_SIZE`]).
+    pub map_size: u32,
+    /// Surface points splatted into each map.
+    pub points_per_vpl: u32,
+}
+
+impl Default for IsmOptions {
+    fn default() -> Self {
+        IsmOptions {
+            map_size: 32,
+            points_per_vpl: 2048,
+        }
+    }
+}
+
+/// `count` points on the surfaces of `geometry`, area-weighted (uniform per unit area), in a
+/// deterministic random order, as vec4 (w = 1). Any contiguous or strided subset is itself a
+/// uniform sample of the surfaces.
+pub fn sample_surface_points(geometry: &WorldGeometry, count: usize, seed: u64) -> Vec<[f32; 4]> {
+    let mut cumulative = Vec::with_capacity(geometry.triangles.len());
+    let mut total = 0.0f64;
+    for t in &geometry.triangles {
+        total += f64::from(0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length());
+        cumulative.push(total);
+    }
+    if total <= 0.0 {
+        return Vec::new();
+    }
+    let mut rng = Rng::new(seed);
+    (0..count)
+        .map(|_| {
+            let u = f64::from(rng.f32()) * total;
+            let i = cumulative
+                .partition_point(|&c| c <= u)
+                .min(cumulative.len() - 1);
+            let t = geometry.triangles[i];
+            let (mut a, mut b) = (rng.f32(), rng.f32());
+            if a + b > 1.0 {
+                (a, b) = (1.0 - a, 1.0 - b);
+            }
+            let p: Vec3 = t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b;
+            [p.x, p.y, p.z, 1.0]
+        })
+        .collect()
+}
+
+/// The point buffer, the layered splat target, the hole-filled maps and their passes.
+pub struct ImperfectShadowMaps {
+    // Pipelines and sets before what they refer to.
+    splat: Pipeline,
+    pull_push: ComputePipeline,
+    pull_push_layout: PipelineLayout,
+    /// Layered depth image: one `map_size`² layer per VPL layer, splatted every frame.
+    pub depth: Image,
+    /// The hole-filled maps (R32F, one layer per VPL layer), sampled by the gather.
+    pub maps: Image,
+    /// The surface points (vec4 each).
+    pub points: Buffer,
+    /// Points drawn per frame.
+    pub point_count: u32,
+    /// Edge of each map.
+    pub map_size: u32,
+    /// Layers (VPL layers; at least 2 so the views are arrays).
+    pub layers: u32,
+}
+
+impl ImperfectShadowMaps {
+    /// Samples `points_per_vpl * vpl_layers` points of `geometry` and creates the images and
+    /// passes, after checking the device limits they rely on.
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        graphics_layout: &PipelineLayout,
+        geometry: &WorldGeometry,
+        vpl_layers: u32,
+        options: IsmOptions,
+    ) -> Result<ImperfectShadowMaps> {
+        let size = options.map_size;
+        if !size.is_power_of_two() || !(4..=MAX_MAP_SIZE).contains(&size) {
+            return Err(Error::Input(format!(
+                "imperfect shadow maps must be 4 to {MAX_MAP_SIZE} texels, a power of two (got {size})"
+            )));
+        }
+        check_limits(ctx, vpl_layers)?;
+        let layers = vpl_layers.max(2);
+        let count = u64::from(options.points_per_vpl) * u64::from(vpl_layers);
+        let point_count = u32::try_from(count)
+            .ok()
+            .filter(|c| c.checked_mul(3).is_some())
+            .ok_or_else(|| Error::Input(format!("{count} ISM points are too many")))?;
+        let data = sample_surface_points(geometry, point_count as usize, 0x15a);
+        let mut points = Buffer::new(
+            ctx,
+            "ism points",
+            (data.len().max(1) * 16) as u64,
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            MemoryLocation::CpuToGpu,
+        )?;
+        if !data.is_empty() {
+            points.write(0, &as_bytes(&data))?;
+        }
+        let storage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
+        let depth_use =
+            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::SAMPLED;
+        let extent = (size, size);
+        let depth = Image::new(ctx, "ism splats", SPLAT_FORMAT, extent, layers, depth_use)?;
+        let maps = Image::new(ctx, "ism maps", MAP_FORMAT, extent, layers, storage)?;
+        let pull_push_layout = PipelineLayout::new(
+            ctx,
+            &[
+                vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+                vk::DescriptorType::STORAGE_IMAGE,
+            ],
+            16,
+        )?;
+        let pull_push = ComputePipeline::new(
+            ctx,
+            &pull_push_layout,
+            "ism pull-push",
+            shaders::GI_ISM_PULL_PUSH_COMP,
+        )?;
+        let splat = Pipeline::graphics(ctx, graphics_layout, &splat_desc())?;
+        Ok(ImperfectShadowMaps {
+            splat,
+            pull_push,
+            pull_push_layout,
+            depth,
+            maps,
+            points,
+            point_count: data.len() as u32,
+            map_size: size,
+            layers,
+        })
+    }
+
+    /// The pull-push pass's layout (its set: the splats sampled, the maps as storage).
+    pub fn pull_push_layout(&self) -> &PipelineLayout {
+        &self.pull_push_layout
+    }
+
+    /// Records the splat of every point into its VPL's layer (`slots` = (first, count) of the
+    /// slot buffer; `sets.0` binds the points and the slots in the graphics `layout`), then the
+    /// pull-push (`sets.1`) into `maps`, left sampled by compute.
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        layout: &PipelineLayout,
+        sets: (DescriptorSet, DescriptorSet),
+        push: &mut [f32; 24],
+        slots: (u32, u32),
+        far: f32,
+    ) -> Result<()> {
+        let (set, pull_push_set) = sets;
+        let (first_slot, vpl_count) = slots;
+        rec.discard(&self.depth, ImageUse::DepthAttachment);
+        let depth = Attachment {
+            image: &self.depth,
+            load: Load::ClearDepth(1.0),
+            store: true,
+        };
+        rec.begin_rendering(&[], Some(depth), self.layers)?;
+        if vpl_count > 0 && self.point_count > 0 {
+            rec.bind_pipeline(&self.splat);
+            rec.bind_graphics_set(layout, set);
+            push[19] = vpl_count as f32;
+            push[20] = first_slot as f32;
+            push[21] = far;
+            push[22] = self.map_size as f32;
+            rec.push_constants(layout, &as_bytes(&push[..]));
+            rec.draw(self.point_count * 3, 1);
+        }
+        rec.end_rendering();
+        rec.transition(&self.depth, ImageUse::SampledByCompute);
+        rec.discard(&self.maps, ImageUse::ComputeReadWrite);
+        rec.bind_compute_pipeline(&self.pull_push);
+        rec.bind_compute_set(&self.pull_push_layout, pull_push_set);
+        rec.dispatch(self.layers, 1, 1);
+        rec.transition(&self.maps, ImageUse::SampledByCompute);
+        Ok(())
+    }
+}
+
+/// The device limits the maps rely on: layered rendering over every VPL layer, a 64-invocation
+/// workgroup and the pull-push pyramid in shared memory.
+fn check_limits(ctx: &GpuContext, vpl_layers: u32) -> Result<()> {
+    let info = &ctx.info;
+    if vpl_layers.max(2) > info.max_framebuffer_layers.min(info.max_image_array_layers) {
+        return Err(Error::Input(format!(
+            "{vpl_layers} imperfect shadow maps exceed the device's {} framebuffer layers",
+            info.max_framebuffer_layers
+        )));
+    }
+    // Vulkan guarantees 128 invocations and 16 KiB of shared memory per workgroup; the
+    // pull-push shader uses 64 and under 11 KiB, so no device lacks them.
+    const _: () = assert!(PULL_PUSH_GROUP * PULL_PUSH_GROUP <= 128);
+    const _: () = assert!(PULL_PUSH_SHARED_BYTES <= 16384);
+    Ok(())
+}
+
+/// The splat pipeline: depth-only triangles (one small triangle per point), layered.
+fn splat_desc() -> PipelineDesc<'static> {
+    PipelineDesc {
+        name: "ism splat",
+        vert: shaders::GI_ISM_SPLAT_VERT,
+        frag: None,
+        vertex_stride: 0,
+        attributes: &[],
+        color_formats: &[],
+        color_write: false,
+        depth_format: SPLAT_FORMAT,
+        depth_compare: vk::CompareOp::LESS,
+        depth_write: true,
+        cull: vk::CullModeFlags::NONE,
+        kind: PipelineKind::Other,
+        depth_bias: (0.0, 0.0),
+    }
+}
