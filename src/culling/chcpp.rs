@@ -6,9 +6,7 @@
 use std::collections::VecDeque;
 
 use super::nohc::{NohcParams, NohcRule};
-use super::{
-    eye_inside, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose, View,
-};
+use super::{CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose, View};
 use crate::bvh::{DistanceQueue, ObjectBvh};
 use crate::error::Result;
 use crate::scene::mesh::Rng;
@@ -648,7 +646,7 @@ impl Chcpp {
         let bounds = &bvh.nodes[node as usize].bounds;
         if !view.frustum.intersects(bounds) {
             self.frustum_cull(node, stats);
-        } else if eye_inside(bounds, input.camera) {
+        } else if view.eye_inside(bounds) {
             self.traverse_unqueryable(bvh, node, view.eye, stats);
         } else if !self.was_visible(node) {
             self.query_previously_invisible(bvh, node, backend, stats)?;
@@ -860,13 +858,13 @@ impl Culler for Chcpp {
         backend: &mut dyn OcclusionBackend,
     ) -> Result<CullStats> {
         let bvh = input.bvh;
-        let view = View::new(input.camera);
+        let view = View::new(&input.view);
         let eye = view.eye;
         let mut stats = CullStats::default();
         self.begin_frame(bvh, eye);
         self.eye = eye;
         if let Some(rule) = self.nohc.as_mut() {
-            rule.begin_frame(bvh, input.camera.view_proj());
+            rule.begin_frame(bvh, input.view.view_proj);
         }
         while !self.traversal.is_empty() || !self.query_queue.is_empty() {
             // 1. Process finished occlusion queries.
@@ -960,7 +958,7 @@ mod tests {
         m.boxes_per_query.clear();
         let input = FrameInput {
             bvh,
-            camera: cam,
+            view: cam.into(),
             frame: f,
             exact_visible: None,
         };

@@ -13,7 +13,7 @@ use glam::Vec3;
 
 use crate::bvh::ObjectBvh;
 use crate::error::{Error, Result};
-use crate::scene::camera::{Camera, Frustum};
+use crate::scene::camera::{CameraView, Frustum};
 use crate::scene::Aabb;
 
 pub use chcpp::ChcppParams;
@@ -67,8 +67,9 @@ pub trait OcclusionBackend {
 pub struct FrameInput<'a> {
     /// The object hierarchy.
     pub bvh: &'a ObjectBvh,
-    /// The camera.
-    pub camera: &'a Camera,
+    /// The camera: view-projection matrix, eye and depth convention (`(&camera).into()` for
+    /// the built-in [`crate::scene::camera::Camera`]).
+    pub view: CameraView,
     /// Frame number (for temporal state).
     pub frame: u64,
     /// The exact visible set (only for cullers whose [`Culler::needs_exact_visibility`]).
@@ -207,25 +208,58 @@ pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
     })
 }
 
-/// Whether a node's query can't be trusted because the eye is inside (or the near plane cuts)
-/// its box: such a node is treated as visible without a query.
-pub fn eye_inside(bounds: &Aabb, camera: &Camera) -> bool {
-    bounds
-        .enlarged(camera.near_corner_distance() * 1.01)
-        .contains(camera.eye)
+/// Whether a node's query can't be trusted because the eye is inside its box or the near plane
+/// cuts it inside the view: such a node is treated as visible without a query. Works for any
+/// projection (perspective, off-axis, orthographic, reverse-Z, infinite far).
+pub fn eye_inside(bounds: &Aabb, view: &CameraView) -> bool {
+    View::new(view).eye_inside(bounds)
 }
 
-/// Helper shared by the algorithms: the frustum and eye of a frame.
+/// Helper shared by the algorithms: the frustum, eye and front-to-back origin of a frame.
 pub(crate) struct View {
     pub frustum: Frustum,
+    /// The point front-to-back order measures from ([`CameraView::order_point`]).
     pub eye: Vec3,
+    /// The true eye position.
+    camera_eye: Vec3,
+    /// The near-plane rectangle's bounding box, enlarged by `margin`.
+    near_box: Aabb,
+    margin: f32,
 }
 
 impl View {
-    pub fn new(camera: &Camera) -> View {
+    pub fn new(view: &CameraView) -> View {
+        let frustum = view.frustum();
+        let c = view.near_corners();
+        let center = (c[0] + c[1] + c[2] + c[3]) * 0.25;
+        let half = c.iter().map(|p| (*p - center).length()).fold(0.0, f32::max);
+        let margin = half * 0.02 + 1e-4;
+        let near_box = Aabb::new(
+            c.iter().fold(Vec3::INFINITY, |a, p| a.min(*p)),
+            c.iter().fold(Vec3::NEG_INFINITY, |a, p| a.max(*p)),
+        )
+        .enlarged(margin);
         View {
-            frustum: camera.frustum(),
-            eye: camera.eye,
+            frustum,
+            eye: view.order_point(),
+            camera_eye: view.eye,
+            near_box,
+            margin,
         }
+    }
+
+    /// See [`eye_inside`]: the eye is in the (slightly enlarged) box, or the box reaches the
+    /// near plane where the near rectangle is.
+    pub fn eye_inside(&self, bounds: &Aabb) -> bool {
+        let b = bounds.enlarged(self.margin);
+        if b.contains(self.camera_eye) {
+            return true;
+        }
+        let near = self.frustum.planes[4];
+        let n = near.truncate();
+        let closest = Vec3::select(n.cmpge(Vec3::ZERO), b.min, b.max);
+        let reaches_near = n.dot(closest) + near.w <= 0.0;
+        let touches = b.min.cmple(self.near_box.max).all() && self.near_box.min.cmple(b.max).all();
+        reaches_near && touches
     }
 }
