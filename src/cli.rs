@@ -98,6 +98,10 @@ pub struct WalkArgs {
     /// algorithm's missed objects and pixels (visible but not drawn).
     #[arg(long)]
     pub check: bool,
+    /// Latency modes of chc and chcpp, comma separated: in-frame (exact), next-frame (queries
+    /// read one frame late), next-frame-conservative. Reported as `ALGORITHM@MODE`.
+    #[arg(long, default_value = "in-frame", value_delimiter = ',')]
+    pub latency: Vec<String>,
     #[command(flatten)]
     pub chcpp: ChcppArgs,
     #[command(flatten)]
@@ -337,8 +341,13 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     for alg in &a.algorithms {
         culling::check_name(alg)?;
     }
+    let latencies = a
+        .latency
+        .iter()
+        .map(|l| culling::Latency::parse(l))
+        .collect::<coherent::Result<Vec<_>>>()?;
     let cfg = WalkConfig {
-        algorithms: a.algorithms.clone(),
+        algorithms: culling::with_latencies(&a.algorithms, &latencies),
         frames: a.frames,
         warmup: a.warmup,
         params,
@@ -408,7 +417,7 @@ fn walk_scale(
         path.name,
         a.frames,
         a.warmup,
-        a.algorithms.join(", "),
+        cfg.algorithms.join(", "),
         ctx.info.name
     );
     let records = {
@@ -427,7 +436,7 @@ fn walk_scale(
         &ctx.info.name,
         (w, h),
         &records,
-        &a.algorithms,
+        &cfg.algorithms,
     )?;
     if let Some(b) = &pvs {
         let outside = crate::cli_setup::frames_outside(&b.pvs, &path, a.frames, a.warmup);

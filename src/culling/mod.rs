@@ -76,6 +76,108 @@ pub struct FrameInput<'a> {
     pub exact_visible: Option<&'a [u32]>,
 }
 
+/// When a CHC-family culler reads its occlusion query results.
+///
+/// - `InFrame` (default): exact. A frame is a chain of submissions; a previously invisible
+///   node is traversed in the same frame once its query says visible, so nothing visible is
+///   missing. Costs round trips (submits) and waits (stalls) inside the frame.
+/// - `NextFrame`: every query is issued in frame N and read after it, for frame N+1: one
+///   submission per frame and no waits. Nodes use their last known visibility; an object that
+///   becomes visible appears one frame late (the pop). A result that is not back when read
+///   (a host with frames in flight) leaves the node's last known state.
+/// - `NextFrameConservative`: as `NextFrame`, but a node with no query result from the last
+///   frame (it entered the frustum, or its parent was just opened) is drawn rather than
+///   assumed invisible: fewer pops, more draws.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Latency {
+    /// Exact, segments within the frame.
+    #[default]
+    InFrame,
+    /// Results read one frame late.
+    NextFrame,
+    /// Results read one frame late; nodes without a recent result are drawn.
+    NextFrameConservative,
+}
+
+impl Latency {
+    /// Every mode, in the order reports list them.
+    pub const ALL: [Latency; 3] = [
+        Latency::InFrame,
+        Latency::NextFrame,
+        Latency::NextFrameConservative,
+    ];
+    /// The command-line name: `in-frame`, `next-frame`, `next-frame-conservative`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Latency::InFrame => "in-frame",
+            Latency::NextFrame => "next-frame",
+            Latency::NextFrameConservative => "next-frame-conservative",
+        }
+    }
+    /// Parses a command-line name.
+    pub fn parse(name: &str) -> Result<Latency> {
+        Latency::ALL
+            .into_iter()
+            .find(|l| l.name() == name)
+            .ok_or_else(|| {
+                Error::Input(format!(
+                    "unknown latency \"{name}\" (known: in-frame, next-frame, next-frame-conservative)"
+                ))
+            })
+    }
+    /// The report name of `algorithm` in this mode: the plain name in-frame, else
+    /// `ALGORITHM@MODE`.
+    pub fn report_name(self, algorithm: &str) -> String {
+        match self {
+            Latency::InFrame => algorithm.to_string(),
+            other => format!("{algorithm}@{}", other.name()),
+        }
+    }
+}
+
+/// Creates `chc` or `chcpp` (the algorithms with latency modes) reading its queries in
+/// `latency` mode; every other algorithm only in-frame.
+pub fn create_latency(
+    name: &str,
+    params: &ChcppParams,
+    latency: Latency,
+) -> Result<Box<dyn Culler>> {
+    match (name, latency) {
+        (_, Latency::InFrame) => create(name, params),
+        ("chcpp", l) => Ok(Box::new(chcpp::Chcpp::new(params.clone()).with_latency(l))),
+        ("chc", l) => Ok(Box::new(
+            chcpp::Chcpp::named("chc", ChcppParams::chc()).with_latency(l),
+        )),
+        (other, l) => Err(Error::Input(format!(
+            "{other} has no latency mode {} (only chc and chcpp)",
+            l.name()
+        ))),
+    }
+}
+
+/// `algorithms` with `chc` and `chcpp` expanded to one report name per latency mode in
+/// `modes` ([`Latency::report_name`]); the others once, in-frame.
+pub fn with_latencies(algorithms: &[String], modes: &[Latency]) -> Vec<String> {
+    let mut out = Vec::new();
+    for a in algorithms {
+        if a == "chc" || a == "chcpp" {
+            out.extend(modes.iter().map(|m| m.report_name(a)));
+        } else {
+            out.push(a.clone());
+        }
+    }
+    out
+}
+
+/// Creates an algorithm by report name: `ALGORITHM@MODE` (`chcpp@next-frame`) in a latency
+/// mode, else as [`create_with`].
+pub fn create_named(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> {
+    match name.split_once('@') {
+        Some((alg, mode)) => create_latency(alg, &setup.params, Latency::parse(mode)?),
+        None => create_with(name, setup),
+    }
+}
+
 /// What an algorithm did in a frame, from its own bookkeeping (the recorder's counts are the
 /// authority on queries and draws; tests cross-check these against them).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

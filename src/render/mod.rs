@@ -394,6 +394,11 @@ impl Renderer {
         self.recorder.log_drawn_objects(on);
     }
 
+    /// Objects the last frame drew, in draw order (with [`Renderer::log_drawn_objects`] on).
+    pub fn drawn_objects(&self) -> &[u32] {
+        self.recorder.drawn_objects()
+    }
+
     /// Compares what the last frame drew (the recorder's log, see
     /// [`Renderer::log_drawn_objects`]) with `pixels` from [`Renderer::object_pixels`] for the
     /// same camera.

@@ -145,6 +145,24 @@ pub fn plot_frametime(
     root.present().map_err(|e| plot_err(path, e))
 }
 
+/// Missed-pixels plot (1280x720): per frame, the pixels owned by objects an algorithm did not
+/// draw (the pop of the latency modes), one line per algorithm.
+pub fn plot_missed_pixels(
+    path: &Path,
+    title: &str,
+    series: &[(String, Vec<(u32, f64)>)],
+) -> Result<(), Error> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, (1280, 720)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+    let lines: Vec<(&str, Vec<(u32, f64)>)> = series
+        .iter()
+        .map(|(name, pts)| (name.as_str(), pts.clone()))
+        .collect();
+    draw_chart(&root, title, "missed pixels", &lines).map_err(|e| plot_err(path, e))?;
+    root.present().map_err(|e| plot_err(path, e))
+}
+
 /// A title font size that fits `title` into `width` pixels (DejaVu Sans averages about 0.55
 /// of its size per character).
 fn title_size(title: &str, width: u32, largest: u32) -> u32 {

@@ -320,6 +320,19 @@ pub fn perspective_infinite_reverse_rh(fov_y: f32, aspect: f32, near: f32) -> Ma
     )
 }
 
+/// Right-handed reverse-Z perspective projection with a finite far plane (near at depth 1,
+/// far at 0).
+pub fn perspective_reverse_rh(fov_y: f32, aspect: f32, near: f32, far: f32) -> Mat4 {
+    let f = 1.0 / (fov_y * 0.5).tan();
+    let r = far / (near - far);
+    Mat4::from_cols(
+        Vec4::new(f / aspect, 0.0, 0.0, 0.0),
+        Vec4::new(0.0, f, 0.0, 0.0),
+        Vec4::new(0.0, 0.0, -1.0 - r, -1.0),
+        Vec4::new(0.0, 0.0, -r * near, 0.0),
+    )
+}
+
 /// Right-handed off-axis (asymmetric) perspective projection, depth 0..1: the near-plane
 /// rectangle spans `left..right` and `bottom..top` at distance `near`.
 pub fn frustum_rh(left: f32, right: f32, bottom: f32, top: f32, near: f32, far: f32) -> Mat4 {
