@@ -1012,7 +1012,8 @@ impl Chcpp {
     }
 
     /// Marks `node` and its descendants visible in this frame, so the next frame opens them
-    /// all; leaves get their first re-test after a random delay, as when they turn visible.
+    /// all; their leaves are re-tested in that next frame (their results close the hidden ones
+    /// one frame later), so opening a large subtree costs its draws for two frames only.
     fn open_subtree(&mut self, bvh: &ObjectBvh, node: u32) {
         let mut stack = vec![node];
         while let Some(n) = stack.pop() {
@@ -1023,7 +1024,7 @@ impl Chcpp {
             s.tested = true;
             let b = &bvh.nodes[n as usize];
             if b.is_leaf() {
-                self.start_interval(n);
+                s.next_query = self.frame + 1;
             } else {
                 stack.extend_from_slice(&b.children);
             }

@@ -205,7 +205,7 @@ impl Renderer {
     ) -> Result<FrameResult> {
         let view: CameraView = camera.into();
         let exact = if culler.needs_exact_visibility() {
-            Some(self.exact_visible(bvh, &view)?)
+            Some(self.exact_visible(bvh, view)?)
         } else {
             None
         };

@@ -274,12 +274,6 @@ impl From<&Camera> for CameraView {
     }
 }
 
-impl From<Camera> for CameraView {
-    fn from(c: Camera) -> CameraView {
-        CameraView::from(&c)
-    }
-}
-
 impl From<&CameraView> for CameraView {
     fn from(v: &CameraView) -> CameraView {
         *v
