@@ -929,7 +929,7 @@ fn main() -> Result<()> {
         let start = std::time::Instant::now();
         let input = FrameInput {
             bvh: &bvh,
-            camera: &camera,
+            view: (&camera).into(),
             frame: frame as u64,
             exact_visible: None,
         };

@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use coherent::bvh::ObjectBvh;
-use coherent::culling::ChcppParams;
+use coherent::culling::{self, ChcppParams};
 use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
 use coherent::render::walk::{self, WalkConfig};
@@ -104,6 +104,10 @@ pub struct WalkArgs {
     /// algorithm's missed objects and pixels (visible but not drawn).
     #[arg(long)]
     pub check: bool,
+    /// Latency modes of chc and chcpp, comma separated: in-frame (exact), next-frame (queries
+    /// read one frame late), next-frame-conservative. Reported as `ALGORITHM@MODE`.
+    #[arg(long, default_value = "in-frame", value_delimiter = ',')]
+    pub latency: Vec<String>,
     #[command(flatten)]
     pub chcpp: ChcppArgs,
     #[command(flatten)]
@@ -365,8 +369,13 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     for alg in &a.algorithms {
         check_algorithm(alg, &params)?;
     }
+    let latencies = a
+        .latency
+        .iter()
+        .map(|l| culling::Latency::parse(l))
+        .collect::<coherent::Result<Vec<_>>>()?;
     let cfg = WalkConfig {
-        algorithms: a.algorithms.clone(),
+        algorithms: culling::with_latencies(&a.algorithms, &latencies),
         frames: a.frames,
         warmup: a.warmup,
         params,
@@ -439,7 +448,7 @@ fn walk_scale(
         path.name,
         a.frames,
         a.warmup,
-        a.algorithms.join(", "),
+        cfg.algorithms.join(", "),
         ctx.info.name
     );
     let records = {
@@ -458,7 +467,7 @@ fn walk_scale(
         &ctx.info.name,
         (w, h),
         &records,
-        &a.algorithms,
+        &cfg.algorithms,
     )?;
     if let Some(b) = &pvs {
         let outside = crate::cli_setup::frames_outside(&b.pvs, &path, a.frames, a.warmup);

@@ -14,7 +14,7 @@ fn walk_writes_csv_json_and_plots() {
     let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
         .args([
             "walk", "--scene", "city", "--scale", "0.05", "--path", "street", "--frames", "6",
-            "--warmup", "2",
+            "--warmup", "2", "--algorithms", "vfc,stop-and-wait,chc,chcpp,oracle",
         ])
         .args([
             "--size",
@@ -96,7 +96,7 @@ fn walk_writes_csv_json_and_plots() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits"
+        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels"
     );
     assert_eq!(lines.count(), 6 * 5);
     for png in ["frametime.png", "counts.png"] {

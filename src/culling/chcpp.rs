@@ -7,7 +7,7 @@ use std::collections::VecDeque;
 
 use super::nohc::{NohcParams, NohcRule};
 use super::{
-    eye_inside, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose, View,
+    CullStats, Culler, FrameInput, Latency, OcclusionBackend, QueryId, QueryPurpose, View,
 };
 use crate::bvh::{DistanceQueue, ObjectBvh};
 use crate::error::Result;
@@ -176,6 +176,10 @@ pub struct Chcpp {
     nohc: Option<NohcRule>,
     /// The eye of the current frame.
     eye: glam::Vec3,
+    /// When query results are read (see [`Latency`]).
+    latency: Latency,
+    /// Per node, the last frame a query result gave its state (for the conservative mode).
+    result_frame: Vec<u64>,
 }
 
 impl Chcpp {
@@ -208,6 +212,8 @@ impl Chcpp {
             batch: Vec::new(),
             nohc: None,
             eye: glam::Vec3::ZERO,
+            latency: Latency::InFrame,
+            result_frame: Vec::new(),
         }
     }
 
@@ -422,7 +428,7 @@ impl Chcpp {
             backend.restore_render_state()?;
         }
         if !self.params.batching && self.unsubmitted >= self.params.flush_interval {
-            backend.flush()?;
+            self.submit(backend)?;
             self.unsubmitted = 0;
         }
         Ok(())
@@ -473,7 +479,7 @@ impl Chcpp {
         self.batch.clear();
         self.batch.append(&mut self.v_queue);
         self.issue_batch_singly(bvh, QueryKind::Visible, backend, stats)?;
-        backend.flush()?;
+        self.submit(backend)?;
         self.unsubmitted = 0;
         Ok(())
     }
@@ -563,7 +569,7 @@ impl Chcpp {
         self.batch.clear();
         self.batch.extend(self.v_queue.drain(..n));
         self.issue_batch_singly(bvh, QueryKind::Visible, backend, stats)?;
-        backend.flush()?;
+        self.submit(backend)?;
         self.unsubmitted = 0;
         Ok(())
     }
@@ -583,6 +589,10 @@ impl Chcpp {
         let visible = pixels > self.params.pixel_threshold;
         if visible {
             stats.visible_results += 1;
+        }
+        if self.latency != Latency::InFrame {
+            self.handle_late_result(bvh, q, visible, stats);
+            return Ok(());
         }
         if let Some(rule) = self.nohc.as_mut() {
             for &n in &self.query_nodes[q.first as usize..(q.first + q.count) as usize] {
@@ -670,6 +680,10 @@ impl Chcpp {
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
+        if self.latency != Latency::InFrame {
+            // Results are read after the frame (for the next one).
+            return Ok(());
+        }
         while let Some(front) = self.query_queue.front() {
             let id = front.id;
             let pixels = match backend.query_result(id)? {
@@ -706,8 +720,10 @@ impl Chcpp {
         let bounds = &bvh.nodes[node as usize].bounds;
         if !view.frustum.intersects(bounds) {
             self.frustum_cull(node, stats);
-        } else if eye_inside(bounds, input.camera) {
+        } else if view.eye_inside(bounds) {
             self.traverse_unqueryable(bvh, node, view.eye, stats);
+        } else if !self.was_visible(node) && self.stale_in_latency_mode(node) {
+            self.traverse_conservatively(bvh, node, view.eye, stats);
         } else if !self.was_visible(node) {
             self.query_previously_invisible(bvh, node, backend, stats)?;
         } else {
@@ -841,7 +857,7 @@ impl Chcpp {
         self.issue_i_queue(bvh, backend, stats)?;
         if !self.params.batching && self.unsubmitted > 0 {
             self.flush_render_queue(backend)?;
-            backend.flush()?;
+            self.submit(backend)?;
             self.unsubmitted = 0;
         }
         Ok(())
@@ -861,7 +877,15 @@ impl Chcpp {
         self.issue_v_queue(bvh, rest, backend, stats)?;
         backend.finish()?;
         while let Some(q) = self.query_queue.pop_front() {
-            let pixels = backend.wait_query(q.id)?;
+            let pixels = if self.latency == Latency::InFrame {
+                backend.wait_query(q.id)?
+            } else {
+                // Never waits: a result not back yet leaves the last known state.
+                match backend.query_result(q.id)? {
+                    Some(p) => p,
+                    None => continue,
+                }
+            };
             self.handle_returned_query(bvh, q, pixels, eye, backend, stats)?;
         }
         Ok(())
@@ -920,15 +944,17 @@ impl Culler for Chcpp {
         backend: &mut dyn OcclusionBackend,
     ) -> Result<CullStats> {
         let bvh = input.bvh;
-        let view = View::new(input.camera);
+        let view = View::new(&input.view);
         let eye = view.eye;
         let mut stats = CullStats::default();
         self.begin_frame(bvh, eye);
         self.eye = eye;
         if let Some(rule) = self.nohc.as_mut() {
-            rule.begin_frame(bvh, input.camera.view_proj());
+            rule.begin_frame(bvh, input.view.view_proj);
         }
-        while !self.traversal.is_empty() || !self.query_queue.is_empty() {
+        // In a latency mode queries are read after the frame: only the traversal drives it.
+        let in_frame = self.latency == Latency::InFrame;
+        while !self.traversal.is_empty() || (in_frame && !self.query_queue.is_empty()) {
             // 1. Process finished occlusion queries.
             self.process_finished_queries(bvh, eye, backend, &mut stats)?;
             // 2. Hierarchical traversal.
@@ -951,6 +977,119 @@ impl Culler for Chcpp {
         }
         self.structure = u64::MAX;
         self.rng = Rng::new(self.params.seed);
+    }
+}
+
+/// The latency modes ([`Latency::NextFrame`], [`Latency::NextFrameConservative`]): queries are
+/// issued as in CHC++ but never read inside the frame; their results, read after it, decide the
+/// next frame.
+impl Chcpp {
+    /// The same culler reading its query results in `latency` mode.
+    pub fn with_latency(mut self, latency: Latency) -> Chcpp {
+        self.latency = latency;
+        self
+    }
+
+    /// The latency mode.
+    pub fn latency(&self) -> Latency {
+        self.latency
+    }
+
+    /// Submits recorded work so its queries can complete; in a latency mode nothing is
+    /// submitted before the frame's end (one submission per frame).
+    fn submit(&mut self, backend: &mut dyn OcclusionBackend) -> Result<()> {
+        if self.latency == Latency::InFrame {
+            backend.flush()?;
+        }
+        Ok(())
+    }
+
+    /// In the conservative mode, whether a node's last known state is too old to trust (no
+    /// query result for it last frame: it entered the frustum, or its parent was closed).
+    fn stale_in_latency_mode(&mut self, node: u32) -> bool {
+        if self.latency != Latency::NextFrameConservative {
+            return false;
+        }
+        if self.result_frame.len() != self.state.len() {
+            self.result_frame = vec![0; self.state.len()];
+        }
+        let r = self.result_frame[node as usize];
+        r == 0 || r + 1 < self.frame
+    }
+
+    /// Conservative mode: a node without a recent result is drawn rather than assumed
+    /// invisible; a leaf is queried at once (through the v-queue) so its state is fresh next
+    /// frame.
+    fn traverse_conservatively(
+        &mut self,
+        bvh: &ObjectBvh,
+        node: u32,
+        eye: glam::Vec3,
+        stats: &mut CullStats,
+    ) {
+        self.traverse_node(bvh, node, eye, stats);
+        let s = &mut self.state[node as usize];
+        s.last_visited = self.frame;
+        s.tested = true;
+        if bvh.nodes[node as usize].is_leaf() {
+            s.next_query = self.frame + self.params.visible_interval.max(1) as u64;
+            self.v_queue.push(node);
+        }
+    }
+
+    /// A result read after the frame: visible opens the node's whole subtree next frame (its
+    /// descendants have no state of their own yet; a failed multiquery opens every node of
+    /// it), invisible closes the node.
+    fn handle_late_result(
+        &mut self,
+        bvh: &ObjectBvh,
+        q: Pending,
+        visible: bool,
+        stats: &mut CullStats,
+    ) {
+        if self.result_frame.len() != self.state.len() {
+            self.result_frame = vec![0; self.state.len()];
+        }
+        let nodes = q.first as usize..(q.first + q.count) as usize;
+        for i in nodes {
+            let node = self.query_nodes[i];
+            self.result_frame[node as usize] = self.frame;
+            if !visible {
+                self.state[node as usize].visible = false;
+                if q.kind == QueryKind::Invisible {
+                    stats.query_culled += 1;
+                }
+            } else if q.kind == QueryKind::Invisible {
+                // Pull up first: it stops at a node already visible in this frame.
+                self.pull_up_visibility(bvh, node);
+                self.open_subtree(bvh, node);
+            } else {
+                self.pull_up_visibility(bvh, node);
+            }
+        }
+        if visible && q.count > 1 {
+            stats.failed_multiqueries += 1;
+        }
+    }
+
+    /// Marks `node` and its descendants visible in this frame, so the next frame opens them
+    /// all; their leaves are re-tested in that next frame (their results close the hidden ones
+    /// one frame later), so opening a large subtree costs its draws for two frames only.
+    fn open_subtree(&mut self, bvh: &ObjectBvh, node: u32) {
+        let mut stack = vec![node];
+        while let Some(n) = stack.pop() {
+            let s = &mut self.state[n as usize];
+            s.visible = true;
+            s.last_visited = self.frame;
+            s.last_visible = self.frame;
+            s.tested = true;
+            let b = &bvh.nodes[n as usize];
+            if b.is_leaf() {
+                s.next_query = self.frame + 1;
+            } else {
+                stack.extend_from_slice(&b.children);
+            }
+        }
     }
 }
 
@@ -1021,7 +1160,7 @@ mod tests {
         m.boxes_per_query.clear();
         let input = FrameInput {
             bvh,
-            camera: cam,
+            view: cam.into(),
             frame: f,
             exact_visible: None,
         };

@@ -45,7 +45,7 @@ use glam::Vec3;
 
 use crate::bvh::ObjectBvh;
 use crate::error::{Error, Result};
-use crate::scene::camera::{Camera, Frustum};
+use crate::scene::camera::{CameraView, Frustum};
 use crate::scene::Aabb;
 
 pub use chcpp::ChcppParams;
@@ -99,12 +99,115 @@ pub trait OcclusionBackend {
 pub struct FrameInput<'a> {
     /// The object hierarchy.
     pub bvh: &'a ObjectBvh,
-    /// The camera.
-    pub camera: &'a Camera,
+    /// The camera: view-projection matrix, eye and depth convention (`(&camera).into()` for
+    /// the built-in [`crate::scene::camera::Camera`]).
+    pub view: CameraView,
     /// Frame number (for temporal state).
     pub frame: u64,
     /// The exact visible set (only for cullers whose [`Culler::needs_exact_visibility`]).
     pub exact_visible: Option<&'a [u32]>,
+}
+
+/// When a CHC-family culler reads its occlusion query results.
+///
+/// - `InFrame` (default): exact. A frame is a chain of submissions; a previously invisible
+///   node is traversed in the same frame once its query says visible, so nothing visible is
+///   missing. Costs round trips (submits) and waits (stalls) inside the frame.
+/// - `NextFrame`: every query is issued in frame N and read after it, for frame N+1: one
+///   submission per frame and no waits. Nodes use their last known visibility; an object that
+///   becomes visible appears one frame late (the pop). A result that is not back when read
+///   (a host with frames in flight) leaves the node's last known state.
+/// - `NextFrameConservative`: as `NextFrame`, but a node with no query result from the last
+///   frame (it entered the frustum, or its parent was just opened) is drawn rather than
+///   assumed invisible: fewer pops, more draws.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Latency {
+    /// Exact, segments within the frame.
+    #[default]
+    InFrame,
+    /// Results read one frame late.
+    NextFrame,
+    /// Results read one frame late; nodes without a recent result are drawn.
+    NextFrameConservative,
+}
+
+impl Latency {
+    /// Every mode, in the order reports list them.
+    pub const ALL: [Latency; 3] = [
+        Latency::InFrame,
+        Latency::NextFrame,
+        Latency::NextFrameConservative,
+    ];
+    /// The command-line name: `in-frame`, `next-frame`, `next-frame-conservative`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Latency::InFrame => "in-frame",
+            Latency::NextFrame => "next-frame",
+            Latency::NextFrameConservative => "next-frame-conservative",
+        }
+    }
+    /// Parses a command-line name.
+    pub fn parse(name: &str) -> Result<Latency> {
+        Latency::ALL
+            .into_iter()
+            .find(|l| l.name() == name)
+            .ok_or_else(|| {
+                Error::Input(format!(
+                    "unknown latency \"{name}\" (known: in-frame, next-frame, next-frame-conservative)"
+                ))
+            })
+    }
+    /// The report name of `algorithm` in this mode: the plain name in-frame, else
+    /// `ALGORITHM@MODE`.
+    pub fn report_name(self, algorithm: &str) -> String {
+        match self {
+            Latency::InFrame => algorithm.to_string(),
+            other => format!("{algorithm}@{}", other.name()),
+        }
+    }
+}
+
+/// Creates `chc` or `chcpp` (the algorithms with latency modes) reading its queries in
+/// `latency` mode; every other algorithm only in-frame.
+pub fn create_latency(
+    name: &str,
+    params: &ChcppParams,
+    latency: Latency,
+) -> Result<Box<dyn Culler>> {
+    match (name, latency) {
+        (_, Latency::InFrame) => create(name, params),
+        ("chcpp", l) => Ok(Box::new(chcpp::Chcpp::new(params.clone()).with_latency(l))),
+        ("chc", l) => Ok(Box::new(
+            chcpp::Chcpp::named("chc", ChcppParams::chc()).with_latency(l),
+        )),
+        (other, l) => Err(Error::Input(format!(
+            "{other} has no latency mode {} (only chc and chcpp)",
+            l.name()
+        ))),
+    }
+}
+
+/// `algorithms` with `chc` and `chcpp` expanded to one report name per latency mode in
+/// `modes` ([`Latency::report_name`]); the others once, in-frame.
+pub fn with_latencies(algorithms: &[String], modes: &[Latency]) -> Vec<String> {
+    let mut out = Vec::new();
+    for a in algorithms {
+        if a == "chc" || a == "chcpp" {
+            out.extend(modes.iter().map(|m| m.report_name(a)));
+        } else {
+            out.push(a.clone());
+        }
+    }
+    out
+}
+
+/// Creates an algorithm by report name: `ALGORITHM@MODE` (`chcpp@next-frame`) in a latency
+/// mode, else as [`create_with`].
+pub fn create_named(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> {
+    match name.split_once('@') {
+        Some((alg, mode)) => create_latency(alg, &setup.params, Latency::parse(mode)?),
+        None => create_with(name, setup),
+    }
 }
 
 /// What an algorithm did in a frame, from its own bookkeeping (the recorder's counts are the
@@ -239,25 +342,58 @@ pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
     })
 }
 
-/// Whether a node's query can't be trusted because the eye is inside (or the near plane cuts)
-/// its box: such a node is treated as visible without a query.
-pub fn eye_inside(bounds: &Aabb, camera: &Camera) -> bool {
-    bounds
-        .enlarged(camera.near_corner_distance() * 1.01)
-        .contains(camera.eye)
+/// Whether a node's query can't be trusted because the eye is inside its box or the near plane
+/// cuts it inside the view: such a node is treated as visible without a query. Works for any
+/// projection (perspective, off-axis, orthographic, reverse-Z, infinite far).
+pub fn eye_inside(bounds: &Aabb, view: &CameraView) -> bool {
+    View::new(view).eye_inside(bounds)
 }
 
-/// Helper shared by the algorithms: the frustum and eye of a frame.
+/// Helper shared by the algorithms: the frustum, eye and front-to-back origin of a frame.
 pub(crate) struct View {
     pub frustum: Frustum,
+    /// The point front-to-back order measures from ([`CameraView::order_point`]).
     pub eye: Vec3,
+    /// The true eye position.
+    camera_eye: Vec3,
+    /// The near-plane rectangle's bounding box, enlarged by `margin`.
+    near_box: Aabb,
+    margin: f32,
 }
 
 impl View {
-    pub fn new(camera: &Camera) -> View {
+    pub fn new(view: &CameraView) -> View {
+        let frustum = view.frustum();
+        let c = view.near_corners();
+        let center = (c[0] + c[1] + c[2] + c[3]) * 0.25;
+        let half = c.iter().map(|p| (*p - center).length()).fold(0.0, f32::max);
+        let margin = half * 0.02 + 1e-4;
+        let near_box = Aabb::new(
+            c.iter().fold(Vec3::INFINITY, |a, p| a.min(*p)),
+            c.iter().fold(Vec3::NEG_INFINITY, |a, p| a.max(*p)),
+        )
+        .enlarged(margin);
         View {
-            frustum: camera.frustum(),
-            eye: camera.eye,
+            frustum,
+            eye: view.order_point(),
+            camera_eye: view.eye,
+            near_box,
+            margin,
         }
+    }
+
+    /// See [`eye_inside`]: the eye is in the (slightly enlarged) box, or the box reaches the
+    /// near plane where the near rectangle is.
+    pub fn eye_inside(&self, bounds: &Aabb) -> bool {
+        let b = bounds.enlarged(self.margin);
+        if b.contains(self.camera_eye) {
+            return true;
+        }
+        let near = self.frustum.planes[4];
+        let n = near.truncate();
+        let closest = Vec3::select(n.cmpge(Vec3::ZERO), b.min, b.max);
+        let reaches_near = n.dot(closest) + near.w <= 0.0;
+        let touches = b.min.cmple(self.near_box.max).all() && self.near_box.min.cmple(b.max).all();
+        reaches_near && touches
     }
 }

@@ -300,7 +300,7 @@ impl Culler for PvsCuller {
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
     ) -> Result<CullStats> {
-        let view = View::new(input.camera);
+        let view = View::new(&input.view);
         self.select_cell(view.eye);
         let mut stats = CullStats::default();
         self.batch.clear();

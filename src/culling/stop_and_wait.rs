@@ -1,7 +1,7 @@
 //! Hierarchical stop-and-wait: front-to-back traversal; query each node's box and wait for the
 //! answer; visible interior nodes are opened, visible leaves rendered, invisible subtrees culled.
 
-use super::{eye_inside, CullStats, Culler, FrameInput, OcclusionBackend, View};
+use super::{CullStats, Culler, FrameInput, OcclusionBackend, View};
 use crate::bvh::DistanceQueue;
 use crate::error::Result;
 
@@ -23,7 +23,7 @@ impl Culler for StopAndWait {
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
     ) -> Result<CullStats> {
-        let view = View::new(input.camera);
+        let view = View::new(&input.view);
         let bvh = input.bvh;
         let mut stats = CullStats::default();
         self.queue.clear();
@@ -36,7 +36,7 @@ impl Culler for StopAndWait {
                 stats.frustum_culled += 1;
                 continue;
             }
-            if !eye_inside(&node.bounds, input.camera) {
+            if !view.eye_inside(&node.bounds) {
                 let q = backend.issue_query(std::slice::from_ref(&node.bounds))?;
                 stats.queries += 1;
                 stats.query_batches += 1;

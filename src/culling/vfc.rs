@@ -22,7 +22,7 @@ impl Culler for Vfc {
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
     ) -> Result<CullStats> {
-        let view = View::new(input.camera);
+        let view = View::new(&input.view);
         let mut stats = CullStats::default();
         self.batch.clear();
         let batch = &mut self.batch;

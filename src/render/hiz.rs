@@ -195,7 +195,7 @@ impl HizCuller {
                 r.size().1
             )));
         }
-        r.begin_frame(camera)?;
+        r.begin_frame(&camera.into())?;
         let start = Instant::now();
         let cmd = r.segments.begin_next()?;
         r.recorder.set_command_buffer(cmd);
@@ -495,6 +495,12 @@ pub fn check_algorithm(name: &str, params: &ChcppParams) -> Result<()> {
     if name == "hiz" {
         return Ok(());
     }
+    if let Some((alg, mode)) = name.split_once('@') {
+        culling::Latency::parse(mode)?;
+        if alg == "chc" || alg == "chcpp" {
+            return Ok(());
+        }
+    }
     culling::check_name(name).map_err(|_| {
         Error::Input(format!(
             "unknown algorithm \"{name}\" (known: {})",
@@ -520,7 +526,7 @@ impl FrameAlgorithm {
             return Ok(FrameAlgorithm::Hiz(Box::new(hiz)));
         }
         check_algorithm(name, &setup.params)?;
-        Ok(FrameAlgorithm::Culler(culling::create_with(name, setup)?))
+        Ok(FrameAlgorithm::Culler(culling::create_named(name, setup)?))
     }
 
     /// The algorithm's name.

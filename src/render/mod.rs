@@ -27,7 +27,7 @@ use crate::gpu::{
     bytes_of, Attachment, Binding, Buffer, CommandCounts, CommandPool, DescriptorSets, GpuContext,
     Image, ImageUse, Load, OneShot, PipelineKind, Recorder, Timeline,
 };
-use crate::scene::camera::Camera;
+use crate::scene::camera::{Camera, CameraView};
 use crate::scene::{Aabb, Scene};
 use passes::{ScenePipelines, PUSH_SIZE};
 
@@ -261,19 +261,20 @@ impl Renderer {
         &mut self,
         culler: &mut dyn Culler,
         bvh: &ObjectBvh,
-        camera: &Camera,
+        camera: impl Into<CameraView>,
         frame: u64,
     ) -> Result<FrameResult> {
+        let view: CameraView = camera.into();
         let exact = if culler.needs_exact_visibility() {
-            Some(self.exact_visible(bvh, camera)?)
+            Some(self.exact_visible(bvh, view)?)
         } else {
             None
         };
-        self.begin_frame(camera)?;
+        self.begin_frame(&view)?;
         let start = Instant::now();
         let input = FrameInput {
             bvh,
-            camera,
+            view,
             frame,
             exact_visible: exact.as_deref(),
         };
@@ -318,7 +319,7 @@ impl Renderer {
         save_rgba_png(path, w, h, pixels)
     }
 
-    fn begin_frame(&mut self, camera: &Camera) -> Result<()> {
+    fn begin_frame(&mut self, view: &CameraView) -> Result<()> {
         // Every segment of the previous frame has completed: finish() waited for them.
         self.segments.reset(&self.timeline)?;
         self.segment_values.clear();
@@ -332,7 +333,7 @@ impl Renderer {
         self.stall = Duration::ZERO;
         self.recorder.take_counts();
         self.recorder.clear_drawn_objects();
-        let vp = camera.view_proj();
+        let vp = raster_matrix(view);
         self.push[..64].copy_from_slice(bytes_of(&vp.to_cols_array()));
         Ok(())
     }
@@ -423,9 +424,13 @@ impl Renderer {
 
     /// Finds the objects that cover at least one pixel: renders the frustum's objects into an
     /// object-ID image and reads it back. Not part of any frame's time or counts.
-    pub fn exact_visible(&mut self, bvh: &ObjectBvh, camera: &Camera) -> Result<Vec<u32>> {
+    pub fn exact_visible(
+        &mut self,
+        bvh: &ObjectBvh,
+        camera: impl Into<CameraView>,
+    ) -> Result<Vec<u32>> {
         let mut pixels = Vec::new();
-        let candidates = self.id_pass(bvh, camera, &mut pixels)?;
+        let candidates = self.id_pass(bvh, &camera.into(), &mut pixels)?;
         // Keep front-to-back order for the draw.
         Ok(candidates
             .into_iter()
@@ -438,16 +443,21 @@ impl Renderer {
     pub fn object_pixels(
         &mut self,
         bvh: &ObjectBvh,
-        camera: &Camera,
+        camera: impl Into<CameraView>,
         pixels: &mut Vec<u32>,
     ) -> Result<()> {
-        self.id_pass(bvh, camera, pixels).map(|_| ())
+        self.id_pass(bvh, &camera.into(), pixels).map(|_| ())
     }
 
     /// Turns the log of drawn objects on or off (`walk --check` needs it; it costs a push per
     /// object draw).
     pub fn log_drawn_objects(&mut self, on: bool) {
         self.recorder.log_drawn_objects(on);
+    }
+
+    /// Objects the last frame drew, in draw order (with [`Renderer::log_drawn_objects`] on).
+    pub fn drawn_objects(&self) -> &[u32] {
+        self.recorder.drawn_objects()
     }
 
     /// Compares what the last frame drew (the recorder's log, see
@@ -478,12 +488,12 @@ impl Renderer {
     fn id_pass(
         &mut self,
         bvh: &ObjectBvh,
-        camera: &Camera,
+        view: &CameraView,
         pixels: &mut Vec<u32>,
     ) -> Result<Vec<u32>> {
-        let candidates = frustum_candidates(bvh, camera);
+        let candidates = frustum_candidates(bvh, view);
         let mut push = self.push;
-        push[..64].copy_from_slice(bytes_of(&camera.view_proj().to_cols_array()));
+        push[..64].copy_from_slice(bytes_of(&raster_matrix(view).to_cols_array()));
         let pass = self.render_ids(&candidates, &push)?;
         add_prepass(&mut self.prepass_counts, &pass);
         pixels.clear();
@@ -560,10 +570,10 @@ impl Renderer {
 }
 
 /// Objects of the BVH nodes the frustum touches, front to back.
-fn frustum_candidates(bvh: &ObjectBvh, camera: &Camera) -> Vec<u32> {
-    let frustum = camera.frustum();
+fn frustum_candidates(bvh: &ObjectBvh, view: &CameraView) -> Vec<u32> {
+    let frustum = view.frustum();
     let mut candidates = Vec::new();
-    bvh.front_to_back(camera.eye, |id, node| {
+    bvh.front_to_back(view.order_point(), |id, node| {
         if !frustum.intersects(&node.bounds) {
             return false;
         }
@@ -571,6 +581,22 @@ fn frustum_candidates(bvh: &ObjectBvh, camera: &Camera) -> Vec<u32> {
         true
     });
     candidates
+}
+
+/// The matrix the built-in renderer rasterizes with: its depth test is the standard one (near 0,
+/// LESS), so a reverse-Z view is mapped to standard depth (z' = w - z); clip x, y and the
+/// frustum are unchanged, so the image is the same up to depth precision.
+fn raster_matrix(view: &CameraView) -> glam::Mat4 {
+    if !view.depth.reverse_z {
+        return view.view_proj;
+    }
+    let flip = glam::Mat4::from_cols(
+        glam::Vec4::X,
+        glam::Vec4::Y,
+        glam::Vec4::new(0.0, 0.0, -1.0, 0.0),
+        glam::Vec4::new(0.0, 0.0, 1.0, 1.0),
+    );
+    flip * view.view_proj
 }
 
 /// Adds an exact-visibility pass's binds, draws, triangles and submits to the running totals.

@@ -86,6 +86,36 @@ pub fn run(
     Ok(records)
 }
 
+/// With `--check` data in `records`: `missed_pixels.png`, the pixels of missed objects per
+/// frame (the pop of the latency modes), one line per algorithm.
+fn plot_missed(
+    dir: &Path,
+    title: &str,
+    records: &[FrameRecord],
+    algorithms: &[String],
+) -> Result<()> {
+    if !records.iter().any(|r| r.missed_pixels.is_some()) {
+        return Ok(());
+    }
+    let series: Vec<(String, Vec<(u32, f64)>)> = algorithms
+        .iter()
+        .map(|a| {
+            let pts = records
+                .iter()
+                .filter(|r| &r.algorithm == a && r.repeat == 0)
+                .map(|r| (r.frame, r.missed_pixels.unwrap_or(0) as f64))
+                .collect();
+            (a.clone(), pts)
+        })
+        .collect();
+    report::plot_missed_pixels(
+        &dir.join("missed_pixels.png"),
+        &format!("Missed pixels: {title}"),
+        &series,
+    )?;
+    Ok(())
+}
+
 /// Writes `frames.csv`, `summary.json`, `frametime.png` and `counts.png` into `dir`.
 pub fn write_report(
     dir: &Path,
@@ -155,6 +185,7 @@ pub fn write_report(
         &format!("Queries, wasted queries, state changes: {title}"),
         &counts,
     )?;
+    plot_missed(dir, &title, records, algorithms)?;
     Ok(summary)
 }
 

@@ -10,6 +10,7 @@ use std::path::Path;
 
 use crate::Error;
 
+pub use plot::plot_missed_pixels;
 pub use plot::{plot_counts, plot_frametime, CountSeries};
 pub use summary::{scaling_table, summarize, AlgorithmSummary, PreprocessSummary, WalkSummary};
 

@@ -173,6 +173,16 @@ fn title_size(title: &str, width: u32, largest: u32) -> u32 {
     ((f64::from(width) - 40.0) / (0.56 * chars)).clamp(12.0, f64::from(largest)) as u32
 }
 
+/// Missed-pixels plot (1280x720): per frame, the pixels owned by objects an algorithm did not
+/// draw (the pop of the latency modes), one line per algorithm.
+pub fn plot_missed_pixels(
+    path: &Path,
+    title: &str,
+    series: &[(String, Vec<(u32, f64)>)],
+) -> Result<(), Error> {
+    plot_lines(path, title, "missed pixels", series)
+}
+
 /// Count plot (1280x1200) of `(frame, queries, wasted, state_changes)` series: queries,
 /// wasted queries and state changes per frame, one panel each, on log scales (so that CHC's
 /// hundreds and CHC++'s few are both readable; zero is drawn at the bottom edge).

@@ -1,0 +1,247 @@
+//! Embedding: the culler takes any camera as a view-projection matrix, an eye and a depth
+//! convention (standard, reverse-Z infinite, off-axis, orthographic), and reads its queries one
+//! frame late in the latency modes — one submission per frame, no waits. Under validation.
+
+mod common;
+
+use coherent::bvh::ObjectBvh;
+use coherent::culling::{self, ChcppParams, Culler, Latency};
+use coherent::render::Renderer;
+use coherent::scene::camera::{
+    frustum_rh, look_to_rh, orthographic_rh, perspective_infinite_reverse_rh,
+    perspective_reverse_rh, Camera, CameraView, DepthConvention,
+};
+use coherent::scene::Scene;
+use glam::{Mat4, Vec3};
+
+const W: u32 = 160;
+const H: u32 = 90;
+
+/// Renders `view` with `culler` and returns the sorted objects drawn and the image.
+fn drawn(
+    r: &mut Renderer,
+    culler: &mut dyn Culler,
+    bvh: &ObjectBvh,
+    view: &CameraView,
+    f: u64,
+) -> (Vec<u32>, Vec<u8>) {
+    r.render_frame(culler, bvh, view, f).expect("frame");
+    let mut d = r.drawn_objects().to_vec();
+    d.sort_unstable();
+    d.dedup();
+    (d, r.read_color().expect("readback"))
+}
+
+/// The camera as four projections: standard, reverse-Z with the same far plane, the same
+/// frustum built as an off-axis one from its near-plane rectangle, and reverse-Z infinite.
+fn four_views(cam: &Camera) -> [CameraView; 4] {
+    let view = cam.view();
+    let eye = cam.eye.to_array();
+    let h = cam.near * (cam.fov_y * 0.5).tan();
+    let w = h * cam.aspect;
+    let off_axis = frustum_rh(-w, w, -h, h, cam.near, cam.far) * view;
+    let reverse = perspective_reverse_rh(cam.fov_y, cam.aspect, cam.near, cam.far) * view;
+    let infinite = perspective_infinite_reverse_rh(cam.fov_y, cam.aspect, cam.near) * view;
+    [
+        CameraView::from(cam),
+        CameraView::new(reverse.to_cols_array(), eye, DepthConvention::REVERSE_Z),
+        CameraView::new(off_axis.to_cols_array(), eye, DepthConvention::STANDARD),
+        CameraView::new(
+            infinite.to_cols_array(),
+            eye,
+            DepthConvention::REVERSE_Z_INFINITE,
+        ),
+    ]
+}
+
+fn city() -> (Scene, ObjectBvh) {
+    let (scene, bvh) = common::scene("city", 0.1);
+    let street = Scene {
+        paths: vec![scene.path("street").expect("street").clone()],
+        ..scene
+    };
+    (street, bvh)
+}
+
+/// vfc, chcpp and chcpp@next-frame (whose decisions do not depend on when results arrive).
+fn three_cullers() -> [Box<dyn Culler>; 3] {
+    let p = ChcppParams::default();
+    [
+        culling::create("vfc", &p).expect("vfc"),
+        culling::create("chcpp", &p).expect("chcpp"),
+        culling::create_latency("chcpp", &p, Latency::NextFrame).expect("next-frame"),
+    ]
+}
+
+/// Standard, reverse-Z and off-axis give vfc the same objects and chcpp@next-frame the same
+/// objects (in-frame chcpp's choices depend on when results arrive, so for it the test is its
+/// image against vfc's and no missed object); reverse-Z infinite gives vfc the same objects
+/// (its depth values differ, so query counts may too: image and missed objects are the test).
+#[test]
+fn standard_reverse_z_and_off_axis_projections_cull_the_same_objects() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = city();
+        let path = scene.default_path().expect("path").clone();
+        let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
+        r.log_drawn_objects(true);
+        let mut cullers: Vec<[Box<dyn Culler>; 3]> = (0..4).map(|_| three_cullers()).collect();
+        let mut some_culled = false;
+        let mut pixels = Vec::new();
+        for f in 0..12u32 {
+            let cam = r.camera(path.pose_at(20.0 + f as f32 * 3.0), &bvh);
+            let views = four_views(&cam);
+            let mut sets = Vec::new();
+            for (i, (v, c)) in views.iter().zip(cullers.iter_mut()).enumerate() {
+                let (vfc_set, vfc_img) = drawn(&mut r, c[0].as_mut(), &bvh, v, f as u64);
+                let (chcpp_set, chcpp_img) = drawn(&mut r, c[1].as_mut(), &bvh, v, f as u64);
+                assert_eq!(
+                    common::diff_pixels(&vfc_img, &chcpp_img),
+                    0,
+                    "frame {f}: chcpp's image differs from vfc's in view {i}"
+                );
+                r.object_pixels(&bvh, v, &mut pixels).expect("id pass");
+                let (late_set, _) = drawn(&mut r, c[2].as_mut(), &bvh, v, f as u64);
+                r.render_frame(c[1].as_mut(), &bvh, v, 1000 + f as u64)
+                    .expect("frame");
+                let check = r.check_drawn(&pixels);
+                assert_eq!(
+                    check.missed_objects, 0,
+                    "frame {f}: chcpp missed in view {i}"
+                );
+                some_culled |= chcpp_set.len() < vfc_set.len();
+                sets.push((vfc_set, late_set));
+            }
+            for (i, s) in sets.iter().enumerate().skip(1) {
+                assert_eq!(
+                    s.0, sets[0].0,
+                    "frame {f}: vfc drew other objects in view {i}"
+                );
+                if i < 3 {
+                    assert_eq!(
+                        s.1, sets[0].1,
+                        "frame {f}: chcpp@next-frame differs in view {i}"
+                    );
+                }
+            }
+        }
+        assert!(
+            some_culled,
+            "chcpp never culled by occlusion: the test shows nothing"
+        );
+    }
+    common::assert_silent(&log);
+}
+
+/// Runs vfc and chcpp over `views` and asserts equal images and no missed object.
+fn images_equal_vfc(r: &mut Renderer, bvh: &ObjectBvh, views: &[CameraView]) -> u32 {
+    let p = ChcppParams::default();
+    let mut vfc = culling::create("vfc", &p).expect("vfc");
+    let mut chcpp = culling::create("chcpp", &p).expect("chcpp");
+    let mut pixels = Vec::new();
+    let mut culled = 0;
+    for (f, v) in views.iter().enumerate() {
+        let (vfc_set, a) = drawn(r, vfc.as_mut(), bvh, v, f as u64);
+        let (chcpp_set, b) = drawn(r, chcpp.as_mut(), bvh, v, f as u64);
+        assert_eq!(common::diff_pixels(&a, &b), 0, "frame {f}: images differ");
+        r.object_pixels(bvh, v, &mut pixels).expect("id pass");
+        let check = r.check_drawn(&pixels);
+        assert_eq!(check.missed_objects, 0, "frame {f}: chcpp missed objects");
+        assert!(check.visible_objects > 0, "frame {f}: nothing visible");
+        culled += (vfc_set.len() - chcpp_set.len()) as u32;
+    }
+    culled
+}
+
+#[test]
+fn orthographic_and_shifted_off_axis_cameras_cull_correctly() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = city();
+        let path = scene.default_path().expect("path").clone();
+        let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
+        r.log_drawn_objects(true);
+        let b = bvh.nodes[0].bounds;
+        let (c, e) = (b.center(), b.extent());
+        // Orthographic: along the street at eye height, and from above, moving.
+        let mut views = Vec::new();
+        for f in 0..8 {
+            let pose = path.pose_at(20.0 + f as f32 * 4.0);
+            let dir = (pose.target - pose.eye).normalize();
+            let view = look_to_rh(pose.eye, dir, Vec3::Y);
+            let ortho = orthographic_rh(-6.0, 6.0, -3.4, 3.4, 0.1, e.length() * 2.0);
+            views.push(CameraView::new(
+                (ortho * view).to_cols_array(),
+                pose.eye.to_array(),
+                DepthConvention::STANDARD,
+            ));
+            let above = c + Vec3::new(f as f32 * 2.0, e.y + 5.0, 0.0);
+            let view = look_to_rh(above, Vec3::NEG_Y, Vec3::Z);
+            let ortho = orthographic_rh(-20.0, 20.0, -11.0, 11.0, 0.1, e.y * 2.0 + 10.0);
+            views.push(CameraView::new(
+                (ortho * view).to_cols_array(),
+                above.to_array(),
+                DepthConvention::STANDARD,
+            ));
+        }
+        let ortho_culled = images_equal_vfc(&mut r, &bvh, &views);
+        assert!(ortho_culled > 0, "orthographic chcpp never culled anything");
+        // A truly off-axis (shifted) frustum, as one eye of a VR headset.
+        let shifted: Vec<CameraView> = (0..8)
+            .map(|f| {
+                let cam = r.camera(path.pose_at(20.0 + f as f32 * 4.0), &bvh);
+                let h = cam.near * (cam.fov_y * 0.5).tan();
+                let w = h * cam.aspect;
+                let m: Mat4 = frustum_rh(-0.4 * w, 1.6 * w, -1.2 * h, 0.8 * h, cam.near, cam.far)
+                    * cam.view();
+                CameraView::new(
+                    m.to_cols_array(),
+                    cam.eye.to_array(),
+                    DepthConvention::STANDARD,
+                )
+            })
+            .collect();
+        images_equal_vfc(&mut r, &bvh, &shifted);
+    }
+    common::assert_silent(&log);
+}
+
+#[test]
+fn next_frame_submits_once_never_waits_and_misses_nothing_on_a_static_camera() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = city();
+        let path = scene.default_path().expect("path").clone();
+        let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
+        r.log_drawn_objects(true);
+        let p = ChcppParams::default();
+        let mut pixels = Vec::new();
+        for latency in [Latency::NextFrame, Latency::NextFrameConservative] {
+            for name in ["chcpp", "chc"] {
+                let mut c = culling::create_latency(name, &p, latency).expect("culler");
+                let mut moving_queries = 0;
+                // A moving camera, then a static one.
+                for f in 0..16u32 {
+                    let t = 20.0 + f.min(8) as f32 * 4.0;
+                    let cam = r.camera(path.pose_at(t), &bvh);
+                    let res = r
+                        .render_frame(c.as_mut(), &bvh, &cam, f as u64)
+                        .expect("frame");
+                    let tag = format!("{name}@{} frame {f}", latency.name());
+                    assert_eq!(res.counts.submits, 1, "{tag}: submits");
+                    assert_eq!(res.stall_ms, 0.0, "{tag}: waited inside the frame");
+                    assert_eq!(res.counts.queries_read, res.counts.queries_begun, "{tag}");
+                    moving_queries += res.counts.queries_begun;
+                    if f >= 9 {
+                        // Static since frame 8: its results decide frame 9.
+                        r.object_pixels(&bvh, &cam, &mut pixels).expect("id pass");
+                        let check = r.check_drawn(&pixels);
+                        assert_eq!(check.missed_objects, 0, "{tag}: missed on a static camera");
+                    }
+                }
+                assert!(moving_queries > 0, "{name}: no queries at all");
+            }
+        }
+    }
+    common::assert_silent(&log);
+}
