@@ -13,8 +13,19 @@ fn walk_writes_csv_json_and_plots() {
     let dir = tempdir("files");
     let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
         .args([
-            "walk", "--scene", "city", "--scale", "0.05", "--path", "street", "--frames", "6",
-            "--warmup", "2", "--algorithms", "vfc,stop-and-wait,chc,chcpp,oracle",
+            "walk",
+            "--scene",
+            "city",
+            "--scale",
+            "0.05",
+            "--path",
+            "street",
+            "--frames",
+            "6",
+            "--warmup",
+            "2",
+            "--algorithms",
+            "vfc,stop-and-wait,chc,chcpp,oracle",
         ])
         .args([
             "--size",
