@@ -24,12 +24,16 @@ rm -f "$corpus/README.md"
 cargo +nightly fuzz build gltf_loader
 start=$(date +%s)
 set +e
-cargo +nightly fuzz run gltf_loader "$corpus" -- \
+# FUZZ_KEEP_GOING=1: record crashes and go on (libFuzzer's fork mode, one job) instead of
+# stopping at the first.
+keep_going=()
+[ "${FUZZ_KEEP_GOING:-0}" = 1 ] && keep_going=(-fork=1 -ignore_crashes=1)
+cargo +nightly fuzz run gltf_loader "$corpus" -- "${keep_going[@]}" \
     -dict=fuzz/gltf.dict -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 \
     -print_final_stats=1 2>&1 | tee fuzz/last-run.log
 status=${PIPESTATUS[0]}
 set -e
 echo "fuzz.sh: ran $(( $(date +%s) - start )) s, exit status $status"
-grep -E '^stat::number_of_executed_units|^stat::peak_rss_mb' fuzz/last-run.log || true
+grep -E '^stat::number_of_executed_units|^stat::peak_rss_mb|^#[0-9]+: cov' fuzz/last-run.log | tail -3 || true
 ls fuzz/artifacts/gltf_loader 2>/dev/null | sed 's/^/fuzz.sh: artifact /' || true
 exit "$status"
