@@ -9,5 +9,6 @@ cd "$(dirname "$0")/.."
 export PATH="$HOME/.cargo/bin:$PATH"
 export COHERENT_DEVICE="${COHERENT_DEVICE:-llvmpipe}"
 export COHERENT_SOAK_FRAMES="${1:-10000}"
+mkdir -p out
 cargo test --release --test reliability soak_long -- --ignored --nocapture --test-threads 1 \
-    2>&1 | tee out-soak.log | grep -E '^soak:|test result|panicked|FAILED'
+    2>&1 | tee out/soak.log | grep -E 'soak: |test result|panicked|FAILED'
