@@ -232,10 +232,10 @@ struct Soak {
 
 /// Renders `frames` frames along the city's street path at 160x90 (scale 0.1): each pose is
 /// rendered by every algorithm in turn (frames / 5 poses, forward and back along the path),
-/// under strict validation. Start figures are taken after a warm-up of 20 poses; RSS is also
+/// under strict validation. Start figures are taken after a warm-up of 10 poses; RSS is also
 /// sampled at ten checkpoints.
 fn soak(frames: u32) -> Soak {
-    let (warmup, poses) = (20u32, (frames / ALGORITHMS.len() as u32).max(1));
+    let (warmup, poses) = (10u32, (frames / ALGORITHMS.len() as u32).max(1));
     let (ctx, log) = common::context();
     let mut report = {
         let (scene, bvh) = common::scene("city", 0.1);

@@ -373,3 +373,17 @@ pub(crate) fn local_size(spirv: &[u8]) -> Option<[u32; 3]> {
     }
     None
 }
+
+#[cfg(test)]
+mod local_size_tests {
+    use super::local_size;
+    use crate::gpu::shaders;
+
+    #[test]
+    fn reads_the_compute_shaders_local_size() {
+        assert_eq!(local_size(shaders::GI_GATHER_COMP), Some([8, 8, 1]));
+        assert_eq!(local_size(shaders::GI_RESOLVE_COMP), Some([8, 8, 1]));
+        assert_eq!(local_size(shaders::SCENE_VERT), None);
+        assert_eq!(local_size(&shaders::GI_GATHER_COMP[..40]), None);
+    }
+}

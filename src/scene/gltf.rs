@@ -184,6 +184,7 @@ fn percent_decode(uri: &str) -> Result<String, String> {
 /// (gltf-json 1.4.1 panics on `"POSITION": 2147483647`), so attribute indices are checked here
 /// first and the crate's validation is run only then.
 fn parse(bytes: &[u8]) -> Result<Gltf, String> {
+    check_glb_header(bytes)?;
     let Gltf { document, blob } =
         Gltf::from_slice_without_validation(bytes).map_err(|e| format!("invalid glTF: {e}"))?;
     check_attribute_indices(document.as_json())?;
@@ -205,6 +206,24 @@ fn parse(bytes: &[u8]) -> Result<Gltf, String> {
     } else {
         Err(::gltf::Error::Validation(errors).to_string())
     }
+}
+
+/// A GLB header's total length covers at least the header itself (the gltf crate subtracts the
+/// header size from it unchecked: an overflow panic in debug builds, found by fuzzing).
+fn check_glb_header(bytes: &[u8]) -> Result<(), String> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(());
+    }
+    let length = bytes
+        .get(8..12)
+        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .ok_or("invalid glTF: truncated GLB header")?;
+    if length < 12 {
+        return Err(format!(
+            "invalid glTF: GLB length {length} is shorter than its 12-byte header"
+        ));
+    }
+    Ok(())
 }
 
 /// Every primitive's attribute and morph-target accessor indices lie within `accessors`.

@@ -1,0 +1,37 @@
+//! Fuzzes the glTF/GLB loader: any bytes, written to a file named `.glb` or `.gltf` (by the
+//! GLB magic), must load or give a one-line error naming the file, never panic.
+#![no_main]
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+use libfuzzer_sys::fuzz_target;
+
+/// A private directory per fuzzing process (external buffer URIs resolve inside it).
+fn dir() -> &'static PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let d = std::env::temp_dir().join(format!("coherent-fuzz-{}", std::process::id()));
+        std::fs::create_dir_all(&d).expect("fuzz temp dir");
+        d
+    })
+}
+
+fuzz_target!(|data: &[u8]| {
+    let name = if data.starts_with(b"glTF") {
+        "input.glb"
+    } else {
+        "input.gltf"
+    };
+    let path = dir().join(name);
+    std::fs::write(&path, data).expect("write fuzz input");
+    let path_text = path.to_string_lossy().into_owned();
+    if let Err(e) = coherent::scene::Scene::load(&path_text, 1.0, 4096) {
+        let text = e.to_string();
+        assert!(!text.contains('\n'), "error is not one line: {text}");
+        assert!(
+            text.contains(&path_text),
+            "error does not name the file: {text}"
+        );
+    }
+});
