@@ -540,7 +540,12 @@ impl GiRenderer {
                 (chunk.first_slot + 1, chunk.ism_slots),
                 self.far,
             )?,
-            (None, Some(unused)) => self.recorder.transition(unused, ImageUse::SampledByCompute),
+            (None, Some(unused)) => {
+                // Never written: through GENERAL first, as an UNDEFINED -> read-only
+                // transition is a best-practices warning (its contents are never sampled).
+                self.recorder.transition(unused, ImageUse::ComputeRead);
+                self.recorder.transition(unused, ImageUse::SampledByCompute)
+            }
             (None, None) => {}
         }
         self.stamp(Stamp::Shadow)?;
