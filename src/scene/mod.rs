@@ -129,6 +129,7 @@ pub mod camera;
 pub mod chunk;
 pub mod gltf;
 pub mod mesh;
+pub mod paths;
 pub mod procedural;
 
 impl Scene {
