@@ -652,7 +652,11 @@ fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::gi::session::GiSetup>
             let keys = paths::read_path_file(file)?;
             Some(paths::keys_to_path("light", &keys))
         }
-        None => None,
+        // A glTF's own spot light, if it has one.
+        None => scene
+            .path(coherent::scene::gltf_ext::LIGHT_PATH)
+            .ok()
+            .cloned(),
     };
     Ok(coherent::gi::session::GiSetup { camera, light_keys })
 }

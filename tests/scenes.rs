@@ -224,3 +224,345 @@ fn render_follows_a_path_file() {
     drop(ctx);
     common::assert_silent(&log);
 }
+
+use coherent::scene::gltf::testdata::GltfBuilder;
+
+/// `json` with `extra` (`"key":value,` pairs) added at the top level.
+fn with_top(json: &str, extra: &str) -> String {
+    format!("{{{extra},{}", &json[1..])
+}
+
+/// A `.glb` of a JSON document and its binary chunk.
+fn glb_from(json: &str, bin: &[u8]) -> Vec<u8> {
+    let mut json = json.as_bytes().to_vec();
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let mut bin = bin.to_vec();
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let mut out = Vec::new();
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&((28 + json.len() + bin.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    out
+}
+
+/// A triangle rotated so its smallest corner comes first (same winding): meshopt's index
+/// codec may rotate a triangle's corners.
+fn canonical(t: [Vec3; 3]) -> [Vec3; 3] {
+    let key = |v: Vec3| (v.x, v.y, v.z);
+    let first = (0..3)
+        .min_by(|&a, &b| key(t[a]).partial_cmp(&key(t[b])).expect("finite"))
+        .unwrap_or(0);
+    [t[first], t[(first + 1) % 3], t[(first + 2) % 3]]
+}
+
+/// World-space triangles of every object, in order.
+fn world_triangles(scene: &Scene) -> Vec<[Vec3; 3]> {
+    let mut out = Vec::new();
+    for o in &scene.objects {
+        let idx = &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
+        for t in idx.chunks_exact(3) {
+            out.push([t[0], t[1], t[2]].map(|i| {
+                let v = scene.vertices[(o.vertex_offset + i) as usize];
+                o.transform.transform_point3(Vec3::from_array(v.position))
+            }));
+        }
+    }
+    out
+}
+
+fn scene_bounds(scene: &Scene) -> coherent::scene::Aabb {
+    scene
+        .objects
+        .iter()
+        .fold(coherent::scene::Aabb::EMPTY, |b, o| b.union(&o.bounds))
+}
+
+/// Node translations of the compression tests: a row of cubes.
+const CUBES: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [2.0, 0.5, 0.0], [4.0, 0.0, -1.0]];
+
+fn bytes_of<T: Copy, const N: usize>(v: &[[T; N]], f: impl Fn(T) -> Vec<u8>) -> Vec<u8> {
+    v.iter().flatten().flat_map(|&x| f(x)).collect()
+}
+
+/// The uncompressed original: unit cubes (float positions and normals, u16 indices).
+fn original_cubes() -> GltfBuilder {
+    let mut b = GltfBuilder::default();
+    let mesh = b.cube_mesh([0.7, 0.6, 0.5, 1.0]);
+    for t in CUBES {
+        b.node(mesh, t);
+    }
+    b.scene_nodes = Some((0..CUBES.len()).collect());
+    b
+}
+
+/// The same cubes with KHR_mesh_quantization: i16 positions (x2, stride 8) under a node
+/// scale of 0.5, i8 normalized normals (stride 4).
+fn quantized_cubes() -> String {
+    let (pos, nrm, idx) = coherent::scene::gltf::testdata::cube();
+    let mut b = GltfBuilder::default();
+    let qpos: Vec<[i16; 4]> = pos
+        .iter()
+        .map(|p| {
+            [
+                (p[0] * 2.0) as i16,
+                (p[1] * 2.0) as i16,
+                (p[2] * 2.0) as i16,
+                0,
+            ]
+        })
+        .collect();
+    let qnrm: Vec<[i8; 4]> = nrm
+        .iter()
+        .map(|n| {
+            [
+                (n[0] * 127.0) as i8,
+                (n[1] * 127.0) as i8,
+                (n[2] * 127.0) as i8,
+                0,
+            ]
+        })
+        .collect();
+    let v = b.view(&bytes_of(&qpos, |x: i16| x.to_le_bytes().to_vec()));
+    b.views[v] = b.views[v].replace('}', r#","byteStride":8}"#);
+    let p = b.accessor(v, 5122, "VEC3", qpos.len());
+    let v = b.view(&bytes_of(&qnrm, |x: i8| vec![x as u8]));
+    b.views[v] = b.views[v].replace('}', r#","byteStride":4}"#);
+    let n = b.accessor(v, 5120, "VEC3", qnrm.len());
+    b.accessors[n] = b.accessors[n].replace('}', r#","normalized":true}"#);
+    let i = b.indices_u16(&idx);
+    b.meshes.push(format!(
+        r#"{{"primitives":[{{"attributes":{{"POSITION":{p},"NORMAL":{n}}},"indices":{i}}}]}}"#
+    ));
+    for t in CUBES {
+        b.nodes.push(format!(
+            r#"{{"mesh":0,"translation":[{},{},{}],"scale":[0.5,0.5,0.5]}}"#,
+            t[0], t[1], t[2]
+        ));
+    }
+    b.scene_nodes = Some((0..CUBES.len()).collect());
+    with_top(
+        &b.gltf_embedded(),
+        r#""extensionsUsed":["KHR_mesh_quantization"],"extensionsRequired":["KHR_mesh_quantization"]"#,
+    )
+}
+
+/// Adds a view of `data` compressed with meshopt into buffer 0, decoding into `length` bytes
+/// at `offset` of the fallback buffer 1; returns the view index.
+fn meshopt_view(
+    b: &mut GltfBuilder,
+    data: &[u8],
+    (offset, length, stride, count): (usize, usize, usize, usize),
+    mode_filter: (&str, &str),
+) -> usize {
+    while !b.bin.len().is_multiple_of(4) {
+        b.bin.push(0);
+    }
+    let at = b.bin.len();
+    b.bin.extend_from_slice(data);
+    let (mode, filter) = mode_filter;
+    b.views.push(format!(
+        r#"{{"buffer":1,"byteOffset":{offset},"byteLength":{length}{},"extensions":{{"EXT_meshopt_compression":{{"buffer":0,"byteOffset":{at},"byteLength":{},"byteStride":{stride},"count":{count},"mode":"{mode}","filter":"{filter}"}}}}}}"#,
+        if mode == "ATTRIBUTES" { format!(r#","byteStride":{stride}"#) } else { String::new() },
+        data.len()
+    ));
+    b.views.len() - 1
+}
+
+/// The same cubes compressed with meshopt's encoder (float positions, octahedral-filtered i8
+/// normals, triangle-coded u16 indices) into a fallback buffer, as gltfpack writes them.
+fn meshopt_cubes() -> Vec<u8> {
+    let (pos, nrm, idx) = coherent::scene::gltf::testdata::cube();
+    let mut b = GltfBuilder::default();
+    let n = pos.len();
+    let enc_pos = meshopt::encode_vertex_buffer(&pos).expect("encode positions");
+    let v = meshopt_view(&mut b, &enc_pos, (0, 12 * n, 12, n), ("ATTRIBUTES", "NONE"));
+    let p = b.accessor(v, 5126, "VEC3", n);
+    let n4: Vec<[f32; 4]> = nrm.iter().map(|v| [v[0], v[1], v[2], 0.0]).collect();
+    let oct: Vec<[i8; 4]> = meshopt::encode_filter_oct(&n4, 8);
+    let enc_nrm = meshopt::encode_vertex_buffer(&oct).expect("encode normals");
+    let v = meshopt_view(
+        &mut b,
+        &enc_nrm,
+        (12 * n, 4 * n, 4, n),
+        ("ATTRIBUTES", "OCTAHEDRAL"),
+    );
+    let nacc = b.accessor(v, 5120, "VEC3", n);
+    b.accessors[nacc] = b.accessors[nacc].replace('}', r#","normalized":true}"#);
+    let idx32: Vec<u32> = idx.iter().map(|&i| i as u32).collect();
+    let enc_idx = meshopt::encode_index_buffer(&idx32, n).expect("encode indices");
+    let v = meshopt_view(
+        &mut b,
+        &enc_idx,
+        (16 * n, 2 * idx.len(), 2, idx.len()),
+        ("TRIANGLES", "NONE"),
+    );
+    let i = b.accessor(v, 5123, "SCALAR", idx.len());
+    b.meshes.push(format!(
+        r#"{{"primitives":[{{"attributes":{{"POSITION":{p},"NORMAL":{nacc}}},"indices":{i}}}]}}"#
+    ));
+    for t in CUBES {
+        b.node(0, t);
+    }
+    b.scene_nodes = Some((0..CUBES.len()).collect());
+    let fallback = 16 * n + 2 * idx.len();
+    let json = b.json(None);
+    let json = format!(
+        r#"{},{{"byteLength":{fallback},"extensions":{{"EXT_meshopt_compression":{{"fallback":true}}}}}}]}}"#,
+        json.strip_suffix("]}").expect("buffers last")
+    );
+    let exts = r#""EXT_meshopt_compression","KHR_mesh_quantization""#;
+    let json = with_top(
+        &json,
+        &format!(r#""extensionsUsed":[{exts}],"extensionsRequired":[{exts}]"#),
+    );
+    glb_from(&json, &b.bin)
+}
+
+#[test]
+fn meshopt_and_quantized_files_load_like_the_original() {
+    let dir = temp_dir("compressed");
+    let original = write(&dir, "original.glb", original_cubes().glb());
+    let quantized = write(&dir, "quantized.gltf", quantized_cubes());
+    let compressed = write(&dir, "meshopt.glb", meshopt_cubes());
+    let (a, wa) = coherent::scene::gltf::load_gltf(&original).expect("original");
+    assert!(wa.is_empty(), "{wa:?}");
+    let ta = world_triangles(&a);
+    assert_eq!(ta.len(), 36);
+    for file in [&quantized, &compressed] {
+        let (b, wb) = coherent::scene::gltf::load_gltf(file).expect("compressed file loads");
+        assert!(wb.is_empty(), "{}: {wb:?}", file.display());
+        let canon = |s: &Scene| -> Vec<[Vec3; 3]> {
+            world_triangles(s).into_iter().map(canonical).collect()
+        };
+        assert_eq!(canon(&b), canon(&a), "{}", file.display());
+        assert_eq!(scene_bounds(&b), scene_bounds(&a), "{}", file.display());
+        for (x, y) in a.vertices.iter().zip(&b.vertices) {
+            let (nx, ny) = (Vec3::from_array(x.normal), Vec3::from_array(y.normal));
+            assert!((nx - ny).length() < 0.02, "{nx} vs {ny}");
+        }
+    }
+    // The compressed file really is compressed: no plain float positions in it.
+    let bytes = std::fs::read(&compressed).expect("read");
+    let plain: Vec<u8> = 0.5f32.to_le_bytes().repeat(3);
+    assert!(!bytes.windows(12).any(|w| w == plain.as_slice()));
+}
+
+#[test]
+fn unsupported_extensions_warn_or_fail_in_one_line() {
+    let dir = temp_dir("extensions");
+    let json = original_cubes().gltf_embedded();
+    let used = write(
+        &dir,
+        "basis.gltf",
+        with_top(&json, r#""extensionsUsed":["KHR_texture_basisu"]"#),
+    );
+    let (_, warnings) = coherent::scene::gltf::load_gltf(&used).expect("loads");
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(warnings[0].contains("KHR_texture_basisu") && !warnings[0].contains('\n'));
+    let required = write(
+        &dir,
+        "draco.gltf",
+        with_top(
+            &json,
+            r#""extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"]"#,
+        ),
+    );
+    let msg = coherent::scene::gltf::load_gltf(&required)
+        .expect_err("draco is required")
+        .to_string();
+    assert!(
+        msg.contains("draco.gltf") && msg.contains("KHR_draco_mesh_compression"),
+        "{msg}"
+    );
+    assert!(!msg.contains('\n'));
+}
+
+/// Cubes with two cameras (one under a translated parent, turned 90° about +Y) and a spot
+/// light; with `animated`, a translation animation moves the light along +X.
+fn cameras_and_light(animated: bool) -> String {
+    let mut b = original_cubes();
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    b.nodes.push(r#"{"camera":0,"translation":[0,1,8]}"#.into()); // 3
+    b.nodes
+        .push(r#"{"translation":[10,0,0],"children":[5]}"#.into()); // 4
+    b.nodes.push(format!(
+        r#"{{"camera":0,"translation":[0,1,0],"rotation":[0,{h},0,{h}]}}"#
+    )); // 5
+    b.nodes.push(format!(
+        r#"{{"translation":[2,4,0],"rotation":[{},0,0,{}],"extensions":{{"KHR_lights_punctual":{{"light":0}}}}}}"#,
+        -h, h
+    )); // 6: looks down -Y
+    b.scene_nodes = Some(vec![0, 1, 2, 3, 4, 6]);
+    let mut extra = String::from(
+        r#""cameras":[{"type":"perspective","perspective":{"yfov":1.0,"znear":0.1}}],"extensionsUsed":["KHR_lights_punctual"],"extensions":{"KHR_lights_punctual":{"lights":[{"type":"spot","spot":{}}]}}"#,
+    );
+    if animated {
+        let times: Vec<u8> = [0.0f32, 1.0, 2.0]
+            .iter()
+            .flat_map(|t| t.to_le_bytes())
+            .collect();
+        let v = b.view(&times);
+        let input = b.accessor(v, 5126, "SCALAR", 3);
+        b.accessors[input] = b.accessors[input].replace('}', r#","min":[0],"max":[2]}"#);
+        let output = b.vec3(&[[2.0, 4.0, 0.0], [3.0, 4.0, 0.0], [4.0, 4.0, 0.0]]);
+        extra += &format!(
+            r#","animations":[{{"channels":[{{"sampler":0,"target":{{"node":6,"path":"translation"}}}}],"samplers":[{{"input":{input},"output":{output}}}]}}]"#
+        );
+    }
+    with_top(&b.gltf_embedded(), &extra)
+}
+
+#[test]
+fn gltf_cameras_and_spot_light_become_paths() {
+    let dir = temp_dir("cameras");
+    let file = write(&dir, "rig.gltf", cameras_and_light(false));
+    let scene = Scene::load(file.to_str().expect("utf-8"), 1.0, 4096).expect("load");
+    let cams = scene
+        .resolve_path(Some("gltf-cameras"))
+        .expect("camera path");
+    assert_eq!(cams.keys.len(), 2);
+    assert!((cams.keys[0].eye - Vec3::new(0.0, 1.0, 8.0)).length() < 1e-5);
+    assert!((cams.keys[0].target - Vec3::new(0.0, 1.0, 7.0)).length() < 1e-5);
+    assert!((cams.keys[1].eye - Vec3::new(10.0, 1.0, 0.0)).length() < 1e-5);
+    assert!((cams.keys[1].target - Vec3::new(9.0, 1.0, 0.0)).length() < 1e-5);
+    // A static spot light: a sweep of three keys at its position around its direction.
+    let light = scene.path("gltf-light").expect("light path");
+    assert_eq!(light.keys.len(), 3);
+    for k in &light.keys {
+        assert!((k.eye - Vec3::new(2.0, 4.0, 0.0)).length() < 1e-5);
+        let d = (k.target - k.eye).normalize();
+        assert!(d.y < -0.9, "{d}");
+    }
+    assert!((light.keys[1].target - Vec3::new(2.0, 3.0, 0.0)).length() < 1e-5);
+    assert!(light.keys[0].target != light.keys[2].target);
+
+    let file = write(&dir, "animated.gltf", cameras_and_light(true));
+    let scene = Scene::load(file.to_str().expect("utf-8"), 1.0, 4096).expect("load");
+    let light = scene.path("gltf-light").expect("light path");
+    assert_eq!(light.keys.len(), 3);
+    for (i, k) in light.keys.iter().enumerate() {
+        assert!(
+            (k.eye - Vec3::new(2.0 + i as f32, 4.0, 0.0)).length() < 1e-5,
+            "{k:?}"
+        );
+        assert!((k.target - k.eye - Vec3::NEG_Y).length() < 1e-5, "{k:?}");
+    }
+    // Without cameras or lights the paths are not there, and asking names the ones there are.
+    let plain = write(&dir, "plain.glb", original_cubes().glb());
+    let scene = Scene::load(plain.to_str().expect("utf-8"), 1.0, 4096).expect("load");
+    let msg = scene
+        .resolve_path(Some("gltf-cameras"))
+        .expect_err("none")
+        .to_string();
+    assert!(msg.contains("no path \"gltf-cameras\""), "{msg}");
+}

@@ -128,6 +128,7 @@ pub struct Scene {
 pub mod camera;
 pub mod chunk;
 pub mod gltf;
+pub mod gltf_ext;
 pub mod mesh;
 pub mod paths;
 pub mod procedural;
