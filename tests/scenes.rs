@@ -566,3 +566,85 @@ fn gltf_cameras_and_spot_light_become_paths() {
         .to_string();
     assert!(msg.contains("no path \"gltf-cameras\""), "{msg}");
 }
+
+/// A closed box room (20 x 4 x 12 inside, walls 0.2 thick) with eight pillars.
+fn room_with_pillars() -> Vec<u8> {
+    let mut b = GltfBuilder::default();
+    let cube = b.cube_mesh([0.8, 0.8, 0.8, 1.0]);
+    let mut boxes: Vec<([f32; 3], [f32; 3])> = vec![
+        ([0.0, -0.1, 0.0], [20.4, 0.2, 12.4]),
+        ([0.0, 4.1, 0.0], [20.4, 0.2, 12.4]),
+        ([-10.1, 2.0, 0.0], [0.2, 4.0, 12.0]),
+        ([10.1, 2.0, 0.0], [0.2, 4.0, 12.0]),
+        ([0.0, 2.0, -6.1], [20.0, 4.0, 0.2]),
+        ([0.0, 2.0, 6.1], [20.0, 4.0, 0.2]),
+    ];
+    for x in [-6.0, -3.0, 3.0, 6.0] {
+        for z in [-3.0, 3.0] {
+            boxes.push(([x, 2.0, z], [0.6, 4.0, 0.6]));
+        }
+    }
+    for (t, s) in &boxes {
+        b.nodes.push(format!(
+            r#"{{"mesh":{cube},"translation":[{},{},{}],"scale":[{},{},{}]}}"#,
+            t[0], t[1], t[2], s[0], s[1], s[2]
+        ));
+    }
+    b.scene_nodes = Some((0..boxes.len()).collect());
+    b.glb()
+}
+
+#[test]
+fn interior_walk_stays_inside_and_clear() {
+    use coherent::scene::interior::{self, InteriorParams};
+    let dir = temp_dir("interior");
+    let file = write(&dir, "room.glb", room_with_pillars());
+    let scene = Scene::load(file.to_str().expect("utf-8"), 1.0, 4096).expect("load");
+    // Enclosed: the interior walk is the default path, the orbit is still there.
+    assert_eq!(scene.paths[0].name, "interior");
+    assert!(scene.path("default").is_ok());
+    let margin = 0.3;
+    let params = InteriorParams {
+        margin: Some(margin),
+        ..Default::default()
+    };
+    let path = interior::interior_path(&scene, &params).expect("walk");
+    let again = interior::interior_path(&scene, &params).expect("walk");
+    assert_eq!(path.keys, again.keys, "not deterministic");
+    assert!(path.keys.len() >= 4, "{} keys", path.keys.len());
+    let triangles = world_triangles(&scene);
+    let frames = path.natural_frames();
+    let mut xs = (f32::INFINITY, f32::NEG_INFINITY);
+    for f in 0..=frames {
+        let eye = path.pose_at(f as f32).eye;
+        assert!(
+            eye.x > -10.0 && eye.x < 10.0 && eye.y > 0.0 && eye.y < 4.0,
+            "frame {f}: {eye} outside the room"
+        );
+        assert!(
+            eye.z > -6.0 && eye.z < 6.0,
+            "frame {f}: {eye} outside the room"
+        );
+        let d = triangles
+            .iter()
+            .map(|t| interior::distance_to_triangle(eye, t))
+            .fold(f32::INFINITY, f32::min);
+        assert!(d >= margin, "frame {f}: {eye} is {d} from geometry");
+        assert!(
+            (eye.y - 1.6).abs() < 0.15,
+            "frame {f}: eye height {}",
+            eye.y
+        );
+        xs = (xs.0.min(eye.x), xs.1.max(eye.x));
+    }
+    // It walks through the room, not around one spot.
+    assert!(xs.1 - xs.0 > 8.0, "x range {xs:?}");
+    // A scene that is not enclosed keeps the orbit as its default.
+    let open = write(
+        &dir,
+        "grid.glb",
+        coherent::scene::gltf::testdata::cube_grid_glb(9),
+    );
+    let scene = Scene::load(open.to_str().expect("utf-8"), 1.0, 4096).expect("load");
+    assert_eq!(scene.paths[0].name, "default");
+}

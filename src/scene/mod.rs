@@ -129,6 +129,7 @@ pub mod camera;
 pub mod chunk;
 pub mod gltf;
 pub mod gltf_ext;
+pub mod interior;
 pub mod mesh;
 pub mod paths;
 pub mod procedural;
@@ -171,6 +172,7 @@ impl Scene {
                 eprintln!("warning: {w}");
             }
             chunk::split_large_objects(&mut scene, chunk_triangles);
+            interior::default_if_enclosed(&mut scene);
             Ok(scene)
         } else {
             procedural::build(name_or_path, scale)

@@ -271,11 +271,15 @@ pub fn read_camera_path(file: &Path) -> Result<CameraPath, Error> {
 
 impl super::Scene {
     /// The camera path a `--path` value names: `None` is the scene's default path; a `.json`
-    /// value is a path file; anything else is one of the scene's named paths.
+    /// value is a path file; `interior` is the automatic interior walk (computed unless the
+    /// scene already has it); anything else is one of the scene's named paths.
     pub fn resolve_path(&self, spec: Option<&str>) -> crate::Result<CameraPath> {
         match spec {
             None => self.default_path().cloned(),
             Some(s) if is_path_file(s) => read_camera_path(Path::new(s)),
+            Some(s) if s == super::interior::PATH_NAME && self.path(s).is_err() => {
+                super::interior::interior_path(self, &super::interior::InteriorParams::default())
+            }
             Some(s) => self.path(s).cloned(),
         }
     }
