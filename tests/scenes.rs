@@ -648,3 +648,38 @@ fn interior_walk_stays_inside_and_clear() {
     let scene = Scene::load(open.to_str().expect("utf-8"), 1.0, 4096).expect("load");
     assert_eq!(scene.paths[0].name, "default");
 }
+
+#[test]
+fn recorded_camera_plays_back() {
+    use coherent::scene::paths::PathRecorder;
+    use coherent::scene::CameraPose;
+    let dir = temp_dir("record");
+    let mut rec = PathRecorder::new(0.1);
+    let file = dir.join("flown.json");
+    assert!(rec.finish(&file).is_err(), "an empty recording was written");
+    // Frames every 1/60 s while flying along +X: one key per 0.1 s is kept.
+    for i in 0..=120 {
+        let t = i as f32 / 60.0;
+        let eye = Vec3::new(t * 3.0, 1.7, 0.0);
+        rec.push(
+            t,
+            CameraPose {
+                eye,
+                target: eye + Vec3::X,
+            },
+        );
+    }
+    assert!(
+        (20..=21).contains(&rec.keys().len()),
+        "{}",
+        rec.keys().len()
+    );
+    rec.finish(&file).expect("write");
+    let scene = Scene::load("cornell", 1.0, 4096).expect("scene");
+    let path = scene
+        .resolve_path(Some(file.to_str().expect("utf-8")))
+        .expect("play back");
+    let end = path.pose_at(path.natural_frames() as f32);
+    assert!((end.eye - rec.keys().last().expect("key").position).length() < 1e-4);
+    assert!((path.pose_at(0.0).eye - Vec3::new(0.0, 1.7, 0.0)).length() < 1e-5);
+}

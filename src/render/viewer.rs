@@ -127,6 +127,8 @@ struct Running {
     screenshot_requested: bool,
     screenshots: u32,
     resized: bool,
+    /// The `R` recording: its start and the keys so far.
+    recording: Option<(Instant, crate::scene::paths::PathRecorder)>,
     _ctx: Arc<GpuContext>,
     window: Window,
 }
@@ -289,6 +291,7 @@ impl App {
             screenshot_requested: false,
             screenshots: 0,
             resized: false,
+            recording: None,
             _ctx: ctx,
             window,
         })
@@ -348,6 +351,7 @@ impl Running {
                 }
             }
             KeyCode::F12 | KeyCode::KeyK => self.screenshot_requested = true,
+            KeyCode::KeyR => self.toggle_recording(),
             _ => {}
         }
         if matches!(
@@ -363,7 +367,40 @@ impl Running {
         Ok(())
     }
 
+    /// `R`: starts recording the flown camera, or stops and writes `view_path_N.json`.
+    fn toggle_recording(&mut self) {
+        match self.recording.take() {
+            None => {
+                self.recording =
+                    Some((Instant::now(), crate::scene::paths::PathRecorder::new(0.1)));
+                eprintln!("view: recording the camera (R stops)");
+            }
+            Some((_, rec)) => {
+                let file = (0..)
+                    .map(|n| PathBuf::from(format!("view_path_{n}.json")))
+                    .find(|f| !f.exists())
+                    .unwrap_or_else(|| PathBuf::from("view_path.json"));
+                match rec.finish(&file) {
+                    Ok(()) => eprintln!(
+                        "view: wrote {} ({} keys; play it with --path {0})",
+                        file.display(),
+                        rec.keys().len()
+                    ),
+                    Err(e) => eprintln!("view: {e}"),
+                }
+            }
+        }
+    }
+
     fn pose(&mut self, cfg: &ViewerConfig, presented: u32) -> CameraPose {
+        let pose = self.flown_pose(cfg, presented);
+        if let Some((start, rec)) = &mut self.recording {
+            rec.push(start.elapsed().as_secs_f32(), pose);
+        }
+        pose
+    }
+
+    fn flown_pose(&mut self, cfg: &ViewerConfig, presented: u32) -> CameraPose {
         let now = Instant::now();
         let dt = (now - self.last_tick).as_secs_f32().min(0.1);
         self.last_tick = now;

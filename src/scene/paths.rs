@@ -269,6 +269,60 @@ pub fn read_camera_path(file: &Path) -> Result<CameraPath, Error> {
     Ok(keys_to_path(&name, &keys))
 }
 
+/// Records a flown camera as path keys (the viewer's `R` key): at most one key per
+/// `min_interval` seconds, written as a path file when done.
+#[derive(Clone, Debug)]
+pub struct PathRecorder {
+    keys: Vec<PathKey>,
+    min_interval: f32,
+}
+
+impl PathRecorder {
+    /// A recorder keeping at most one key per `min_interval` seconds.
+    pub fn new(min_interval: f32) -> PathRecorder {
+        PathRecorder {
+            keys: Vec::new(),
+            min_interval: min_interval.max(1e-3),
+        }
+    }
+
+    /// Adds the pose at `time` seconds since the recording started (ignored when too soon
+    /// after the last key, not after it, or without a view direction).
+    pub fn push(&mut self, time: f32, pose: CameraPose) {
+        let due = self
+            .keys
+            .last()
+            .is_none_or(|k| time >= k.time + self.min_interval);
+        let valid = pose.eye.is_finite()
+            && pose.target.is_finite()
+            && (pose.target - pose.eye).length_squared() > 1e-12;
+        if due && valid && time.is_finite() {
+            self.keys.push(PathKey {
+                time,
+                position: pose.eye,
+                target: pose.target,
+            });
+        }
+    }
+
+    /// The keys recorded so far.
+    pub fn keys(&self) -> &[PathKey] {
+        &self.keys
+    }
+
+    /// Writes the keys to `file`; an error when fewer than two were recorded.
+    pub fn finish(&self, file: &Path) -> Result<(), Error> {
+        if self.keys.len() < 2 {
+            return Err(Error::Input(format!(
+                "{}: a path needs at least 2 keys, {} recorded",
+                file.display(),
+                self.keys.len()
+            )));
+        }
+        write_path_file(file, &self.keys)
+    }
+}
+
 impl super::Scene {
     /// The camera path a `--path` value names: `None` is the scene's default path; a `.json`
     /// value is a path file; `interior` is the automatic interior walk (computed unless the
