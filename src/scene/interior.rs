@@ -209,8 +209,13 @@ struct Place {
 }
 
 /// Eye-height places over every floor under each grid cell center, each at least `2 *
-/// margin` from geometry and under a ceiling.
-fn places(rays: &TriangleScene, cell: f32, eye_h: f32, margin: f32) -> Vec<Place> {
+/// margin` from geometry and, with `need_ceiling`, under a ceiling.
+fn places(
+    rays: &TriangleScene,
+    cell: f32,
+    (eye_h, margin): (f32, f32),
+    need_ceiling: bool,
+) -> Vec<Place> {
     let b = rays.bounds;
     let (nx, nz) = (
         (b.extent().x / cell).ceil().max(1.0) as i32,
@@ -230,7 +235,7 @@ fn places(rays: &TriangleScene, cell: f32, eye_h: f32, margin: f32) -> Vec<Place
                 let eye = floor + Vec3::Y * eye_h;
                 if n.normalize_or_zero().y.abs() < 0.7
                     || eye.y > b.max.y
-                    || rays.cast(eye, Vec3::Y, far).is_none()
+                    || (need_ceiling && rays.cast(eye, Vec3::Y, far).is_none())
                     || rays.within(eye, 2.0 * margin)
                     || rays.cast(eye, Vec3::NEG_Y, far).map(|h| h.0) < Some(eye_h * 0.99)
                 {
@@ -370,8 +375,7 @@ fn tour(places: &[Place], adj: &[Vec<usize>], params: &InteriorParams, spread: f
 pub fn interior_path(scene: &Scene, params: &InteriorParams) -> Result<CameraPath, Error> {
     let none = || {
         Error::Input(format!(
-            "scene \"{}\": no place for an interior walk (no floor under a ceiling with room \
-             to stand)",
+            "scene \"{}\": no place for an interior walk (no floor with room to stand)",
             scene.name
         ))
     };
@@ -381,7 +385,11 @@ pub fn interior_path(scene: &Scene, params: &InteriorParams) -> Result<CameraPat
     let eye_h = params.eye_height.unwrap_or(1.7).min(0.4 * e.y.max(1e-3));
     let margin = params.margin.unwrap_or(0.01 * side);
     let cell = side / params.grid.max(4) as f32;
-    let places = places(&rays, cell, eye_h, margin);
+    // Under a roof where there is one (interiors), else anywhere (roofless rooms).
+    let mut places = places(&rays, cell, (eye_h, margin), true);
+    if places.is_empty() {
+        places = self::places(&rays, cell, (eye_h, margin), false);
+    }
     if places.is_empty() {
         return Err(none());
     }
