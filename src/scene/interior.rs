@@ -23,7 +23,8 @@ pub const PATH_NAME: &str = "interior";
 pub struct InteriorParams {
     /// Eye height over the floor (default 1.7, at most 40% of the scene's height).
     pub eye_height: Option<f32>,
-    /// Least distance from the eye to any geometry (default 1% of the horizontal extent).
+    /// Least distance from the eye to any geometry (default 1% of the horizontal extent, at
+    /// most a quarter of the eye height).
     pub margin: Option<f32>,
     /// Grid cells along the longer horizontal side.
     pub grid: usize,
@@ -383,7 +384,8 @@ pub fn interior_path(scene: &Scene, params: &InteriorParams) -> Result<CameraPat
     let e = rays.bounds.extent();
     let side = e.x.max(e.z).max(1e-3);
     let eye_h = params.eye_height.unwrap_or(1.7).min(0.4 * e.y.max(1e-3));
-    let margin = params.margin.unwrap_or(0.01 * side);
+    // Places keep two margins of clearance, which must fit between the floor and the eye.
+    let margin = params.margin.unwrap_or(0.01 * side).min(0.25 * eye_h);
     let cell = side / params.grid.max(4) as f32;
     // Under a roof where there is one (interiors), else anywhere (roofless rooms).
     let mut places = places(&rays, cell, (eye_h, margin), true);
