@@ -47,7 +47,8 @@ pub struct RenderArgs {
     /// Frame of the scene's default path (temporal algorithms render frames 0..=N).
     #[arg(long, default_value_t = 0)]
     pub frame: u32,
-    /// Camera path (default: the scene's first path).
+    /// Camera path: one of the scene's paths or a path file (.json; see README "Your own
+    /// scene"). Default: the scene's first path.
     #[arg(long)]
     pub path: Option<String>,
     /// Output PNG.
@@ -71,7 +72,8 @@ pub struct RenderArgs {
 pub struct WalkArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
-    /// Camera path (default: the scene's first path).
+    /// Camera path: one of the scene's paths or a path file (.json; see README "Your own
+    /// scene"). Default: the scene's first path.
     #[arg(long)]
     pub path: Option<String>,
     /// Recorded frames along the path.
@@ -126,7 +128,8 @@ pub struct WalkArgs {
 pub struct ViewArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
-    /// Camera path played back (default: the scene's first path).
+    /// Camera path played back: one of the scene's paths or a path file (.json). Default: the
+    /// scene's first path.
     #[arg(long)]
     pub path: Option<String>,
     /// Window size WxH.
@@ -296,10 +299,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     check_algorithm(&a.algorithm, &ChcppParams::default())?;
     let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let movers = Movers::add(&mut scene, a.movers);
-    let path = match &a.path {
-        Some(p) => scene.path(p)?.clone(),
-        None => scene.default_path()?.clone(),
-    };
+    let path = scene.resolve_path(a.path.as_deref())?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let mut bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let ctx = context(!a.no_validation)?;
@@ -416,10 +416,7 @@ fn walk_scale(
         return walk_scale_movers(a, ctx, cfg, scale, dir, (w, h));
     }
     let scene = load_scene(&a.scene, scale)?;
-    let path = match &a.path {
-        Some(p) => scene.path(p)?.clone(),
-        None => scene.default_path()?.clone(),
-    };
+    let path = scene.resolve_path(a.path.as_deref())?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let mut cfg = cfg.clone();
@@ -632,10 +629,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     check_algorithm(&a.algorithm, &params)?;
     let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let movers = Movers::add(&mut scene, a.movers);
-    let path = match &a.path {
-        Some(p) => scene.path(p)?.clone(),
-        None => scene.default_path()?.clone(),
-    };
+    let path = scene.resolve_path(a.path.as_deref())?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let resize_at = match &a.resize_at {
@@ -776,6 +770,14 @@ pub struct GiArgs {
     /// Turn the validation layer on.
     #[arg(long)]
     pub validation: bool,
+    /// Camera: its first pose is the GI camera (one of the scene's paths or a path file).
+    #[arg(long)]
+    pub path: Option<String>,
+    /// Light path file (.json, the camera path format: the light sits at each key's position
+    /// and points where it looks). Default: the glTF's first spot light, else the scene's
+    /// sweep.
+    #[arg(long)]
+    pub light_path: Option<PathBuf>,
 }
 
 /// `coherent gi`.
@@ -802,10 +804,32 @@ pub fn gi(a: &GiArgs) -> Result<()> {
             points_per_vpl: a.ism_points,
         },
     };
-    let summary = session::run(&ctx, &scene, &opts, a.out.as_deref())?;
+    let setup = gi_setup(a, &scene)?;
+    let summary = session::run_with(&ctx, &scene, &opts, a.out.as_deref(), &setup)?;
     print!("{}", summary.table());
     if let Some(dir) = &a.out {
         println!("wrote {}", dir.display());
     }
     check_validation(&ctx)
+}
+
+/// The camera and light path of `coherent gi` from its flags.
+fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::gi::session::GiSetup> {
+    use coherent::scene::paths;
+    let camera = match &a.path {
+        Some(p) => Some(scene.resolve_path(Some(p))?.pose_at(0.0)),
+        None => None,
+    };
+    let light_keys = match &a.light_path {
+        Some(file) => {
+            let keys = paths::read_path_file(file)?;
+            Some(paths::keys_to_path("light", &keys))
+        }
+        // A glTF's own spot light, if it has one.
+        None => scene
+            .path(coherent::scene::gltf_ext::LIGHT_PATH)
+            .ok()
+            .cloned(),
+    };
+    Ok(coherent::gi::session::GiSetup { camera, light_keys })
 }

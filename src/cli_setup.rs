@@ -181,10 +181,7 @@ pub fn nohc_params(
 pub fn pvs_command(a: &PvsCommandArgs) -> Result<()> {
     let scale = cli::single_scale(&a.scene)?;
     let scene = cli::load_scene(&a.scene, scale)?;
-    let path = match &a.path {
-        Some(p) => scene.path(p)?.clone(),
-        None => scene.default_path()?.clone(),
-    };
+    let path = scene.resolve_path(a.path.as_deref())?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let ctx = cli::context(false)?;

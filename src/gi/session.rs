@@ -18,7 +18,7 @@ use super::vpl::VplSet;
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::scene::camera::Camera;
-use crate::scene::{CameraPose, Scene};
+use crate::scene::{CameraPath, CameraPose, Scene};
 
 /// How VPLs are maintained from frame to frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -57,18 +57,26 @@ impl GiMode {
     }
 }
 
-/// The spotlight's path over a run: an eased sweep between two placements.
-#[derive(Clone, Copy, Debug)]
+/// The spotlight's path over a run: an eased sweep between two placements, or keyframes
+/// (a light path file, a glTF spot light) when `keys` is set.
+#[derive(Clone, Debug)]
 pub struct LightPath {
     /// Placement at the first frame.
     pub start: Spotlight,
     /// Placement at the last frame.
     pub end: Spotlight,
+    /// Keyframes (eye = light position, target = a point on its axis), played over the run
+    /// with `start`'s power; `None` for the sweep.
+    pub keys: Option<CameraPath>,
 }
 
 impl LightPath {
     /// The light at `t` in 0..=1 (smooth start and stop).
     pub fn at(&self, t: f32) -> Spotlight {
+        if let Some(keys) = &self.keys {
+            let pose = keys.pose_at(t.clamp(0.0, 1.0) * keys.natural_frames() as f32);
+            return Spotlight::new(pose.eye, pose.target - pose.eye, self.start.power);
+        }
         let s = 0.5 - 0.5 * (std::f32::consts::PI * t.clamp(0.0, 1.0)).cos();
         Spotlight::new(
             self.start.position.lerp(self.end.position, s),
@@ -128,8 +136,36 @@ impl LightPath {
         LightPath {
             start: Spotlight::new(p0, d0, power),
             end: Spotlight::new(p1, d1.normalize(), power),
+            keys: None,
         }
     }
+
+    /// A light moving along keyframes (eye = position, target = a point on the axis), with
+    /// the power rule of [`LightPath::for_scene`] at its first key.
+    pub fn from_keys(keys: CameraPath, geometry: &WorldGeometry, rays: &RayScene) -> LightPath {
+        let first = keys.pose_at(0.0);
+        let last = keys.pose_at(keys.natural_frames() as f32);
+        let d0 = (first.target - first.eye).normalize_or(Vec3::NEG_Y);
+        let reach = rays
+            .intersect(first.eye, d0, f32::INFINITY)
+            .map(|h| h.t)
+            .unwrap_or(geometry.diagonal() * 0.5);
+        let power = Vec3::splat(25.0 * reach * reach);
+        LightPath {
+            start: Spotlight::new(first.eye, d0, power),
+            end: Spotlight::new(last.eye, last.target - last.eye, power),
+            keys: Some(keys),
+        }
+    }
+}
+
+/// What a run may take from the user instead of the scene's defaults.
+#[derive(Clone, Debug, Default)]
+pub struct GiSetup {
+    /// The camera (default: [`default_camera`]).
+    pub camera: Option<CameraPose>,
+    /// Light keyframes (default: [`LightPath::for_scene`]).
+    pub light_keys: Option<CameraPath>,
 }
 
 /// The camera of a GI run: the scene's first path pose (or a view of the bounds).
@@ -451,6 +487,17 @@ pub fn run(
     opts: &GiRunOptions,
     out: Option<&Path>,
 ) -> Result<GiSummary> {
+    run_with(ctx, scene, opts, out, &GiSetup::default())
+}
+
+/// [`run`] with the user's camera and light path where `setup` has them.
+pub fn run_with(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    opts: &GiRunOptions,
+    out: Option<&Path>,
+    setup: &GiSetup,
+) -> Result<GiSummary> {
     if opts.vpls == 0 || opts.frames == 0 {
         return Err(Error::Input(
             "gi needs at least one VPL and one frame".into(),
@@ -458,8 +505,14 @@ pub fn run(
     }
     let geometry = WorldGeometry::from_scene(scene);
     let rays = geometry.ray_scene();
-    let path = LightPath::for_scene(&scene.name, &geometry, &rays);
-    let camera = default_camera(scene, &geometry, opts.width as f32 / opts.height as f32);
+    let path = match &setup.light_keys {
+        Some(keys) => LightPath::from_keys(keys.clone(), &geometry, &rays),
+        None => LightPath::for_scene(&scene.name, &geometry, &rays),
+    };
+    let mut camera = default_camera(scene, &geometry, opts.width as f32 / opts.height as f32);
+    if let Some(pose) = setup.camera {
+        (camera.eye, camera.target) = (pose.eye, pose.target);
+    }
     let sampled = sample_frames(opts.frames, opts.sample_frames);
     let reference = reference_images(ctx, &geometry, &rays, &path, &camera, opts, &sampled)?;
     if let Some(dir) = out {

@@ -145,6 +145,8 @@ struct Running {
     /// Movers on the move (key O), and the frame of their motion.
     movers_on: bool,
     mover_frame: u64,
+    /// The `R` recording: its start and the keys so far.
+    recording: Option<(Instant, crate::scene::paths::PathRecorder)>,
     _ctx: Arc<GpuContext>,
     window: Window,
 }
@@ -316,6 +318,7 @@ impl App {
             movers: self.movers.clone(),
             movers_on: true,
             mover_frame: 0,
+            recording: None,
             _ctx: ctx,
             window,
         })
@@ -377,6 +380,7 @@ impl Running {
             }
             KeyCode::F12 | KeyCode::KeyK => self.screenshot_requested = true,
             KeyCode::KeyO => self.movers_on = !self.movers_on,
+            KeyCode::KeyR => self.toggle_recording(),
             _ => {}
         }
         if matches!(
@@ -395,7 +399,40 @@ impl Running {
         Ok(())
     }
 
+    /// `R`: starts recording the flown camera, or stops and writes `view_path_N.json`.
+    fn toggle_recording(&mut self) {
+        match self.recording.take() {
+            None => {
+                self.recording =
+                    Some((Instant::now(), crate::scene::paths::PathRecorder::new(0.1)));
+                eprintln!("view: recording the camera (R stops)");
+            }
+            Some((_, rec)) => {
+                let file = (0..)
+                    .map(|n| PathBuf::from(format!("view_path_{n}.json")))
+                    .find(|f| !f.exists())
+                    .unwrap_or_else(|| PathBuf::from("view_path.json"));
+                match rec.finish(&file) {
+                    Ok(()) => eprintln!(
+                        "view: wrote {} ({} keys; play it with --path {0})",
+                        file.display(),
+                        rec.keys().len()
+                    ),
+                    Err(e) => eprintln!("view: {e}"),
+                }
+            }
+        }
+    }
+
     fn pose(&mut self, cfg: &ViewerConfig, presented: u32) -> CameraPose {
+        let pose = self.flown_pose(cfg, presented);
+        if let Some((start, rec)) = &mut self.recording {
+            rec.push(start.elapsed().as_secs_f32(), pose);
+        }
+        pose
+    }
+
+    fn flown_pose(&mut self, cfg: &ViewerConfig, presented: u32) -> CameraPose {
         let now = Instant::now();
         let dt = (now - self.last_tick).as_secs_f32().min(0.1);
         self.last_tick = now;

@@ -64,14 +64,15 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     let Gltf { document, blob } = parse(&bytes)?;
     drop(bytes);
     let base = path.parent().unwrap_or_else(|| Path::new("."));
-    let buffers = load_buffers(&document, base, blob)?;
+    let mut buffers = load_buffers(&document, base, blob)?;
+    super::gltf_ext::decode_meshopt(&document, &mut buffers)?;
 
     let mut loader = Loader {
         buffers: &buffers,
         vertices: Vec::new(),
         indices: Vec::new(),
         objects: Vec::new(),
-        warnings: Vec::new(),
+        warnings: super::gltf_ext::unsupported_warnings(&document),
         meshes: HashMap::new(),
     };
     for root in root_nodes(&document) {
@@ -89,12 +90,21 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
+    let mut paths = vec![default_path(&bounds)];
+    let world = super::gltf_ext::world_transforms(&document, &root_nodes(&document));
+    paths.extend(super::gltf_ext::camera_path(&document, &world));
+    paths.extend(super::gltf_ext::light_path(
+        &document,
+        &world,
+        &buffers,
+        &mut loader.warnings,
+    ));
     let scene = Scene {
         name,
         vertices: loader.vertices,
         indices: loader.indices,
         objects: loader.objects,
-        paths: vec![default_path(&bounds)],
+        paths,
         sun_dir: Vec3::new(0.4, 1.0, 0.3).normalize(),
     };
     Ok((scene, loader.warnings))
@@ -116,6 +126,10 @@ fn load_buffers(
             }
             ::gltf::buffer::Source::Uri(uri) => format!("'{uri}'"),
         };
+        if let Some(zeros) = super::gltf_ext::fallback_data(doc, buffer.index())? {
+            buffers.push(zeros);
+            continue;
+        }
         if let ::gltf::buffer::Source::Uri(uri) = buffer.source() {
             check_external_uri(base, uri)
                 .map_err(|e| format!("cannot load buffer {} from {source}: {e}", buffer.index()))?;
@@ -198,8 +212,10 @@ fn parse(bytes: &[u8]) -> Result<Gltf, String> {
     }
     let tolerated = errors.iter().all(|(path, error)| {
         let path = path.to_string();
-        *error == ::gltf::json::validation::Error::Missing
-            && (path.ends_with(".min") || path.ends_with(".max"))
+        (*error == ::gltf::json::validation::Error::Missing
+            && (path.ends_with(".min") || path.ends_with(".max")))
+            || (*error == ::gltf::json::validation::Error::Unsupported
+                && super::gltf_ext::is_honored_required(&path))
     });
     if tolerated {
         Ok(Gltf { document, blob })
@@ -597,6 +613,14 @@ fn accessor_bytes<'b>(
             view_bytes.len()
         )),
     }
+}
+
+/// Checks that an accessor's elements lie inside its view and buffer (for readers elsewhere).
+pub(super) fn check_accessor<'b>(
+    acc: &Accessor<'_>,
+    buffers: &'b [Data],
+) -> Result<(&'b [u8], usize), String> {
+    accessor_bytes(acc, buffers)
 }
 
 /// Reads a VEC3 accessor (float or, normalized or not, integer components) as `Vec3`s.

@@ -128,8 +128,11 @@ pub struct Scene {
 pub mod camera;
 pub mod chunk;
 pub mod gltf;
+pub mod gltf_ext;
+pub mod interior;
 pub mod mesh;
 pub mod movers;
+pub mod paths;
 pub mod procedural;
 
 impl Scene {
@@ -170,6 +173,7 @@ impl Scene {
                 eprintln!("warning: {w}");
             }
             chunk::split_large_objects(&mut scene, chunk_triangles);
+            interior::default_if_enclosed(&mut scene);
             Ok(scene)
         } else {
             procedural::build(name_or_path, scale)
