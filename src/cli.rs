@@ -420,22 +420,16 @@ fn walk_scale(
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let mut cfg = cfg.clone();
-    let uses = |name: &str| a.algorithms.iter().any(|x| x == name);
-    if uses("nohc") {
-        cfg.nohc = Some(crate::cli_setup::nohc_params(
-            ctx,
-            &a.cache,
-            &scene,
-            (w, h),
-        )?);
-    }
-    let pvs = if uses("pvs") {
-        let b = crate::cli_setup::pvs(ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache)?;
-        cfg.pvs = Some(b.pvs.clone());
-        Some(b)
-    } else {
-        None
-    };
+    let pvs = crate::cli_setup::prepare_walk(
+        a,
+        ctx,
+        &mut cfg,
+        scale,
+        &scene,
+        (&scene, &bvh),
+        &path,
+        (w, h),
+    )?;
     let cfg = &cfg;
     println!(
         "walk: {} (scale {scale}: {} objects, {} triangles), path {}, {} frames + {} warm-up, {w}x{h}, {} on {}",
@@ -515,19 +509,18 @@ fn walk_scale_movers(
         .cloned()
         .collect();
     let mut cfg = cfg.clone();
-    let uses = |name: &str| a.algorithms.iter().any(|x| x == name);
-    if uses("nohc") {
-        let p = crate::cli_setup::nohc_params(ctx, &a.cache, &scene, (w, h))?;
-        cfg.nohc = Some(p);
-    }
-    if uses("pvs") {
-        // Built on the scene without movers: pvs cannot know where they go, so it draws them
-        // frustum-culled only (their ids lie past the PVS's objects).
-        let b = crate::cli_setup::pvs(
-            ctx, &a.scene, scale, &fixed, &fixed_bvh, &path, &a.pvs, &a.cache,
-        )?;
-        cfg.pvs = Some(b.pvs);
-    }
+    // pvs is built on the scene without movers: it cannot know where they go, so it draws
+    // them frustum-culled only (their ids lie past the PVS's objects).
+    crate::cli_setup::prepare_walk(
+        a,
+        ctx,
+        &mut cfg,
+        scale,
+        &scene,
+        (&fixed, &fixed_bvh),
+        &path,
+        (w, h),
+    )?;
     let cfg = &cfg;
     println!(
         "walk: {} (scale {scale}: {} objects, {} of them movers), path {}, {} frames + {} warm-up, {w}x{h}, {} (+ {} without movers) on {}",

@@ -291,3 +291,38 @@ pub fn frames_outside(pvs: &Pvs, path: &CameraPath, frames: u32, warmup: u32) ->
         .filter(|&i| pvs.cell_at(path.sample(i, total).eye).is_none())
         .count()
 }
+
+/// Adds to `cfg` what the walk's `nohc` and `pvs` need: NOHC's parameters for `scene` at
+/// `size`, and the PVS of `static_scene` (the scene without movers, with its hierarchy) along
+/// `path`. Returns the PVS build for the report.
+#[allow(clippy::too_many_arguments)]
+pub fn prepare_walk(
+    a: &crate::cli::WalkArgs,
+    ctx: &Arc<GpuContext>,
+    cfg: &mut coherent::render::walk::WalkConfig,
+    scale: f32,
+    scene: &Scene,
+    (static_scene, static_bvh): (&Scene, &ObjectBvh),
+    path: &CameraPath,
+    size: (u32, u32),
+) -> Result<Option<PvsBuild>> {
+    let uses = |name: &str| a.algorithms.iter().any(|x| x == name);
+    if uses("nohc") {
+        cfg.nohc = Some(nohc_params(ctx, &a.cache, scene, size)?);
+    }
+    if !uses("pvs") {
+        return Ok(None);
+    }
+    let b = pvs(
+        ctx,
+        &a.scene,
+        scale,
+        static_scene,
+        static_bvh,
+        path,
+        &a.pvs,
+        &a.cache,
+    )?;
+    cfg.pvs = Some(b.pvs.clone());
+    Ok(Some(b))
+}

@@ -6,7 +6,7 @@ mod common;
 
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{
-    self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose,
+    self, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose,
 };
 use coherent::render::{walk, Renderer};
 use coherent::scene::movers::Movers;
@@ -81,22 +81,7 @@ impl Culler for Spy {
 /// scene; it draws movers frustum-culled only and may miss what its samples did not see). NOHC
 /// gets a fixed cost model under which it both queries and skips queries.
 fn spies() -> Vec<Spy> {
-    let setup = culling::CullerSetup {
-        params: ChcppParams::default(),
-        nohc: Some(culling::NohcParams::new(
-            culling::CostModel {
-                draw_ms: 0.06,
-                triangle_ms: 2e-5,
-                fragment_ms: 2e-6,
-                query_ms: 0.05,
-                query_fragment_ms: 1e-6,
-                round_trip_ms: 0.3,
-            },
-            (160, 90),
-            Vec::new(),
-        )),
-        pvs: None,
-    };
+    let setup = common::setup(Vec::new(), (160, 90), 0.05);
     culling::ALGORITHMS
         .iter()
         .filter(|a| **a != "pvs")

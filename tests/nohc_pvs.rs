@@ -8,7 +8,7 @@ mod common;
 use std::path::PathBuf;
 
 use coherent::culling::chcpp::{Chcpp, ChcppParams};
-use coherent::culling::{self, CostModel, Culler, CullerSetup, NohcParams};
+use coherent::culling::{self, Culler, CullerSetup};
 use coherent::render::calibrate::{self, Source};
 use coherent::render::pvs_build::{self, PvsSettings};
 use coherent::render::Renderer;
@@ -26,29 +26,10 @@ fn temp_dir(name: &str) -> PathBuf {
     d
 }
 
-/// Queries cheap against rendering (NOHC queries nearly everything) or dear (it queries only
-/// heavy, likely hidden nodes): both must stay exact.
-fn cost_model(query_ms: f64) -> CostModel {
-    CostModel {
-        draw_ms: 0.06,
-        triangle_ms: 2e-5,
-        fragment_ms: 2e-6,
-        query_ms,
-        query_fragment_ms: 1e-6,
-        round_trip_ms: 0.3,
-    }
-}
-
+/// NOHC with queries cheap against rendering (it queries nearly everything) or dear (it queries
+/// only heavy, likely hidden nodes): both must stay exact.
 fn nohc(scene: &Scene, query_ms: f64) -> Box<dyn Culler> {
-    let tris = scene
-        .objects
-        .iter()
-        .map(|o| o.triangle_count() as u32)
-        .collect();
-    let setup = CullerSetup {
-        nohc: Some(NohcParams::new(cost_model(query_ms), (W, H), tris)),
-        ..CullerSetup::default()
-    };
+    let setup = common::setup(common::triangles(scene), (W, H), query_ms);
     culling::create_with("nohc", &setup).unwrap()
 }
 

@@ -10,7 +10,7 @@ use std::process::Command;
 use std::sync::Arc;
 
 use ash::vk;
-use coherent::culling::{self, ChcppParams};
+use coherent::culling;
 use coherent::gpu::{Buffer, ContextOptions, GpuContext, Image, MemoryUsage};
 use coherent::render::Renderer;
 use coherent::Error;
@@ -237,24 +237,7 @@ const SOAKED: [&str; 6] = ["vfc", "stop-and-wait", "chc", "chcpp", "oracle", "no
 /// What the soaked algorithms need: nohc a cost model (a fixed one: the soak is about leaks and
 /// messages, not about which nodes are worth a query).
 fn setup(scene: &coherent::scene::Scene) -> culling::CullerSetup {
-    let costs = culling::CostModel {
-        draw_ms: 0.06,
-        triangle_ms: 2e-5,
-        fragment_ms: 2e-6,
-        query_ms: 0.05,
-        query_fragment_ms: 1e-6,
-        round_trip_ms: 0.3,
-    };
-    let tris = scene
-        .objects
-        .iter()
-        .map(|o| o.triangle_count() as u32)
-        .collect();
-    culling::CullerSetup {
-        params: ChcppParams::default(),
-        nohc: Some(culling::NohcParams::new(costs, (160, 90), tris)),
-        pvs: None,
-    }
+    common::setup(common::triangles(scene), (160, 90), 0.05)
 }
 
 /// Renders `frames` frames along the city's street path at 160x90 (scale 0.1): each pose is

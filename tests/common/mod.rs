@@ -66,3 +66,38 @@ pub fn diff_pixels(a: &[u8], b: &[u8]) -> usize {
 pub fn pose(p: &CameraPath, f: u32) -> CameraPose {
     p.pose_at(f as f32)
 }
+
+/// A fixed device cost model for NOHC in tests (a calibration is measured in its own test):
+/// `query_ms` sets how dear a query is against rendering.
+pub fn cost_model(query_ms: f64) -> coherent::culling::CostModel {
+    coherent::culling::CostModel {
+        draw_ms: 0.06,
+        triangle_ms: 2e-5,
+        fragment_ms: 2e-6,
+        query_ms,
+        query_fragment_ms: 1e-6,
+        round_trip_ms: 0.3,
+    }
+}
+
+/// Triangles per object of `scene` (what NOHC's render cost counts).
+pub fn triangles(scene: &Scene) -> Vec<u32> {
+    scene
+        .objects
+        .iter()
+        .map(|o| o.triangle_count() as u32)
+        .collect()
+}
+
+/// What every algorithm but pvs needs for a scene with `tris` triangles per object rendered at
+/// `size`: nohc gets [`cost_model`] with `query_ms`.
+pub fn setup(tris: Vec<u32>, size: (u32, u32), query_ms: f64) -> coherent::culling::CullerSetup {
+    coherent::culling::CullerSetup {
+        nohc: Some(coherent::culling::NohcParams::new(
+            cost_model(query_ms),
+            size,
+            tris,
+        )),
+        ..Default::default()
+    }
+}
