@@ -7,5 +7,5 @@ bash scripts/setup.sh
 export PATH="$HOME/.cargo/bin:$PATH"
 export COHERENT_DEVICE="${COHERENT_DEVICE:-llvmpipe}"
 cargo build --release --quiet
-./target/release/coherent walk --scene city --path street --frames 300 --out out/walk "$@"
+./target/release/coherent walk --scene city --path street --frames 300 --check --out out/walk "$@"
 echo "report: out/walk/summary.json, out/walk/frames.csv; plots: out/walk/frametime.png, out/walk/counts.png"

@@ -168,6 +168,48 @@ fn walk_runs_hiz_beside_the_query_algorithms() {
     common::assert_silent(&log);
 }
 
+/// `walk --check` for hiz: its GPU-generated draws are read back, and over 30 consecutive
+/// frames of each scene (including the first) it misses no object of the exact ID pass, nor
+/// does vfc; the check would see a miss (a frame whose draws are not logged misses everything).
+#[test]
+fn hiz_misses_no_object_under_walk_check() {
+    let (ctx, log) = common::context();
+    {
+        for (name, scale, path) in [("city", 0.1, "street"), ("powerplant", 1.0, "difficult")] {
+            let (scene, bvh) = common::scene(name, scale);
+            let path = scene.path(path).unwrap().clone();
+            let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+            let cfg = WalkConfig {
+                algorithms: vec!["vfc".into(), "hiz".into()],
+                frames: 30,
+                warmup: 0,
+                check: true,
+                ..Default::default()
+            };
+            let records = walk::run(&mut r, &bvh, &path, &cfg, |_, _| {}).unwrap();
+            assert_eq!(records.len(), 60);
+            for x in &records {
+                assert_eq!(
+                    x.missed_objects,
+                    Some(0),
+                    "{name} {} frame {}",
+                    x.algorithm,
+                    x.frame
+                );
+            }
+            // Without the log the same check reports the visible objects as missed.
+            let mut hiz = FrameAlgorithm::create("hiz", &Default::default(), &r).unwrap();
+            let mut owned = Vec::new();
+            let cam = r.camera(path.pose_at(0.0), &bvh);
+            r.object_pixels(&bvh, &cam, &mut owned).unwrap();
+            hiz.render_frame(&mut r, &bvh, &cam, 0).unwrap();
+            assert!(hiz.check(&r, &owned).missed_objects > 0);
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
 #[test]
 fn phase_one_draws_last_frames_visible_and_phase_two_the_rest() {
     let (ctx, log) = common::context();

@@ -819,6 +819,17 @@ impl Recorder {
         };
     }
 
+    /// Copies `size` bytes from the start of `src` to the start of `dst` (outside rendering).
+    pub fn copy_buffer(&mut self, src: &Buffer, dst: &Buffer, size: u64) {
+        let region = [vk::BufferCopy::default().size(size)];
+        // SAFETY: recording outside rendering; `src` has TRANSFER_SRC and `dst` TRANSFER_DST
+        // usage and both hold at least `size` bytes (the caller's invariant).
+        unsafe {
+            self.device
+                .cmd_copy_buffer(self.cmd, src.handle, dst.handle, &region)
+        };
+    }
+
     /// A global memory barrier: accesses `from` happen before accesses `to`.
     pub fn memory_barrier(&mut self, from: Access, to: Access) {
         let (src_stage, src_access) = from.stage_access();

@@ -101,6 +101,10 @@ pub struct HizCuller {
     flags: Buffer,
     draws: Buffer,
     counters: Buffer,
+    /// With [`HizCuller::log_drawn_objects`]: a host copy of the frame's draw commands, and
+    /// the objects they drew (for `walk --check`).
+    readback: Option<Buffer>,
+    drawn: Vec<u32>,
 }
 
 impl HizCuller {
@@ -118,7 +122,8 @@ impl HizCuller {
             records.extend([o.index_count, o.first_index, o.vertex_offset as u32, 0]);
         }
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
-        let indirect = storage | vk::BufferUsageFlags::INDIRECT_BUFFER;
+        let indirect =
+            storage | vk::BufferUsageFlags::INDIRECT_BUFFER | vk::BufferUsageFlags::TRANSFER_SRC;
         let bounds = Buffer::with_data(&ctx, "hiz bounds", &as_bytes(&records), storage)?;
         let flags = Buffer::with_data(&ctx, "hiz flags", &vec![0u8; 4 * n as usize], storage)?;
         let draws = Buffer::new(
@@ -172,7 +177,53 @@ impl HizCuller {
             flags,
             draws,
             counters,
+            readback: None,
+            drawn: Vec::new(),
         })
+    }
+
+    /// Turns on (or off) copying each frame's draw commands back to the host, so that
+    /// [`HizCuller::drawn_objects`] knows what the GPU drew (`walk --check`; costs a copy).
+    pub fn log_drawn_objects(&mut self, on: bool) -> Result<()> {
+        self.readback = if on {
+            Some(Buffer::new(
+                &self.ctx,
+                "hiz draws readback",
+                2 * u64::from(self.object_count.max(1)) * COMMAND_BYTES,
+                vk::BufferUsageFlags::TRANSFER_DST,
+                MemoryLocation::GpuToCpu,
+            )?)
+        } else {
+            None
+        };
+        self.drawn.clear();
+        Ok(())
+    }
+
+    /// The objects the last frame's indirect draws drew (both phases), when logging is on.
+    pub fn drawn_objects(&self) -> &[u32] {
+        &self.drawn
+    }
+
+    /// Reads the draw commands of both phases from the readback copy: each command's
+    /// `firstInstance` is its object.
+    fn read_drawn(&mut self, phases: [u32; 2]) -> Result<()> {
+        self.drawn.clear();
+        let Some(bytes) = self.readback.as_ref().and_then(|b| b.mapped()) else {
+            return Ok(());
+        };
+        let n = self.object_count as usize;
+        for (phase, &count) in phases.iter().enumerate() {
+            for k in 0..(count as usize).min(n) {
+                let at = ((phase * n + k) * COMMAND_BYTES as usize) + 16;
+                let word = bytes.get(at..at + 4).ok_or_else(|| {
+                    Error::Alloc("hiz draws readback is shorter than its commands".into())
+                })?;
+                self.drawn
+                    .push(u32::from_le_bytes([word[0], word[1], word[2], word[3]]));
+            }
+        }
+        Ok(())
     }
 
     /// Forgets temporal state: no object counts as visible last frame, no pyramid is reused.
@@ -213,6 +264,14 @@ impl HizCuller {
         self.pyramid.record_build(&mut r.recorder, &r.target.depth);
         pass_timestamp(r)?;
         self.record_phase(r, 2, &vp)?;
+        if let Some(readback) = &self.readback {
+            r.recorder
+                .memory_barrier(Access::ComputeReadWrite, Access::TransferRead);
+            let bytes = 2 * u64::from(self.object_count.max(1)) * COMMAND_BYTES;
+            r.recorder.copy_buffer(&self.draws, readback, bytes);
+            r.recorder
+                .memory_barrier(Access::TransferWrite, Access::HostRead);
+        }
         r.recorder
             .memory_barrier(Access::ComputeReadWrite, Access::HostRead);
         let value = r.timeline.submit(&mut r.recorder)?;
@@ -222,6 +281,7 @@ impl HizCuller {
         self.pyramid_valid = true;
         let (phases, triangles) = self.read_counters()?;
         self.last_phases = phases;
+        self.read_drawn(phases)?;
         let objects = phases[0] + phases[1];
         r.recorder.note_indirect_result(objects, triangles);
         let gpu_ms = self.read_pass_times(r)?;
@@ -234,8 +294,8 @@ impl HizCuller {
                 objects_drawn: objects,
                 ..Default::default()
             },
-            // The draws are generated on the GPU, so the recorder's object log does not see
-            // them: `walk --check` does not measure hiz (its tests compare images with vfc's).
+            // The draws are generated on the GPU: `walk --check` reads them back
+            // (`log_drawn_objects`) and checks them with `Renderer::check_objects`.
             check: None,
         })
     }
@@ -556,6 +616,27 @@ impl FrameAlgorithm {
         match self {
             FrameAlgorithm::Culler(c) => r.render_frame(c.as_mut(), bvh, camera, frame),
             FrameAlgorithm::Hiz(h) => h.render_frame(r, camera),
+        }
+    }
+
+    /// Makes the frames report what they drew, for [`FrameAlgorithm::check`] (the renderer's
+    /// recorder logs CPU-recorded draws; hiz reads its GPU-generated draws back).
+    pub fn log_drawn_objects(&mut self, r: &mut Renderer, on: bool) -> Result<()> {
+        match self {
+            FrameAlgorithm::Culler(_) => {
+                r.log_drawn_objects(on);
+                Ok(())
+            }
+            FrameAlgorithm::Hiz(h) => h.log_drawn_objects(on),
+        }
+    }
+
+    /// What the last frame missed against `pixels` of the exact ID pass (see
+    /// [`Renderer::object_pixels`]); needs [`FrameAlgorithm::log_drawn_objects`].
+    pub fn check(&self, r: &Renderer, pixels: &[u32]) -> super::Check {
+        match self {
+            FrameAlgorithm::Culler(_) => r.check_drawn(pixels),
+            FrameAlgorithm::Hiz(h) => Renderer::check_objects(h.drawn_objects(), pixels),
         }
     }
 

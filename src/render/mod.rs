@@ -464,8 +464,14 @@ impl Renderer {
     /// [`Renderer::log_drawn_objects`]) with `pixels` from [`Renderer::object_pixels`] for the
     /// same camera.
     pub fn check_drawn(&self, pixels: &[u32]) -> Check {
+        Renderer::check_objects(self.recorder.drawn_objects(), pixels)
+    }
+
+    /// [`Renderer::check_drawn`] for a list of drawn objects from elsewhere (the GPU-generated
+    /// draws of `hiz`, read back).
+    pub fn check_objects(drawn_objects: &[u32], pixels: &[u32]) -> Check {
         let mut drawn = vec![false; pixels.len()];
-        for &o in self.recorder.drawn_objects() {
+        for &o in drawn_objects {
             if let Some(d) = drawn.get_mut(o as usize) {
                 *d = true;
             }

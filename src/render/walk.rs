@@ -64,6 +64,9 @@ pub fn run(
             .iter()
             .map(|a| FrameAlgorithm::create(a, &setup, renderer))
             .collect::<Result<_>>()?;
+        for c in cullers.iter_mut() {
+            c.log_drawn_objects(renderer, cfg.check)?;
+        }
         for i in 0..total {
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
@@ -72,8 +75,8 @@ pub fn run(
             }
             for (k, (name, culler)) in cfg.algorithms.iter().zip(cullers.iter_mut()).enumerate() {
                 let mut r = culler.render_frame(renderer, bvh, &camera, i as u64)?;
-                if cfg.check && matches!(culler, FrameAlgorithm::Culler(_)) {
-                    r.check = Some(renderer.check_drawn(&owned));
+                if cfg.check {
+                    r.check = Some(culler.check(renderer, &owned));
                 }
                 if i >= cfg.warmup {
                     records.push(r.record(name, i - cfg.warmup, repeat));
@@ -241,6 +244,9 @@ pub fn run_with_movers(
     let mut owned = Vec::new();
     for repeat in 0..cfg.repeats.max(1) {
         let mut cullers = create_all(&cfg.algorithms, cfg, renderer)?;
+        for c in cullers.iter_mut() {
+            c.log_drawn_objects(renderer, cfg.check)?;
+        }
         let mut base_cullers = match walk.baseline.as_mut() {
             Some((base, _)) => create_all(&walk.baseline_algorithms, cfg, base)?,
             None => Vec::new(),
@@ -258,8 +264,8 @@ pub fn run_with_movers(
             let mut k = 0u64;
             for (name, culler) in cfg.algorithms.iter().zip(cullers.iter_mut()) {
                 let mut r = culler.render_frame(renderer, bvh, &camera, i as u64)?;
-                if cfg.check && matches!(culler, FrameAlgorithm::Culler(_)) {
-                    r.check = Some(renderer.check_drawn(&owned));
+                if cfg.check {
+                    r.check = Some(culler.check(renderer, &owned));
                 }
                 if i >= cfg.warmup {
                     records.push(r.record(name, i - cfg.warmup, repeat));
