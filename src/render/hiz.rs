@@ -96,7 +96,7 @@ pub struct HizCuller {
     last_phases: [u32; 2],
     /// Device time of each pass of the last frame ([`PASSES`]), from timestamps.
     last_pass_ms: [f64; 5],
-    #[allow(dead_code)] // owned here; the descriptor set points at it
+    /// Per object: world bounds and draw parameters (the descriptor set points at it).
     bounds: Buffer,
     flags: Buffer,
     draws: Buffer,
@@ -105,6 +105,8 @@ pub struct HizCuller {
     /// the objects they drew (for `walk --check`).
     readback: Option<Buffer>,
     drawn: Vec<u32>,
+    /// The renderer's bounds version that `bounds` holds (objects that moved are re-uploaded).
+    bounds_version: u64,
 }
 
 impl HizCuller {
@@ -179,7 +181,27 @@ impl HizCuller {
             counters,
             readback: None,
             drawn: Vec::new(),
+            bounds_version: renderer.bounds_version,
         })
+    }
+
+    /// Re-uploads every object's bounds when the renderer's changed (moving objects).
+    fn sync_bounds(&mut self, r: &Renderer) -> Result<()> {
+        if r.bounds_version == self.bounds_version {
+            return Ok(());
+        }
+        for (i, o) in r
+            .objects
+            .iter()
+            .take(self.object_count as usize)
+            .enumerate()
+        {
+            let (lo, hi) = (o.bounds.min, o.bounds.max);
+            let corners = [lo.x, lo.y, lo.z, 0.0, hi.x, hi.y, hi.z, 0.0];
+            self.bounds.write(i * 48, bytes_of(&corners))?;
+        }
+        self.bounds_version = r.bounds_version;
+        Ok(())
     }
 
     /// Turns on (or off) copying each frame's draw commands back to the host, so that
@@ -246,6 +268,7 @@ impl HizCuller {
                 r.size().1
             )));
         }
+        self.sync_bounds(r)?;
         r.begin_frame(&camera.into())?;
         let start = Instant::now();
         let cmd = r.segments.begin_next()?;

@@ -60,6 +60,8 @@ struct ObjectDraw {
 pub struct Renderer {
     ctx: Arc<GpuContext>,
     objects: Vec<ObjectDraw>,
+    /// Bumped whenever an object's bounds change (GPU-driven culling re-uploads them).
+    bounds_version: u64,
     triangles: u64,
     // The timeline is dropped first: it waits for every submitted segment.
     timeline: Timeline,
@@ -170,6 +172,7 @@ impl Renderer {
             stall: Duration::ZERO,
             prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
+            bounds_version: 0,
         })
     }
 
@@ -185,6 +188,18 @@ impl Renderer {
         let offset = object as usize * upload::OBJECT_FLOATS * 4;
         let data = upload::object_data(transform, glam::Vec4::ZERO);
         self.object_buffer.write(offset, bytes_of(&data[..32]))
+    }
+
+    /// Sets the world-space bounds of `object` (after it moved), for GPU-driven culling, which
+    /// tests bounds on the GPU (`hiz`); the CPU traversals take them from the hierarchy.
+    pub fn set_object_bounds(&mut self, object: u32, bounds: Aabb) -> Result<()> {
+        let n = self.objects.len();
+        let o = self.objects.get_mut(object as usize).ok_or_else(|| {
+            Error::Input(format!("object {object} does not exist (renderer has {n})"))
+        })?;
+        o.bounds = bounds;
+        self.bounds_version += 1;
+        Ok(())
     }
 
     /// Makes object slot `object` draw the mesh and color of object `template` with

@@ -325,6 +325,7 @@ pub fn place_movers(
         let t = std::time::Instant::now();
         bvh.set_bounds(object, bounds)?;
         hierarchy += t.elapsed();
+        renderer.set_object_bounds(object, bounds)?;
         renderer.set_object_transform(object, transform)
     })?;
     let t = std::time::Instant::now();
