@@ -307,7 +307,7 @@ pub fn camera_path(doc: &Document, world: &[Option<Mat4>]) -> Option<CameraPath>
 }
 
 /// The first spot light's path: its animation when its node is animated, else a sweep of
-/// ±[`SWEEP_DEGREES`] around its direction. Warnings go to `warnings`.
+/// ±`SWEEP_DEGREES` (20°) around its direction. Warnings go to `warnings`.
 pub fn light_path(
     doc: &Document,
     world: &[Option<Mat4>],
