@@ -16,8 +16,7 @@ use std::sync::Arc;
 
 use glam::Vec3;
 
-use super::{CullStats, Culler, FrameInput, OcclusionBackend, View};
-use crate::bvh::DistanceQueue;
+use super::{CullStats, Culler, FrameInput, OcclusionBackend};
 use crate::error::{Error, Result};
 use crate::scene::Aabb;
 
@@ -256,8 +255,8 @@ pub struct PvsCuller {
     in_set: Vec<bool>,
     /// The cell `in_set` was filled for (`None`: outside every cell, everything counts).
     current: Option<Option<u32>>,
-    batch: Vec<u32>,
-    queue: DistanceQueue,
+    /// The frustum traversal and draw (vfc's, with the set as a filter).
+    vfc: super::vfc::Vfc,
 }
 
 impl PvsCuller {
@@ -267,8 +266,7 @@ impl PvsCuller {
             in_set: vec![false; pvs.objects as usize],
             pvs,
             current: None,
-            batch: Vec::new(),
-            queue: DistanceQueue::default(),
+            vfc: super::vfc::Vfc::default(),
         }
     }
 
@@ -300,31 +298,11 @@ impl Culler for PvsCuller {
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
     ) -> Result<CullStats> {
-        let view = View::new(&input.view);
-        self.select_cell(view.eye);
-        let mut stats = CullStats::default();
-        self.batch.clear();
-        let (batch, in_set) = (&mut self.batch, &self.in_set);
-        input
-            .bvh
-            .front_to_back_with(&mut self.queue, view.eye, |id, node| {
-                stats.nodes_visited += 1;
-                if !view.frustum.intersects(&node.bounds) {
-                    stats.frustum_culled += 1;
-                    return false;
-                }
-                let objects = input.bvh.objects(id);
-                batch.extend(
-                    objects
-                        .iter()
-                        .filter(|&&o| in_set.get(o as usize).copied().unwrap_or(true)),
-                );
-                true
-            });
-        stats.objects_drawn = batch.len() as u32;
-        backend.draw_objects(batch)?;
-        backend.finish()?;
-        Ok(stats)
+        self.select_cell(input.view.eye);
+        let in_set = &self.in_set;
+        self.vfc.draw_in_frustum(input, backend, |o| {
+            in_set.get(o as usize).copied().unwrap_or(true)
+        })
     }
 
     fn reset(&mut self) {

@@ -12,15 +12,14 @@ pub struct Vfc {
     queue: DistanceQueue,
 }
 
-impl Culler for Vfc {
-    fn name(&self) -> &str {
-        "vfc"
-    }
-
-    fn cull_frame(
+impl Vfc {
+    /// Draws, front to back, every object of a leaf in the frustum that `keep` accepts, in one
+    /// batch, and finishes the frame (vfc keeps everything; pvs keeps its cell's set).
+    pub(crate) fn draw_in_frustum(
         &mut self,
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
+        keep: impl Fn(u32) -> bool,
     ) -> Result<CullStats> {
         let view = View::new(&input.view);
         let mut stats = CullStats::default();
@@ -35,7 +34,8 @@ impl Culler for Vfc {
                     return false;
                 }
                 if node.is_leaf() {
-                    batch.extend_from_slice(input.bvh.objects(id));
+                    let objects = input.bvh.objects(id);
+                    batch.extend(objects.iter().filter(|&&o| keep(o)));
                 }
                 true
             });
@@ -43,6 +43,20 @@ impl Culler for Vfc {
         backend.draw_objects(batch)?;
         backend.finish()?;
         Ok(stats)
+    }
+}
+
+impl Culler for Vfc {
+    fn name(&self) -> &str {
+        "vfc"
+    }
+
+    fn cull_frame(
+        &mut self,
+        input: &FrameInput,
+        backend: &mut dyn OcclusionBackend,
+    ) -> Result<CullStats> {
+        self.draw_in_frustum(input, backend, |_| true)
     }
 
     fn reset(&mut self) {}

@@ -38,13 +38,13 @@ use crate::bvh::ObjectBvh;
 use crate::culling::{self, ChcppParams, CullStats, Culler};
 use crate::error::{Error, Result};
 use crate::gpu::{
-    as_bytes, bytes_of, shaders, targets, Access, Attachment, Binding, Buffer, ComputePipeline,
-    DescriptorSets, GpuContext, ImageUse, Load, PipelineLayout,
+    as_bytes, bytes_of, shaders, targets, Access, Binding, Buffer, ComputePipeline, DescriptorSets,
+    GpuContext, PipelineLayout,
 };
 use crate::scene::camera::Camera;
 use pyramid::DepthPyramid;
 
-use super::{FrameResult, Renderer, SKY};
+use super::{FrameResult, Renderer};
 
 /// Objects per workgroup of the culling shader (hiz_cull.comp: 64).
 const GROUP: u32 = 64;
@@ -355,34 +355,9 @@ impl HizCuller {
         rec.dispatch(self.object_count.div_ceil(GROUP).max(1), 1, 1);
         rec.memory_barrier(Access::ComputeReadWrite, Access::IndirectRead);
         pass_timestamp(r)?;
+        r.begin_target_rendering(phase == 1)?;
         let rec = &mut r.recorder;
-        let (color, depth) = (&r.target.color, &r.target.depth);
-        let (color_load, depth_load) = if phase == 1 {
-            rec.discard(color, ImageUse::ColorAttachment);
-            rec.discard(depth, ImageUse::DepthAttachment);
-            (Load::ClearColor(SKY), Load::ClearDepth(1.0))
-        } else {
-            rec.transition(color, ImageUse::ColorAttachment);
-            rec.transition(depth, ImageUse::DepthAttachment);
-            (Load::Keep, Load::Keep)
-        };
-        rec.begin_rendering(
-            &[Attachment {
-                image: color,
-                load: color_load,
-                store: true,
-            }],
-            Some(Attachment {
-                image: depth,
-                load: depth_load,
-                store: true,
-            }),
-            1,
-        )?;
-        let layout = &r.pipelines.layout;
         rec.bind_pipeline(&r.pipelines.render);
-        rec.bind_graphics_set(layout, r.descriptors.get(0));
-        rec.push_constants(layout, &r.push);
         rec.bind_buffers(&r.vertex_buffer, 0, Some(&r.index_buffer));
         let first = (phase as u64 - 1) * self.object_count as u64 * COMMAND_BYTES;
         let count_offset = (phase as u64 - 1) * 4;

@@ -370,8 +370,16 @@ impl Renderer {
         self.bound = None;
         let ts = self.timestamps.allocate()?;
         self.recorder.write_timestamp(&self.timestamps, ts);
+        self.begin_target_rendering(first)?;
+        self.recording = true;
+        Ok(())
+    }
+
+    /// Begins rendering into the target, clearing it when `clear` (a frame's first pass) and
+    /// otherwise resuming with LOAD ops, and binds the scene's descriptor set and push block.
+    pub(crate) fn begin_target_rendering(&mut self, clear: bool) -> Result<()> {
         let (color, depth) = (&self.target.color, &self.target.depth);
-        let (color_load, depth_load) = if first {
+        let (color_load, depth_load) = if clear {
             self.recorder.discard(color, ImageUse::ColorAttachment);
             self.recorder.discard(depth, ImageUse::DepthAttachment);
             (Load::ClearColor(SKY), Load::ClearDepth(1.0))
@@ -397,7 +405,6 @@ impl Renderer {
         self.recorder
             .bind_graphics_set(layout, self.descriptors.get(0));
         self.recorder.push_constants(layout, &self.push);
-        self.recording = true;
         Ok(())
     }
 
