@@ -411,55 +411,44 @@ fn corner_statues(
     }
 }
 
-/// Path `street`: walk along a street, turn, walk another; eye height 1.7 m.
+/// Path `street`: along the centre lines of the streets at eye height 1.7 m, three turns at
+/// crossings. Each turn has a key a few metres before and after the crossing, so that the
+/// Catmull-Rom spline between keys stays in the street instead of cutting the corner through a
+/// building or a parked car (`tests/builtin_paths.rs` checks every quarter frame).
 fn city_street_path(b: &mut SceneBuilder, grid: &CityGrid) {
     let (block, street, pitch) = (grid.block, grid.street, grid.pitch);
-    let s0 = block + street / 2.0; // centre line of the first street
     let path_blocks = grid.path_blocks();
-    let path_extent = path_blocks as f32 * pitch;
-    let mid = (path_blocks / 2) as f32 * pitch - street / 2.0;
-    let far = path_extent - street;
-    let e = 1.7;
-    b.path(
-        "street",
-        &[
-            (Vec3::new(s0, e, 2.0), Vec3::new(s0, e, 40.0)),
-            (
-                Vec3::new(s0, e, mid * 0.5),
-                Vec3::new(s0 + 2.0, e, mid * 0.5 + 40.0),
-            ),
-            (Vec3::new(s0, e, mid), Vec3::new(s0 + 20.0, e, mid + 20.0)),
-            (
-                Vec3::new(s0 + pitch, e, mid),
-                Vec3::new(s0 + pitch + 40.0, e, mid),
-            ),
-            (Vec3::new(mid, e, mid), Vec3::new(mid + 40.0, e, mid + 5.0)),
-            (
-                Vec3::new(far * 0.75, e, mid),
-                Vec3::new(far * 0.75 + 20.0, e, mid + 30.0),
-            ),
-            (
-                Vec3::new(far * 0.75, e, mid + pitch),
-                Vec3::new(far * 0.75, e, mid + pitch + 40.0),
-            ),
-            (
-                Vec3::new(far * 0.75, e, far * 0.8),
-                Vec3::new(far * 0.75 - 30.0, e, far * 0.8 + 20.0),
-            ),
-            (
-                Vec3::new(far * 0.5, e, far * 0.8),
-                Vec3::new(far * 0.5 - 40.0, e, far * 0.8),
-            ),
-            (
-                Vec3::new(s0, e, far * 0.8),
-                Vec3::new(s0, e, far * 0.8 - 40.0),
-            ),
-            (
-                Vec3::new(s0, e, far * 0.5),
-                Vec3::new(s0, e, far * 0.5 - 40.0),
-            ),
-        ],
+    // Centre line of the street after block `k` (x or z).
+    let line = |k: i32| k as f32 * pitch + block + street / 2.0;
+    let (l0, l6, l10) = (
+        line(0),
+        line(path_blocks / 2 - 1),
+        line(path_blocks * 5 / 7),
     );
+    let e = 1.7;
+    let at = |x: f32, z: f32| Vec3::new(x, e, z);
+    let (px, pz, nx) = (Vec3::X, Vec3::Z, -Vec3::X);
+    let mut keys = vec![
+        (at(l0, 2.0), at(l0, 42.0)),
+        (at(l0, l6 * 0.5), at(l0 + 2.0, l6 * 0.5 + 40.0)),
+    ];
+    keys.extend(turn(at(l0, l6), pz, px, 8.0));
+    keys.push((at(l6, l6), at(l6 + 40.0, l6 + 5.0)));
+    keys.extend(turn(at(l10, l6), px, pz, 8.0));
+    keys.extend(turn(at(l10, l10), pz, nx, 8.0));
+    keys.push((at(l6, l10), at(l6 - 40.0, l10)));
+    b.path("street", &keys);
+}
+
+/// Three path keys turning at `c` from direction `from` to direction `to`, `approach` metres
+/// before and after it: the spline between them strays at most about 0.074 `approach` from the
+/// two straight lines (its sideways offset is `approach` t^2 (1 - t) / 2 at most).
+fn turn(c: Vec3, from: Vec3, to: Vec3, approach: f32) -> [(Vec3, Vec3); 3] {
+    [
+        (c - from * approach, c + from * 40.0),
+        (c, c + (from + to) * 20.0),
+        (c + to * approach, c + to * 40.0),
+    ]
 }
 
 /// Path `overhead`: a bird's-eye flight around the city (mostly visible: CHC's worst case).
@@ -678,39 +667,31 @@ fn seat_mesh() -> Mesh {
     m
 }
 
-/// The walk: along the first aisle, round the end of the rows, back along a middle aisle, and
-/// a look over the lot from its far edge.
+/// The walk: along the first aisle, round the end of the rows, back along a middle aisle, out
+/// past the first bays and a look over the lot from its far edge. Turns have keys just before and
+/// after them so that the spline stays in the aisles (`tests/builtin_paths.rs`).
 fn parking_path(b: &mut SceneBuilder, lot: &ParkingLot) {
     let (rows, dz) = (lot.rows, lot.dz);
     let (w, d) = (lot.width(), lot.depth());
     let e = 1.7;
-    let aisle = |r: i32| r as f32 * dz + 6.9;
-    b.path(
-        "default",
-        &[
-            (Vec3::new(-4.0, e, aisle(0)), Vec3::new(10.0, e, aisle(0))),
-            (
-                Vec3::new(w * 0.5, e, aisle(0)),
-                Vec3::new(w * 0.5 + 10.0, e, aisle(0) + 2.0),
-            ),
-            (
-                Vec3::new(w + 3.0, e, aisle(0) + 1.0),
-                Vec3::new(w + 3.0, e, aisle(0) + 10.0),
-            ),
-            (
-                Vec3::new(w + 3.0, e, aisle((rows - 1).max(0) / 2)),
-                Vec3::new(w - 5.0, e, aisle((rows - 1).max(0) / 2)),
-            ),
-            (
-                Vec3::new(w * 0.5, e, aisle((rows - 1).max(0) / 2)),
-                Vec3::new(w * 0.5 - 10.0, e, aisle((rows - 1).max(0) / 2) + 1.0),
-            ),
-            (
-                Vec3::new(-3.0, e + 2.0, d),
-                Vec3::new(w * 0.5, 0.0, d * 0.5),
-            ),
-        ],
-    );
+    // Between the cars of row `r` (up to z = r dz + 4.7) and the pillars in front of row r + 1
+    // (from z = r dz + 6.9): the eye keeps more than 1 m from both.
+    let aisle = |r: i32| r as f32 * dz + 5.8;
+    let (a0, am) = (aisle(0), aisle((rows - 1).max(0) / 2));
+    let at = |x: f32, z: f32| Vec3::new(x, e, z);
+    let mut keys = vec![
+        (at(-4.0, a0), at(10.0, a0)),
+        (at(w * 0.5, a0), at(w * 0.5 + 10.0, a0 + 2.0)),
+    ];
+    keys.extend(turn(at(w + 3.0, a0), Vec3::X, Vec3::Z, 5.0));
+    keys.extend(turn(at(w + 3.0, am), Vec3::Z, -Vec3::X, 5.0));
+    keys.push((at(w * 0.5, am), at(w * 0.5 - 10.0, am + 1.0)));
+    keys.extend(turn(at(-3.0, am), -Vec3::X, Vec3::Z, 5.0));
+    keys.push((
+        Vec3::new(-3.0, e + 2.0, d),
+        Vec3::new(w * 0.5, 0.0, d * 0.5),
+    ));
+    b.path("default", &keys);
 }
 
 /// Side of a powerplant room.

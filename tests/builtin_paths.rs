@@ -1,0 +1,66 @@
+//! The built-in ground-level paths keep the camera out of solid objects: a walk whose eye
+//! enters a building measures the inside of a box, not occlusion culling.
+
+use coherent::scene::Scene;
+
+/// Every quarter frame of `path`, the eye is at least `margin` metres outside every object's
+/// box; returns the first offending (frame, object) pairs.
+fn eye_inside_objects(scene: &Scene, path: &str, margin: f32) -> Vec<(f32, usize)> {
+    let path = scene.path(path).expect("path");
+    let frames = path.natural_frames() as f32;
+    let boxes: Vec<_> = scene
+        .objects
+        .iter()
+        .map(|o| o.bounds.enlarged(margin))
+        .collect();
+    let mut hits = Vec::new();
+    let mut f = 0.0f32;
+    while f <= frames {
+        let eye = path.pose_at(f).eye;
+        if let Some(i) = boxes.iter().position(|b| b.contains(eye)) {
+            hits.push((f, i));
+        }
+        f += 0.25;
+    }
+    hits
+}
+
+#[test]
+fn city_street_stays_in_the_streets() {
+    let scene = Scene::load("city", 1.0, 4096).expect("city");
+    let hits = eye_inside_objects(&scene, "street", 0.3);
+    assert!(
+        hits.is_empty(),
+        "street path eye inside {} object boxes, first at frame {:?} (eye {:?})",
+        hits.len(),
+        hits.first(),
+        hits.first()
+            .map(|h| scene.path("street").expect("path").pose_at(h.0).eye)
+    );
+}
+
+#[test]
+fn city_street_stays_in_the_streets_at_every_scale() {
+    for scale in [4.0, 16.0] {
+        let scene = Scene::load("city", scale, 4096).expect("city");
+        let hits = eye_inside_objects(&scene, "street", 0.3);
+        assert!(hits.is_empty(), "scale {scale}: {} hits", hits.len());
+    }
+}
+
+#[test]
+fn parking_path_stays_out_of_the_cars() {
+    let scene = Scene::load("parking", 1.0, 4096).expect("parking");
+    for path in &scene.paths {
+        let hits = eye_inside_objects(&scene, &path.name, 0.3);
+        assert!(
+            hits.is_empty(),
+            "parking path {}: eye inside {} object boxes, first {:?} eye {:?} box {:?}",
+            path.name,
+            hits.len(),
+            hits.first(),
+            hits.first().map(|h| path.pose_at(h.0).eye),
+            hits.first().map(|h| scene.objects[h.1].bounds)
+        );
+    }
+}
