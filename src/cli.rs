@@ -571,6 +571,7 @@ fn walk_scale_movers(
     let reference = a.algorithms.iter().any(|x| x == "oracle");
     println!("{}", summary.table(reference.then_some("oracle")));
     print_movers(&ms);
+    print_mover_draws(&summary);
     println!(
         "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
         dir.display()
@@ -582,6 +583,16 @@ fn walk_scale_movers(
 fn bvh_of(scene: &Scene, leaf_size: u32) -> ObjectBvh {
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     ObjectBvh::build(&bounds, leaf_size)
+}
+
+/// Prints each algorithm's median object draws of movers (pvs draws them frustum-culled only).
+fn print_mover_draws(summary: &coherent::report::WalkSummary) {
+    let draws: Vec<String> = summary
+        .algorithms
+        .iter()
+        .filter_map(|(n, s)| s.mover_draws_median.map(|d| format!("{n} {d}")))
+        .collect();
+    println!("mover draws (median per frame): {}", draws.join(", "));
 }
 
 /// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.

@@ -58,6 +58,10 @@ pub struct CommandCounts {
     pub indirect_objects: u32,
     /// Triangles of those objects, read back likewise.
     pub indirect_triangles: u64,
+    /// Object draws of moving objects: render-state draws whose object lies in
+    /// [`Recorder::count_mover_draws`]'s range, plus the movers among indirect draws as read
+    /// back after the frame ([`Recorder::note_indirect_movers`]).
+    pub mover_draws: u32,
 }
 
 /// How a buffer (or any memory) is accessed, for [`Recorder::memory_barrier`].
@@ -259,6 +263,8 @@ pub struct Recorder {
     log_objects: bool,
     /// Objects drawn in render state since the last [`Recorder::clear_drawn_objects`].
     drawn_objects: Vec<u32>,
+    /// Objects whose render-state draws also count as `mover_draws` (empty: none).
+    movers: std::ops::Range<u32>,
 }
 
 impl Recorder {
@@ -274,7 +280,19 @@ impl Recorder {
             counts: CommandCounts::default(),
             log_objects: false,
             drawn_objects: Vec::new(),
+            movers: 0..0,
         }
+    }
+
+    /// Counts render-state draws of the objects in `objects` (the moving ones; their
+    /// `first_instance`) in [`CommandCounts::mover_draws`] too. An empty range counts none.
+    pub fn count_mover_draws(&mut self, objects: std::ops::Range<u32>) {
+        self.movers = objects;
+    }
+
+    /// The objects counted as movers ([`Recorder::count_mover_draws`]).
+    pub fn mover_objects(&self) -> std::ops::Range<u32> {
+        self.movers.clone()
     }
 
     /// Turns on (or off) the log of objects drawn in render state: every render-state
@@ -425,8 +443,13 @@ impl Recorder {
         };
         let tris = (index_count / 3) as u64 * instances as u64;
         self.count_draw(tris);
-        if self.log_objects && !self.in_query && self.last_kind == Some(PipelineKind::Render) {
-            self.drawn_objects.push(first_instance);
+        if !self.in_query && self.last_kind == Some(PipelineKind::Render) {
+            if self.log_objects {
+                self.drawn_objects.push(first_instance);
+            }
+            if self.movers.contains(&first_instance) {
+                self.counts.mover_draws += 1;
+            }
         }
     }
 
@@ -807,6 +830,11 @@ impl Recorder {
     pub fn note_indirect_result(&mut self, objects: u32, triangles: u64) {
         self.counts.indirect_objects += objects;
         self.counts.indirect_triangles += triangles;
+    }
+
+    /// Adds the movers among the frame's indirect draws, read back after the frame completed.
+    pub fn note_indirect_movers(&mut self, objects: u32) {
+        self.counts.mover_draws += objects;
     }
 
     /// Fills `size` bytes of `buffer` at `offset` with the u32 `value` (outside rendering).

@@ -56,6 +56,7 @@ impl FrameResult {
             submits: self.counts.submits,
             missed_objects: self.check.map(|c| c.missed_objects),
             missed_pixels: self.check.map(|c| c.missed_pixels),
+            mover_draws: None,
         }
     }
 }

@@ -307,6 +307,9 @@ impl HizCuller {
         self.read_drawn(phases)?;
         let objects = phases[0] + phases[1];
         r.recorder.note_indirect_result(objects, triangles);
+        let movers = r.recorder.mover_objects();
+        let moving = self.drawn.iter().filter(|o| movers.contains(o)).count();
+        r.recorder.note_indirect_movers(moving as u32);
         let gpu_ms = self.read_pass_times(r)?;
         Ok(FrameResult {
             frame_ms,
@@ -627,6 +630,23 @@ impl FrameAlgorithm {
             }
             FrameAlgorithm::Hiz(h) => h.log_drawn_objects(on),
         }
+    }
+
+    /// Counts the draws of `movers` as the frames' mover draws (see
+    /// [`Renderer::count_mover_draws`]); hiz draws on the GPU, so it reads its draws back to
+    /// count them (the copy of `walk --check`).
+    pub fn count_mover_draws(
+        &mut self,
+        r: &mut Renderer,
+        movers: std::ops::Range<u32>,
+    ) -> Result<()> {
+        if let FrameAlgorithm::Hiz(h) = self {
+            if !movers.is_empty() && h.readback.is_none() {
+                h.log_drawn_objects(true)?;
+            }
+        }
+        r.count_mover_draws(movers);
+        Ok(())
     }
 
     /// What the last frame missed against `pixels` of the exact ID pass (see

@@ -477,6 +477,17 @@ impl Renderer {
         self.recorder.log_drawn_objects(on);
     }
 
+    /// Counts the draws of the objects in `movers` (the scene's moving objects) as the frame's
+    /// `mover_draws` too (the recorder's count; an empty range counts none).
+    pub fn count_mover_draws(&mut self, movers: std::ops::Range<u32>) {
+        self.recorder.count_mover_draws(movers);
+    }
+
+    /// The objects whose draws count as mover draws ([`Renderer::count_mover_draws`]).
+    pub fn mover_objects(&self) -> std::ops::Range<u32> {
+        self.recorder.mover_objects()
+    }
+
     /// Objects the last frame drew, in draw order (with [`Renderer::log_drawn_objects`] on).
     pub fn drawn_objects(&self) -> &[u32] {
         self.recorder.drawn_objects()

@@ -246,6 +246,7 @@ pub fn run_with_movers(
         let mut cullers = create_all(&cfg.algorithms, cfg, renderer)?;
         for c in cullers.iter_mut() {
             c.log_drawn_objects(renderer, cfg.check)?;
+            c.count_mover_draws(renderer, walk.movers.objects())?;
         }
         let mut base_cullers = match walk.baseline.as_mut() {
             Some((base, _)) => create_all(&walk.baseline_algorithms, cfg, base)?,
@@ -268,7 +269,9 @@ pub fn run_with_movers(
                     r.check = Some(culler.check(renderer, &owned));
                 }
                 if i >= cfg.warmup {
-                    records.push(r.record(name, i - cfg.warmup, repeat));
+                    let mut record = r.record(name, i - cfg.warmup, repeat);
+                    record.mover_draws = Some(r.counts.mover_draws);
+                    records.push(record);
                 }
                 k += 1;
                 progress(
@@ -280,7 +283,11 @@ pub fn run_with_movers(
                 for (name, culler) in walk.baseline_algorithms.iter().zip(base_cullers.iter_mut()) {
                     let r = culler.render_frame(base, base_bvh, &camera, i as u64)?;
                     if i >= cfg.warmup {
-                        records.push(r.record(&format!("{name}-static"), i - cfg.warmup, repeat));
+                        let mut record =
+                            r.record(&format!("{name}-static"), i - cfg.warmup, repeat);
+                        // The scene without movers: none to draw.
+                        record.mover_draws = Some(r.counts.mover_draws);
+                        records.push(record);
                     }
                     k += 1;
                     progress(

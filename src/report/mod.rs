@@ -53,10 +53,13 @@ pub struct FrameRecord {
     pub missed_objects: Option<u32>,
     /// With `walk --check`: pixels of the exact ID pass owned by missed objects.
     pub missed_pixels: Option<u64>,
+    /// With movers (`walk --movers N`): object draws of moving objects (the recorder's count;
+    /// part of `object_draws`).
+    pub mover_draws: Option<u32>,
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 18] = [
+pub const CSV_HEADER: [&str; 19] = [
     "algorithm",
     "frame",
     "repeat",
@@ -75,6 +78,7 @@ pub const CSV_HEADER: [&str; 18] = [
     "submits",
     "missed_objects",
     "missed_pixels",
+    "mover_draws",
 ];
 
 /// Quotes a CSV field if it contains a separator, quote or line break.
@@ -98,7 +102,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.repeat,
@@ -116,7 +120,8 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             r.objects,
             r.submits,
             optional(r.missed_objects),
-            optional(r.missed_pixels)
+            optional(r.missed_pixels),
+            optional(r.mover_draws)
         )?;
     }
     w.flush()?;
@@ -183,10 +188,10 @@ mod tests {
             lines[0],
             "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
              pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,\
-             missed_objects,missed_pixels"
+             missed_objects,missed_pixels,mover_draws"
         );
         assert_eq!(lines.len(), 1 + records.len());
-        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,");
+        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,");
         assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -47,6 +47,9 @@ pub struct AlgorithmSummary {
     /// With `walk --check`: the most pixels owned by missed objects in any frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub missed_pixels_max: Option<u64>,
+    /// With movers (`walk --movers N`): median object draws of moving objects per frame.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mover_draws_median: Option<f64>,
     /// Preprocessing figures of a precomputed algorithm (pvs).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub preprocess: Option<PreprocessSummary>,
@@ -94,6 +97,13 @@ impl AlgorithmSummary {
             submits_median: med(&|r| f64::from(r.submits)),
             missed_objects_max: records.iter().filter_map(|r| r.missed_objects).max(),
             missed_pixels_max: records.iter().filter_map(|r| r.missed_pixels).max(),
+            mover_draws_median: {
+                let mut v: Vec<f64> = records
+                    .iter()
+                    .filter_map(|r| r.mover_draws.map(f64::from))
+                    .collect();
+                (!v.is_empty()).then(|| median(&mut v))
+            },
             preprocess: None,
         }
     }

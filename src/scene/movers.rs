@@ -124,6 +124,14 @@ impl Movers {
         self.movers.len()
     }
 
+    /// The movers' object ids, one contiguous range (empty when there are none).
+    pub fn objects(&self) -> std::ops::Range<u32> {
+        match (self.movers.first(), self.movers.last()) {
+            (Some(a), Some(b)) => a.object..b.object + 1,
+            _ => 0..0,
+        }
+    }
+
     /// Whether there are none.
     pub fn is_empty(&self) -> bool {
         self.movers.is_empty()
