@@ -494,20 +494,13 @@ fn walk_scale_movers(
     let fixed = load_scene(&a.scene, scale)?;
     let mut scene = fixed.clone();
     let movers = Movers::add(&mut scene, a.movers);
-    let path = match &a.path {
-        Some(p) => scene.path(p)?.clone(),
-        None => scene.default_path()?.clone(),
-    };
+    // The same paths as without movers: built-in names, path files, `interior`.
+    let path = scene.resolve_path(a.path.as_deref())?;
     let (mut bvh, fixed_bvh) = (
         bvh_of(&scene, a.scene.leaf_size),
         bvh_of(&fixed, a.scene.leaf_size),
     );
-    let baseline: Vec<String> = a
-        .algorithms
-        .iter()
-        .filter(|x| *x == "chcpp")
-        .cloned()
-        .collect();
+    let baseline = static_baseline(&a.algorithms);
     let mut cfg = cfg.clone();
     // pvs is built on the scene without movers: it cannot know where they go, so it draws
     // them frustum-culled only (their ids lie past the PVS's objects).
@@ -534,21 +527,15 @@ fn walk_scale_movers(
         baseline.join(", "),
         ctx.info.name
     );
-    let (records, stats) = {
-        let mut renderer = Renderer::new(ctx, &scene, w, h)?;
-        let mut fixed_renderer = Renderer::new(ctx, &fixed, w, h)?;
-        let mut mw = walk::MoverWalk {
-            movers: &movers,
-            baseline: Some((&mut fixed_renderer, &fixed_bvh)),
-            baseline_algorithms: baseline.clone(),
-        };
-        let bar = progress_bar();
-        let out = walk::run_with_movers(&mut renderer, &mut bvh, &path, cfg, &mut mw, |d, t| {
-            bar.tick(d, t)
-        })?;
-        bar.finish();
-        out
-    };
+    let (records, stats) = run_movers_walk(
+        ctx,
+        (&scene, &fixed),
+        (&mut bvh, &fixed_bvh),
+        (&movers, &baseline),
+        &path,
+        cfg,
+        (w, h),
+    )?;
     let mut names = a.algorithms.clone();
     names.extend(baseline.iter().map(|b| format!("{b}-static")));
     let mut summary = walk::write_report(
@@ -571,12 +558,44 @@ fn walk_scale_movers(
     let reference = a.algorithms.iter().any(|x| x == "oracle");
     println!("{}", summary.table(reference.then_some("oracle")));
     print_movers(&ms);
-    print_mover_draws(&summary);
-    println!(
-        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
-        dir.display()
-    );
+    print_mover_draws(&summary, dir);
     Ok(summary)
+}
+
+/// The interleaved walk of [`walk_scale_movers`]: `scene` with its movers, and `baseline`
+/// algorithms on `fixed` (the scene without them), at `w`x`h`.
+fn run_movers_walk(
+    ctx: &Arc<GpuContext>,
+    (scene, fixed): (&Scene, &Scene),
+    (bvh, fixed_bvh): (&mut ObjectBvh, &ObjectBvh),
+    (movers, baseline): (&Movers, &[String]),
+    path: &coherent::scene::CameraPath,
+    cfg: &WalkConfig,
+    (w, h): (u32, u32),
+) -> Result<(Vec<coherent::report::FrameRecord>, walk::MoverStats)> {
+    let mut renderer = Renderer::new(ctx, scene, w, h)?;
+    let mut fixed_renderer = Renderer::new(ctx, fixed, w, h)?;
+    let mut mw = walk::MoverWalk {
+        movers,
+        baseline: Some((&mut fixed_renderer, fixed_bvh)),
+        baseline_algorithms: baseline.to_vec(),
+    };
+    let bar = progress_bar();
+    let out = walk::run_with_movers(&mut renderer, bvh, path, cfg, &mut mw, |d, t| {
+        bar.tick(d, t)
+    })?;
+    bar.finish();
+    Ok(out)
+}
+
+/// The algorithms of a movers walk that also run on the scene without movers (as
+/// `NAME-static`): chcpp, when it is walked.
+fn static_baseline(algorithms: &[String]) -> Vec<String> {
+    algorithms
+        .iter()
+        .filter(|x| *x == "chcpp")
+        .cloned()
+        .collect()
 }
 
 /// The object hierarchy of a scene.
@@ -585,14 +604,19 @@ fn bvh_of(scene: &Scene, leaf_size: u32) -> ObjectBvh {
     ObjectBvh::build(&bounds, leaf_size)
 }
 
-/// Prints each algorithm's median object draws of movers (pvs draws them frustum-culled only).
-fn print_mover_draws(summary: &coherent::report::WalkSummary) {
+/// Prints each algorithm's median object draws of movers (pvs draws them frustum-culled only)
+/// and the files written to `dir`.
+fn print_mover_draws(summary: &coherent::report::WalkSummary, dir: &std::path::Path) {
     let draws: Vec<String> = summary
         .algorithms
         .iter()
         .filter_map(|(n, s)| s.mover_draws_median.map(|d| format!("{n} {d}")))
         .collect();
     println!("mover draws (median per frame): {}", draws.join(", "));
+    println!(
+        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
+        dir.display()
+    );
 }
 
 /// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.

@@ -367,9 +367,15 @@ fn walk_with_movers_reports_refit_and_rebuilds() {
         assert!(json["algorithms"][a]["frame_ms_median"].is_number(), "{a}");
     }
     for a in ["vfc", "chcpp", "oracle"] {
-        assert!(json["algorithms"][a]["mover_draws_median"].is_number(), "{a}");
+        assert!(
+            json["algorithms"][a]["mover_draws_median"].is_number(),
+            "{a}"
+        );
     }
-    assert_eq!(json["algorithms"]["chcpp-static"]["mover_draws_median"], 0.0);
+    assert_eq!(
+        json["algorithms"]["chcpp-static"]["mover_draws_median"],
+        0.0
+    );
     let csv = std::fs::read_to_string(dir.join("frames.csv")).unwrap();
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
     let col = header.iter().position(|h| *h == "mover_draws").unwrap();
@@ -418,7 +424,15 @@ fn mover_draws_are_counted_and_pvs_draws_movers_frustum_culled() {
             }],
         );
         let size = (160, 90);
-        let exact = ["vfc", "stop-and-wait", "chc", "chcpp", "oracle", "nohc", "hiz"];
+        let exact = [
+            "vfc",
+            "stop-and-wait",
+            "chc",
+            "chcpp",
+            "oracle",
+            "nohc",
+            "hiz",
+        ];
         let mut algorithms: Vec<String> = exact.iter().map(|a| a.to_string()).collect();
         algorithms.push("pvs".into());
         let setup = common::setup(common::triangles(&scene), size, 0.05);

@@ -269,9 +269,7 @@ pub fn run_with_movers(
                     r.check = Some(culler.check(renderer, &owned));
                 }
                 if i >= cfg.warmup {
-                    let mut record = r.record(name, i - cfg.warmup, repeat);
-                    record.mover_draws = Some(r.counts.mover_draws);
-                    records.push(record);
+                    records.push(mover_record(&r, name, i - cfg.warmup, repeat));
                 }
                 k += 1;
                 progress(
@@ -283,11 +281,8 @@ pub fn run_with_movers(
                 for (name, culler) in walk.baseline_algorithms.iter().zip(base_cullers.iter_mut()) {
                     let r = culler.render_frame(base, base_bvh, &camera, i as u64)?;
                     if i >= cfg.warmup {
-                        let mut record =
-                            r.record(&format!("{name}-static"), i - cfg.warmup, repeat);
-                        // The scene without movers: none to draw.
-                        record.mover_draws = Some(r.counts.mover_draws);
-                        records.push(record);
+                        let name = format!("{name}-static");
+                        records.push(mover_record(&r, &name, i - cfg.warmup, repeat));
                     }
                     k += 1;
                     progress(
@@ -300,6 +295,14 @@ pub fn run_with_movers(
     }
     stats.rebuilds = bvh.rebuilds() - rebuilds_before;
     Ok((records, stats))
+}
+
+/// A frame's record in a walk with movers: with the recorder's count of mover draws (0 on the
+/// scene without movers).
+fn mover_record(r: &super::FrameResult, name: &str, frame: u32, repeat: u32) -> FrameRecord {
+    let mut record = r.record(name, frame, repeat);
+    record.mover_draws = Some(r.counts.mover_draws);
+    record
 }
 
 /// The named algorithms for `renderer`, with what `cfg` holds for nohc and pvs.
