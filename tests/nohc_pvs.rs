@@ -349,6 +349,6 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
         .lines()
         .next()
         .unwrap()
-        .ends_with("missed_objects,missed_pixels"));
+        .ends_with("missed_objects,missed_pixels,mover_draws"));
     let _ = std::fs::remove_dir_all(&out);
 }
