@@ -1278,6 +1278,34 @@ mod tests {
     }
 
     #[test]
+    fn age_counts_from_the_first_visit_of_a_run() {
+        let (bvh, _) = row();
+        let mut c = Chcpp::new(ChcppParams::default());
+        c.prepare(&bvh);
+        let node = leaves(&bvh)[3];
+        let (mut m, mut stats) = (Mock::default(), CullStats::default());
+        // Never visible, last visited at frame 10 (then below a closed node), visited again
+        // at frame 50: nothing is known of frames 11-49, so it is 0 frames old, not 49.
+        c.state[node as usize].last_visited = 10;
+        c.frame = 50;
+        c.query_previously_invisible(&bvh, node, &mut m, &mut stats)
+            .unwrap();
+        let p = |k: f32| 0.99 - 0.7 * (-k).exp();
+        assert!((c.stays_invisible(node) - p(0.0)).abs() < 1e-6);
+        // Seen invisible in the next frames, it ages one frame per frame.
+        for f in 51..54 {
+            c.frame = f;
+            c.query_previously_invisible(&bvh, node, &mut m, &mut stats)
+                .unwrap();
+            assert!((c.stays_invisible(node) - p((f - 50) as f32)).abs() < 1e-6);
+        }
+        assert_eq!(
+            stats.queries, 0,
+            "below the batch size nothing is issued yet"
+        );
+    }
+
+    #[test]
     fn a_single_query_costs_one() {
         let (bvh, _) = row();
         let mut c = Chcpp::new(ChcppParams::default());
