@@ -116,9 +116,12 @@ struct NodeState {
     /// The last frame the node was visible (0: never). `k`, the frames it has been invisible
     /// (for the multiquery probability), counts from here, frustum-culled frames included.
     last_visible: u64,
-    /// The node was not visited in the previous frame (its parent was closed: culled by a
-    /// query, or just opened now), so nothing is known of its recent visibility: `k` = 0.
-    unknown: bool,
+    /// The first frame of the node's current unbroken run of visits: a node not visited in
+    /// the previous frame (its parent was closed: culled by a query, or just opened now) or
+    /// whose box grew starts a new run, since nothing is known of its visibility in between.
+    /// `k` never counts frames before it, so a node first seen invisible a frame ago is one
+    /// frame old, not as old as its last visibility (or the walk, if it never was visible).
+    watched_since: u64,
     /// The node has been tested inside the frustum at least once. Until then, frames outside
     /// the frustum are no evidence of occlusion and do not age it.
     tested: bool,
@@ -539,16 +542,18 @@ impl Chcpp {
 
     /// `p(k) = 0.99 - 0.7 e^(-k)`: the probability that a node invisible for `k` frames stays
     /// invisible (fitted by the paper's authors); `k` counts the frames since it was last
-    /// visible, not counting this one, frustum-culled frames included. A node that was not
-    /// visited last frame (it lay below a closed node, e.g. a car whose parent was just opened)
-    /// has no recent history: k = 0, so it is not lumped into a group that would likely fail.
+    /// visible, not counting this one, frustum-culled frames included, but only within its
+    /// current run of visits (`watched_since`). A node that was not visited last frame (it lay
+    /// below a closed node, e.g. a car whose parent was just opened) has no recent history:
+    /// k = 0, then 1, 2, ... as it is seen invisible frame after frame, however long ago it
+    /// was last visible. Counting from its last visibility instead (frame 0 for a node never
+    /// visible) made a node seen invisible once look like p = 0.99, and on `parking` and
+    /// `city` half of all multiqueries failed.
     fn stays_invisible(&self, node: u32) -> f32 {
         let s = &self.state[node as usize];
-        let k = if s.unknown {
-            0
-        } else {
-            self.frame.saturating_sub(s.last_visible + 1)
-        };
+        let k = self
+            .frame
+            .saturating_sub((s.last_visible + 1).max(s.watched_since));
         0.99 - 0.7 * (-(k as f32)).exp()
     }
 
@@ -787,7 +792,9 @@ impl Chcpp {
         }
         let grown = bvh.grown_since(node, self.state[node as usize].seen_epoch);
         let s = &mut self.state[node as usize];
-        s.unknown = s.last_visited + 1 < self.frame || grown;
+        if s.last_visited + 1 < self.frame || grown {
+            s.watched_since = self.frame;
+        }
         s.last_visited = self.frame;
         s.tested = true;
         if self.params.batching {
@@ -1267,6 +1274,34 @@ mod tests {
         assert!(
             c.stays_invisible(node) > before,
             "k grows while out of the frustum"
+        );
+    }
+
+    #[test]
+    fn age_counts_from_the_first_visit_of_a_run() {
+        let (bvh, _) = row();
+        let mut c = Chcpp::new(ChcppParams::default());
+        c.prepare(&bvh);
+        let node = leaves(&bvh)[3];
+        let (mut m, mut stats) = (Mock::default(), CullStats::default());
+        // Never visible, last visited at frame 10 (then below a closed node), visited again
+        // at frame 50: nothing is known of frames 11-49, so it is 0 frames old, not 49.
+        c.state[node as usize].last_visited = 10;
+        c.frame = 50;
+        c.query_previously_invisible(&bvh, node, &mut m, &mut stats)
+            .unwrap();
+        let p = |k: f32| 0.99 - 0.7 * (-k).exp();
+        assert!((c.stays_invisible(node) - p(0.0)).abs() < 1e-6);
+        // Seen invisible in the next frames, it ages one frame per frame.
+        for f in 51..54 {
+            c.frame = f;
+            c.query_previously_invisible(&bvh, node, &mut m, &mut stats)
+                .unwrap();
+            assert!((c.stays_invisible(node) - p((f - 50) as f32)).abs() < 1e-6);
+        }
+        assert_eq!(
+            stats.queries, 0,
+            "below the batch size nothing is issued yet"
         );
     }
 

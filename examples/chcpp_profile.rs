@@ -1,0 +1,91 @@
+//! Where a CHC++ frame goes on a walk: per frame, the recorder's counts (object draws, query
+//! draws, state changes, submits), the stall, and the algorithm's own split of its queries
+//! (i-queue nodes, v-queue leaves, multiqueries and how many failed, query batches), next to
+//! the oracle's object draws at the same pose. Validation off; one line per frame on stdout
+//! (tab separated, with a header), medians at the end.
+//!
+//! Run: `cargo run --release --example chcpp_profile -- [scene] [path] [frames] [WxH]`
+
+use anyhow::Result;
+use coherent::bvh::ObjectBvh;
+use coherent::culling::chcpp::{Chcpp, ChcppParams};
+use coherent::culling::create;
+use coherent::gpu::{ContextOptions, GpuContext};
+use coherent::render::Renderer;
+use coherent::scene::Scene;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+fn main() -> Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let scene_name = args.get(1).map(String::as_str).unwrap_or("city");
+    let path_name = args.get(2).map(String::as_str).unwrap_or("street");
+    let frames: u32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(100);
+    let (w, h) = args
+        .get(4)
+        .and_then(|s| s.split_once('x'))
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+        .unwrap_or((640, 360));
+    let ctx = GpuContext::new(&ContextOptions::default())?;
+    let scene = Scene::load(scene_name, 1.0, 4096)?;
+    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
+    let bvh = ObjectBvh::build(&bounds, 1);
+    let path = scene.path(path_name)?.clone();
+    let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
+    let mut chcpp = Chcpp::new(ChcppParams::default());
+    let mut oracle = create("oracle", &ChcppParams::default())?;
+    let columns = [
+        "frame",
+        "frame_ms",
+        "stall_ms",
+        "object_draws",
+        "oracle_draws",
+        "query_draws",
+        "queries",
+        "i_queries",
+        "v_queries",
+        "multi",
+        "failed",
+        "batches",
+        "state_changes",
+        "submits",
+    ];
+    println!("{}", columns.join("\t"));
+    let mut rows: Vec<Vec<f64>> = Vec::new();
+    let warmup = 10;
+    for i in 0..frames + warmup {
+        let cam = renderer.camera(path.sample(i, frames + warmup), &bvh);
+        let r = renderer.render_frame(&mut chcpp, &bvh, &cam, i as u64)?;
+        let o = renderer.render_frame(oracle.as_mut(), &bvh, &cam, i as u64)?;
+        if i < warmup {
+            continue;
+        }
+        let row = vec![
+            i as f64,
+            r.frame_ms,
+            r.stall_ms,
+            r.counts.object_draws as f64,
+            o.counts.object_draws as f64,
+            r.counts.query_draws as f64,
+            r.counts.queries_begun as f64,
+            r.cull.invisible_node_queries as f64,
+            r.cull.visible_leaf_queries as f64,
+            r.cull.multiqueries as f64,
+            r.cull.failed_multiqueries as f64,
+            r.cull.query_batches as f64,
+            r.counts.state_changes as f64,
+            r.counts.submits as f64,
+        ];
+        let text: Vec<String> = row.iter().map(|v| format!("{v:.1}")).collect();
+        println!("{}", text.join("\t"));
+        rows.push(row);
+    }
+    let medians: Vec<String> = (0..columns.len())
+        .map(|c| format!("{:.1}", median(rows.iter().map(|r| r[c]).collect())))
+        .collect();
+    println!("median\t{}", medians[1..].join("\t"));
+    Ok(())
+}
