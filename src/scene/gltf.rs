@@ -415,7 +415,8 @@ impl Loader<'_> {
             .materials
             .material(&gm, self.buffers, &mut self.warnings);
         let mut geom = self.append_geometry(&positions, &normals, &indices, color)?;
-        self.attributes.resize(geom.vertex_offset as usize, Default::default());
+        self.attributes
+            .resize(geom.vertex_offset as usize, Default::default());
         self.attributes.extend_from_slice(&attributes);
         geom.material = material;
         Ok(Some(geom))

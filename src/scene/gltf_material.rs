@@ -12,7 +12,9 @@ use ::gltf::mesh::Semantic;
 use ::gltf::texture::{MagFilter, MinFilter, WrappingMode};
 use ::gltf::Accessor;
 
-use super::material::{AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap};
+use super::material::{
+    AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
+};
 
 /// Largest decoded image accepted (texels), so a hostile file cannot ask for gigabytes.
 const MAX_TEXELS: u64 = 1 << 26;
@@ -336,7 +338,8 @@ pub(super) fn primitive_attributes(
                 a.uv = [e[0], e[1]];
             } else {
                 let alpha = if rgb_only { 1.0 } else { e[3] };
-                a.color = [e[0], e[1], e[2], alpha].map(|c| (c.clamp(0.0, 1.0) * 255.0 + 0.5) as u8);
+                a.color =
+                    [e[0], e[1], e[2], alpha].map(|c| (c.clamp(0.0, 1.0) * 255.0 + 0.5) as u8);
             }
         }
         found = true;

@@ -138,14 +138,20 @@ impl TextureImage {
     /// Samples level 0 at `uv` with the sampler's wrap modes and magnification filter, as the
     /// GPU does for a magnified texture (linear RGBA). For the CPU ray caster's hit colors.
     pub fn sample(&self, uv: Vec2, s: &SamplerDesc) -> Vec4 {
-        if self.width == 0 || self.height == 0 || self.rgba.len() < (self.width * self.height * 4) as usize {
+        if self.width == 0
+            || self.height == 0
+            || self.rgba.len() < (self.width * self.height * 4) as usize
+        {
             return Vec4::ONE;
         }
         let (w, h) = (self.width as f32, self.height as f32);
         let u = s.wrap_u.apply(uv.x) * w;
         let v = s.wrap_v.apply(uv.y) * h;
         if !s.mag_linear {
-            return self.texel((u as u32).min(self.width - 1), (v as u32).min(self.height - 1));
+            return self.texel(
+                (u as u32).min(self.width - 1),
+                (v as u32).min(self.height - 1),
+            );
         }
         let (fx, fy) = (u - 0.5, v - 0.5);
         let (x0, y0) = (fx.floor(), fy.floor());
@@ -162,8 +168,14 @@ impl TextureImage {
                 }
             }
         };
-        let xs = [wrap(x0, self.width, s.wrap_u), wrap(x0 + 1.0, self.width, s.wrap_u)];
-        let ys = [wrap(y0, self.height, s.wrap_v), wrap(y0 + 1.0, self.height, s.wrap_v)];
+        let xs = [
+            wrap(x0, self.width, s.wrap_u),
+            wrap(x0 + 1.0, self.width, s.wrap_u),
+        ];
+        let ys = [
+            wrap(y0, self.height, s.wrap_v),
+            wrap(y0 + 1.0, self.height, s.wrap_v),
+        ];
         let top = self.texel(xs[0], ys[0]).lerp(self.texel(xs[1], ys[0]), tx);
         let bottom = self.texel(xs[0], ys[1]).lerp(self.texel(xs[1], ys[1]), tx);
         top.lerp(bottom, ty)

@@ -136,7 +136,9 @@ pub struct Scene {
     pub textures: Vec<Texture>,
 }
 
-pub use material::{AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap};
+pub use material::{
+    AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
+};
 
 pub mod camera;
 pub mod chunk;
