@@ -273,7 +273,7 @@ impl Texture {
         (src, dst): (vk::AccessFlags2, vk::AccessFlags2),
     ) {
         let stage = |a: vk::AccessFlags2| {
-            if a == vk::AccessFlags2::SHADER_SAMPLED_READ {
+            if a == vk::AccessFlags2::SHADER_READ {
                 vk::PipelineStageFlags2::FRAGMENT_SHADER | vk::PipelineStageFlags2::VERTEX_SHADER
             } else if a == vk::AccessFlags2::NONE {
                 vk::PipelineStageFlags2::NONE
@@ -350,24 +350,26 @@ impl Texture {
                 self.blit_level(cmd, level, sizes);
             }
             // Levels 0..n-1 are transfer sources now, the last one still a destination.
-            self.barrier(
-                cmd,
-                (0, n - 1),
-                (L::TRANSFER_SRC_OPTIMAL, L::SHADER_READ_ONLY_OPTIMAL),
-                (A::TRANSFER_READ, A::SHADER_SAMPLED_READ),
-            );
+            if n > 1 {
+                self.barrier(
+                    cmd,
+                    (0, n - 1),
+                    (L::TRANSFER_SRC_OPTIMAL, L::SHADER_READ_ONLY_OPTIMAL),
+                    (A::TRANSFER_READ, A::SHADER_READ),
+                );
+            }
             self.barrier(
                 cmd,
                 (n - 1, 1),
                 (L::TRANSFER_DST_OPTIMAL, L::SHADER_READ_ONLY_OPTIMAL),
-                (A::TRANSFER_WRITE, A::SHADER_SAMPLED_READ),
+                (A::TRANSFER_WRITE, A::SHADER_READ),
             );
         } else {
             self.barrier(
                 cmd,
                 (0, n),
                 (L::TRANSFER_DST_OPTIMAL, L::SHADER_READ_ONLY_OPTIMAL),
-                (A::TRANSFER_WRITE, A::SHADER_SAMPLED_READ),
+                (A::TRANSFER_WRITE, A::SHADER_READ),
             );
         }
     }
