@@ -29,7 +29,7 @@ pub(super) struct MaterialLoader {
     pub materials: Vec<Material>,
     pub textures: Vec<Texture>,
     pub images: Vec<TextureImage>,
-    /// Whether any primitive had texture coordinates in use or vertex colors.
+    /// Whether any primitive had vertex colors.
     pub attributes_used: bool,
 }
 
@@ -303,7 +303,7 @@ fn read_elements(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<[f32; 4]>, 
 }
 
 /// A primitive's TEXCOORD_`set` and COLOR_0 for its `n` vertices (defaults where absent), and
-/// whether it had either. Non-finite values are an error naming the attribute.
+/// whether it had vertex colors (texture coordinates alone matter only with a texture). Non-finite values are an error naming the attribute.
 pub(super) fn primitive_attributes(
     prim: &::gltf::Primitive<'_>,
     set: u32,
@@ -342,7 +342,7 @@ pub(super) fn primitive_attributes(
                     [e[0], e[1], e[2], alpha].map(|c| (c.clamp(0.0, 1.0) * 255.0 + 0.5) as u8);
             }
         }
-        found = true;
+        found |= !matches!(semantic, Semantic::TexCoords(_));
     }
     Ok((out, found))
 }
