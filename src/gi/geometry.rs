@@ -4,7 +4,24 @@
 use glam::{Mat3, Vec3};
 
 use super::raycast::RayScene;
-use crate::scene::{Aabb, Scene};
+use crate::scene::material::surface_color;
+use crate::scene::{Aabb, SamplerDesc, Scene, TextureImage, VertexAttributes};
+
+/// One albedo for a triangle of a scene with materials: base color factor x vertex color x
+/// base color texture, averaged over its corners and centroid (the GI's G-buffer and the ray
+/// caster's hit colors take one albedo per triangle).
+fn material_albedo(
+    base: glam::Vec4,
+    corners: &[VertexAttributes; 3],
+    texture: Option<(&TextureImage, &SamplerDesc)>,
+) -> Vec3 {
+    let weights = [Vec3::X, Vec3::Y, Vec3::Z, Vec3::splat(1.0 / 3.0)];
+    let sum: glam::Vec4 = weights
+        .iter()
+        .map(|&w| surface_color(base, corners, w, texture))
+        .sum();
+    (sum / weights.len() as f32).truncate()
+}
 
 /// Floats per GPU vertex: position (vec4), normal (vec4), albedo (vec4), std430 layout.
 pub const VERTEX_FLOATS: usize = 12;
@@ -28,11 +45,14 @@ impl WorldGeometry {
         let mut normals = Vec::new();
         let mut albedo = Vec::new();
         let mut bounds = Aabb::EMPTY;
-        for o in &scene.objects {
+        for (index, o) in scene.objects.iter().enumerate() {
             let normal_matrix = Mat3::from_mat4(o.transform.inverse().transpose());
             let color = o.color.truncate();
             let indices =
                 &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
+            let texture = scene
+                .object_material(index)
+                .and_then(|m| scene.material_texture(m));
             for tri in indices.chunks_exact(3) {
                 let mut p = [Vec3::ZERO; 3];
                 let mut n = [Vec3::ZERO; 3];
@@ -44,7 +64,14 @@ impl WorldGeometry {
                 }
                 triangles.push(p);
                 normals.push(n);
-                albedo.push(color);
+                albedo.push(if scene.has_materials() {
+                    let corner = |k: usize| (o.vertex_offset + tri[k]) as usize;
+                    let a = [corner(0), corner(1), corner(2)]
+                        .map(|i| scene.attributes.get(i).copied().unwrap_or_default());
+                    material_albedo(o.color, &a, texture)
+                } else {
+                    color
+                });
             }
         }
         WorldGeometry {
@@ -131,5 +158,92 @@ impl WorldGeometry {
         } else {
             1.0
         }
+    }
+}
+
+#[cfg(test)]
+mod material_tests {
+    use glam::{Mat4, Vec3, Vec4};
+
+    use super::WorldGeometry;
+    use crate::scene::{
+        Aabb, Material, Object, SamplerDesc, Scene, Texture, TextureImage, Vertex, VertexAttributes,
+    };
+
+    fn scene(textured: bool) -> Scene {
+        let v = |x: f32, y: f32| Vertex {
+            position: [x, y, 0.0],
+            normal: [0.0, 0.0, 1.0],
+        };
+        Scene {
+            name: "tri".into(),
+            vertices: vec![v(0.0, 0.0), v(1.0, 0.0), v(0.0, 1.0)],
+            indices: vec![0, 1, 2],
+            objects: vec![Object {
+                first_index: 0,
+                index_count: 3,
+                vertex_offset: 0,
+                vertex_count: 3,
+                transform: Mat4::IDENTITY,
+                color: Vec4::new(1.0, 1.0, 0.5, 1.0),
+                bounds: Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0)),
+                material: textured.then_some(0),
+            }],
+            paths: Vec::new(),
+            sun_dir: Vec3::Y,
+            attributes: vec![
+                VertexAttributes {
+                    uv: [0.0, 0.0],
+                    color: [255, 128, 255, 255],
+                };
+                3
+            ],
+            materials: vec![Material {
+                base_color_texture: Some(0),
+                ..Default::default()
+            }],
+            // 2x1: linear red 1.0 and 0.0 (sRGB 255 and 0), sampled nearest at u = 0.25.
+            images: vec![TextureImage {
+                width: 2,
+                height: 1,
+                rgba: vec![255, 255, 255, 255, 0, 0, 0, 255],
+            }],
+            textures: vec![Texture {
+                image: 0,
+                sampler: SamplerDesc {
+                    mag_linear: false,
+                    ..SamplerDesc::default()
+                },
+            }],
+        }
+    }
+
+    #[test]
+    fn albedo_is_factor_times_vertex_color_times_texture() {
+        let mut s = scene(true);
+        for a in &mut s.attributes {
+            a.uv = [0.25, 0.5];
+        }
+        let g = WorldGeometry::from_scene(&s);
+        let green = 128.0 / 255.0;
+        assert!(
+            (g.albedo[0] - Vec3::new(1.0, green, 0.5))
+                .abs()
+                .max_element()
+                < 1e-5
+        );
+        // The texture's black texel.
+        for a in &mut s.attributes {
+            a.uv = [0.75, 0.5];
+        }
+        assert_eq!(WorldGeometry::from_scene(&s).albedo[0], Vec3::ZERO);
+        // No material: factor x vertex color.
+        let g = WorldGeometry::from_scene(&scene(false));
+        assert!(
+            (g.albedo[0] - Vec3::new(1.0, green, 0.5))
+                .abs()
+                .max_element()
+                < 1e-5
+        );
     }
 }

@@ -47,6 +47,8 @@ pub struct CommandCounts {
     pub submits: u32,
     /// Descriptor-set binds.
     pub descriptor_binds: u32,
+    /// Of those, binds that switch an object's material texture (scenes with materials).
+    pub texture_binds: u32,
     /// Vertex/index buffer binds.
     pub buffer_binds: u32,
     /// Compute dispatches.
@@ -367,6 +369,13 @@ impl Recorder {
     /// Binds `set` as set 0 of `layout` for graphics pipelines.
     pub fn bind_graphics_set(&mut self, layout: &PipelineLayout, set: DescriptorSet) {
         self.bind_set(vk::PipelineBindPoint::GRAPHICS, layout, set);
+    }
+
+    /// Binds `set` (a material's texture set) as set 0 of `layout` for graphics pipelines;
+    /// counted as a descriptor bind and a texture bind.
+    pub fn bind_texture_set(&mut self, layout: &PipelineLayout, set: DescriptorSet) {
+        self.bind_set(vk::PipelineBindPoint::GRAPHICS, layout, set);
+        self.counts.texture_binds += 1;
     }
 
     /// Binds `set` as set 0 of `layout` for compute pipelines.

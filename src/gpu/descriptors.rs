@@ -8,6 +8,7 @@ use ash::vk;
 use super::memory::{Buffer, Image};
 use super::pipelines::PipelineLayout;
 use super::pyramid::MipImage;
+use super::texture::Texture;
 use super::GpuContext;
 use crate::error::{Error, Result, VkContext};
 
@@ -29,6 +30,9 @@ pub enum Binding<'a> {
     /// A combined image sampler over one level of a [`MipImage`] (`Some(level)`) or all of
     /// them (`None`), sampled in GENERAL layout.
     SampledMips(&'a MipImage, Option<u32>, &'a Sampler),
+    /// A combined image sampler over all levels of a material [`Texture`]
+    /// (SHADER_READ_ONLY_OPTIMAL layout).
+    Texture(&'a Texture, &'a Sampler),
 }
 
 impl Binding<'_> {
@@ -36,7 +40,7 @@ impl Binding<'_> {
         match self {
             Binding::StorageBuffer(_) => vk::DescriptorType::STORAGE_BUFFER,
             Binding::StorageImage(_) | Binding::StorageMip(..) => vk::DescriptorType::STORAGE_IMAGE,
-            Binding::Sampled(..) | Binding::SampledMips(..) => {
+            Binding::Sampled(..) | Binding::SampledMips(..) | Binding::Texture(..) => {
                 vk::DescriptorType::COMBINED_IMAGE_SAMPLER
             }
         }
@@ -143,6 +147,11 @@ impl DescriptorSets {
                     },
                     image_layout: vk::ImageLayout::GENERAL,
                 }],
+                Binding::Texture(tex, sampler) => [vk::DescriptorImageInfo {
+                    sampler: sampler.handle,
+                    image_view: tex.view,
+                    image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+                }],
                 Binding::StorageBuffer(_) => [vk::DescriptorImageInfo::default()],
             })
             .collect();
@@ -227,6 +236,16 @@ impl Sampler {
             ctx: ctx.clone(),
             handle,
         })
+    }
+}
+
+impl Sampler {
+    /// Takes ownership of a sampler created on `ctx`'s device.
+    pub(crate) fn from_handle(ctx: &Arc<GpuContext>, handle: vk::Sampler) -> Sampler {
+        Sampler {
+            ctx: ctx.clone(),
+            handle,
+        }
     }
 }
 

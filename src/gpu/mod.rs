@@ -15,6 +15,7 @@ pub mod shaders;
 pub mod swapchain;
 pub mod sync;
 pub mod targets;
+pub mod texture;
 
 use std::sync::Arc;
 
@@ -28,6 +29,7 @@ pub use memory::{as_bytes, bytes_of, Buffer, Image, ImageUse, Pod};
 pub use pipelines::{ComputePipeline, Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
 pub use pyramid::MipImage;
 pub use sync::Timeline;
+pub use texture::{AddressMode, Mips, SamplerModes, Texture};
 
 use crate::error::Result;
 

@@ -19,6 +19,14 @@ pub const SCENE_VERT: &[u8] = spirv!("scene.vert");
 pub const SCENE_FRAG: &[u8] = spirv!("scene.frag");
 /// Oracle ID fragment shader.
 pub const ID_FRAG: &[u8] = spirv!("id.frag");
+/// Forward-pass vertex shader for scenes with materials (texture coordinates, vertex colors).
+pub const SCENE_MAT_VERT: &[u8] = spirv!("scene_mat.vert");
+/// Forward-pass fragment shader for scenes with materials (opaque).
+pub const SCENE_MAT_FRAG: &[u8] = spirv!("scene_mat.frag");
+/// Forward-pass fragment shader for alpha-masked materials.
+pub const SCENE_MAT_MASKED_FRAG: &[u8] = spirv!("scene_mat_masked.frag");
+/// ID-pass fragment shader for alpha-masked materials.
+pub const ID_MASKED_FRAG: &[u8] = spirv!("id_masked.frag");
 /// Query box vertex shader.
 pub const BOX_VERT: &[u8] = spirv!("box.vert");
 

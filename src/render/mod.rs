@@ -53,6 +53,10 @@ struct ObjectDraw {
     vertex_offset: i32,
     /// World-space bounds (GPU-driven culling reads them).
     bounds: Aabb,
+    /// Descriptor set of its material's texture (0: none; scenes with materials).
+    set: u32,
+    /// Alpha cutoff of a masked material.
+    mask: Option<f32>,
 }
 
 /// The forward renderer: scene geometry on the GPU, the render/query/ID pipelines, an offscreen
@@ -71,6 +75,10 @@ pub struct Renderer {
     recording: bool,
     pipelines: ScenePipelines,
     descriptors: DescriptorSets,
+    /// Textures and samplers of a scene with materials.
+    materials: Option<upload::SceneMaterials>,
+    /// The descriptor set bound in the segment being recorded.
+    bound_set: u32,
     vertex_buffer: Buffer,
     index_buffer: Buffer,
     /// Per-object data (the descriptor set points at it); host-visible, rewritten between
@@ -117,13 +125,15 @@ impl Renderer {
     ) -> Result<Renderer> {
         let target = Target::new(ctx, width, height)?;
         let uploaded = upload::upload_scene_with_spare(ctx, scene, spare)?;
-        let pipelines = ScenePipelines::new(ctx)?;
-        let descriptors = DescriptorSets::new(
+        let pipelines = ScenePipelines::for_scene(ctx, scene.has_materials())?;
+        let mut oneshot = OneShot::new(ctx)?;
+        let mut recorder = Recorder::new(ctx.device.clone());
+        let (descriptors, materials) = scene_descriptors(
             ctx,
-            &[(
-                &pipelines.layout,
-                &[Binding::StorageBuffer(&uploaded.objects)],
-            )],
+            scene,
+            &pipelines,
+            &uploaded.objects,
+            (&mut oneshot, &mut recorder),
         )?;
         let box_index_buffer = Buffer::with_data(
             ctx,
@@ -136,11 +146,14 @@ impl Renderer {
             objects: scene
                 .objects
                 .iter()
-                .map(|o| ObjectDraw {
+                .enumerate()
+                .map(|(i, o)| ObjectDraw {
                     first_index: o.first_index,
                     index_count: o.index_count,
                     vertex_offset: o.vertex_offset as i32,
                     bounds: o.bounds,
+                    set: object_set(scene, i),
+                    mask: object_mask(scene, i),
                 })
                 .collect(),
             triangles: scene.objects.iter().map(|o| o.triangle_count()).sum(),
@@ -150,6 +163,8 @@ impl Renderer {
             recording: false,
             pipelines,
             descriptors,
+            materials,
+            bound_set: 0,
             vertex_buffer: uploaded.vertices,
             index_buffer: uploaded.indices,
             object_buffer: uploaded.objects,
@@ -164,8 +179,8 @@ impl Renderer {
             timestamps: QueryPools::new(ctx, vk::QueryType::TIMESTAMP, 256)?,
             query_segment: Vec::new(),
             query_read: Vec::new(),
-            recorder: Recorder::new(ctx.device.clone()),
-            oneshot: OneShot::new(ctx)?,
+            recorder,
+            oneshot,
             push: initial_push(scene),
             bound: None,
             corners: Vec::with_capacity(8 * 64),
@@ -404,6 +419,7 @@ impl Renderer {
         let layout = &self.pipelines.layout;
         self.recorder
             .bind_graphics_set(layout, self.descriptors.get(0));
+        self.bound_set = 0;
         self.recorder.push_constants(layout, &self.push);
         Ok(())
     }
@@ -568,6 +584,7 @@ impl Renderer {
         };
         let depth = &self.target.depth;
         let (pipelines, set) = (&self.pipelines, self.descriptors.get(0));
+        let sets = &self.descriptors;
         let (vb, ib, objects) = (&self.vertex_buffer, &self.index_buffer, &self.objects);
         let mut pass = CommandCounts::default();
         self.oneshot.run(&mut self.recorder, |rec| {
@@ -591,9 +608,13 @@ impl Renderer {
             rec.bind_graphics_set(&pipelines.layout, set);
             rec.push_constants(&pipelines.layout, push);
             rec.bind_buffers(vb, 0, Some(ib));
+            let mut state = MaterialState::new(push);
             for &o in candidates {
                 let d = objects[o as usize];
                 if d.index_count > 0 {
+                    if pipelines.materials {
+                        state.bind(rec, pipelines, sets, &d, true);
+                    }
                     rec.draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
                 }
             }
@@ -605,6 +626,129 @@ impl Renderer {
         })?;
         pass.submits = 2;
         Ok(pass)
+    }
+}
+
+/// Descriptor sets of the scene pipelines: set 0 points at the per-object buffer (and, for a
+/// scene with materials, the white texture); a scene with materials gets one more per texture.
+fn scene_descriptors(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    pipelines: &ScenePipelines,
+    objects: &Buffer,
+    (oneshot, recorder): (&mut OneShot, &mut Recorder),
+) -> Result<(DescriptorSets, Option<upload::SceneMaterials>)> {
+    if !pipelines.materials {
+        let sets = DescriptorSets::new(
+            ctx,
+            &[(&pipelines.layout, &[Binding::StorageBuffer(objects)])],
+        )?;
+        return Ok((sets, None));
+    }
+    let materials = upload::SceneMaterials::upload(ctx, oneshot, recorder, scene)?;
+    let bindings: Vec<[Binding; 2]> = materials
+        .set_textures(scene)
+        .into_iter()
+        .map(|(t, s)| [Binding::StorageBuffer(objects), Binding::Texture(t, s)])
+        .collect();
+    let sets: Vec<(&crate::gpu::PipelineLayout, &[Binding])> = bindings
+        .iter()
+        .map(|b| (&pipelines.layout, &b[..]))
+        .collect();
+    let sets = DescriptorSets::new(ctx, &sets)?;
+    Ok((sets, Some(materials)))
+}
+
+/// The descriptor set of an object's material texture (0: none).
+fn object_set(scene: &Scene, object: usize) -> u32 {
+    scene
+        .object_material(object)
+        .and_then(|m| m.base_color_texture)
+        .filter(|&t| (t as usize) < scene.textures.len())
+        .map_or(0, |t| t + 1)
+}
+
+/// The alpha cutoff of an object's masked material.
+fn object_mask(scene: &Scene, object: usize) -> Option<f32> {
+    match scene.object_material(object)?.alpha {
+        crate::scene::AlphaMode::Mask(cutoff) => Some(cutoff),
+        crate::scene::AlphaMode::Opaque => None,
+    }
+}
+
+/// What a pass over a scene with materials has bound: the pipeline (opaque or masked), the
+/// texture set and the alpha cutoff in the push block (`sun_dir.w`).
+struct MaterialState {
+    push: [u8; PUSH_SIZE as usize],
+    set: u32,
+}
+
+impl MaterialState {
+    /// The state after a pass bound set 0 and pushed `push`.
+    fn new(push: &[u8]) -> MaterialState {
+        let mut p = [0u8; PUSH_SIZE as usize];
+        p.copy_from_slice(&push[..PUSH_SIZE as usize]);
+        MaterialState { push: p, set: 0 }
+    }
+
+    /// Binds what object `d` needs that is not bound: the (masked) render or ID pipeline, its
+    /// texture set, its cutoff. Every bind goes through the recorder, which counts it.
+    fn bind(
+        &mut self,
+        rec: &mut Recorder,
+        pipelines: &ScenePipelines,
+        sets: &DescriptorSets,
+        d: &ObjectDraw,
+        ids: bool,
+    ) {
+        let masked = match (d.mask, ids) {
+            (Some(_), false) => pipelines.render_masked.as_ref(),
+            (Some(_), true) => pipelines.id_masked.as_ref(),
+            (None, _) => None,
+        };
+        let opaque = if ids {
+            &pipelines.id
+        } else {
+            &pipelines.render
+        };
+        rec.bind_pipeline(masked.unwrap_or(opaque));
+        if d.set != self.set {
+            rec.bind_texture_set(&pipelines.layout, sets.get(d.set as usize));
+            self.set = d.set;
+        }
+        if let Some(cutoff) = d.mask {
+            let bytes = cutoff.to_le_bytes();
+            if self.push[76..80] != bytes {
+                self.push[76..80].copy_from_slice(&bytes);
+                rec.push_constants(&pipelines.layout, &self.push);
+            }
+        }
+    }
+}
+
+impl Renderer {
+    /// For a scene with materials, whether the texture mips were blitted on the device
+    /// (`Some(false)`: made on the CPU, the device cannot blit the texture format linearly).
+    pub fn texture_mips_blitted(&self) -> Option<bool> {
+        self.materials.as_ref().map(|m| m.blitted_mips)
+    }
+
+    /// [`MaterialState::bind`] for the forward pass, keeping the renderer's push block and
+    /// bound set in step.
+    fn bind_material(&mut self, d: &ObjectDraw) {
+        let mut state = MaterialState {
+            push: self.push,
+            set: self.bound_set,
+        };
+        state.bind(
+            &mut self.recorder,
+            &self.pipelines,
+            &self.descriptors,
+            d,
+            false,
+        );
+        self.push = state.push;
+        self.bound_set = state.set;
     }
 }
 
@@ -685,6 +829,9 @@ impl OcclusionBackend for Renderer {
                 ))
             })?;
             if d.index_count > 0 {
+                if self.pipelines.materials {
+                    self.bind_material(&d);
+                }
                 self.recorder
                     .draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
             }

@@ -20,6 +20,18 @@ const SCENE_ATTRIBUTES: [(u32, vk::Format, u32); 2] = [
     (1, vk::Format::R32G32B32_SFLOAT, 12),
 ];
 
+/// Vertex attributes of a scene with materials: position, normal, texture coordinates and a
+/// vertex color, interleaved ([`crate::render::upload`] writes them).
+const MATERIAL_ATTRIBUTES: [(u32, vk::Format, u32); 4] = [
+    (0, vk::Format::R32G32B32_SFLOAT, 0),
+    (1, vk::Format::R32G32B32_SFLOAT, 12),
+    (2, vk::Format::R32G32_SFLOAT, 24),
+    (3, vk::Format::R8G8B8A8_UNORM, 32),
+];
+
+/// Bytes of one interleaved vertex of a scene with materials.
+pub const MATERIAL_VERTEX_STRIDE: u32 = 36;
+
 /// The three pipelines and their layout.
 pub struct ScenePipelines {
     // Pipelines are declared before the layout so they are dropped first.
@@ -29,6 +41,13 @@ pub struct ScenePipelines {
     pub query: Pipeline,
     /// Object IDs (oracle pre-pass).
     pub id: Pipeline,
+    /// Shaded alpha-masked geometry (scenes with materials only).
+    pub render_masked: Option<Pipeline>,
+    /// Object IDs of alpha-masked geometry (scenes with materials only).
+    pub id_masked: Option<Pipeline>,
+    /// Whether these are the material pipelines (set 0 binding 1 is the base color texture,
+    /// vertices are interleaved with texture coordinates and colors).
+    pub materials: bool,
     /// The shared layout.
     pub layout: PipelineLayout,
 }
@@ -41,6 +60,54 @@ impl ScenePipelines {
             render: Pipeline::graphics(ctx, &layout, &scene_desc("render", shaded()))?,
             query: Pipeline::graphics(ctx, &layout, &query_desc())?,
             id: Pipeline::graphics(ctx, &layout, &scene_desc("id", ids()))?,
+            render_masked: None,
+            id_masked: None,
+            materials: false,
+            layout,
+        })
+    }
+
+    /// The pipelines for a scene: [`ScenePipelines::new`] unless `materials`, then the
+    /// material pipelines (opaque and masked render, ID and masked ID, the same query boxes)
+    /// with set 0 = (objects, base color texture).
+    pub fn for_scene(ctx: &Arc<GpuContext>, materials: bool) -> Result<ScenePipelines> {
+        if !materials {
+            return ScenePipelines::new(ctx);
+        }
+        let layout = PipelineLayout::new(
+            ctx,
+            &[
+                vk::DescriptorType::STORAGE_BUFFER,
+                vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+            ],
+            PUSH_SIZE,
+        )?;
+        let mat = |name, frag, out: SceneOutput| PipelineDesc {
+            vert: shaders::SCENE_MAT_VERT,
+            vertex_stride: MATERIAL_VERTEX_STRIDE,
+            attributes: &MATERIAL_ATTRIBUTES,
+            frag: Some(frag),
+            ..scene_desc(name, out)
+        };
+        Ok(ScenePipelines {
+            render: Pipeline::graphics(
+                ctx,
+                &layout,
+                &mat("render", shaders::SCENE_MAT_FRAG, shaded()),
+            )?,
+            query: Pipeline::graphics(ctx, &layout, &query_desc())?,
+            id: Pipeline::graphics(ctx, &layout, &mat("id", shaders::ID_FRAG, ids()))?,
+            render_masked: Some(Pipeline::graphics(
+                ctx,
+                &layout,
+                &mat("render masked", shaders::SCENE_MAT_MASKED_FRAG, shaded()),
+            )?),
+            id_masked: Some(Pipeline::graphics(
+                ctx,
+                &layout,
+                &mat("id masked", shaders::ID_MASKED_FRAG, ids()),
+            )?),
+            materials: true,
             layout,
         })
     }

@@ -7,8 +7,10 @@ use glam::{Mat4, Vec3, Vec4};
 
 use crate::error::Result;
 use crate::gpu::memory::Buffer;
-use crate::gpu::GpuContext;
-use crate::scene::{Aabb, Scene};
+use crate::gpu::{
+    AddressMode, GpuContext, Mips, OneShot, Recorder, Sampler, SamplerModes, Texture,
+};
+use crate::scene::{Aabb, SamplerDesc, Scene, TextureImage, Wrap};
 
 /// The scene's GPU buffers.
 pub struct UploadedScene {
@@ -20,7 +22,7 @@ pub struct UploadedScene {
     pub objects: Buffer,
 }
 
-pub use crate::gpu::{as_bytes, Pod};
+pub use crate::gpu::{as_bytes, bytes_of, Pod};
 
 /// Floats of one object's data: model matrix, normal matrix, color.
 pub const OBJECT_FLOATS: usize = 36;
@@ -46,10 +48,15 @@ pub fn upload_scene_with_spare(
     scene: &Scene,
     spare: usize,
 ) -> Result<UploadedScene> {
+    let vertex_bytes = if scene.has_materials() {
+        interleaved_vertices(scene)
+    } else {
+        as_bytes(&scene.vertices)
+    };
     let vertices = Buffer::with_data(
         ctx,
         "scene vertices",
-        &as_bytes(&scene.vertices),
+        &vertex_bytes,
         vk::BufferUsageFlags::VERTEX_BUFFER,
     )?;
     let indices = Buffer::with_data(
@@ -104,4 +111,134 @@ pub fn box_corners_into(boxes: &[Aabb], out: &mut Vec<[f32; 3]>) {
             out.push(p.to_array());
         }
     }
+}
+
+/// Position, normal, texture coordinates and color of every vertex, interleaved
+/// ([`super::passes::MATERIAL_VERTEX_STRIDE`] bytes each); vertices without attributes (added
+/// after loading, such as movers) get the defaults.
+pub fn interleaved_vertices(scene: &Scene) -> Vec<u8> {
+    let stride = super::passes::MATERIAL_VERTEX_STRIDE as usize;
+    let mut out = Vec::with_capacity(scene.vertices.len() * stride);
+    for (i, v) in scene.vertices.iter().enumerate() {
+        let a = scene.attributes.get(i).copied().unwrap_or_default();
+        out.extend_from_slice(bytes_of(&v.position));
+        out.extend_from_slice(bytes_of(&v.normal));
+        out.extend_from_slice(bytes_of(&a.uv));
+        out.extend_from_slice(&a.color);
+    }
+    out
+}
+
+/// A scene's textures on the GPU: one texture per image (with its mip chain), one sampler per
+/// scene texture, and a 1x1 white texture for objects without one. Binding route: one combined
+/// image sampler per descriptor set, one set per scene texture (set 0 is the white one), bound
+/// per object when it changes (no descriptor indexing needed; every bind is counted).
+pub struct SceneMaterials {
+    /// Samplers, one per scene texture, then the white texture's.
+    pub samplers: Vec<Sampler>,
+    /// Images, one per scene image, then the white one.
+    pub images: Vec<Texture>,
+    /// Whether mips were blitted on the device (else made on the CPU).
+    pub blitted_mips: bool,
+}
+
+/// Our sampler modes for a scene sampler.
+pub fn sampler_modes(s: &SamplerDesc) -> SamplerModes {
+    let wrap = |w: Wrap| match w {
+        Wrap::Repeat => AddressMode::Repeat,
+        Wrap::MirroredRepeat => AddressMode::MirroredRepeat,
+        Wrap::ClampToEdge => AddressMode::ClampToEdge,
+    };
+    SamplerModes {
+        wrap_u: wrap(s.wrap_u),
+        wrap_v: wrap(s.wrap_v),
+        mag_linear: s.mag_linear,
+        min_linear: s.min_linear,
+        mipmaps: s.mipmaps,
+        mip_linear: s.mip_linear,
+    }
+}
+
+impl SceneMaterials {
+    /// Uploads every image of `scene` (halved on the CPU while larger than
+    /// maxImageDimension2D) with a full mip chain: blitted with linear filtering when the
+    /// device supports it for the texture format, else made on the CPU (a box filter in linear
+    /// space).
+    pub fn upload(
+        ctx: &Arc<GpuContext>,
+        oneshot: &mut OneShot,
+        recorder: &mut Recorder,
+        scene: &Scene,
+    ) -> Result<SceneMaterials> {
+        let blit = Texture::can_blit_mips(ctx);
+        let white = TextureImage {
+            width: 1,
+            height: 1,
+            rgba: vec![255; 4],
+        };
+        let mut images = Vec::with_capacity(scene.images.len() + 1);
+        for (i, img) in scene.images.iter().chain([&white]).enumerate() {
+            let name = format!("texture image {i}");
+            images.push(upload_image(ctx, oneshot, recorder, &name, img, blit)?);
+        }
+        let mut samplers = Vec::with_capacity(scene.textures.len() + 1);
+        for t in &scene.textures {
+            samplers.push(Sampler::with_modes(ctx, &sampler_modes(&t.sampler))?);
+        }
+        samplers.push(Sampler::with_modes(
+            ctx,
+            &sampler_modes(&SamplerDesc::default()),
+        )?);
+        Ok(SceneMaterials {
+            samplers,
+            images,
+            blitted_mips: blit,
+        })
+    }
+
+    /// The (image, sampler) of each descriptor set: set 0 the white texture, set 1 + t the
+    /// scene's texture t.
+    pub fn set_textures(&self, scene: &Scene) -> Vec<(&Texture, &Sampler)> {
+        let (white_image, white_sampler) = (self.images.len() - 1, self.samplers.len() - 1);
+        let mut out = vec![(&self.images[white_image], &self.samplers[white_sampler])];
+        for (t, tex) in scene.textures.iter().enumerate() {
+            let image = (tex.image as usize).min(white_image);
+            out.push((&self.images[image], &self.samplers[t]));
+        }
+        out
+    }
+}
+
+fn upload_image(
+    ctx: &Arc<GpuContext>,
+    oneshot: &mut OneShot,
+    recorder: &mut Recorder,
+    name: &str,
+    img: &TextureImage,
+    blit: bool,
+) -> Result<Texture> {
+    let max = ctx.info.max_image_dimension_2d.max(1);
+    let mut level0 = img.clone();
+    while level0.width > max || level0.height > max {
+        level0 = level0.halved();
+    }
+    let size = (level0.width, level0.height);
+    if blit {
+        return Texture::upload(ctx, oneshot, recorder, name, size, &level0.rgba, Mips::Blit);
+    }
+    let mut rest = Vec::new();
+    let mut level = level0.clone();
+    while level.width > 1 || level.height > 1 {
+        level = level.halved();
+        rest.push(level.rgba.clone());
+    }
+    Texture::upload(
+        ctx,
+        oneshot,
+        recorder,
+        name,
+        size,
+        &level0.rgba,
+        Mips::Given(&rest),
+    )
 }

@@ -66,6 +66,7 @@ pub fn split_large_objects(scene: &mut Scene, max_triangles: u32) {
                         transform: obj.transform,
                         color: obj.color,
                         bounds,
+                        material: obj.material,
                     });
                 }
             }
@@ -101,6 +102,8 @@ fn split_geometry(scene: &mut Scene, obj: &Object, max: usize) -> Option<Vec<Chu
 
     // Build all chunks locally first so a failure leaves the scene untouched.
     let mut new_vertices: Vec<Vertex> = Vec::new();
+    // Source vertex of each new vertex (their material attributes follow them).
+    let mut sources: Vec<usize> = Vec::new();
     let mut new_indices: Vec<u32> = Vec::new();
     let mut ranges = Vec::with_capacity(leaves.len());
     let mut remap = vec![u32::MAX; vcount];
@@ -116,6 +119,7 @@ fn split_geometry(scene: &mut Scene, obj: &Object, max: usize) -> Option<Vec<Chu
                 if *slot == u32::MAX {
                     *slot = (new_vertices.len() - chunk_vertex_offset) as u32;
                     new_vertices.push(verts[i as usize]);
+                    sources.push(base + i as usize);
                     used.push(i);
                 }
                 new_indices.push(*slot);
@@ -133,6 +137,13 @@ fn split_geometry(scene: &mut Scene, obj: &Object, max: usize) -> Option<Vec<Chu
     }
     u32::try_from(vertex_base + new_vertices.len()).ok()?;
     u32::try_from(index_base + new_indices.len()).ok()?;
+    if scene.has_materials() {
+        scene
+            .attributes
+            .resize(scene.vertices.len(), Default::default());
+        let copied: Vec<_> = sources.iter().map(|&i| scene.attributes[i]).collect();
+        scene.attributes.extend_from_slice(&copied);
+    }
     scene.vertices.extend_from_slice(&new_vertices);
     scene.indices.extend_from_slice(&new_indices);
     Some(ranges)
@@ -206,6 +217,7 @@ mod tests {
             transform: Mat4::IDENTITY,
             color: Vec4::ONE,
             bounds: Aabb::new(Vec3::ZERO, Vec3::new(1.0, 0.0, 1.0)),
+            material: None,
         };
         let vertex_offset = vertices.len() as u32;
         let first_index = indices.len() as u32;
@@ -237,6 +249,7 @@ mod tests {
             transform,
             color: Vec4::new(0.5, 0.25, 1.0, 1.0),
             bounds: local.transformed(&transform),
+            material: None,
         };
         Scene {
             name: "grid".into(),
@@ -245,6 +258,10 @@ mod tests {
             objects: vec![small, big],
             paths: Vec::new(),
             sun_dir: Vec3::Y,
+            attributes: Vec::new(),
+            materials: Vec::new(),
+            images: Vec::new(),
+            textures: Vec::new(),
         }
     }
 

@@ -11,7 +11,8 @@ use ::gltf::mesh::{Mode, Semantic};
 use ::gltf::{Accessor, Document, Gltf, Node};
 use glam::{Mat4, Vec3, Vec4};
 
-use super::{Aabb, CameraPath, CameraPose, Object, Scene, Vertex};
+use super::gltf_material::{primitive_attributes, MaterialLoader};
+use super::{Aabb, CameraPath, CameraPose, Object, Scene, Vertex, VertexAttributes};
 use crate::Error;
 
 /// Upper bound on node visits while flattening the hierarchy (guards against exponential DAGs).
@@ -47,6 +48,7 @@ struct PrimGeom {
     vertex_count: u32,
     bounds: Aabb,
     color: Vec4,
+    material: Option<u32>,
 }
 
 /// Accumulates shared geometry and objects while walking the document.
@@ -57,6 +59,9 @@ struct Loader<'a> {
     objects: Vec<Object>,
     warnings: Vec<String>,
     meshes: HashMap<usize, Vec<PrimGeom>>,
+    /// Per-vertex texture coordinates and colors, parallel to `vertices`.
+    attributes: Vec<VertexAttributes>,
+    materials: MaterialLoader,
 }
 
 fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
@@ -74,6 +79,8 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         objects: Vec::new(),
         warnings: super::gltf_ext::unsupported_warnings(&document),
         meshes: HashMap::new(),
+        attributes: Vec::new(),
+        materials: MaterialLoader::new(base),
     };
     for root in root_nodes(&document) {
         loader.walk(&document, root)?;
@@ -99,6 +106,12 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         &buffers,
         &mut loader.warnings,
     ));
+    let mats = loader.materials;
+    let attributes = if mats.attributes_used || !mats.materials.is_empty() {
+        loader.attributes
+    } else {
+        Vec::new()
+    };
     let scene = Scene {
         name,
         vertices: loader.vertices,
@@ -106,6 +119,10 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         objects: loader.objects,
         paths,
         sun_dir: Vec3::new(0.4, 1.0, 0.3).normalize(),
+        attributes,
+        materials: mats.materials,
+        images: mats.images,
+        textures: mats.textures,
     };
     Ok((scene, loader.warnings))
 }
@@ -167,7 +184,7 @@ fn check_external_uri(base: &Path, uri: &str) -> Result<(), String> {
 }
 
 /// Decodes `%XX` escapes (others are kept as they are); an error if the result is not UTF-8.
-fn percent_decode(uri: &str) -> Result<String, String> {
+pub(super) fn percent_decode(uri: &str) -> Result<String, String> {
     let bytes = uri.as_bytes();
     let mut out = Vec::with_capacity(bytes.len());
     let mut i = 0;
@@ -335,6 +352,7 @@ impl Loader<'_> {
                         transform: world,
                         color: geom.color,
                         bounds: geom.bounds.transformed(&world),
+                        material: geom.material,
                     });
                 }
             }
@@ -388,8 +406,20 @@ impl Loader<'_> {
         }
         let normals = self.primitive_normals(prim, label, &positions, &indices)?;
         let color = base_color(prim);
-        self.append_geometry(&positions, &normals, &indices, color)
-            .map(Some)
+        let gm = prim.material();
+        let set = MaterialLoader::tex_coord_set(&gm);
+        let (attributes, found) =
+            primitive_attributes(prim, set, self.buffers, positions.len(), label)?;
+        self.materials.attributes_used |= found;
+        let material = self
+            .materials
+            .material(&gm, self.buffers, &mut self.warnings);
+        let mut geom = self.append_geometry(&positions, &normals, &indices, color)?;
+        self.attributes
+            .resize(geom.vertex_offset as usize, Default::default());
+        self.attributes.extend_from_slice(&attributes);
+        geom.material = material;
+        Ok(Some(geom))
     }
 
     /// The POSITION attribute, all finite.
@@ -489,6 +519,7 @@ impl Loader<'_> {
             vertex_count: n as u32,
             bounds,
             color,
+            material: None,
         })
     }
 

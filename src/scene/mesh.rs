@@ -198,6 +198,10 @@ impl SceneBuilder {
                 objects: Vec::new(),
                 paths: Vec::new(),
                 sun_dir: Vec3::new(0.45, 1.0, 0.3).normalize(),
+                attributes: Vec::new(),
+                materials: Vec::new(),
+                images: Vec::new(),
+                textures: Vec::new(),
             },
         }
     }
@@ -226,6 +230,7 @@ impl SceneBuilder {
             transform,
             color: Vec4::from((color, 1.0)),
             bounds: p.bounds.transformed(&transform),
+            material: None,
         });
         self.scene.objects.len() as u32 - 1
     }

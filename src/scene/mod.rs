@@ -91,6 +91,8 @@ pub struct Object {
     pub transform: Mat4,
     pub color: Vec4,
     pub bounds: Aabb,
+    /// Index into `Scene::materials` (texture, alpha mask); `None`: opaque, untextured.
+    pub material: Option<u32>,
 }
 
 impl Object {
@@ -123,19 +125,52 @@ pub struct Scene {
     pub paths: Vec<CameraPath>,
     /// Direction *towards* the directional light, normalized.
     pub sun_dir: Vec3,
+    /// Per-vertex texture coordinates and colors, parallel to `vertices`; empty when the scene
+    /// has no textures, vertex colors or alpha masks (then it is drawn as before, untextured).
+    pub attributes: Vec<VertexAttributes>,
+    /// Materials that objects refer to.
+    pub materials: Vec<Material>,
+    /// Decoded images the textures use.
+    pub images: Vec<TextureImage>,
+    /// Textures (an image and a sampler) the materials use.
+    pub textures: Vec<Texture>,
 }
+
+pub use material::{
+    AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
+};
 
 pub mod camera;
 pub mod chunk;
 pub mod gltf;
 pub mod gltf_ext;
+mod gltf_material;
 pub mod interior;
+pub mod material;
 pub mod mesh;
 pub mod movers;
 pub mod paths;
 pub mod procedural;
 
 impl Scene {
+    /// Whether the scene has per-vertex material attributes (textures, vertex colors or
+    /// alpha masks), so the renderer draws it with its material pipelines.
+    pub fn has_materials(&self) -> bool {
+        !self.attributes.is_empty()
+    }
+
+    /// The material of `object`, if it has one.
+    pub fn object_material(&self, object: usize) -> Option<&Material> {
+        let m = self.objects.get(object)?.material?;
+        self.materials.get(m as usize)
+    }
+
+    /// The texture image and sampler of a material, if it has a usable one.
+    pub fn material_texture(&self, m: &Material) -> Option<(&TextureImage, &SamplerDesc)> {
+        let t = self.textures.get(m.base_color_texture? as usize)?;
+        Some((self.images.get(t.image as usize)?, &t.sampler))
+    }
+
     /// Total triangles over all objects.
     pub fn triangle_count(&self) -> u64 {
         self.objects.iter().map(|o| o.triangle_count()).sum()

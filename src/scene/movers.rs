@@ -354,6 +354,7 @@ fn append_mesh(scene: &mut Scene, mesh: &Mesh) -> Object {
         transform: Mat4::IDENTITY,
         color: Vec4::ONE,
         bounds: mesh.bounds(),
+        material: None,
     };
     scene.vertices.extend_from_slice(&mesh.vertices);
     scene.indices.extend_from_slice(&mesh.indices);

@@ -1,0 +1,361 @@
+//! glTF materials: base color textures (PNG and JPEG, from a GLB buffer view, a data URI or a
+//! file next to the .gltf) with their samplers, alpha mode MASK with its cutoff, and the
+//! per-vertex TEXCOORD_n and COLOR_0 attributes. An image that cannot be decoded (KTX2/Basis,
+//! WebP, a broken file) is a one-line warning and the material is drawn without its texture.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use ::gltf::accessor::{DataType, Dimensions};
+use ::gltf::buffer::Data;
+use ::gltf::mesh::Semantic;
+use ::gltf::texture::{MagFilter, MinFilter, WrappingMode};
+use ::gltf::Accessor;
+
+use super::material::{
+    AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
+};
+
+/// Largest decoded image accepted (texels), so a hostile file cannot ask for gigabytes.
+const MAX_TEXELS: u64 = 1 << 26;
+
+/// Materials, textures and images loaded so far, each glTF one at most once.
+#[derive(Default)]
+pub(super) struct MaterialLoader {
+    base: PathBuf,
+    by_material: HashMap<usize, Option<u32>>,
+    by_texture: HashMap<usize, Option<u32>>,
+    by_image: HashMap<usize, Option<u32>>,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub images: Vec<TextureImage>,
+    /// Whether any primitive had vertex colors.
+    pub attributes_used: bool,
+}
+
+impl MaterialLoader {
+    /// A loader resolving external images relative to `base`.
+    pub fn new(base: &Path) -> MaterialLoader {
+        MaterialLoader {
+            base: base.to_path_buf(),
+            ..Default::default()
+        }
+    }
+
+    /// Our material for a primitive's glTF material: `None` when it has neither a usable base
+    /// color texture nor alpha mode MASK (then the base color factor says it all).
+    pub fn material(
+        &mut self,
+        m: &::gltf::Material<'_>,
+        buffers: &[Data],
+        warnings: &mut Vec<String>,
+    ) -> Option<u32> {
+        let index = m.index()?;
+        if let Some(&known) = self.by_material.get(&index) {
+            return known;
+        }
+        let texture = m
+            .pbr_metallic_roughness()
+            .base_color_texture()
+            .and_then(|info| self.texture(&info.texture(), buffers, warnings));
+        let alpha = match m.alpha_mode() {
+            ::gltf::material::AlphaMode::Mask => {
+                let cutoff = m.alpha_cutoff().unwrap_or(0.5);
+                AlphaMode::Mask(if cutoff.is_finite() { cutoff } else { 0.5 })
+            }
+            ::gltf::material::AlphaMode::Blend => {
+                warnings.push(format!(
+                    "material {index}: alpha mode BLEND is drawn opaque"
+                ));
+                AlphaMode::Opaque
+            }
+            ::gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+        };
+        let ours = if texture.is_none() && alpha == AlphaMode::Opaque {
+            None
+        } else {
+            self.materials.push(Material {
+                base_color_texture: texture,
+                alpha,
+            });
+            Some(self.materials.len() as u32 - 1)
+        };
+        self.by_material.insert(index, ours);
+        ours
+    }
+
+    fn texture(
+        &mut self,
+        t: &::gltf::Texture<'_>,
+        buffers: &[Data],
+        warnings: &mut Vec<String>,
+    ) -> Option<u32> {
+        if let Some(&known) = self.by_texture.get(&t.index()) {
+            return known;
+        }
+        let image = self.image(&t.source(), buffers, warnings);
+        let ours = image.map(|image| {
+            self.textures.push(Texture {
+                image,
+                sampler: sampler_desc(&t.sampler()),
+            });
+            self.textures.len() as u32 - 1
+        });
+        self.by_texture.insert(t.index(), ours);
+        ours
+    }
+
+    fn image(
+        &mut self,
+        img: &::gltf::Image<'_>,
+        buffers: &[Data],
+        warnings: &mut Vec<String>,
+    ) -> Option<u32> {
+        if let Some(&known) = self.by_image.get(&img.index()) {
+            return known;
+        }
+        let ours = match decode_image(img, &self.base, buffers) {
+            Ok(decoded) => {
+                self.images.push(decoded);
+                Some(self.images.len() as u32 - 1)
+            }
+            Err(e) => {
+                warnings.push(format!(
+                    "image {}: {e}; drawn without this texture",
+                    img.index()
+                ));
+                None
+            }
+        };
+        self.by_image.insert(img.index(), ours);
+        ours
+    }
+
+    /// The texture coordinate set a material's base color texture reads (0 when none).
+    pub fn tex_coord_set(m: &::gltf::Material<'_>) -> u32 {
+        m.pbr_metallic_roughness()
+            .base_color_texture()
+            .map_or(0, |info| info.tex_coord())
+    }
+}
+
+fn wrap(mode: WrappingMode) -> Wrap {
+    match mode {
+        WrappingMode::ClampToEdge => Wrap::ClampToEdge,
+        WrappingMode::MirroredRepeat => Wrap::MirroredRepeat,
+        WrappingMode::Repeat => Wrap::Repeat,
+    }
+}
+
+/// Our sampler for a glTF sampler; unset filters are linear with linear mipmaps.
+fn sampler_desc(s: &::gltf::texture::Sampler<'_>) -> SamplerDesc {
+    let (min_linear, mipmaps, mip_linear) = match s.min_filter() {
+        None | Some(MinFilter::LinearMipmapLinear) => (true, true, true),
+        Some(MinFilter::Nearest) => (false, false, false),
+        Some(MinFilter::Linear) => (true, false, false),
+        Some(MinFilter::NearestMipmapNearest) => (false, true, false),
+        Some(MinFilter::LinearMipmapNearest) => (true, true, false),
+        Some(MinFilter::NearestMipmapLinear) => (false, true, true),
+    };
+    SamplerDesc {
+        wrap_u: wrap(s.wrap_s()),
+        wrap_v: wrap(s.wrap_t()),
+        mag_linear: s.mag_filter() != Some(MagFilter::Nearest),
+        min_linear,
+        mipmaps,
+        mip_linear,
+    }
+}
+
+/// The encoded bytes of an image and a name for messages.
+fn image_bytes(img: &::gltf::Image<'_>, base: &Path, buffers: &[Data]) -> Result<Vec<u8>, String> {
+    match img.source() {
+        ::gltf::image::Source::View { view, .. } => {
+            let data = buffers
+                .get(view.buffer().index())
+                .ok_or("its buffer view refers to a missing buffer")?;
+            let end = view
+                .offset()
+                .checked_add(view.length())
+                .filter(|&e| e <= data.len())
+                .ok_or_else(|| format!("buffer view {} exceeds its buffer", view.index()))?;
+            Ok(data[view.offset()..end].to_vec())
+        }
+        ::gltf::image::Source::Uri { uri, .. } => {
+            if let Some(rest) = uri.strip_prefix("data:") {
+                let (_, payload) = rest
+                    .split_once(";base64,")
+                    .ok_or("its data URI is not base64")?;
+                return base64_decode(payload);
+            }
+            if uri.contains(':') {
+                return Err(format!("URI scheme of '{uri}' is not supported"));
+            }
+            let path = base.join(super::gltf::percent_decode(uri)?);
+            match std::fs::metadata(&path) {
+                Ok(meta) if !meta.is_file() => Err(format!("'{uri}' is not a regular file")),
+                Ok(_) => std::fs::read(&path).map_err(|e| format!("cannot read '{uri}': {e}")),
+                Err(e) => Err(format!("cannot read '{uri}': {e}")),
+            }
+        }
+    }
+}
+
+/// Decodes a PNG or JPEG image to sRGB RGBA8.
+fn decode_image(
+    img: &::gltf::Image<'_>,
+    base: &Path,
+    buffers: &[Data],
+) -> Result<TextureImage, String> {
+    let bytes = image_bytes(img, base, buffers)?;
+    let format = image::guess_format(&bytes).map_err(|_| {
+        let mime = match img.source() {
+            ::gltf::image::Source::View { mime_type, .. } => Some(mime_type),
+            ::gltf::image::Source::Uri { mime_type, .. } => mime_type,
+        };
+        format!(
+            "format {} is not supported (PNG and JPEG are)",
+            mime.unwrap_or("unknown")
+        )
+    })?;
+    let mut reader = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format);
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(MAX_TEXELS * 16);
+    reader.limits(limits);
+    let decoded = reader
+        .decode()
+        .map_err(|e| format!("cannot decode {format:?}: {e}"))?;
+    let (width, height) = (decoded.width(), decoded.height());
+    if width == 0 || height == 0 || u64::from(width) * u64::from(height) > MAX_TEXELS {
+        return Err(format!("size {width}x{height} is empty or too large"));
+    }
+    Ok(TextureImage {
+        width,
+        height,
+        rgba: decoded.into_rgba8().into_raw(),
+    })
+}
+
+/// Standard base64 (padding optional; whitespace ignored).
+fn base64_decode(text: &str) -> Result<Vec<u8>, String> {
+    let mut out = Vec::with_capacity(text.len() / 4 * 3);
+    let (mut acc, mut bits) = (0u32, 0u32);
+    for c in text.bytes() {
+        let v = match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' | b'-' => 62,
+            b'/' | b'_' => 63,
+            b'=' | b' ' | b'\n' | b'\r' | b'\t' => continue,
+            _ => return Err("its data URI is not valid base64".to_string()),
+        };
+        acc = (acc << 6) | u32::from(v);
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+        }
+    }
+    Ok(out)
+}
+
+/// Reads any accessor of up to four components (float, or integer normalized or not) as
+/// `[f32; 4]` elements (missing components are 0, alpha 1 for colors is the caller's job).
+fn read_elements(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<[f32; 4]>, String> {
+    let dims = match acc.dimensions() {
+        Dimensions::Scalar => 1,
+        Dimensions::Vec2 => 2,
+        Dimensions::Vec3 => 3,
+        Dimensions::Vec4 => 4,
+        d => return Err(format!("expected up to four components, found {d:?}")),
+    };
+    let (bytes, stride) = super::gltf::check_accessor(acc, buffers)?;
+    let ty = acc.data_type();
+    let size = ty.size();
+    let normalized = acc.normalized();
+    let component = |b: &[u8]| -> f32 {
+        match ty {
+            DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+            DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
+            DataType::U8 if normalized => f32::from(b[0]) / 255.0,
+            DataType::U8 => f32::from(b[0]),
+            DataType::I8 if normalized => (f32::from(b[0] as i8) / 127.0).max(-1.0),
+            DataType::I8 => f32::from(b[0] as i8),
+            DataType::U16 if normalized => f32::from(u16::from_le_bytes([b[0], b[1]])) / 65535.0,
+            DataType::U16 => f32::from(u16::from_le_bytes([b[0], b[1]])),
+            DataType::I16 if normalized => {
+                (f32::from(i16::from_le_bytes([b[0], b[1]])) / 32767.0).max(-1.0)
+            }
+            DataType::I16 => f32::from(i16::from_le_bytes([b[0], b[1]])),
+        }
+    };
+    Ok((0..acc.count())
+        .map(|i| {
+            let e = &bytes[i * stride..];
+            let mut out = [0.0; 4];
+            for (k, o) in out.iter_mut().enumerate().take(dims) {
+                *o = component(&e[k * size..]);
+            }
+            out
+        })
+        .collect())
+}
+
+/// A primitive's TEXCOORD_`set` and COLOR_0 for its `n` vertices (defaults where absent), and
+/// whether it had vertex colors (texture coordinates alone matter only with a texture). Non-finite values are an error naming the attribute.
+pub(super) fn primitive_attributes(
+    prim: &::gltf::Primitive<'_>,
+    set: u32,
+    buffers: &[Data],
+    n: usize,
+    label: &str,
+) -> Result<(Vec<VertexAttributes>, bool), String> {
+    let mut out = vec![VertexAttributes::default(); n];
+    let mut found = false;
+    for (semantic, name) in [
+        (Semantic::TexCoords(set), format!("TEXCOORD_{set}")),
+        (Semantic::Colors(0), "COLOR_0".to_string()),
+    ] {
+        let Some(acc) = prim.get(&semantic) else {
+            continue;
+        };
+        let elems = read_elements(&acc, buffers)
+            .map_err(|e| format!("{label}: {name} accessor {}: {e}", acc.index()))?;
+        if elems.len() != n {
+            return Err(format!(
+                "{label}: {name} accessor {} has {} elements for {n} vertices",
+                acc.index(),
+                elems.len()
+            ));
+        }
+        if let Some(i) = elems.iter().position(|e| !e.iter().all(|c| c.is_finite())) {
+            return Err(format!("{label}: {name} of vertex {i} is not finite"));
+        }
+        let rgb_only = acc.dimensions() == Dimensions::Vec3;
+        for (a, e) in out.iter_mut().zip(&elems) {
+            if matches!(semantic, Semantic::TexCoords(_)) {
+                a.uv = [e[0], e[1]];
+            } else {
+                let alpha = if rgb_only { 1.0 } else { e[3] };
+                a.color =
+                    [e[0], e[1], e[2], alpha].map(|c| (c.clamp(0.0, 1.0) * 255.0 + 0.5) as u8);
+            }
+        }
+        found |= !matches!(semantic, Semantic::TexCoords(_));
+    }
+    Ok((out, found))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::base64_decode;
+
+    #[test]
+    fn base64_decodes() {
+        assert_eq!(base64_decode("TWFu").unwrap(), b"Man");
+        assert_eq!(base64_decode("TWE=").unwrap(), b"Ma");
+        assert_eq!(base64_decode("TQ==").unwrap(), b"M");
+        assert!(base64_decode("T*==").is_err());
+    }
+}

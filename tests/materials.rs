@@ -1,0 +1,338 @@
+//! Materials under validation: a glTF written here with a checker texture (REPEAT and
+//! CLAMP_TO_EDGE samplers, nearest filtering), an alpha-masked quad in front of a wall with
+//! vertex colors; the render shows the texture, masked pixels show the wall, the ID pass agrees
+//! with the mask. Images come from a data URI, a file next to the .gltf and a GLB buffer view.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use coherent::culling;
+use coherent::render::Renderer;
+use coherent::scene::gltf::testdata::GltfBuilder;
+use coherent::scene::{AlphaMode, CameraPose, Scene};
+use glam::Vec3;
+
+const W: u32 = 320;
+const H: u32 = 240;
+
+fn temp_dir(test: &str) -> PathBuf {
+    let dir =
+        std::env::temp_dir().join(format!("coherent-materials-{}-{test}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn png(w: u32, h: u32, rgba: Vec<u8>) -> Vec<u8> {
+    let img = image::RgbaImage::from_raw(w, h, rgba).expect("image");
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png)
+        .expect("png");
+    out.into_inner()
+}
+
+/// 8x8 checker: texel (x, y) white when x + y is even, else black.
+fn checker_png() -> Vec<u8> {
+    let rgba = (0..64)
+        .flat_map(|i| {
+            let c = if (i % 8 + i / 8) % 2 == 0 { 255 } else { 0 };
+            [c, c, c, 255]
+        })
+        .collect();
+    png(8, 8, rgba)
+}
+
+/// 2x1 red: the left texel transparent, the right one opaque.
+fn mask_png() -> Vec<u8> {
+    png(2, 1, vec![255, 0, 0, 0, 255, 0, 0, 255])
+}
+
+fn base64(data: &[u8]) -> String {
+    coherent::scene::gltf::testdata::base64(data)
+}
+
+/// A quad in the plane z = `z` from (x0, y0) to (x1, y1), facing +Z, with texture coordinates
+/// (0, v) .. (`u1`, ...) and optional per-vertex colors (normalized u8 RGBA, left two vertices
+/// then right two); returns the mesh index.
+fn quad(
+    b: &mut GltfBuilder,
+    (x0, y0, x1, y1, z): (f32, f32, f32, f32, f32),
+    u1: f32,
+    colors: Option<([u8; 4], [u8; 4])>,
+    material: usize,
+) -> usize {
+    let pos = b.vec3(&[[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]]);
+    let nrm = b.vec3(&[[0.0, 0.0, 1.0]; 4]);
+    let uv: Vec<u8> = [[0.0, 1.0], [u1, 1.0], [u1, 0.0], [0.0, 0.0]]
+        .iter()
+        .flatten()
+        .flat_map(|f: &f32| f.to_le_bytes())
+        .collect();
+    let uv_view = b.view(&uv);
+    let uv = b.accessor(uv_view, 5126, "VEC2", 4);
+    let idx = b.indices_u16(&[0, 1, 2, 0, 2, 3]);
+    let mut attributes = format!(r#""POSITION":{pos},"NORMAL":{nrm},"TEXCOORD_0":{uv}"#);
+    if let Some((left, right)) = colors {
+        let bytes: Vec<u8> = [left, right, right, left].concat();
+        let view = b.view(&bytes);
+        b.accessors.push(format!(
+            r#"{{"bufferView":{view},"componentType":5121,"normalized":true,"type":"VEC4","count":4}}"#
+        ));
+        attributes += &format!(r#","COLOR_0":{}"#, b.accessors.len() - 1);
+    }
+    b.meshes.push(format!(
+        r#"{{"primitives":[{{"attributes":{{{attributes}}},"indices":{idx},"material":{material}}}]}}"#
+    ));
+    b.meshes.len() - 1
+}
+
+/// The test document: materials 0 (wall, vertex colors), 1 (checker, REPEAT), 2 (checker,
+/// CLAMP_TO_EDGE), 3 (red, alpha mask 0.5); images `checker` and `mask` as JSON objects.
+fn document(b: &mut GltfBuilder) {
+    b.materials = vec![
+        r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,1,1,1]}}"#.to_string(),
+        r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#.to_string(),
+        r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":1}}}"#.to_string(),
+        r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":2}},"alphaMode":"MASK","alphaCutoff":0.5}"#.to_string(),
+    ];
+    let blue = [0, 0, 255, 255];
+    let cyan = [0, 255, 255, 255];
+    let wall = quad(b, (-6.0, -4.0, 6.0, 4.0, -1.0), 1.0, Some((blue, cyan)), 0);
+    let repeat = quad(b, (-2.0, 0.2, -0.2, 1.8, 0.0), 2.0, None, 1);
+    let clamp = quad(b, (-2.0, -1.8, -0.2, -0.2, 0.0), 2.0, None, 2);
+    let masked = quad(b, (0.2, -1.0, 2.0, 1.0, 0.5), 1.0, None, 3);
+    for m in [wall, repeat, clamp, masked] {
+        b.node(m, [0.0, 0.0, 0.0]);
+    }
+}
+
+const SAMPLERS: &str = r#""samplers":[{"magFilter":9728,"minFilter":9728,"wrapS":10497,"wrapT":10497},{"magFilter":9728,"minFilter":9728,"wrapS":33071,"wrapT":33071}],"textures":[{"source":0,"sampler":0},{"source":0,"sampler":1},{"source":1,"sampler":1}]"#;
+
+/// Writes the document as .gltf (checker as a data URI, mask as `mask.png` next to it).
+fn write_gltf(dir: &Path) -> PathBuf {
+    let mut b = GltfBuilder::default();
+    document(&mut b);
+    std::fs::write(dir.join("mask.png"), mask_png()).expect("write");
+    let images = format!(
+        r#""images":[{{"uri":"data:image/png;base64,{}"}},{{"uri":"mask.png"}}],{SAMPLERS},"#,
+        base64(&checker_png())
+    );
+    let uri = format!("data:application/octet-stream;base64,{}", base64(&b.bin));
+    let json = b.json(Some(&uri)).replacen('{', &format!("{{{images}"), 1);
+    let path = dir.join("materials.gltf");
+    std::fs::write(&path, json).expect("write");
+    path
+}
+
+/// The same document as .glb with both images in buffer views.
+fn write_glb(dir: &Path, checker: &[u8], checker_mime: &str) -> PathBuf {
+    let mut b = GltfBuilder::default();
+    document(&mut b);
+    let c = b.view(checker);
+    let m = b.view(&mask_png());
+    let images = format!(
+        r#""images":[{{"bufferView":{c},"mimeType":"{checker_mime}"}},{{"bufferView":{m},"mimeType":"image/png"}}],{SAMPLERS},"#
+    );
+    while b.bin.len() % 4 != 0 {
+        b.bin.push(0);
+    }
+    let mut json = b.json(None).replacen('{', &format!("{{{images}"), 1);
+    while json.len() % 4 != 0 {
+        json.push(' ');
+    }
+    let mut glb = Vec::new();
+    let total = 12 + 8 + json.len() + 8 + b.bin.len();
+    for w in [
+        0x4654_6C67u32,
+        2,
+        total as u32,
+        json.len() as u32,
+        0x4E4F_534A,
+    ] {
+        glb.extend_from_slice(&w.to_le_bytes());
+    }
+    glb.extend_from_slice(json.as_bytes());
+    for w in [b.bin.len() as u32, 0x004E_4942] {
+        glb.extend_from_slice(&w.to_le_bytes());
+    }
+    glb.extend_from_slice(&b.bin);
+    let path = dir.join("materials.glb");
+    std::fs::write(&path, glb).expect("write");
+    path
+}
+
+fn pose() -> CameraPose {
+    CameraPose {
+        eye: Vec3::new(0.0, 0.0, 5.0),
+        target: Vec3::ZERO,
+    }
+}
+
+/// Renders `scene` with vfc; returns the pixels and the ID pass's pixels per object.
+fn render(scene: &Scene) -> (Vec<u8>, Vec<u32>) {
+    let (ctx, log) = common::context();
+    let out = {
+        let bvh = common::bvh_of(scene);
+        let mut r = Renderer::new(&ctx, scene, W, H).expect("renderer");
+        let mut vfc = culling::create("vfc", &Default::default()).expect("vfc");
+        let (res, px) = common::frame(&mut r, vfc.as_mut(), &bvh, pose(), 0);
+        assert!(res.counts.texture_binds >= 1, "{:?}", res.counts);
+        let cam = r.camera(pose(), &bvh);
+        let mut ids = Vec::new();
+        r.object_pixels(&bvh, &cam, &mut ids).expect("ids");
+        (px, ids)
+    };
+    drop(ctx);
+    common::assert_silent(&log);
+    out
+}
+
+fn px(pixels: &[u8], x: u32, y: u32) -> [u8; 4] {
+    let i = ((y * W + x) * 4) as usize;
+    [pixels[i], pixels[i + 1], pixels[i + 2], pixels[i + 3]]
+}
+
+fn is_red(p: [u8; 4]) -> bool {
+    p[0] > 100 && p[1] < 40 && p[2] < 40
+}
+
+fn is_wall(p: [u8; 4]) -> bool {
+    p[0] < 40 && p[2] > 100
+}
+
+/// Dark/grey transitions along row `y` of the left half (the checker quads).
+fn checker_transitions(pixels: &[u8], y: u32) -> usize {
+    let mut last = None;
+    let mut n = 0;
+    for x in 0..W / 2 {
+        let p = px(pixels, x, y);
+        let state = if p[..3].iter().all(|&c| c < 40) {
+            Some(false)
+        } else if p[..3].iter().all(|&c| c > 100) && p[0].abs_diff(p[2]) < 10 {
+            Some(true)
+        } else {
+            None
+        };
+        if let Some(s) = state {
+            if last.is_some_and(|l| l != s) {
+                n += 1;
+            }
+            last = Some(s);
+        }
+    }
+    n
+}
+
+#[test]
+fn textures_masks_and_vertex_colors_render_as_authored() {
+    let dir = temp_dir("render");
+    let path = write_gltf(&dir);
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("load");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!(scene.images.len(), 2);
+    assert_eq!(scene.textures.len(), 3);
+    assert!(scene.has_materials());
+    let (pixels, ids) = render(&scene);
+
+    // The checker: REPEAT over u in 0..2 shows 16 cells along a row (15 transitions),
+    // CLAMP_TO_EDGE shows 8 and then its edge texel (7).
+    let upper = checker_transitions(&pixels, H / 2 - H / 8);
+    let lower = checker_transitions(&pixels, H / 2 + H / 8);
+    assert!((13..=17).contains(&upper), "repeat: {upper} transitions");
+    assert!((5..=9).contains(&lower), "clamp: {lower} transitions");
+
+    // Vertex colors: the wall is blue at its left, cyan at its right.
+    let left = px(&pixels, 2, H / 2).map(u32::from);
+    let right = px(&pixels, W - 3, H / 2).map(u32::from);
+    assert!(left[2] > 100 && left[2] > 2 * left[1], "left {left:?}");
+    assert!(
+        right[2] > 100 && right[1] * 5 > right[2] * 4,
+        "right {right:?}"
+    );
+
+    // The masked quad: only its right half is drawn; its left half shows the wall. With the
+    // mask off, the whole quad is red.
+    let mut opaque = scene.clone();
+    for m in &mut opaque.materials {
+        m.alpha = AlphaMode::Opaque;
+    }
+    let (opaque_pixels, opaque_ids) = render(&opaque);
+    let count = |p: &[u8], f: fn([u8; 4]) -> bool| {
+        p.chunks_exact(4)
+            .filter(|c| f([c[0], c[1], c[2], c[3]]))
+            .count()
+    };
+    let (red, red_opaque) = (count(&pixels, is_red), count(&opaque_pixels, is_red));
+    assert!(red > 100, "{red} red pixels");
+    let half = red as f64 / red_opaque as f64;
+    assert!(
+        (0.4..0.6).contains(&half),
+        "masked/opaque red {red}/{red_opaque}"
+    );
+    let mut behind = 0;
+    for (a, b) in pixels.chunks_exact(4).zip(opaque_pixels.chunks_exact(4)) {
+        let (a, b) = ([a[0], a[1], a[2], a[3]], [b[0], b[1], b[2], b[3]]);
+        if is_red(b) && !is_red(a) {
+            assert!(is_wall(a), "a masked pixel shows {a:?}, not the wall");
+            behind += 1;
+        }
+    }
+    assert!(behind > 100, "{behind}");
+
+    // The ID pass respects the mask: the quad (object 3) owns exactly its drawn pixels, and
+    // the wall (object 0) owns those it shows through the holes.
+    assert_eq!(ids[3] as usize, red, "masked quad ID pixels");
+    assert_eq!(opaque_ids[3] as usize, red_opaque, "opaque quad ID pixels");
+    assert_eq!(
+        ids[0] as usize,
+        opaque_ids[0] as usize + behind,
+        "wall ID pixels"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn glb_views_jpeg_and_unsupported_images() {
+    let dir = temp_dir("glb");
+    // PNG in buffer views: the same images as the .gltf's data URI and file.
+    let gltf = coherent::scene::gltf::load_gltf(&write_gltf(&dir))
+        .expect("gltf")
+        .0;
+    let glb = coherent::scene::gltf::load_gltf(&write_glb(&dir, &checker_png(), "image/png"))
+        .expect("glb")
+        .0;
+    assert_eq!(gltf.images, glb.images);
+    assert_eq!(gltf.attributes, glb.attributes);
+
+    // JPEG decodes (lossy: the size and the mean are checked).
+    let img = image::RgbImage::from_fn(8, 8, |x, y| {
+        let c = if (x + y) % 2 == 0 { 255 } else { 0 };
+        image::Rgb([c, c, c])
+    });
+    let mut jpeg = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut jpeg, image::ImageFormat::Jpeg)
+        .expect("jpeg");
+    let (scene, warnings) =
+        coherent::scene::gltf::load_gltf(&write_glb(&dir, &jpeg.into_inner(), "image/jpeg"))
+            .expect("jpeg glb");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!((scene.images[0].width, scene.images[0].height), (8, 8));
+
+    // A KTX2 image: one warning naming the image, the material drawn untextured.
+    let ktx2 = [
+        0xAB, b'K', b'T', b'X', b' ', b'2', b'0', 0xBB, b'\r', b'\n', 0x1A, b'\n',
+    ];
+    let path = write_glb(&dir, &ktx2, "image/ktx2");
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("ktx2 glb");
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].contains("image 0") && warnings[0].contains("image/ktx2"),
+        "{warnings:?}"
+    );
+    assert_eq!(scene.images.len(), 1);
+    let (pixels, _) = render(&scene);
+    assert!(pixels
+        .chunks_exact(4)
+        .any(|p| is_red([p[0], p[1], p[2], p[3]])));
+    std::fs::remove_dir_all(&dir).ok();
+}
