@@ -38,8 +38,9 @@ pub struct RayScene {
     bvh: Option<Bvh2>,
     /// Triangles reordered to BVH primitive order.
     triangles: Vec<Triangle>,
-    /// Original triangle index of each reordered triangle.
-    original: Vec<u32>,
+    /// Original triangle index of each reordered triangle (a boxed slice: `RayScene` stays
+    /// as small as it was before the movers' field).
+    original: Box<[u32]>,
     /// Albedo per original triangle index.
     albedo: Vec<Vec3>,
     /// Moving objects' triangles at their current places (see [`RayScene::set_movers`]),
@@ -57,7 +58,7 @@ impl RayScene {
             return Self {
                 bvh: None,
                 triangles: Vec::new(),
-                original: Vec::new(),
+                original: Box::default(),
                 albedo,
                 movers: None,
             };
@@ -72,7 +73,7 @@ impl RayScene {
             .collect();
         let mut build_time = Duration::ZERO;
         let bvh = build_bvh2_from_tris(&tris, BvhBuildParams::fast_build(), &mut build_time);
-        let original = bvh.primitive_indices.clone();
+        let original: Box<[u32]> = bvh.primitive_indices.clone().into();
         let reordered = original.iter().map(|&i| tris[i as usize]).collect();
         Self {
             bvh: Some(bvh),
