@@ -5,10 +5,6 @@
 // (point i belongs to slot i mod n), all maps in one layered pass. A point is drawn as one small
 // triangle (three vertices) that covers the texel it falls in, so no point-size state is needed.
 // Depth is len / far as in gi_shadow.vert; points behind the VPL's hemisphere are dropped.
-// Splat size: each point of a map stands for a disk of radius r (params.w: sqrt(area / (pi *
-// points per map))); facing the VPL at distance len it covers a disk of radius r / (len + l.z)
-// in paraboloid coordinates (d p / d theta = 1 / (1 + cos theta)). The splat covers that disk,
-// at least the texel the point falls in and at most 4 texels (near points would cover the map).
 
 layout(std430, set = 0, binding = 0) readonly buffer Points { vec4 points[]; };
 struct Slot { vec4 position_layer; vec4 normal; };
@@ -41,7 +37,5 @@ void main() {
     }
     vec2 p = l.xy / max(len + l.z, 1e-9);
     float texel = 2.0 / pc.params.z;
-    float footprint = pc.params.w / max(len + l.z, 1e-9);
-    float scale = max(texel, min(footprint, 4.0 * texel) / 0.58);
-    gl_Position = vec4(p + CORNERS[corner] * scale, len / far, 1.0);
+    gl_Position = vec4(p + CORNERS[corner] * texel, len / far, 1.0);
 }

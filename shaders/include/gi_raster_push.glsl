@@ -2,5 +2,5 @@
 layout(push_constant) uniform Push {
     mat4 view_proj; // G-buffer: the camera
     vec4 eye;       // G-buffer: xyz the camera position
-    vec4 params;    // shadow maps: x first slot of this draw, y far distance; ISM: z map size, w point radius
+    vec4 params;    // shadow maps: x first slot of this draw, y far distance
 } pc;

@@ -131,8 +131,6 @@ pub struct ImperfectShadowMaps {
     placed: Vec<[f32; 4]>,
     /// Points drawn per frame.
     pub point_count: u32,
-    /// Total area of the surfaces the points sample.
-    surface_area: f32,
     /// Edge of each map.
     pub map_size: u32,
     /// Layers (VPL layers; at least 2 so the views are arrays).
@@ -203,11 +201,6 @@ impl ImperfectShadowMaps {
             maps,
             points,
             point_count: data.len() as u32,
-            surface_area: geometry
-                .triangles
-                .iter()
-                .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
-                .sum(),
             samples,
             placed: data,
             map_size: size,
@@ -270,9 +263,6 @@ impl ImperfectShadowMaps {
             push[20] = first_slot as f32;
             push[21] = far;
             push[22] = self.map_size as f32;
-            // The radius of the surface disk each of a map's points stands for.
-            let per_map = (self.point_count / vpl_count).max(1) as f32;
-            push[23] = (self.surface_area / (std::f32::consts::PI * per_map)).sqrt();
             rec.push_constants(layout, &as_bytes(&push[..]));
             rec.draw(self.point_count * 3, 1);
         }
