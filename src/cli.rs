@@ -806,6 +806,10 @@ pub struct GiArgs {
     /// sweep.
     #[arg(long)]
     pub light_path: Option<PathBuf>,
+    /// Built-in moving objects (fans; cars in city and parking): incremental re-renders the
+    /// shadow maps they may have changed, full and ism rebuild every map anyway.
+    #[arg(long, default_value_t = 0)]
+    pub movers: usize,
 }
 
 /// `coherent gi`.
@@ -859,5 +863,9 @@ fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::gi::session::GiSetup>
             .ok()
             .cloned(),
     };
-    Ok(coherent::gi::session::GiSetup { camera, light_keys })
+    Ok(coherent::gi::session::GiSetup {
+        camera,
+        light_keys,
+        movers: a.movers,
+    })
 }

@@ -1,7 +1,7 @@
 //! The scene flattened to world-space triangles for GI: one list feeds the CPU ray caster
 //! ([`RayScene`]) and, expanded to non-indexed vertices, the GPU passes (vertex pulling).
 
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Mat4, Vec3};
 
 use super::raycast::RayScene;
 use crate::scene::material::surface_color;
@@ -27,6 +27,7 @@ fn material_albedo(
 pub const VERTEX_FLOATS: usize = 12;
 
 /// World-space triangles of a scene with one albedo each.
+#[derive(Clone, Debug)]
 pub struct WorldGeometry {
     /// Triangle corners in world space.
     pub triangles: Vec<[Vec3; 3]>,
@@ -41,44 +42,64 @@ pub struct WorldGeometry {
 impl WorldGeometry {
     /// Applies every object's transform to its triangles.
     pub fn from_scene(scene: &Scene) -> WorldGeometry {
-        let mut triangles = Vec::new();
-        let mut normals = Vec::new();
-        let mut albedo = Vec::new();
-        let mut bounds = Aabb::EMPTY;
-        for (index, o) in scene.objects.iter().enumerate() {
-            let normal_matrix = Mat3::from_mat4(o.transform.inverse().transpose());
-            let color = o.color.truncate();
-            let indices =
-                &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
-            let texture = scene
-                .object_material(index)
-                .and_then(|m| scene.material_texture(m));
-            for tri in indices.chunks_exact(3) {
-                let mut p = [Vec3::ZERO; 3];
-                let mut n = [Vec3::ZERO; 3];
-                for k in 0..3 {
-                    let v = &scene.vertices[(o.vertex_offset + tri[k]) as usize];
-                    p[k] = o.transform.transform_point3(Vec3::from(v.position));
-                    n[k] = (normal_matrix * Vec3::from(v.normal)).normalize_or_zero();
-                    bounds.grow(p[k]);
-                }
-                triangles.push(p);
-                normals.push(n);
-                albedo.push(if scene.has_materials() {
-                    let corner = |k: usize| (o.vertex_offset + tri[k]) as usize;
-                    let a = [corner(0), corner(1), corner(2)]
-                        .map(|i| scene.attributes.get(i).copied().unwrap_or_default());
-                    material_albedo(o.color, &a, texture)
-                } else {
-                    color
-                });
-            }
+        Self::from_objects(scene, 0..scene.objects.len())
+    }
+
+    /// [`WorldGeometry::from_scene`] for the objects in `objects` only, in order.
+    pub fn from_objects(scene: &Scene, objects: std::ops::Range<usize>) -> WorldGeometry {
+        let mut out = WorldGeometry::empty();
+        for index in objects {
+            out.push_object(scene, index, &scene.objects[index].transform);
         }
+        out
+    }
+
+    /// Object `index` of `scene` in its own space (its transform not applied).
+    pub fn object_local(scene: &Scene, index: usize) -> WorldGeometry {
+        let mut out = WorldGeometry::empty();
+        out.push_object(scene, index, &Mat4::IDENTITY);
+        out
+    }
+
+    /// No triangles.
+    pub fn empty() -> WorldGeometry {
         WorldGeometry {
-            triangles,
-            normals,
-            albedo,
-            bounds,
+            triangles: Vec::new(),
+            normals: Vec::new(),
+            albedo: Vec::new(),
+            bounds: Aabb::EMPTY,
+        }
+    }
+
+    /// Appends the triangles of object `index` of `scene`, placed by `transform`.
+    fn push_object(&mut self, scene: &Scene, index: usize, transform: &Mat4) {
+        let o = &scene.objects[index];
+        let texture = scene
+            .object_material(index)
+            .and_then(|m| scene.material_texture(m));
+        let normal_matrix = Mat3::from_mat4(transform.inverse().transpose());
+        let color = o.color.truncate();
+        let indices =
+            &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
+        for tri in indices.chunks_exact(3) {
+            let mut p = [Vec3::ZERO; 3];
+            let mut n = [Vec3::ZERO; 3];
+            for k in 0..3 {
+                let v = &scene.vertices[(o.vertex_offset + tri[k]) as usize];
+                p[k] = transform.transform_point3(Vec3::from(v.position));
+                n[k] = (normal_matrix * Vec3::from(v.normal)).normalize_or_zero();
+                self.bounds.grow(p[k]);
+            }
+            self.triangles.push(p);
+            self.normals.push(n);
+            self.albedo.push(if scene.has_materials() {
+                let corner = |k: usize| (o.vertex_offset + tri[k]) as usize;
+                let a = [corner(0), corner(1), corner(2)]
+                    .map(|i| scene.attributes.get(i).copied().unwrap_or_default());
+                material_albedo(o.color, &a, texture)
+            } else {
+                color
+            });
         }
     }
 
@@ -131,6 +152,14 @@ impl WorldGeometry {
             }
         }
         out
+    }
+
+    /// Appends `other`'s triangles after this one's and grows the bounds.
+    pub fn append(&mut self, other: &WorldGeometry) {
+        self.triangles.extend_from_slice(&other.triangles);
+        self.normals.extend_from_slice(&other.normals);
+        self.albedo.extend_from_slice(&other.albedo);
+        self.bounds = self.bounds.union(&other.bounds);
     }
 
     /// The CPU ray-casting scene (BVH over the same triangles).

@@ -51,6 +51,39 @@ impl Default for IsmOptions {
 /// deterministic random order, as vec4 (w = 1). Any contiguous or strided subset is itself a
 /// uniform sample of the surfaces.
 pub fn sample_surface_points(geometry: &WorldGeometry, count: usize, seed: u64) -> Vec<[f32; 4]> {
+    sample_surface(geometry, count, seed)
+        .iter()
+        .map(|s| s.point(geometry))
+        .collect()
+}
+
+/// A surface point as its triangle and barycentric coordinates, so it follows the triangle
+/// when it moves.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceSample {
+    /// Triangle index.
+    pub triangle: u32,
+    /// Weight of corner 1.
+    pub a: f32,
+    /// Weight of corner 2.
+    pub b: f32,
+}
+
+impl SurfaceSample {
+    /// The point on `geometry`'s triangle, as vec4 (w = 1).
+    pub fn point(&self, geometry: &WorldGeometry) -> [f32; 4] {
+        self.point_on(&geometry.triangles[self.triangle as usize])
+    }
+
+    /// The point on triangle `t`, as vec4 (w = 1).
+    pub fn point_on(&self, t: &[Vec3; 3]) -> [f32; 4] {
+        let p: Vec3 = t[0] + (t[1] - t[0]) * self.a + (t[2] - t[0]) * self.b;
+        [p.x, p.y, p.z, 1.0]
+    }
+}
+
+/// [`sample_surface_points`] as triangles and barycentric coordinates.
+pub fn sample_surface(geometry: &WorldGeometry, count: usize, seed: u64) -> Vec<SurfaceSample> {
     let mut cumulative = Vec::with_capacity(geometry.triangles.len());
     let mut total = 0.0f64;
     for t in &geometry.triangles {
@@ -67,13 +100,15 @@ pub fn sample_surface_points(geometry: &WorldGeometry, count: usize, seed: u64) 
             let i = cumulative
                 .partition_point(|&c| c <= u)
                 .min(cumulative.len() - 1);
-            let t = geometry.triangles[i];
             let (mut a, mut b) = (rng.f32(), rng.f32());
             if a + b > 1.0 {
                 (a, b) = (1.0 - a, 1.0 - b);
             }
-            let p: Vec3 = t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b;
-            [p.x, p.y, p.z, 1.0]
+            SurfaceSample {
+                triangle: i as u32,
+                a,
+                b,
+            }
         })
         .collect()
 }
@@ -90,6 +125,10 @@ pub struct ImperfectShadowMaps {
     pub maps: Image,
     /// The surface points (vec4 each).
     pub points: Buffer,
+    /// Where each point lies (its triangle and barycentrics) and its current place, kept to
+    /// move the points on moving objects.
+    samples: Vec<SurfaceSample>,
+    placed: Vec<[f32; 4]>,
     /// Points drawn per frame.
     pub point_count: u32,
     /// Edge of each map.
@@ -121,7 +160,8 @@ impl ImperfectShadowMaps {
             .ok()
             .filter(|c| c.checked_mul(3).is_some())
             .ok_or_else(|| Error::Input(format!("{count} ISM points are too many")))?;
-        let data = sample_surface_points(geometry, point_count as usize, 0x15a);
+        let samples = sample_surface(geometry, point_count as usize, 0x15a);
+        let data: Vec<[f32; 4]> = samples.iter().map(|s| s.point(geometry)).collect();
         let mut points = Buffer::new(
             ctx,
             "ism points",
@@ -161,9 +201,33 @@ impl ImperfectShadowMaps {
             maps,
             points,
             point_count: data.len() as u32,
+            samples,
+            placed: data,
             map_size: size,
             layers,
         })
+    }
+
+    /// Moves the points on triangles `first..` to those triangles' places in `tail` (moving
+    /// objects; their triangles are the last ones) and uploads them. Call between frames.
+    pub fn move_points(&mut self, first: u32, tail: &WorldGeometry) -> Result<()> {
+        let mut moved = false;
+        for (s, p) in self.samples.iter().zip(self.placed.iter_mut()) {
+            if let Some(t) = s.triangle.checked_sub(first) {
+                let t = tail.triangles.get(t as usize).ok_or_else(|| {
+                    Error::Input(format!(
+                        "ISM point on triangle {} has no new place",
+                        s.triangle
+                    ))
+                })?;
+                *p = s.point_on(t);
+                moved = true;
+            }
+        }
+        if moved {
+            self.points.write(0, &as_bytes(&self.placed))?;
+        }
+        Ok(())
     }
 
     /// The pull-push pass's layout (its set: the splats sampled, the maps as storage).

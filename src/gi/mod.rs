@@ -9,6 +9,7 @@ pub mod vpl;
 pub mod deferred;
 pub mod geometry;
 pub mod ism;
+pub mod movers;
 pub mod renderer;
 pub mod session;
 pub mod shadow;

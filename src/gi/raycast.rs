@@ -38,10 +38,14 @@ pub struct RayScene {
     bvh: Option<Bvh2>,
     /// Triangles reordered to BVH primitive order.
     triangles: Vec<Triangle>,
-    /// Original triangle index of each reordered triangle.
-    original: Vec<u32>,
+    /// Original triangle index of each reordered triangle (a boxed slice: `RayScene` stays
+    /// as small as it was before the movers' field).
+    original: Box<[u32]>,
     /// Albedo per original triangle index.
     albedo: Vec<Vec3>,
+    /// Moving objects' triangles at their current places (see [`RayScene::set_movers`]),
+    /// rebuilt when they move; their hits' triangle indices follow the static ones.
+    movers: Option<Box<RayScene>>,
 }
 
 impl RayScene {
@@ -54,8 +58,9 @@ impl RayScene {
             return Self {
                 bvh: None,
                 triangles: Vec::new(),
-                original: Vec::new(),
+                original: Box::default(),
                 albedo,
+                movers: None,
             };
         }
         let tris: Vec<Triangle> = triangles
@@ -68,14 +73,22 @@ impl RayScene {
             .collect();
         let mut build_time = Duration::ZERO;
         let bvh = build_bvh2_from_tris(&tris, BvhBuildParams::fast_build(), &mut build_time);
-        let original = bvh.primitive_indices.clone();
+        let original: Box<[u32]> = bvh.primitive_indices.clone().into();
         let reordered = original.iter().map(|&i| tris[i as usize]).collect();
         Self {
             bvh: Some(bvh),
             triangles: reordered,
             original,
             albedo,
+            movers: None,
         }
+    }
+
+    /// Replaces the moving objects' triangles (world space, one albedo each): rays see them
+    /// beside the static triangles, and their hits' triangle indices are numbered after the
+    /// static ones. A small separate hierarchy, rebuilt here, so the static one is kept.
+    pub fn set_movers(&mut self, triangles: Vec<[Vec3; 3]>, albedo: Vec<Vec3>) {
+        self.movers = (!triangles.is_empty()).then(|| Box::new(RayScene::new(triangles, albedo)));
     }
 
     /// Number of triangles in the scene.
@@ -85,6 +98,22 @@ impl RayScene {
 
     /// Closest hit along `origin + t * dir` for `t` in `(0, t_max]`; `None` on a miss.
     pub fn intersect(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
+        let own = self.intersect_static(origin, dir, t_max);
+        let Some(movers) = &self.movers else {
+            return own;
+        };
+        let limit = own.map_or(t_max, |h| h.t);
+        match movers.intersect_static(origin, dir, limit) {
+            Some(hit) => Some(Hit {
+                triangle: hit.triangle + self.albedo.len() as u32,
+                ..hit
+            }),
+            None => own,
+        }
+    }
+
+    /// [`RayScene::intersect`] against the static triangles only.
+    fn intersect_static(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
         if !(origin.is_finite() && dir.is_finite()) || dir.length_squared() == 0.0 {
             return None;
@@ -116,6 +145,11 @@ impl RayScene {
     /// True when any triangle lies strictly between `from` and `to`, ignoring a
     /// small (relative) epsilon at both ends so surfaces at the endpoints do not count.
     pub fn occluded(&self, from: Vec3, to: Vec3) -> bool {
+        self.occluded_static(from, to) || self.movers.as_ref().is_some_and(|m| m.occluded(from, to))
+    }
+
+    /// [`RayScene::occluded`] against the static triangles only.
+    fn occluded_static(&self, from: Vec3, to: Vec3) -> bool {
         let Some(bvh) = self.bvh.as_ref() else {
             return false;
         };
@@ -205,6 +239,26 @@ mod tests {
         assert!(!scene.occluded(Vec3::ZERO, Vec3::new(0.3, 0.2, 1.0)));
         assert!(!scene.occluded(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, 2.0)));
         assert!(!scene.occluded(Vec3::new(5.0, 0.0, 0.0), Vec3::new(5.0, 0.0, 3.0)));
+    }
+
+    #[test]
+    fn movers_block_and_are_hit() {
+        let mut scene = two_planes();
+        let mover = quad(Vec3::new(0.0, 0.0, 0.5), Vec3::X, Vec3::Y).to_vec();
+        scene.set_movers(mover, vec![Vec3::Z; 2]);
+        let hit = scene.intersect(Vec3::ZERO, Vec3::Z, f32::INFINITY).unwrap();
+        assert!((hit.t - 0.5).abs() < 1e-5);
+        assert_eq!(hit.albedo, Vec3::Z);
+        assert!(hit.triangle >= 4);
+        assert!(scene.occluded(Vec3::ZERO, Vec3::new(0.0, 0.0, 0.9)));
+        // Moved out of the way: the static planes again.
+        scene.set_movers(
+            quad(Vec3::new(5.0, 0.0, 0.5), Vec3::X, Vec3::Y).to_vec(),
+            vec![Vec3::Z; 2],
+        );
+        assert!(!scene.occluded(Vec3::ZERO, Vec3::new(0.0, 0.0, 0.9)));
+        let hit = scene.intersect(Vec3::ZERO, Vec3::Z, f32::INFINITY).unwrap();
+        assert!((hit.t - 1.0).abs() < 1e-5 && hit.triangle < 4);
     }
 
     #[test]

@@ -33,7 +33,7 @@ const SLOT_FLOATS: usize = 8;
 /// Graphics push block: view_proj, eye, params.
 const GRAPHICS_PUSH: u32 = 96;
 /// Longest triangle edge uploaded, as a fraction of the scene's diagonal.
-const MAX_EDGE_FRACTION: f32 = 1.0 / 16.0;
+pub const MAX_EDGE_FRACTION: f32 = 1.0 / 16.0;
 /// The compute passes.
 const GATHER: &[u8] = shaders::GI_GATHER_COMP;
 const RESOLVE: &[u8] = shaders::GI_RESOLVE_COMP;
@@ -119,7 +119,6 @@ pub struct GiRenderer {
     compute_layout: PipelineLayout,
     #[allow(dead_code)] // owned here; the descriptor sets point at them
     sampler: Sampler,
-    #[allow(dead_code)]
     vertices: Buffer,
     slots: Buffer,
     vpl_buffer: Buffer,
@@ -291,6 +290,30 @@ impl GiRenderer {
     /// Output size.
     pub fn size(&self) -> (u32, u32) {
         self.gbuffer.size
+    }
+
+    /// Triangles in the vertex buffer (after the long ones were split).
+    pub fn triangle_count(&self) -> u32 {
+        self.vertex_count / 3
+    }
+
+    /// Replaces triangles `first..` with `tail`'s (moving objects at their new places; with
+    /// imperfect shadow maps, the points on them move too). Call between frames.
+    pub fn move_triangles(&mut self, first: u32, tail: &WorldGeometry) -> Result<()> {
+        if first as usize + tail.triangles.len() > self.triangle_count() as usize {
+            return Err(Error::Input(format!(
+                "{} moved triangles from {first} exceed the renderer's {}",
+                tail.triangles.len(),
+                self.triangle_count()
+            )));
+        }
+        let offset = first as usize * 3 * VERTEX_FLOATS * 4;
+        self.vertices
+            .write(offset, &as_bytes(&tail.gpu_vertices()))?;
+        if let Some(ism) = &mut self.ism {
+            ism.move_points(first, tail)?;
+        }
+        Ok(())
     }
 
     /// Renders one frame: G-buffer from `camera`; shadow maps for the spotlight and for the VPLs

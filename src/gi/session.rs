@@ -12,12 +12,14 @@ use serde::Serialize;
 use super::geometry::WorldGeometry;
 use super::ism::IsmOptions;
 use super::light::Spotlight;
+use super::movers::{self, GiMovers, Move};
 use super::raycast::RayScene;
-use super::renderer::{GiFrame, GiOptions, GiRenderer};
+use super::renderer::{GiFrame, GiOptions, GiRenderer, MAX_EDGE_FRACTION};
 use super::vpl::VplSet;
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::scene::camera::Camera;
+use crate::scene::movers::Movers;
 use crate::scene::{CameraPath, CameraPose, Scene};
 
 /// How VPLs are maintained from frame to frame.
@@ -166,6 +168,8 @@ pub struct GiSetup {
     pub camera: Option<CameraPose>,
     /// Light keyframes (default: [`LightPath::for_scene`]).
     pub light_keys: Option<CameraPath>,
+    /// Built-in moving objects added to the scene (`--movers N`; 0: none).
+    pub movers: usize,
 }
 
 /// The camera of a GI run: the scene's first path pose (or a view of the bounds).
@@ -261,6 +265,8 @@ pub struct GiSummary {
     pub size: String,
     /// Frames per mode.
     pub frames: u32,
+    /// Moving objects (`--movers`).
+    pub movers: usize,
     /// The frames compared with the reference (all after the first, evenly spaced).
     pub rmse_frames: Vec<u32>,
     /// Per mode, in run order.
@@ -374,8 +380,7 @@ fn percentile(values: &[f64], p: f64) -> f64 {
 /// Renders the full-recompute reference with `4 * vpls` VPLs on `frames`.
 fn reference_images(
     ctx: &Arc<GpuContext>,
-    geometry: &WorldGeometry,
-    rays: &RayScene,
+    world: &mut World,
     path: &LightPath,
     camera: &Camera,
     opts: &GiRunOptions,
@@ -388,9 +393,8 @@ fn reference_images(
         .max_image_array_layers
         .min(ctx.info.max_framebuffer_layers);
     let layers = (n as u32).min(limit.saturating_sub(1)).max(1);
-    let mut renderer = GiRenderer::new(
+    let mut renderer = world.renderer(
         ctx,
-        geometry,
         GiOptions {
             width: opts.width,
             height: opts.height,
@@ -398,16 +402,141 @@ fn reference_images(
             max_vpls: n as u32,
             shadow_size: opts.shadow_size,
         },
+        None,
     )?;
     let mut set = VplSet::new(n, n);
     let mut out = Vec::new();
+    let mut movers = world.movers.clone();
     for &f in frames {
         let light = path.at(f as f32 / (opts.frames.max(2) - 1) as f32);
-        let stats = set.recompute_all(&light, rays);
+        world.place(movers.as_mut(), f, &mut renderer)?;
+        let stats = set.recompute_all(&light, &world.rays);
         renderer.frame(&light, set.vpls(), &stats.new_layers, camera)?;
         out.push(renderer.read_output()?);
     }
     Ok(out)
+}
+
+/// The scene as GI sees it: triangles for the renderer, the ray-casting scene, and the movers
+/// (their triangles last, from `first_mover` on) when there are any.
+struct World {
+    geometry: WorldGeometry,
+    rays: RayScene,
+    /// The movers at frame 0 (each mode and the reference move a copy).
+    movers: Option<GiMovers>,
+    first_mover: u32,
+}
+
+impl World {
+    /// `scene`'s triangles; with `movers` > 0, the scene's built-in movers are added: the static
+    /// triangles are split here (as the renderer would) and the movers' follow, so that they
+    /// are the last ones in the renderer's vertex buffer.
+    fn new(scene: &Scene, movers: usize) -> World {
+        if movers == 0 {
+            let geometry = WorldGeometry::from_scene(scene);
+            let rays = geometry.ray_scene();
+            return World {
+                geometry,
+                rays,
+                movers: None,
+                first_mover: 0,
+            };
+        }
+        let mut scene = scene.clone();
+        let statics = scene.objects.len();
+        let added = Movers::add(&mut scene, movers);
+        let fixed = WorldGeometry::from_objects(&scene, 0..statics);
+        let moving = WorldGeometry::from_objects(&scene, statics..scene.objects.len());
+        let mut bounds = fixed.bounds.union(&moving.bounds);
+        let diagonal = WorldGeometry {
+            bounds,
+            ..WorldGeometry::empty()
+        }
+        .diagonal();
+        let max_edge = diagonal * MAX_EDGE_FRACTION;
+        let gi_movers = GiMovers::new(&scene, added, max_edge);
+        let placed = gi_movers.geometry();
+        bounds = bounds.union(&placed.bounds);
+        let mut rays = fixed.ray_scene();
+        rays.set_movers(placed.triangles.clone(), placed.albedo.clone());
+        let mut geometry = fixed.tessellated(max_edge);
+        geometry.bounds = bounds;
+        let first_mover = geometry.triangles.len() as u32;
+        geometry.append(&placed);
+        World {
+            geometry,
+            rays,
+            movers: Some(gi_movers),
+            first_mover,
+        }
+    }
+
+    /// A renderer of this world (with imperfect shadow maps if `ism`), its movers at frame 0.
+    fn renderer(
+        &mut self,
+        ctx: &Arc<GpuContext>,
+        options: GiOptions,
+        ism: Option<IsmOptions>,
+    ) -> Result<GiRenderer> {
+        let renderer = match ism {
+            Some(o) => GiRenderer::with_ism(ctx, &self.geometry, options, o)?,
+            None => GiRenderer::new(ctx, &self.geometry, options)?,
+        };
+        if let Some(m) = &self.movers {
+            if renderer.triangle_count() as usize != self.geometry.triangles.len() {
+                return Err(Error::Input(
+                    "the renderer split the movers' triangles again".into(),
+                ));
+            }
+            let placed = m.geometry();
+            self.rays
+                .set_movers(placed.triangles.clone(), placed.albedo.clone());
+        }
+        Ok(renderer)
+    }
+
+    /// Puts `movers` at their places of `frame` (the ray scene and `renderer`'s triangles);
+    /// returns what moved.
+    fn place(
+        &mut self,
+        movers: Option<&mut GiMovers>,
+        frame: u32,
+        renderer: &mut GiRenderer,
+    ) -> Result<Vec<Move>> {
+        let Some(movers) = movers else {
+            return Ok(Vec::new());
+        };
+        let moves = movers.advance(u64::from(frame));
+        if !moves.is_empty() {
+            let placed = movers.geometry();
+            renderer.move_triangles(self.first_mover, &placed)?;
+            self.rays.set_movers(placed.triangles, placed.albedo);
+        }
+        Ok(moves)
+    }
+
+    /// One frame's VPL update of `mode`; returns the layers whose shadow maps must be
+    /// rendered. Incremental: VPLs on moved objects are deleted first, and the maps of kept
+    /// VPLs that see a moved object's old or new box are rendered again.
+    fn update_vpls(
+        &self,
+        set: &mut VplSet,
+        mode: GiMode,
+        light: &Spotlight,
+        moves: &[Move],
+    ) -> Vec<u32> {
+        if mode != GiMode::Incremental {
+            return set.recompute_all(light, &self.rays).new_layers;
+        }
+        let eps = 1e-4 * self.geometry.diagonal();
+        if !moves.is_empty() {
+            set.remove_where(|v| movers::on_moved_object(v, moves, 10.0 * eps));
+        }
+        let mut layers = set.update(light, &self.rays).new_layers;
+        let stale = movers::stale_layers(set.vpls(), moves, &layers, eps);
+        layers.extend(stale);
+        layers
+    }
 }
 
 /// What a mode produced.
@@ -428,8 +557,7 @@ pub struct ModeRun {
 #[allow(clippy::too_many_arguments)]
 fn run_mode(
     ctx: &Arc<GpuContext>,
-    geometry: &WorldGeometry,
-    rays: &RayScene,
+    world: &mut World,
     path: &LightPath,
     camera: &Camera,
     opts: &GiRunOptions,
@@ -443,10 +571,9 @@ fn run_mode(
         max_vpls: opts.vpls as u32,
         shadow_size: opts.shadow_size,
     };
-    let mut renderer = match mode {
-        GiMode::Ism => GiRenderer::with_ism(ctx, geometry, options, opts.ism)?,
-        _ => GiRenderer::new(ctx, geometry, options)?,
-    };
+    let ism = (mode == GiMode::Ism).then_some(opts.ism);
+    let mut renderer = world.renderer(ctx, options, ism)?;
+    let mut movers = world.movers.clone();
     let mut set = VplSet::new(opts.vpls, opts.budget);
     let mut run = ModeRun {
         mode,
@@ -458,12 +585,10 @@ fn run_mode(
     for f in 0..opts.frames {
         let light = path.at(f as f32 / (opts.frames.max(2) - 1) as f32);
         let start = Instant::now();
-        let stats = match mode {
-            GiMode::Incremental => set.update(&light, rays),
-            GiMode::Full | GiMode::Ism => set.recompute_all(&light, rays),
-        };
+        let moves = world.place(movers.as_mut(), f, &mut renderer)?;
+        let layers = world.update_vpls(&mut set, mode, &light, &moves);
         let update = start.elapsed().as_secs_f64() * 1e3;
-        let frame = renderer.frame(&light, set.vpls(), &stats.new_layers, camera)?;
+        let frame = renderer.frame(&light, set.vpls(), &layers, camera)?;
         run.update_ms.push(update);
         run.frames.push(frame);
         let is_last = f + 1 == opts.frames;
@@ -503,18 +628,18 @@ pub fn run_with(
             "gi needs at least one VPL and one frame".into(),
         ));
     }
-    let geometry = WorldGeometry::from_scene(scene);
-    let rays = geometry.ray_scene();
+    let mut world = World::new(scene, setup.movers);
     let path = match &setup.light_keys {
-        Some(keys) => LightPath::from_keys(keys.clone(), &geometry, &rays),
-        None => LightPath::for_scene(&scene.name, &geometry, &rays),
+        Some(keys) => LightPath::from_keys(keys.clone(), &world.geometry, &world.rays),
+        None => LightPath::for_scene(&scene.name, &world.geometry, &world.rays),
     };
-    let mut camera = default_camera(scene, &geometry, opts.width as f32 / opts.height as f32);
+    let aspect = opts.width as f32 / opts.height as f32;
+    let mut camera = default_camera(scene, &world.geometry, aspect);
     if let Some(pose) = setup.camera {
         (camera.eye, camera.target) = (pose.eye, pose.target);
     }
     let sampled = sample_frames(opts.frames, opts.sample_frames);
-    let reference = reference_images(ctx, &geometry, &rays, &path, &camera, opts, &sampled)?;
+    let reference = reference_images(ctx, &mut world, &path, &camera, opts, &sampled)?;
     if let Some(dir) = out {
         std::fs::create_dir_all(dir)?;
         save_strip(
@@ -531,13 +656,14 @@ pub fn run_with(
         device: ctx.info.name.clone(),
         size: format!("{}x{}", opts.width, opts.height),
         frames: opts.frames,
+        movers: setup.movers,
         rmse_frames: sampled.clone(),
         algorithms: Vec::new(),
     };
     // The last sampled frame of the reference and of every mode, side by side.
     let mut side_by_side: Vec<Vec<u8>> = reference.last().cloned().into_iter().collect();
     for &mode in &opts.modes {
-        let r = run_mode(ctx, &geometry, &rays, &path, &camera, opts, mode, &sampled)?;
+        let r = run_mode(ctx, &mut world, &path, &camera, opts, mode, &sampled)?;
         let m = summarize_mode(&r, &reference, opts);
         if let Some(dir) = out {
             save_mode_images(dir, opts, &r)?;

@@ -227,6 +227,22 @@ impl VplSet {
         stats
     }
 
+    /// Deletes the VPLs for which `gone` holds (those on an object that moved) and frees their
+    /// layers; the next [`VplSet::update`] fills their places within its budget. Returns how
+    /// many were deleted.
+    pub fn remove_where(&mut self, mut gone: impl FnMut(&Vpl) -> bool) -> usize {
+        let before = self.vpls.len();
+        let free_layers = &mut self.free_layers;
+        self.vpls.retain(|v| {
+            let keep = !gone(v);
+            if !keep {
+                free_layers.push(v.layer);
+            }
+            keep
+        });
+        before - self.vpls.len()
+    }
+
     /// Keller's full recompute: discard all VPLs and create up to N new ones from
     /// a sunflower spiral on the disk (rays that miss create no VPL).
     pub fn recompute_all(&mut self, light: &Spotlight, scene: &RayScene) -> UpdateStats {

@@ -1,0 +1,224 @@
+//! GI with moving objects, on the GPU under the validation layer: a moved occluder changes the
+//! shadow map of the VPL that sees it and not the map of one that does not (incremental renders
+//! only the first again and gives the image of a fresh render of every map), and `gi --movers`
+//! runs all three modes with the incremental mode re-rendering the maps the movers touch.
+
+mod common;
+
+use coherent::gi::geometry::WorldGeometry;
+use coherent::gi::light::Spotlight;
+use coherent::gi::movers::{stale_layers, Move};
+use coherent::gi::session::{self, GiMode, GiRunOptions, GiSetup};
+use coherent::gi::vpl::Vpl;
+use coherent::gi::{GiOptions, GiRenderer, IsmOptions, OutputMode};
+use coherent::scene::camera::Camera;
+use coherent::scene::{Aabb, CameraPose, Scene};
+use glam::{Mat4, Vec2, Vec3};
+
+const SIZE: (u32, u32) = (96, 72);
+
+fn push_quad(g: &mut WorldGeometry, c: [Vec3; 4], n: Vec3, albedo: f32) {
+    for t in [[c[0], c[1], c[2]], [c[0], c[2], c[3]]] {
+        for p in t {
+            g.bounds.grow(p);
+        }
+        g.triangles.push(t);
+        g.normals.push([n; 3]);
+        g.albedo.push(Vec3::splat(albedo));
+    }
+}
+
+/// A 4 x 4 floor at y = 0 in 0.25 cells.
+fn floor() -> WorldGeometry {
+    let mut g = WorldGeometry::empty();
+    let s = 0.25;
+    for i in 0..16 {
+        for j in 0..16 {
+            let (x, z) = (-2.0 + i as f32 * s, -2.0 + j as f32 * s);
+            let c = [
+                Vec3::new(x, 0.0, z),
+                Vec3::new(x, 0.0, z + s),
+                Vec3::new(x + s, 0.0, z + s),
+                Vec3::new(x + s, 0.0, z),
+            ];
+            push_quad(&mut g, c, Vec3::Y, 0.8);
+        }
+    }
+    g
+}
+
+/// The occluder: a 1 x 1 horizontal quad at height 1 (both sides), moved by `t`; split into
+/// pieces shorter than the renderer's longest edge, so it keeps its triangles.
+fn occluder(t: &Mat4) -> WorldGeometry {
+    let mut g = WorldGeometry::empty();
+    let c = [
+        Vec3::new(-0.5, 1.0, -0.5),
+        Vec3::new(-0.5, 1.0, 0.5),
+        Vec3::new(0.5, 1.0, 0.5),
+        Vec3::new(0.5, 1.0, -0.5),
+    ];
+    push_quad(&mut g, c, Vec3::NEG_Y, 0.5);
+    g.tessellated(0.2).placed(t)
+}
+
+fn vpl(position: Vec3, normal: Vec3, layer: u32) -> Vpl {
+    Vpl {
+        id: u64::from(layer),
+        position,
+        normal: normal.normalize(),
+        albedo: Vec3::ONE,
+        disk_point: Vec2::ZERO,
+        weight: 0.5,
+        layer,
+    }
+}
+
+fn camera() -> Camera {
+    Camera::from_pose(
+        CameraPose {
+            eye: Vec3::new(0.0, 4.0, -3.5),
+            target: Vec3::new(0.0, 0.0, -0.3),
+        },
+        SIZE.0 as f32 / SIZE.1 as f32,
+        20.0,
+    )
+}
+
+fn renderer(ctx: &std::sync::Arc<coherent::gpu::GpuContext>, g: &WorldGeometry) -> GiRenderer {
+    let mut r = GiRenderer::new(
+        ctx,
+        g,
+        GiOptions {
+            width: SIZE.0,
+            height: SIZE.1,
+            vpl_layers: 2,
+            max_vpls: 2,
+            shadow_size: 128,
+        },
+    )
+    .expect("renderer");
+    r.output = OutputMode::IndirectOnly;
+    r
+}
+
+#[test]
+fn a_moved_occluder_changes_only_the_map_of_the_vpl_that_sees_it() {
+    let (ctx, log) = common::context();
+    {
+        let light = Spotlight::new(Vec3::new(0.0, 3.0, 0.0), Vec3::NEG_Y, Vec3::splat(40.0));
+        // A: high above the floor looking down, the occluder between it and the floor.
+        // B: low at the floor's near edge, tilted away: the occluder is behind its base plane,
+        // the strip of floor at z < -1.56 in front of it.
+        let vpls = [
+            vpl(Vec3::new(0.0, 2.0, 0.0), Vec3::NEG_Y, 0),
+            vpl(Vec3::new(0.0, 0.2, -1.5), Vec3::new(0.0, 0.3, -1.0), 1),
+        ];
+        let (before, after) = (Mat4::IDENTITY, Mat4::from_translation(Vec3::X));
+        let mut scene = floor();
+        let first = scene.triangles.len() as u32;
+        scene.append(&occluder(&before));
+        let cam = camera();
+        let mut r = renderer(&ctx, &scene);
+        assert_eq!(r.triangle_count() as usize, scene.triangles.len());
+        r.frame(&light, &vpls, &[0, 1], &cam).expect("frame");
+        let at_rest = r.read_output().expect("readback");
+
+        // Move the occluder by one unit in x.
+        let moved = occluder(&after);
+        r.move_triangles(first, &moved).expect("move");
+        let moves = [Move {
+            old: occluder(&before).bounds,
+            new: moved.bounds,
+        }];
+        let stale = stale_layers(&vpls, &moves, &[], 1e-4);
+        assert_eq!(stale, vec![0], "only A sees the occluder's old or new box");
+        // Kept maps for both (nothing invalidated), then A's map rendered again.
+        r.frame(&light, &vpls, &[], &cam).expect("frame");
+        let kept = r.read_output().expect("readback");
+        r.frame(&light, &vpls, &stale, &cam).expect("frame");
+        let invalidated = r.read_output().expect("readback");
+
+        // Every map rendered afresh with the occluder at its new place.
+        let mut fresh_scene = floor();
+        fresh_scene.append(&moved);
+        let mut fresh = renderer(&ctx, &fresh_scene);
+        fresh.frame(&light, &vpls, &[0, 1], &cam).expect("frame");
+        let expected = fresh.read_output().expect("readback");
+
+        let moved_shadow = common::diff_pixels(&at_rest, &expected);
+        let stale_pixels = common::diff_pixels(&kept, &expected);
+        let wrong = common::diff_pixels(&invalidated, &expected);
+        eprintln!(
+            "pixels changed by the move {moved_shadow}, wrong with kept maps {stale_pixels}, \
+             wrong after re-rendering A's map {wrong}"
+        );
+        assert!(moved_shadow > 50, "the move changes the indirect light");
+        assert!(stale_pixels > 50, "A's old map is wrong after the move");
+        assert_eq!(
+            wrong, 0,
+            "A's new map and B's kept map give the fresh image"
+        );
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
+#[test]
+fn gi_with_movers_runs_all_modes_and_incremental_renders_the_touched_maps() {
+    let (ctx, log) = common::context();
+    {
+        let scene = Scene::load("cornell", 1.0, 0).expect("scene");
+        let opts = GiRunOptions {
+            vpls: 32,
+            budget: 2,
+            frames: 4,
+            width: 64,
+            height: 48,
+            modes: vec![GiMode::Incremental, GiMode::Full, GiMode::Ism],
+            shadow_size: 64,
+            sample_frames: 1,
+            ism: IsmOptions {
+                map_size: 16,
+                points_per_vpl: 256,
+            },
+        };
+        let run = |movers| {
+            let setup = GiSetup {
+                movers,
+                ..GiSetup::default()
+            };
+            session::run_with(&ctx, &scene, &opts, None, &setup).expect("gi run")
+        };
+        let still = run(0);
+        let moving = run(3);
+        let maps = |s: &session::GiSummary, mode: &str| {
+            s.algorithms
+                .iter()
+                .find(|(name, _)| name == mode)
+                .map(|(_, m)| m.shadow_maps_rendered_median)
+                .expect("mode")
+        };
+        eprintln!("{}{}", still.table(), moving.table());
+        assert_eq!(moving.movers, 3);
+        assert!(maps(&still, "incremental") <= 2.0);
+        assert!(
+            maps(&moving, "incremental") > maps(&still, "incremental"),
+            "spinning fans in the box make incremental render more maps"
+        );
+        assert_eq!(maps(&moving, "full"), maps(&still, "full"));
+        for (name, m) in &moving.algorithms {
+            assert!(m.rmse_vs_reference.is_finite(), "{name}");
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
+#[test]
+fn movers_geometry_follows_the_transform() {
+    let g = occluder(&Mat4::IDENTITY);
+    let moved = g.placed(&Mat4::from_translation(Vec3::new(0.0, 2.0, 0.0)));
+    assert_eq!(moved.triangles.len(), g.triangles.len());
+    let b: Aabb = moved.bounds;
+    assert!((b.min.y - 3.0).abs() < 1e-6 && (b.max.y - 3.0).abs() < 1e-6);
+}
