@@ -35,6 +35,7 @@
 
 pub mod chc;
 pub mod chcpp;
+pub mod latency;
 pub mod nohc;
 pub mod oracle;
 pub mod pvs;
@@ -93,6 +94,21 @@ pub trait OcclusionBackend {
     fn wait_query(&mut self, query: QueryId) -> Result<u64>;
     /// Submits what is left and waits until the frame's work has completed on the device.
     fn finish(&mut self) -> Result<()>;
+    /// How many frames a query stays readable after the frame that issued it: a host with `k`
+    /// frames in flight keeps one query pool (or range) per frame-in-flight slot, hands out
+    /// ids that name the slot, and resets a slot's queries only after the culler's
+    /// `cull_frame` that reuses the slot has started (with `vkCmdResetQueryPool` recorded in
+    /// that frame, or a host reset after `cull_frame`). Default 1: ids are valid within one
+    /// frame. A culler reading `k` frames late checks this.
+    fn frames_in_flight(&self) -> u32 {
+        1
+    }
+    /// Submits what is left of the frame without waiting for it (a host with frames in
+    /// flight, which waits for frame N's fence before it records frame N+k). Default:
+    /// [`OcclusionBackend::finish`].
+    fn submit_frame(&mut self) -> Result<()> {
+        self.finish()
+    }
 }
 
 /// Per-frame input of a culler.
@@ -116,10 +132,14 @@ pub struct FrameInput<'a> {
 /// - `NextFrame`: every query is issued in frame N and read after it, for frame N+1: one
 ///   submission per frame and no waits. Nodes use their last known visibility; an object that
 ///   becomes visible appears one frame late (the pop). A result that is not back when read
-///   (a host with frames in flight) leaves the node's last known state.
-/// - `NextFrameConservative`: as `NextFrame`, but a node with no query result from the last
-///   frame (it entered the frustum, or its parent was just opened) is drawn rather than
-///   assumed invisible: fewer pops, more draws.
+///   leaves the node's last known state. With `k` frames in flight
+///   ([`chcpp::Chcpp::with_frames_in_flight`], default `k = 1`) frame N's queries are read at
+///   the start of frame N+k (the backend keeps one query pool per frame in flight,
+///   [`OcclusionBackend::frames_in_flight`], and ends frames with
+///   [`OcclusionBackend::submit_frame`], no wait); objects appear `k` frames late.
+/// - `NextFrameConservative`: as `NextFrame`, but a node whose last known state is older than
+///   `k` frames (no result read for it in the last frame: it entered the frustum, or its
+///   parent was just opened) is drawn rather than assumed invisible: fewer pops, more draws.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Latency {
     /// Exact, segments within the frame.
