@@ -828,7 +828,8 @@ impl Engine {
         unsafe {
             self.device
                 .cmd_bind_pipeline(slot.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-            self.device.cmd_bind_vertex_buffers(slot.cmd, 0, &[vb], &[0]);
+            self.device
+                .cmd_bind_vertex_buffers(slot.cmd, 0, &[vb], &[0]);
             self.device
                 .cmd_bind_index_buffer(slot.cmd, ib, 0, vk::IndexType::UINT32);
         }
@@ -928,7 +929,13 @@ impl OcclusionBackend for Engine {
             .flat_map(|b| {
                 let [min, max] = b.to_arrays();
                 (0..8).flat_map(move |c| {
-                    [0, 1, 2].map(|axis| if c & (1 << axis) == 0 { min[axis] } else { max[axis] })
+                    [0, 1, 2].map(|axis| {
+                        if c & (1 << axis) == 0 {
+                            min[axis]
+                        } else {
+                            max[axis]
+                        }
+                    })
                 })
             })
             .collect();
@@ -958,7 +965,8 @@ impl OcclusionBackend for Engine {
                 (self.stats.boxes * 8) as i32,
                 0,
             );
-            self.device.cmd_end_query(slot.cmd, slot.query_pool, queries);
+            self.device
+                .cmd_end_query(slot.cmd, slot.query_pool, queries);
         }
         self.stats.boxes += boxes.len() as u64;
         self.stats.queries += 1;
@@ -1008,7 +1016,9 @@ impl OcclusionBackend for Engine {
 
     fn finish(&mut self) -> CullResult<()> {
         self.stats.waits += 1;
-        Err(host_error("finish: this engine does not wait for its frames"))
+        Err(host_error(
+            "finish: this engine does not wait for its frames",
+        ))
     }
 
     fn frames_in_flight(&self) -> u32 {

@@ -284,7 +284,11 @@ fn two_frames_in_flight_read_two_frames_late_and_miss_nothing_on_a_static_camera
                 }
             }
             assert!(begun > 0 && read > 0, "{latency:?}: no queries read at all");
-            assert_eq!(c.early_reads(), 0, "{latency:?}: a query was read before k frames");
+            assert_eq!(
+                c.early_reads(),
+                0,
+                "{latency:?}: a query was read before k frames"
+            );
             eprintln!("{latency:?} k=2: {missed_moving} objects missed while moving");
         }
     }
@@ -357,8 +361,17 @@ fn engine_example_runs_with_two_frames_in_flight() {
         assert_eq!((r[7], r[8]), (1.0, 0.0), "submits, waits: {text}");
     }
     // Nothing is known before the first results come back, two frames after frame 0.
-    assert!(rows[..2].iter().all(|r| r[6] == 0.0), "read before k frames: {text}");
+    assert!(
+        rows[..2].iter().all(|r| r[6] == 0.0),
+        "read before k frames: {text}"
+    );
     assert!(rows[..2].iter().all(|r| r[4] > 0.0), "no queries: {text}");
-    assert!(rows[2..].iter().any(|r| r[6] > 0.0), "no result read: {text}");
-    assert!(rows[2..].iter().all(|r| r[3] > 0.0), "nothing drawn: {text}");
+    assert!(
+        rows[2..].iter().any(|r| r[6] > 0.0),
+        "no result read: {text}"
+    );
+    assert!(
+        rows[2..].iter().all(|r| r[3] > 0.0),
+        "nothing drawn: {text}"
+    );
 }

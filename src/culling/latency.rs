@@ -205,9 +205,10 @@ impl OcclusionBackend for SlotBackend<'_> {
             let q = s.inner[index];
             return self.inner.wait_query(q);
         }
-        s.results.get(index).copied().ok_or_else(|| {
-            Error::Input(format!("query {query} of an earlier frame has no result"))
-        })
+        s.results
+            .get(index)
+            .copied()
+            .ok_or_else(|| Error::Input(format!("query {query} of an earlier frame has no result")))
     }
 
     fn finish(&mut self) -> Result<()> {
