@@ -375,3 +375,34 @@ fn engine_example_runs_with_two_frames_in_flight() {
         "nothing drawn: {text}"
     );
 }
+
+/// `walk --latency next-frame-k2` runs chcpp with two frames in flight on the built-in
+/// renderer and reports it as `chcpp@next-frame-k2`; a bad suffix is a clear error.
+#[test]
+fn walk_reports_frames_in_flight_as_a_latency_suffix() {
+    use std::process::Command;
+    let dir = std::env::temp_dir().join(format!("coherent-walk-k2-{}", std::process::id()));
+    let walk = |latency: &str| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_coherent"));
+        cmd.args([
+            "walk", "--scene", "city", "--scale", "0.1", "--size", "96x64",
+        ])
+        .args(["--frames", "4", "--warmup", "1", "--algorithms", "chcpp"])
+        .args(["--check", "--validation", "--latency", latency, "--out"])
+        .arg(&dir);
+        if std::env::var_os("COHERENT_DEVICE").is_none() {
+            cmd.env("COHERENT_DEVICE", "llvmpipe");
+        }
+        cmd.output().expect("run coherent")
+    };
+    let out = walk("in-frame,next-frame-k2");
+    let text = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{text}");
+    assert!(!text.contains("validation"), "{text}");
+    let summary = std::fs::read_to_string(dir.join("summary.json")).expect("summary");
+    assert!(summary.contains("\"chcpp@next-frame-k2\""), "{summary}");
+    let bad = walk("in-frame-k2");
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("frames in flight"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

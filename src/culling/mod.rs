@@ -166,8 +166,27 @@ impl Latency {
             Latency::NextFrameConservative => "next-frame-conservative",
         }
     }
-    /// Parses a command-line name.
+    /// Parses a command-line name (a `-kN` suffix, see [`Latency::parse_in_flight`], is
+    /// accepted and dropped).
     pub fn parse(name: &str) -> Result<Latency> {
+        Latency::parse_in_flight(name).map(|(latency, _)| latency)
+    }
+    /// Parses a command-line name with an optional `-kN` suffix for `N` frames in flight
+    /// (`next-frame-k2`; default 1; in-frame only with 1).
+    pub fn parse_in_flight(name: &str) -> Result<(Latency, u32)> {
+        let (base, k) = match name.rsplit_once("-k").map(|(b, k)| (b, k.parse::<u32>())) {
+            Some((base, Ok(k))) => (base, k),
+            _ => (name, 1),
+        };
+        let latency = Latency::parse_base(base)?;
+        if k == 0 || (latency == Latency::InFrame && k != 1) {
+            return Err(Error::Input(format!(
+                "latency \"{name}\": frames in flight must be at least 1, and 1 in-frame"
+            )));
+        }
+        Ok((latency, k))
+    }
+    fn parse_base(name: &str) -> Result<Latency> {
         Latency::ALL
             .into_iter()
             .find(|l| l.name() == name)
@@ -222,12 +241,39 @@ pub fn with_latencies(algorithms: &[String], modes: &[Latency]) -> Vec<String> {
 }
 
 /// Creates an algorithm by report name: `ALGORITHM@MODE` (`chcpp@next-frame`) in a latency
-/// mode, else as [`create_with`].
+/// mode, `ALGORITHM@MODE-kN` with `N` frames in flight (on the built-in renderer through
+/// [`latency::FramesInFlight`]), else as [`create_with`].
 pub fn create_named(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> {
     match name.split_once('@') {
-        Some((alg, mode)) => create_latency(alg, &setup.params, Latency::parse(mode)?),
+        Some((alg, mode)) => match Latency::parse_in_flight(mode)? {
+            (l, 1) => create_latency(alg, &setup.params, l),
+            (l, k) => Ok(Box::new(latency::FramesInFlight::new(
+                latency::create_with_frames_in_flight(alg, &setup.params, l, k)?,
+                k,
+            ))),
+        },
         None => create_with(name, setup),
     }
+}
+
+/// [`with_latencies`] from command-line names, which may carry a `-kN` suffix for `N` frames
+/// in flight (`next-frame-k2`, reported as `chcpp@next-frame-k2`).
+pub fn with_latency_names(algorithms: &[String], modes: &[String]) -> Result<Vec<String>> {
+    let mut out = Vec::new();
+    for a in algorithms {
+        if a == "chc" || a == "chcpp" {
+            for m in modes {
+                let (l, k) = Latency::parse_in_flight(m)?;
+                out.push(match k {
+                    1 => l.report_name(a),
+                    k => format!("{a}@{}-k{k}", l.name()),
+                });
+            }
+        } else {
+            out.push(a.clone());
+        }
+    }
+    Ok(out)
 }
 
 /// What an algorithm did in a frame, from its own bookkeeping (the recorder's counts are the
