@@ -363,8 +363,18 @@ fn encloses(outer: &Aabb, inner: &Aabb) -> bool {
 
 /// Scene updates: set_bounds / insert / remove between frames, then update.
 impl ObjectBvh {
+    /// [`ObjectBvh::build`] from boxes as plain arrays `[min, max]` (or [`Aabb`]s): object
+    /// `i` is the `i`-th box.
+    pub fn from_boxes<B: Into<Aabb>>(boxes: impl IntoIterator<Item = B>, leaf_size: u32) -> Self {
+        let bounds: Vec<Aabb> = boxes.into_iter().map(Into::into).collect();
+        ObjectBvh::build(&bounds, leaf_size)
+    }
+
     /// Sets an object's world bounds (it moved); the next [`ObjectBvh::update`] refits.
-    pub fn set_bounds(&mut self, object: u32, bounds: Aabb) -> Result<()> {
+    /// `bounds`: an [`Aabb`] or plain arrays `[min, max]` (see [`Aabb::from_min_max`] for
+    /// `mint` points).
+    pub fn set_bounds(&mut self, object: u32, bounds: impl Into<Aabb>) -> Result<()> {
+        let bounds: Aabb = bounds.into();
         let leaf = self.leaf_of(object)?;
         self.dynamics.object_bounds[object as usize] = bounds_or_point(&bounds);
         self.mark_dirty(leaf);
@@ -373,8 +383,9 @@ impl ObjectBvh {
 
     /// Adds an object with world `bounds` and returns its id, stable until it is removed. It
     /// hangs below the leaf whose box grows least; the next [`ObjectBvh::update`] refits.
-    pub fn insert(&mut self, bounds: Aabb) -> u32 {
-        let b = bounds_or_point(&bounds);
+    /// `bounds` as in [`ObjectBvh::set_bounds`].
+    pub fn insert(&mut self, bounds: impl Into<Aabb>) -> u32 {
+        let b = bounds_or_point(&bounds.into());
         let d = &mut self.dynamics;
         let id = match d.free.pop() {
             Some(id) => id,

@@ -107,7 +107,8 @@ pub struct WalkArgs {
     #[arg(long)]
     pub check: bool,
     /// Latency modes of chc and chcpp, comma separated: in-frame (exact), next-frame (queries
-    /// read one frame late), next-frame-conservative. Reported as `ALGORITHM@MODE`.
+    /// read one frame late), next-frame-conservative; a `-kN` suffix reads them N frames late
+    /// (N frames in flight, e.g. next-frame-k2). Reported as `ALGORITHM@MODE`.
     #[arg(long, default_value = "in-frame", value_delimiter = ',')]
     pub latency: Vec<String>,
     #[command(flatten)]
@@ -369,13 +370,8 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     for alg in &a.algorithms {
         check_algorithm(alg, &params)?;
     }
-    let latencies = a
-        .latency
-        .iter()
-        .map(|l| culling::Latency::parse(l))
-        .collect::<coherent::Result<Vec<_>>>()?;
     let cfg = WalkConfig {
-        algorithms: culling::with_latencies(&a.algorithms, &latencies),
+        algorithms: culling::with_latency_names(&a.algorithms, &a.latency)?,
         frames: a.frames,
         warmup: a.warmup,
         params,

@@ -46,7 +46,10 @@
 //! A host engine keeps its own device, frame loop and camera and uses a culler in four steps:
 //!
 //! 1. **Hierarchy.** Build an [`bvh::ObjectBvh`] over the world boxes of the objects it wants
-//!    culled (object `i` is the host's draw `i`).
+//!    culled (object `i` is the host's draw `i`): `ObjectBvh::from_boxes` takes plain arrays
+//!    `[min, max]` (`[[f32; 3]; 2]`), as do `set_bounds` and `insert` for objects that move,
+//!    appear and vanish; [`scene::Aabb::from_min_max`] takes any `mint` point and
+//!    `Aabb::to_arrays` gives the query boxes back as arrays. No glam type is needed.
 //! 2. **Backend.** Implement [`culling::OcclusionBackend`] over its command buffer:
 //!    - `draw_objects`: inside its main depth pass (dynamic rendering or a render pass), bind
 //!      its opaque pipeline (depth test LESS or GREATER for reverse-Z, depth write on) and draw
@@ -62,10 +65,20 @@
 //!      holding the query has completed (a timeline value or fence) before
 //!      `vkGetQueryPoolResults`. `wait_query` waits for it (that is stall time).
 //!    - `finish`: submit what is left and wait for it (the built-in renderer does). In the
-//!      latency modes the culler reads its queries with `query_result` right after `finish`
-//!      and never waits; a result not back then is dropped and its node keeps its last known
-//!      state. Reading frame N's queries in frame N+k (k frames in flight, `finish` without a
-//!      wait) is not implemented yet.
+//!      latency modes with `k = 1` the culler reads its queries with `query_result` right
+//!      after `finish` and never waits; a result not back then is dropped and its node keeps
+//!      its last known state.
+//!    - **`k` frames in flight** (`Chcpp::with_frames_in_flight(k)`): the frame ends with
+//!      `submit_frame` (one submission, no wait) and frame N's queries are read at the start
+//!      of `cull_frame` for frame N+k. The host keeps one query pool (and result storage) per
+//!      frame-in-flight slot, hands out ids that name the slot, waits for the slot's fence
+//!      before calling `cull_frame` for the frame that reuses it (its normal frame pacing),
+//!      resets the slot's queries inside that frame's command buffer
+//!      (`vkCmdResetQueryPool` before the pass, so after the culler has read them), and
+//!      returns `k` from `frames_in_flight`. On drivers where `vkGetQueryPoolResults` waits
+//!      for the whole device (lavapipe), copy the results with `vkCmdCopyQueryPoolResults`
+//!      into a host-visible buffer at the end of the frame and read that.
+//!      `examples/engine.rs` is such a host (two frames in flight).
 //! 3. **Camera.** Each frame, hand the culler a [`scene::camera::CameraView`]: the
 //!    world-to-clip matrix, the eye and the depth convention, as plain arrays or `mint` types
 //!    (no glam version is forced on the host). Reverse-Z, infinite far, jittered, off-axis and
@@ -90,8 +103,18 @@
 //!     glam::Vec3::new(-1.0, 0.0, -10.0),
 //!     glam::Vec3::new(1.0, 2.0, -8.0),
 //! )));
-//! let culler = Chcpp::new(ChcppParams::default()).with_latency(Latency::NextFrame);
+//! let culler = Chcpp::new(ChcppParams::default())
+//!     .with_latency(Latency::NextFrame)
+//!     .with_frames_in_flight(2); // the host has two frames in flight
 //! assert_eq!(culler.latency(), Latency::NextFrame);
+//!
+//! // The hierarchy and its updates from plain arrays, too.
+//! use coherent::bvh::ObjectBvh;
+//! let mut bvh = ObjectBvh::from_boxes([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]; 4], 1);
+//! bvh.set_bounds(1, [[2.0, 0.0, 0.0], [3.0, 1.0, 1.0]]).unwrap();
+//! let car = bvh.insert([[5.0, 0.0, 5.0], [6.0, 1.0, 7.0]]);
+//! bvh.update();
+//! assert_eq!(bvh.object_bounds(car).map(|b| b.to_arrays()), Some([[5.0, 0.0, 5.0], [6.0, 1.0, 7.0]]));
 //! ```
 pub mod bvh;
 pub mod culling;

@@ -245,3 +245,164 @@ fn next_frame_submits_once_never_waits_and_misses_nothing_on_a_static_camera() {
     }
     common::assert_silent(&log);
 }
+
+/// k = 2 frames in flight on the built-in renderer (through `FramesInFlight`, which keeps each
+/// frame's GPU results in one of two slots and hides them until two frames later): one
+/// submission per frame, no stall, every query read exactly once and never early, nothing
+/// missed once the camera has been static for k frames.
+#[test]
+fn two_frames_in_flight_read_two_frames_late_and_miss_nothing_on_a_static_camera() {
+    use coherent::culling::latency::{create_with_frames_in_flight, FramesInFlight};
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = city();
+        let path = scene.default_path().expect("path").clone();
+        let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
+        r.log_drawn_objects(true);
+        let p = ChcppParams::default();
+        let mut pixels = Vec::new();
+        for latency in [Latency::NextFrame, Latency::NextFrameConservative] {
+            let inner = create_with_frames_in_flight("chcpp", &p, latency, 2).expect("culler");
+            let mut c = FramesInFlight::new(inner, 2);
+            let (mut begun, mut read, mut missed_moving) = (0, 0, 0);
+            for f in 0..16u32 {
+                let t = 20.0 + f.min(8) as f32 * 4.0;
+                let cam = r.camera(path.pose_at(t), &bvh);
+                let res = r.render_frame(&mut c, &bvh, &cam, f as u64).expect("frame");
+                let tag = format!("chcpp@{} k=2 frame {f}", latency.name());
+                assert_eq!(res.counts.submits, 1, "{tag}: submits");
+                assert_eq!(res.stall_ms, 0.0, "{tag}: waited inside the frame");
+                begun += res.counts.queries_begun;
+                read += res.cull.visible_results;
+                r.object_pixels(&bvh, &cam, &mut pixels).expect("id pass");
+                let check = r.check_drawn(&pixels);
+                if f >= 10 {
+                    // Static since frame 8: its results are read in frame 10.
+                    assert_eq!(check.missed_objects, 0, "{tag}: missed on a static camera");
+                } else {
+                    missed_moving += check.missed_objects;
+                }
+            }
+            assert!(begun > 0 && read > 0, "{latency:?}: no queries read at all");
+            assert_eq!(
+                c.early_reads(),
+                0,
+                "{latency:?}: a query was read before k frames"
+            );
+            eprintln!("{latency:?} k=2: {missed_moving} objects missed while moving");
+        }
+    }
+    common::assert_silent(&log);
+}
+
+/// A culler reading k = 2 frames late refuses a backend that keeps results for one frame
+/// (the built-in renderer without `FramesInFlight`), instead of reading the wrong queries.
+#[test]
+fn two_frames_in_flight_need_a_backend_that_keeps_two_frames() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = city();
+        let path = scene.default_path().expect("path").clone();
+        let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
+        let p = ChcppParams::default();
+        let mut c = coherent::culling::latency::create_with_frames_in_flight(
+            "chcpp",
+            &p,
+            Latency::NextFrame,
+            2,
+        )
+        .expect("culler");
+        let cam = r.camera(path.pose_at(20.0), &bvh);
+        let err = r.render_frame(c.as_mut(), &bvh, &cam, 0).err();
+        let err = err.map(|e| e.to_string()).unwrap_or_default();
+        assert!(err.contains("frames_in_flight"), "no clear error: {err:?}");
+    }
+    common::assert_silent(&log);
+}
+
+/// The binary of example `name`, built by cargo for this test's profile.
+fn example_binary(name: &str) -> std::path::PathBuf {
+    let exe = std::env::current_exe().expect("test binary");
+    let profile_dir = exe.parent().and_then(|d| d.parent()).expect("target dir");
+    let mut build = std::process::Command::new(env!("CARGO"));
+    build.args(["build", "--example", name]);
+    if profile_dir.ends_with("release") {
+        build.arg("--release");
+    }
+    let status = build.status().expect("cargo build --example");
+    assert!(status.success(), "building example {name} failed");
+    profile_dir.join("examples").join(name)
+}
+
+/// `examples/engine.rs` (its own device, two frames in flight, one submit per frame,
+/// reverse-Z infinite matrices, chcpp@next-frame with k = 2) runs a few frames, submits once
+/// per frame, never waits, reads results from frame 2 on and has no validation message.
+#[test]
+fn engine_example_runs_with_two_frames_in_flight() {
+    let exe = example_binary("engine");
+    let mut cmd = std::process::Command::new(&exe);
+    cmd.args(["--frames", "8"]);
+    if std::env::var_os("COHERENT_DEVICE").is_none() {
+        cmd.env("COHERENT_DEVICE", "llvmpipe");
+    }
+    let out = cmd.output().expect("run the engine example");
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "engine failed:\n{text}\n{err}");
+    assert!(text.contains("validation: no messages"), "{text}");
+    // frame, cull ms, pace ms, draws, queries, multi, visible, submits, waits
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .filter_map(|l| l.split_whitespace().map(|w| w.parse().ok()).collect())
+        .filter(|r: &Vec<f64>| r.len() == 9)
+        .collect();
+    assert_eq!(rows.len(), 8, "{text}");
+    for r in &rows {
+        assert_eq!((r[7], r[8]), (1.0, 0.0), "submits, waits: {text}");
+    }
+    // Nothing is known before the first results come back, two frames after frame 0.
+    assert!(
+        rows[..2].iter().all(|r| r[6] == 0.0),
+        "read before k frames: {text}"
+    );
+    assert!(rows[..2].iter().all(|r| r[4] > 0.0), "no queries: {text}");
+    assert!(
+        rows[2..].iter().any(|r| r[6] > 0.0),
+        "no result read: {text}"
+    );
+    assert!(
+        rows[2..].iter().all(|r| r[3] > 0.0),
+        "nothing drawn: {text}"
+    );
+}
+
+/// `walk --latency next-frame-k2` runs chcpp with two frames in flight on the built-in
+/// renderer and reports it as `chcpp@next-frame-k2`; a bad suffix is a clear error.
+#[test]
+fn walk_reports_frames_in_flight_as_a_latency_suffix() {
+    use std::process::Command;
+    let dir = std::env::temp_dir().join(format!("coherent-walk-k2-{}", std::process::id()));
+    let walk = |latency: &str| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_coherent"));
+        cmd.args([
+            "walk", "--scene", "city", "--scale", "0.1", "--size", "96x64",
+        ])
+        .args(["--frames", "4", "--warmup", "1", "--algorithms", "chcpp"])
+        .args(["--check", "--validation", "--latency", latency, "--out"])
+        .arg(&dir);
+        if std::env::var_os("COHERENT_DEVICE").is_none() {
+            cmd.env("COHERENT_DEVICE", "llvmpipe");
+        }
+        cmd.output().expect("run coherent")
+    };
+    let out = walk("in-frame,next-frame-k2");
+    let text = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{text}");
+    assert!(!text.contains("validation"), "{text}");
+    let summary = std::fs::read_to_string(dir.join("summary.json")).expect("summary");
+    assert!(summary.contains("\"chcpp@next-frame-k2\""), "{summary}");
+    let bad = walk("in-frame-k2");
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("frames in flight"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -147,6 +147,10 @@ struct Pending {
     kind: QueryKind,
 }
 
+// k frames in flight for the latency modes (a child module: it reads the culler's state).
+#[path = "latency_chcpp.rs"]
+mod latency_chcpp;
+
 /// CHC++ (or, configured with [`ChcppParams::chc`], CHC).
 pub struct Chcpp {
     name: &'static str,
@@ -183,6 +187,10 @@ pub struct Chcpp {
     latency: Latency,
     /// Per node, the last frame a query result gave its state (for the conservative mode).
     result_frame: Vec<u64>,
+    /// Latency modes: the frames between issuing a query and reading it (`k`, default 1).
+    frames_in_flight: u32,
+    /// Latency modes with `k > 1`: the queries of the frames still in flight, oldest first.
+    in_flight: latency_chcpp::InFlightQueries,
 }
 
 impl Chcpp {
@@ -217,6 +225,8 @@ impl Chcpp {
             eye: glam::Vec3::ZERO,
             latency: Latency::InFrame,
             result_frame: Vec::new(),
+            frames_in_flight: 1,
+            in_flight: Default::default(),
         }
     }
 
@@ -882,6 +892,9 @@ impl Chcpp {
         self.flush_render_queue(backend)?;
         let rest = self.v_queue.len();
         self.issue_v_queue(bvh, rest, backend, stats)?;
+        if self.reads_frames_later() {
+            return self.submit_frame_in_flight(bvh, backend);
+        }
         backend.finish()?;
         while let Some(q) = self.query_queue.pop_front() {
             let pixels = if self.latency == Latency::InFrame {
@@ -954,6 +967,7 @@ impl Culler for Chcpp {
         let view = View::new(&input.view);
         let eye = view.eye;
         let mut stats = CullStats::default();
+        self.read_frames_in_flight(bvh, backend, &mut stats)?;
         self.begin_frame(bvh, eye);
         self.eye = eye;
         if let Some(rule) = self.nohc.as_mut() {
@@ -979,6 +993,7 @@ impl Culler for Chcpp {
     fn reset(&mut self) {
         self.state.clear();
         self.tight.clear();
+        self.forget_frames_in_flight();
         if let Some(rule) = self.nohc.as_mut() {
             rule.reset();
         }

@@ -35,6 +35,7 @@
 
 pub mod chc;
 pub mod chcpp;
+pub mod latency;
 pub mod nohc;
 pub mod oracle;
 pub mod pvs;
@@ -93,6 +94,21 @@ pub trait OcclusionBackend {
     fn wait_query(&mut self, query: QueryId) -> Result<u64>;
     /// Submits what is left and waits until the frame's work has completed on the device.
     fn finish(&mut self) -> Result<()>;
+    /// How many frames a query stays readable after the frame that issued it: a host with `k`
+    /// frames in flight keeps one query pool (or range) per frame-in-flight slot, hands out
+    /// ids that name the slot, and resets a slot's queries only after the culler's
+    /// `cull_frame` that reuses the slot has started (with `vkCmdResetQueryPool` recorded in
+    /// that frame, or a host reset after `cull_frame`). Default 1: ids are valid within one
+    /// frame. A culler reading `k` frames late checks this.
+    fn frames_in_flight(&self) -> u32 {
+        1
+    }
+    /// Submits what is left of the frame without waiting for it (a host with frames in
+    /// flight, which waits for frame N's fence before it records frame N+k). Default:
+    /// [`OcclusionBackend::finish`].
+    fn submit_frame(&mut self) -> Result<()> {
+        self.finish()
+    }
 }
 
 /// Per-frame input of a culler.
@@ -116,10 +132,14 @@ pub struct FrameInput<'a> {
 /// - `NextFrame`: every query is issued in frame N and read after it, for frame N+1: one
 ///   submission per frame and no waits. Nodes use their last known visibility; an object that
 ///   becomes visible appears one frame late (the pop). A result that is not back when read
-///   (a host with frames in flight) leaves the node's last known state.
-/// - `NextFrameConservative`: as `NextFrame`, but a node with no query result from the last
-///   frame (it entered the frustum, or its parent was just opened) is drawn rather than
-///   assumed invisible: fewer pops, more draws.
+///   leaves the node's last known state. With `k` frames in flight
+///   ([`chcpp::Chcpp::with_frames_in_flight`], default `k = 1`) frame N's queries are read at
+///   the start of frame N+k (the backend keeps one query pool per frame in flight,
+///   [`OcclusionBackend::frames_in_flight`], and ends frames with
+///   [`OcclusionBackend::submit_frame`], no wait); objects appear `k` frames late.
+/// - `NextFrameConservative`: as `NextFrame`, but a node whose last known state is older than
+///   `k` frames (no result read for it in the last frame: it entered the frustum, or its
+///   parent was just opened) is drawn rather than assumed invisible: fewer pops, more draws.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Latency {
     /// Exact, segments within the frame.
@@ -146,8 +166,27 @@ impl Latency {
             Latency::NextFrameConservative => "next-frame-conservative",
         }
     }
-    /// Parses a command-line name.
+    /// Parses a command-line name (a `-kN` suffix, see [`Latency::parse_in_flight`], is
+    /// accepted and dropped).
     pub fn parse(name: &str) -> Result<Latency> {
+        Latency::parse_in_flight(name).map(|(latency, _)| latency)
+    }
+    /// Parses a command-line name with an optional `-kN` suffix for `N` frames in flight
+    /// (`next-frame-k2`; default 1; in-frame only with 1).
+    pub fn parse_in_flight(name: &str) -> Result<(Latency, u32)> {
+        let (base, k) = match name.rsplit_once("-k").map(|(b, k)| (b, k.parse::<u32>())) {
+            Some((base, Ok(k))) => (base, k),
+            _ => (name, 1),
+        };
+        let latency = Latency::parse_base(base)?;
+        if k == 0 || (latency == Latency::InFrame && k != 1) {
+            return Err(Error::Input(format!(
+                "latency \"{name}\": frames in flight must be at least 1, and 1 in-frame"
+            )));
+        }
+        Ok((latency, k))
+    }
+    fn parse_base(name: &str) -> Result<Latency> {
         Latency::ALL
             .into_iter()
             .find(|l| l.name() == name)
@@ -202,12 +241,39 @@ pub fn with_latencies(algorithms: &[String], modes: &[Latency]) -> Vec<String> {
 }
 
 /// Creates an algorithm by report name: `ALGORITHM@MODE` (`chcpp@next-frame`) in a latency
-/// mode, else as [`create_with`].
+/// mode, `ALGORITHM@MODE-kN` with `N` frames in flight (on the built-in renderer through
+/// [`latency::FramesInFlight`]), else as [`create_with`].
 pub fn create_named(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> {
     match name.split_once('@') {
-        Some((alg, mode)) => create_latency(alg, &setup.params, Latency::parse(mode)?),
+        Some((alg, mode)) => match Latency::parse_in_flight(mode)? {
+            (l, 1) => create_latency(alg, &setup.params, l),
+            (l, k) => Ok(Box::new(latency::FramesInFlight::new(
+                latency::create_with_frames_in_flight(alg, &setup.params, l, k)?,
+                k,
+            ))),
+        },
         None => create_with(name, setup),
     }
+}
+
+/// [`with_latencies`] from command-line names, which may carry a `-kN` suffix for `N` frames
+/// in flight (`next-frame-k2`, reported as `chcpp@next-frame-k2`).
+pub fn with_latency_names(algorithms: &[String], modes: &[String]) -> Result<Vec<String>> {
+    let mut out = Vec::new();
+    for a in algorithms {
+        if a == "chc" || a == "chcpp" {
+            for m in modes {
+                let (l, k) = Latency::parse_in_flight(m)?;
+                out.push(match k {
+                    1 => l.report_name(a),
+                    k => format!("{a}@{}-k{k}", l.name()),
+                });
+            }
+        } else {
+            out.push(a.clone());
+        }
+    }
+    Ok(out)
 }
 
 /// What an algorithm did in a frame, from its own bookkeeping (the recorder's counts are the

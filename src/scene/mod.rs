@@ -215,3 +215,33 @@ impl Scene {
         }
     }
 }
+
+/// Interop: boxes from and to plain arrays or `mint` points, so a host needs no glam (or this
+/// crate's glam version).
+impl Aabb {
+    /// A box from its corners as plain arrays (`[f32; 3]`) or any `mint` point (glam,
+    /// nalgebra and cgmath convert to them).
+    pub fn from_min_max(
+        min: impl Into<mint::Point3<f32>>,
+        max: impl Into<mint::Point3<f32>>,
+    ) -> Aabb {
+        let (min, max): ([f32; 3], [f32; 3]) = (min.into().into(), max.into().into());
+        Aabb::new(Vec3::from_array(min), Vec3::from_array(max))
+    }
+    /// The corners `[min, max]` as plain arrays.
+    pub fn to_arrays(&self) -> [[f32; 3]; 2] {
+        [self.min.to_array(), self.max.to_array()]
+    }
+}
+
+impl From<[[f32; 3]; 2]> for Aabb {
+    fn from([min, max]: [[f32; 3]; 2]) -> Aabb {
+        Aabb::from_min_max(min, max)
+    }
+}
+
+impl From<Aabb> for [[f32; 3]; 2] {
+    fn from(b: Aabb) -> [[f32; 3]; 2] {
+        b.to_arrays()
+    }
+}
