@@ -164,7 +164,7 @@ impl Renderer {
             timestamps: QueryPools::new(ctx, vk::QueryType::TIMESTAMP, 256)?,
             query_segment: Vec::new(),
             query_read: Vec::new(),
-            recorder: Recorder::new(ctx.device.clone()),
+            recorder: Recorder::new(ctx),
             oneshot: OneShot::new(ctx)?,
             push: initial_push(scene),
             bound: None,
