@@ -251,7 +251,8 @@ impl Reader<'_> {
 /// The PVS at run time: the camera's cell's set, frustum-culled, no queries.
 pub struct PvsCuller {
     pvs: Arc<Pvs>,
-    /// Per object: in the current cell's set.
+    /// Per object up to the largest id any set holds: in the current cell's set (sized by
+    /// the sets, not by the file's object count, which a damaged file may overstate).
     in_set: Vec<bool>,
     /// The cell `in_set` was filled for (`None`: outside every cell, everything counts).
     current: Option<Option<u32>>,
@@ -262,8 +263,10 @@ pub struct PvsCuller {
 impl PvsCuller {
     /// A culler over `pvs`.
     pub fn new(pvs: Arc<Pvs>) -> PvsCuller {
+        let ids = pvs.cells.iter().flat_map(|c| c.objects.iter());
+        let len = ids.max().map_or(0, |&o| o as usize + 1);
         PvsCuller {
-            in_set: vec![false; pvs.objects as usize],
+            in_set: vec![false; len],
             pvs,
             current: None,
             vfc: super::vfc::Vfc::default(),
@@ -300,8 +303,14 @@ impl Culler for PvsCuller {
     ) -> Result<CullStats> {
         self.select_cell(input.view.eye);
         let in_set = &self.in_set;
+        // Beyond `in_set`: in no set, so drawn only outside every cell, or when the PVS does
+        // not know the object.
+        let (outside, known) = (self.current == Some(None), self.pvs.objects);
         self.vfc.draw_in_frustum(input, backend, |o| {
-            in_set.get(o as usize).copied().unwrap_or(true)
+            in_set
+                .get(o as usize)
+                .copied()
+                .unwrap_or(outside || o >= known)
         })
     }
 
