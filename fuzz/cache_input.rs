@@ -112,10 +112,11 @@ fn use_path(file: &Path) -> Result<(), String> {
     Ok(())
 }
 
-/// A PVS cache file: loaded as `walk --algorithms pvs` loads it, then culled from the centre
+/// A PVS cache file: loaded as `walk --algorithms pvs` loads it (`pvs_build::load_or_build`
+/// for a scene of [`OBJECTS`] objects), then culled from the centre
 /// of (at most 8 of) its cells and a few fixed points.
 fn use_pvs(file: &Path) -> Result<(), String> {
-    let pvs = match Pvs::load(file, PVS_KEY) {
+    let pvs = match Pvs::load_for_scene(file, PVS_KEY, OBJECTS as usize) {
         Ok(Some(p)) => p,
         Ok(None) => return Err(format!("{}: vanished", file.display())),
         Err(e) => return Err(e.to_string()),

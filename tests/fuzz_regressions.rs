@@ -304,6 +304,11 @@ fn cache_corpus_replays_without_panic() {
     for file in files {
         let bytes = std::fs::read(&file).expect("read corpus file");
         // Accepted or refused with a one-line error naming the file; a panic fails.
-        cache_input::run(&dir, &bytes).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        let start = std::time::Instant::now();
+        let accepted =
+            cache_input::run(&dir, &bytes).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        let name = file.file_name().unwrap_or_default().to_string_lossy();
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        println!("{name}: accepted {accepted}, {ms:.1} ms");
     }
 }

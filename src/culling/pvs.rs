@@ -205,6 +205,21 @@ impl Pvs {
             .map(Some)
             .map_err(|why| Error::Input(format!("{}: {why}", path.display())))
     }
+
+    /// [`Pvs::load`] for a scene of `objects` objects: a file whose object count differs is
+    /// refused too (its ids are only checked against its own count, and the culler sizes
+    /// its per-object state by it: a damaged file claiming 4 billion objects would cost
+    /// gigabytes).
+    pub fn load_for_scene(path: &Path, key: &str, objects: usize) -> Result<Option<Pvs>> {
+        match Pvs::load(path, key)? {
+            Some(p) if p.objects as usize != objects => Err(Error::Input(format!(
+                "{}: made for {} objects, the scene has {objects}",
+                path.display(),
+                p.objects
+            ))),
+            other => Ok(other),
+        }
+    }
 }
 
 fn put_u32(out: &mut Vec<u8>, v: u32) {
@@ -251,8 +266,7 @@ impl Reader<'_> {
 /// The PVS at run time: the camera's cell's set, frustum-culled, no queries.
 pub struct PvsCuller {
     pvs: Arc<Pvs>,
-    /// Per object up to the largest id any set holds: in the current cell's set (sized by
-    /// the sets, not by the file's object count, which a damaged file may overstate).
+    /// Per object: in the current cell's set.
     in_set: Vec<bool>,
     /// The cell `in_set` was filled for (`None`: outside every cell, everything counts).
     current: Option<Option<u32>>,
@@ -263,10 +277,8 @@ pub struct PvsCuller {
 impl PvsCuller {
     /// A culler over `pvs`.
     pub fn new(pvs: Arc<Pvs>) -> PvsCuller {
-        let ids = pvs.cells.iter().flat_map(|c| c.objects.iter());
-        let len = ids.max().map_or(0, |&o| o as usize + 1);
         PvsCuller {
-            in_set: vec![false; len],
+            in_set: vec![false; pvs.objects as usize],
             pvs,
             current: None,
             vfc: super::vfc::Vfc::default(),
@@ -303,14 +315,8 @@ impl Culler for PvsCuller {
     ) -> Result<CullStats> {
         self.select_cell(input.view.eye);
         let in_set = &self.in_set;
-        // Beyond `in_set`: in no set, so drawn only outside every cell, or when the PVS does
-        // not know the object.
-        let (outside, known) = (self.current == Some(None), self.pvs.objects);
         self.vfc.draw_in_frustum(input, backend, |o| {
-            in_set
-                .get(o as usize)
-                .copied()
-                .unwrap_or(outside || o >= known)
+            in_set.get(o as usize).copied().unwrap_or(true)
         })
     }
 
