@@ -385,15 +385,20 @@ fn setup(scene: &coherent::scene::Scene) -> culling::CullerSetup {
     common::setup(common::triangles(scene), (160, 90), 0.05)
 }
 
-/// Renders `frames` frames along the city's street path at 160x90 (scale 0.1): each pose is
-/// rendered by every algorithm in turn (frames / 5 poses, forward and back along the path),
-/// under strict validation. Start figures are taken after a warm-up of 10 poses; RSS is also
-/// sampled at ten checkpoints.
+/// Cars moving on the soaked city's streets (their boxes and transforms updated every pose).
+const SOAK_MOVERS: usize = 40;
+
+/// Renders `frames` frames along the city's street path at 160x90 (scale 0.1) with
+/// [`SOAK_MOVERS`] moving cars: each pose is rendered by every algorithm in turn (frames / 6
+/// poses, forward and back along the path), under strict validation. Start figures are taken
+/// after a warm-up of 10 poses; RSS is also sampled at ten checkpoints.
 fn soak(frames: u32) -> Soak {
     let (warmup, poses) = (10u32, (frames / SOAKED.len() as u32).max(1));
     let (ctx, log) = common::context();
     let mut report = {
-        let (scene, bvh) = common::scene("city", 0.1);
+        let (mut scene, _) = common::scene("city", 0.1);
+        let movers = coherent::scene::movers::Movers::add(&mut scene, SOAK_MOVERS);
+        let mut bvh = common::bvh_of(&scene);
         let path = scene.path("street").expect("street path").clone();
         let mut r = Renderer::new(&ctx, &scene, 160, 90).expect("renderer");
         let mut algs: Vec<_> = SOAKED
@@ -410,6 +415,8 @@ fn soak(frames: u32) -> Soak {
                 rss.push(((p - warmup) * SOAKED.len() as u32, rss_kb()));
             }
             let (period, k) = (2 * 600, p % 1200);
+            coherent::render::walk::place_movers(&movers, p.into(), &mut bvh, &mut r)
+                .expect("movers");
             let cam = r.camera(path.sample(k.min(period - k), 601), &bvh);
             for alg in algs.iter_mut() {
                 r.render_frame(alg.as_mut(), &bvh, &cam, p as u64)
