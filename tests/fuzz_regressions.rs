@@ -210,7 +210,7 @@ fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
         .map(|i| ViewCell {
             coord: [i % 2, i / 2 % 2, i / 4],
             objects: (0..cache_input::OBJECTS)
-                .filter(|o| (o + i as u32) % 3 == 0)
+                .filter(|o| (o + i as u32).is_multiple_of(3))
                 .collect(),
         })
         .collect();
