@@ -152,8 +152,8 @@ impl ShadowMaps {
         (i as u32 % (self.staging.layers - 1)) + 1
     }
 
-    /// Records one layered pass that clears and renders the spotlight's layer and the layers of
-    /// `vpl_slots` (slots `first_slot + 1 ..` of the bound slot buffer; slot `first_slot` is the
+    /// Records one layered pass (or its chunks, see [`ShadowMaps::staged`]) that clears and
+    /// renders the spotlight's layer and the layers of `vpl_slots` (slots `first_slot + 1 ..` of the bound slot buffer; slot `first_slot` is the
     /// spotlight). `push` is the graphics push block whose params.x/y this sets. Leaves the array
     /// sampled by compute for the gather passes. Returns the number of VPL shadow maps drawn,
     /// counted from the triangles the recorder saw.
