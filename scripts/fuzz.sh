@@ -29,7 +29,7 @@ fi
 command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked
 corpus=fuzz/corpus/$target
 mkdir -p "$corpus"
-COHERENT_FUZZ_SEEDS="$PWD/$corpus" cargo test --quiet --test fuzz_regressions "$seed_test"
+COHERENT_FUZZ_SEEDS="$PWD/$corpus" cargo test --quiet --test fuzz_regressions "$seed_test" -- --exact
 find "$regressions" -maxdepth 1 -type f ! -name '*.md' -exec cp {} "$corpus/" \;
 cargo +nightly fuzz build "$target"
 log=fuzz/last-run.log
