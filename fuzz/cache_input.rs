@@ -149,7 +149,7 @@ fn use_calibration(file: &Path) -> Result<(), String> {
     let text = std::fs::read_to_string(file)
         .map_err(|e| format!("{}: unreadable: {e}", file.display()))?;
     let cal = calibrate::parse_cache(&text, DEVICE[0], DEVICE[1], DEVICE[2])
-        .map_err(|why| format!("{}: {}", file.display(), why.replace('\n', " ")))?;
+        .map_err(|why| format!("{}: {why}", file.display()))?;
     let setup = CullerSetup {
         nohc: Some(NohcParams::new(
             cal.costs,

@@ -148,8 +148,9 @@ impl Pvs {
         let key_len = r.u32()? as usize;
         let key = String::from_utf8(r.take(key_len)?.to_vec()).map_err(|_| "key is not UTF-8")?;
         if key != expected_key {
+            // Debug-quoted: the stored key is the file's, and may hold line breaks.
             return Err(format!(
-                "built for another scene or settings ({key}, expected {expected_key})"
+                "built for another scene or settings ({key:?}, expected {expected_key:?})"
             ));
         }
         let objects = r.u32()?;

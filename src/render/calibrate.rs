@@ -94,11 +94,12 @@ impl Calibration {
         api_version: &str,
     ) -> std::result::Result<(), String> {
         if self.format != FORMAT || self.version != VERSION {
-            return Err(format!("format {} v{}", self.format, self.version));
+            // The file's strings are Debug-quoted: they may hold line breaks.
+            return Err(format!("format {:?} v{}", self.format, self.version));
         }
         if self.device != device || self.driver != driver || self.api_version != api_version {
             return Err(format!(
-                "made for {} ({}, Vulkan {})",
+                "made for {:?} ({:?}, Vulkan {:?})",
                 self.device, self.driver, self.api_version
             ));
         }
