@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# Soak: walks FRAMES poses (default 10000) of the city's street path (scale 0.1, 160x90), every
-# culling algorithm at every pose, under strict validation (core, synchronization, best
-# practices), and reports the validation messages (must be 0), RSS and the GPU allocator's
-# usage at the start (after a 10-pose warm-up) and the end (must be flat within 1%).
-# Release build of the test `soak_long` in tests/reliability.rs; the test suite runs 500 poses.
+# Soak: walks FRAMES frames (default 10000) of the city's street path (scale 0.1, 160x90, 40
+# moving cars), each pose rendered by every culling algorithm that needs no preprocessing (vfc,
+# stop-and-wait, chc, chcpp, oracle, nohc), under strict validation (core, synchronization,
+# best practices), and reports the validation messages (must be 0), RSS and the GPU
+# allocator's usage at the start (after a 10-pose warm-up) and the end (must be flat within 1%).
+# Release build of the test `soak_long` in tests/reliability.rs; the test suite runs 500 frames.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$HOME/.cargo/bin:$PATH"

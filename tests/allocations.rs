@@ -1,4 +1,4 @@
-//! Steady frames allocate nothing: after a warm-up, rendering frames of vfc, chc and chcpp
+//! Steady frames allocate nothing: after a warm-up, rendering frames of vfc, chc, chcpp and nohc
 //! performs no heap allocation in the culler or the renderer's recording path (counted with a
 //! global allocator that counts this thread's allocations while a frame is being rendered).
 
@@ -8,7 +8,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use coherent::culling::{self, ChcppParams};
+use coherent::culling;
 use coherent::render::Renderer;
 
 struct Counting;
@@ -52,8 +52,9 @@ fn steady_frames_do_not_allocate() {
         let path = scene.path("street").unwrap().clone();
         let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
         let (warmup, counted) = (30u32, 50u32);
-        for name in ["vfc", "chc", "chcpp"] {
-            let mut alg = culling::create(name, &ChcppParams::default()).unwrap();
+        let setup = common::setup(common::triangles(&scene), (160, 90), 0.05);
+        for name in ["vfc", "chc", "chcpp", "nohc"] {
+            let mut alg = culling::create_with(name, &setup).unwrap();
             let mut per_frame = Vec::with_capacity(counted as usize);
             for f in 0..warmup + counted {
                 let cam = r.camera(path.sample(f, warmup + counted), &bvh);

@@ -181,3 +181,134 @@ fn corpus_replays_without_panic() {
         let _ = load_never_panics(&dir, &name, &bytes);
     }
 }
+
+// ---- Path files, PVS cache files and calibration cache files (fuzz target `cache_files`) ----
+
+#[path = "../fuzz/cache_input.rs"]
+mod cache_input;
+
+use cache_input::Kind;
+
+/// Valid inputs of each kind (the `cache_files` fuzzer's seeds); each must be accepted.
+fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
+    use coherent::culling::nohc::CostModel;
+    use coherent::culling::pvs::{Pvs, ViewCell};
+    use coherent::render::calibrate::Calibration;
+    use coherent::scene::paths::{keys_to_json, PathKey};
+    use glam::Vec3;
+    let key = |t: f32, x: f32| PathKey {
+        time: t,
+        position: Vec3::new(x, 1.0, 10.0),
+        target: Vec3::new(x, 1.0, 0.0),
+    };
+    let even = keys_to_json(&[key(0.0, -3.0), key(1.0, 0.0), key(2.0, 3.0)]);
+    let uneven = keys_to_json(&[key(0.0, -3.0), key(0.5, 0.0), key(2.0, 3.0), key(2.1, 4.0)]);
+    let oriented = r#"{"keys":[
+        {"time":0,"position":[0,0,9],"orientation":[0,0,0,1]},
+        {"time":1,"position":[1,0,9],"orientation":[0,0.70710677,0,0.70710677]}]}"#;
+    let cells = (0..8)
+        .map(|i| ViewCell {
+            coord: [i % 2, i / 2 % 2, i / 4],
+            objects: (0..cache_input::OBJECTS)
+                .filter(|o| (o + i as u32).is_multiple_of(3))
+                .collect(),
+        })
+        .collect();
+    let pvs = Pvs::new(
+        cache_input::PVS_KEY.into(),
+        cache_input::OBJECTS,
+        Vec3::splat(-4.0),
+        4.0,
+        cells,
+    )
+    .to_bytes();
+    let body = pvs[..pvs.len() - 8].to_vec();
+    let [device, driver, api_version] = cache_input::DEVICE.map(String::from);
+    let cal = Calibration {
+        format: "coherent-calibration".into(),
+        version: 1,
+        device,
+        driver,
+        api_version,
+        costs: CostModel {
+            draw_ms: 0.004,
+            triangle_ms: 2e-6,
+            fragment_ms: 1e-6,
+            query_ms: 0.02,
+            query_fragment_ms: 5e-7,
+            round_trip_ms: 0.1,
+        },
+        unmeasurable: vec!["triangle".into()],
+    };
+    let cal = serde_json::to_string_pretty(&cal).expect("calibration json");
+    vec![
+        ("path-even", cache_input::join(Kind::Path, even.as_bytes())),
+        (
+            "path-uneven",
+            cache_input::join(Kind::Path, uneven.as_bytes()),
+        ),
+        (
+            "path-oriented",
+            cache_input::join(Kind::Path, oriented.as_bytes()),
+        ),
+        ("pvs", cache_input::join(Kind::Pvs, &pvs)),
+        ("pvs-body", cache_input::join(Kind::PvsBody, &body)),
+        (
+            "calibration",
+            cache_input::join(Kind::Calibration, cal.as_bytes()),
+        ),
+    ]
+}
+
+#[test]
+fn cache_seed_corpus_loads() {
+    let dir = scratch("cache-seeds");
+    let out = std::env::var_os("COHERENT_FUZZ_SEEDS").map(PathBuf::from);
+    for (name, bytes) in cache_seeds() {
+        let accepted = cache_input::run(&dir, &bytes).expect(name);
+        assert!(accepted, "{name}: a valid file was refused");
+        if let Some(out) = &out {
+            std::fs::create_dir_all(out).expect("seed dir");
+            std::fs::write(out.join(name), &bytes).expect("write seed");
+        }
+    }
+}
+
+#[test]
+fn cache_files_refuse_damage_with_one_line_errors() {
+    let dir = scratch("cache-damage");
+    for (name, bytes) in cache_seeds() {
+        // Cut short, and one byte flipped in the middle: refused (the PVS checksum, JSON
+        // syntax or a field) or still valid, never a panic (run asserts the error's shape).
+        let cut = &bytes[..bytes.len() / 2];
+        let refused = !cache_input::run(&dir, cut).expect(name);
+        assert!(refused, "{name}: half a file was accepted");
+        let mut flipped = bytes.clone();
+        let mid = flipped.len() / 2;
+        flipped[mid] ^= 0x5a;
+        cache_input::run(&dir, &flipped).expect(name);
+    }
+}
+
+#[test]
+fn cache_corpus_replays_without_panic() {
+    let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz_corpus/cache_files");
+    let dir = scratch("cache-corpus");
+    let mut files: Vec<_> = std::fs::read_dir(&corpus)
+        .expect("tests/fuzz_corpus/cache_files")
+        .map(|e| e.expect("corpus entry").path())
+        .filter(|p| p.is_file() && p.extension().is_none_or(|e| e != "md"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "tests/fuzz_corpus/cache_files is empty");
+    for file in files {
+        let bytes = std::fs::read(&file).expect("read corpus file");
+        // Accepted or refused with a one-line error naming the file; a panic fails.
+        let start = std::time::Instant::now();
+        let accepted =
+            cache_input::run(&dir, &bytes).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        let name = file.file_name().unwrap_or_default().to_string_lossy();
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        println!("{name}: accepted {accepted}, {ms:.1} ms");
+    }
+}

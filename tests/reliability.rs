@@ -1,6 +1,7 @@
 //! Reliability: only the validation layer's messages fail a run (a second layer injected with
 //! `VK_INSTANCE_LAYERS` does not), running out of memory is a typed error, device limits are
-//! checked where things are created, and a 500-frame soak of every algorithm stays at zero
+//! checked where things are created (and work beyond `maxFramebufferLayers` is split: the GI
+//! shadow maps, run under a lowered limit), and a 500-frame soak of every algorithm stays at zero
 //! validation messages with flat GPU memory. `COHERENT_SOAK_FRAMES=N` runs the long soak
 //! (`soak_long`, ignored by default; `scripts/soak.sh`).
 
@@ -11,7 +12,7 @@ use std::sync::Arc;
 
 use ash::vk;
 use coherent::culling;
-use coherent::gpu::{Buffer, ContextOptions, GpuContext, Image, MemoryUsage};
+use coherent::gpu::{Buffer, ContextOptions, GpuContext, Image, LimitOverrides, MemoryUsage};
 use coherent::render::Renderer;
 use coherent::Error;
 
@@ -211,6 +212,150 @@ fn limits_are_checked_against_the_device() {
     common::assert_silent(&log);
 }
 
+/// A strictly validated context whose limits are lowered by `lower` (the device's otherwise).
+fn lowered_context(lower: LimitOverrides) -> Arc<GpuContext> {
+    GpuContext::new(&ContextOptions {
+        validation: true,
+        strict_validation: true,
+        lower_limits: lower,
+        ..Default::default()
+    })
+    .expect("context")
+}
+
+/// GI frames of cornell on `ctx` (64x48, 32 VPL layers, 4 new VPLs a frame): three
+/// incremental frames and one full recompute. The images read back after each, and what each
+/// frame reported (the recorder's counts among it).
+fn gi_frames(
+    ctx: &Arc<GpuContext>,
+) -> coherent::Result<(Vec<Vec<u8>>, Vec<coherent::gi::GiFrame>)> {
+    use coherent::gi::geometry::WorldGeometry;
+    use coherent::gi::session::{default_camera, LightPath};
+    use coherent::gi::vpl::VplSet;
+    use coherent::gi::{GiOptions, GiRenderer};
+    let scene = coherent::scene::Scene::load("cornell", 1.0, 0)?;
+    let geometry = WorldGeometry::from_scene(&scene);
+    let rays = geometry.ray_scene();
+    let path = LightPath::for_scene("cornell", &geometry, &rays);
+    let (w, h) = (64, 48);
+    let camera = default_camera(&scene, &geometry, w as f32 / h as f32);
+    let options = GiOptions {
+        width: w,
+        height: h,
+        vpl_layers: 32,
+        max_vpls: 32,
+        shadow_size: 32,
+    };
+    let mut renderer = GiRenderer::new(ctx, &geometry, options)?;
+    let mut set = VplSet::new(32, 4);
+    let (mut images, mut counts) = (Vec::new(), Vec::new());
+    for f in 0..4 {
+        let light = path.at(f as f32 / 3.0);
+        let stats = if f < 3 {
+            set.update(&light, &rays)
+        } else {
+            set.recompute_all(&light, &rays)
+        };
+        counts.push(renderer.frame(&light, set.vpls(), &stats.new_layers, &camera)?);
+        images.push(renderer.read_output()?);
+    }
+    Ok((images, counts))
+}
+
+#[test]
+fn gi_shadow_maps_split_at_max_framebuffer_layers() {
+    // 32 VPL layers + the spotlight's: one 33-layer rendering on lavapipe (2048 allowed);
+    // with maxFramebufferLayers lowered to 6, chunks of 5 VPL maps through the staging image.
+    let (ctx, log) = common::context();
+    assert!(
+        ctx.info.max_framebuffer_layers >= 33,
+        "{}",
+        ctx.info.max_framebuffer_layers
+    );
+    let (whole, whole_counts) = gi_frames(&ctx).expect("unsplit frames");
+    drop(ctx);
+    common::assert_silent(&log);
+    let low = lowered_context(LimitOverrides {
+        max_framebuffer_layers: Some(6),
+        ..Default::default()
+    });
+    let low_log = low.validation_log();
+    assert_eq!(low.info.max_framebuffer_layers, 6);
+    let (split, split_counts) = gi_frames(&low).expect("split frames");
+    drop(low);
+    common::assert_silent(&low_log);
+    for (f, (a, b)) in whole.iter().zip(&split).enumerate() {
+        assert_eq!(common::diff_pixels(a, b), 0, "frame {f}: images differ");
+    }
+    // Frames 0 and 3 render every VPL's map (most of 32): unsplit in one draw, split in
+    // chunks of 5 (one draw each); frames 1 and 2 render at most 4 maps, staged either way.
+    for (f, (a, b)) in whole_counts.iter().zip(&split_counts).enumerate() {
+        let maps = a.shadow_maps_rendered;
+        assert_eq!(maps, b.shadow_maps_rendered, "frame {f}");
+        let extra = b.counts.draw_calls - a.counts.draw_calls;
+        if f == 0 || f == 3 {
+            assert!(maps > 16, "frame {f}: {maps} maps");
+            assert_eq!(extra, maps.div_ceil(5) - 1, "frame {f}: {maps} maps");
+        } else {
+            assert!(maps <= 4, "frame {f}: {maps} maps");
+            assert_eq!(extra, 0, "frame {f}");
+        }
+    }
+    // A device whose array cannot hold the VPLs' maps: an honest error, no Vulkan call.
+    let tiny = lowered_context(LimitOverrides {
+        max_image_array_layers: Some(16),
+        ..Default::default()
+    });
+    let tiny_log = tiny.validation_log();
+    let err = gi_frames(&tiny).expect_err("33 layers in a 16-layer array");
+    assert!(err.to_string().contains("array layers"), "{err}");
+    drop(tiny);
+    common::assert_silent(&tiny_log);
+}
+
+#[test]
+fn every_dispatch_checks_max_compute_work_group_count() {
+    // The GI frame dispatches 8x6 groups at full resolution (64x48) and 4x3 at half: at the
+    // lowered limit it runs, one group below it is refused through the recorder.
+    let exact = lowered_context(LimitOverrides {
+        max_compute_work_group_count: Some([8, 6, 1]),
+        ..Default::default()
+    });
+    let log = exact.validation_log();
+    let (_, counts) = gi_frames(&exact).expect("dispatches at the limit");
+    assert!(counts.iter().all(|c| c.counts.dispatches > 0));
+    drop(exact);
+    common::assert_silent(&log);
+    for (lower, limit) in [
+        ([7, 6, 1], "maxComputeWorkGroupCount[0]"),
+        ([8, 5, 1], "maxComputeWorkGroupCount[1]"),
+    ] {
+        let ctx = lowered_context(LimitOverrides {
+            max_compute_work_group_count: Some(lower),
+            ..Default::default()
+        });
+        let log = ctx.validation_log();
+        match gi_frames(&ctx) {
+            Err(Error::Limit { limit: l, what, .. }) if l == limit => {
+                assert!(what.contains("gi full-resolution pass"), "{what}")
+            }
+            other => panic!("expected the {limit} error, got {:?}", other.err()),
+        }
+        drop(ctx);
+        common::assert_silent(&log);
+    }
+    // A limit is only lowered, never raised above the device's.
+    let raised = lowered_context(LimitOverrides {
+        max_framebuffer_layers: Some(u32::MAX),
+        ..Default::default()
+    });
+    let real = GpuContext::headless().expect("context");
+    assert_eq!(
+        raised.info.max_framebuffer_layers,
+        real.info.max_framebuffer_layers
+    );
+}
+
 /// Resident set size of this process, kB (Linux).
 fn rss_kb() -> u64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
@@ -240,15 +385,20 @@ fn setup(scene: &coherent::scene::Scene) -> culling::CullerSetup {
     common::setup(common::triangles(scene), (160, 90), 0.05)
 }
 
-/// Renders `frames` frames along the city's street path at 160x90 (scale 0.1): each pose is
-/// rendered by every algorithm in turn (frames / 5 poses, forward and back along the path),
-/// under strict validation. Start figures are taken after a warm-up of 10 poses; RSS is also
-/// sampled at ten checkpoints.
+/// Cars moving on the soaked city's streets (their boxes and transforms updated every pose).
+const SOAK_MOVERS: usize = 40;
+
+/// Renders `frames` frames along the city's street path at 160x90 (scale 0.1) with
+/// [`SOAK_MOVERS`] moving cars: each pose is rendered by every algorithm in turn (frames / 6
+/// poses, forward and back along the path), under strict validation. Start figures are taken
+/// after a warm-up of 10 poses; RSS is also sampled at ten checkpoints.
 fn soak(frames: u32) -> Soak {
     let (warmup, poses) = (10u32, (frames / SOAKED.len() as u32).max(1));
     let (ctx, log) = common::context();
     let mut report = {
-        let (scene, bvh) = common::scene("city", 0.1);
+        let (mut scene, _) = common::scene("city", 0.1);
+        let movers = coherent::scene::movers::Movers::add(&mut scene, SOAK_MOVERS);
+        let mut bvh = common::bvh_of(&scene);
         let path = scene.path("street").expect("street path").clone();
         let mut r = Renderer::new(&ctx, &scene, 160, 90).expect("renderer");
         let mut algs: Vec<_> = SOAKED
@@ -265,6 +415,8 @@ fn soak(frames: u32) -> Soak {
                 rss.push(((p - warmup) * SOAKED.len() as u32, rss_kb()));
             }
             let (period, k) = (2 * 600, p % 1200);
+            coherent::render::walk::place_movers(&movers, p.into(), &mut bvh, &mut r)
+                .expect("movers");
             let cam = r.camera(path.sample(k.min(period - k), 601), &bvh);
             for alg in algs.iter_mut() {
                 r.render_frame(alg.as_mut(), &bvh, &cam, p as u64)

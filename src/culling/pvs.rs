@@ -148,8 +148,9 @@ impl Pvs {
         let key_len = r.u32()? as usize;
         let key = String::from_utf8(r.take(key_len)?.to_vec()).map_err(|_| "key is not UTF-8")?;
         if key != expected_key {
+            // Debug-quoted: the stored key is the file's, and may hold line breaks.
             return Err(format!(
-                "built for another scene or settings ({key}, expected {expected_key})"
+                "built for another scene or settings ({key:?}, expected {expected_key:?})"
             ));
         }
         let objects = r.u32()?;
@@ -204,6 +205,21 @@ impl Pvs {
         Pvs::from_bytes(&bytes, key)
             .map(Some)
             .map_err(|why| Error::Input(format!("{}: {why}", path.display())))
+    }
+
+    /// [`Pvs::load`] for a scene of `objects` objects: a file whose object count differs is
+    /// refused too (its ids are only checked against its own count, and the culler sizes
+    /// its per-object state by it: a damaged file claiming 4 billion objects would cost
+    /// gigabytes).
+    pub fn load_for_scene(path: &Path, key: &str, objects: usize) -> Result<Option<Pvs>> {
+        match Pvs::load(path, key)? {
+            Some(p) if p.objects as usize != objects => Err(Error::Input(format!(
+                "{}: made for {} objects, the scene has {objects}",
+                path.display(),
+                p.objects
+            ))),
+            other => Ok(other),
+        }
     }
 }
 

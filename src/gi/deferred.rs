@@ -177,18 +177,28 @@ impl GBuffer {
     }
 
     /// Dispatches `pipeline` over the full-resolution image in 8x8 groups.
-    pub fn record_dispatch(&self, rec: &mut Recorder, pipeline: &ComputePipeline) {
+    pub fn record_dispatch(&self, rec: &mut Recorder, pipeline: &ComputePipeline) -> Result<()> {
         rec.bind_compute_pipeline(pipeline);
-        rec.dispatch(self.size.0.div_ceil(8), self.size.1.div_ceil(8), 1);
+        rec.dispatch(
+            "gi full-resolution pass",
+            self.size.0.div_ceil(8),
+            self.size.1.div_ceil(8),
+            1,
+        )
     }
 
     /// Dispatches `pipeline` over the half-resolution images in 8x8 groups.
-    pub fn record_half_dispatch(&self, rec: &mut Recorder, pipeline: &ComputePipeline) {
+    pub fn record_half_dispatch(
+        &self,
+        rec: &mut Recorder,
+        pipeline: &ComputePipeline,
+    ) -> Result<()> {
         rec.bind_compute_pipeline(pipeline);
         rec.dispatch(
+            "gi half-resolution pass",
             self.half_size.0.div_ceil(8),
             self.half_size.1.div_ceil(8),
             1,
-        );
+        )
     }
 }

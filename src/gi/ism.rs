@@ -271,7 +271,7 @@ impl ImperfectShadowMaps {
         rec.discard(&self.maps, ImageUse::ComputeReadWrite);
         rec.bind_compute_pipeline(&self.pull_push);
         rec.bind_compute_set(&self.pull_push_layout, pull_push_set);
-        rec.dispatch(self.layers, 1, 1);
+        rec.dispatch("ism pull-push", self.layers, 1, 1)?;
         rec.transition(&self.maps, ImageUse::SampledByCompute);
         Ok(())
     }

@@ -259,7 +259,7 @@ impl GiRenderer {
             vertices,
             slots,
             vpl_buffer,
-            recorder: Recorder::new(ctx.device.clone()),
+            recorder: Recorder::new(ctx),
             timestamps: QueryPools::new(ctx, vk::QueryType::TIMESTAMP, 64)?,
             stamps: Vec::new(),
             oneshot: OneShot::new(ctx)?,
@@ -352,11 +352,11 @@ impl GiRenderer {
         }
         let ism_maps = chunks.iter().map(|c| c.ism_slots).sum();
         self.gbuffer
-            .record_half_dispatch(&mut self.recorder, &self.blur);
+            .record_half_dispatch(&mut self.recorder, &self.blur)?;
         self.gbuffer.record_compute_barrier(&mut self.recorder);
         self.stamp(Stamp::Blur)?;
         self.gbuffer
-            .record_dispatch(&mut self.recorder, &self.resolve);
+            .record_dispatch(&mut self.recorder, &self.resolve)?;
         self.stamp(Stamp::Resolve)?;
         let submitted = self.timeline.submit(&mut self.recorder)?;
         self.timeline.wait(submitted)?;
@@ -458,7 +458,7 @@ impl GiRenderer {
             slot_data.extend_from_slice(&spot_slot.to_floats());
             for (i, slot) in vpl_slots.iter().enumerate() {
                 let layer = if staged && !ism {
-                    i as u32 + 1
+                    self.shadow.staged_layer(i)
                 } else {
                     slot.layer
                 };
@@ -583,7 +583,7 @@ impl GiRenderer {
         self.recorder
             .push_constants(&self.compute_layout, &as_bytes(&cpush[..]));
         self.gbuffer
-            .record_half_dispatch(&mut self.recorder, &self.gather);
+            .record_half_dispatch(&mut self.recorder, &self.gather)?;
         self.gbuffer.record_compute_barrier(&mut self.recorder);
         self.stamp(Stamp::Gather)?;
         Ok(maps)

@@ -1,6 +1,9 @@
 //! Layered paraboloid shadow maps: one D32 2D-array image with a layer per VPL plus one for the
 //! spotlight, rendered in one layered pass per frame (gl_Layer from the vertex shader, one
 //! instance per shadow slot). Only the layers of this frame's new VPLs are cleared and drawn.
+//! When the array has more layers than one rendering may span (`maxFramebufferLayers`), the
+//! maps are rendered in chunks through the staging image (at most its layers per rendering,
+//! which is within the limit) and copied into the array.
 
 use std::sync::Arc;
 
@@ -50,6 +53,8 @@ pub struct ShadowMaps {
     pub size: u32,
     /// Layers available to VPLs.
     pub vpl_layers: u32,
+    /// The device's `maxFramebufferLayers`: most layers one rendering may span.
+    max_pass_layers: u32,
 }
 
 impl ShadowMaps {
@@ -60,15 +65,17 @@ impl ShadowMaps {
         vpl_layers: u32,
         size: u32,
     ) -> Result<ShadowMaps> {
-        let layers = vpl_layers + 1;
-        // One layered pass renders every layer: the framebuffer-layer limit applies as well
-        // as the array-layer limit (the spec only guarantees 256 of each).
-        if layers > ctx.info.max_framebuffer_layers {
-            return Err(Error::Input(format!(
-                "{vpl_layers} VPL shadow maps (+1 for the spotlight) exceed the device's {} \
-                 framebuffer layers (use fewer VPLs)",
-                ctx.info.max_framebuffer_layers
-            )));
+        let layers = vpl_layers.saturating_add(1);
+        // A rendering over more layers than `maxFramebufferLayers` is split (see `staged`);
+        // the array itself must fit `maxImageArrayLayers` (the spec guarantees 256 of each).
+        let max_pass_layers = ctx.info.max_framebuffer_layers;
+        if max_pass_layers < 2 {
+            return Err(Error::Unsupported {
+                feature: format!(
+                    "layered rendering over 2 layers (the device's maxFramebufferLayers is \
+                     {max_pass_layers})"
+                ),
+            });
         }
         if layers > ctx.info.max_image_array_layers {
             return Err(Error::Input(format!(
@@ -91,7 +98,7 @@ impl ShadowMaps {
             "shadow map staging",
             SHADOW_FORMAT,
             (size, size),
-            STAGING_LAYERS.min(layers).max(2),
+            STAGING_LAYERS.min(layers).min(max_pass_layers).max(2),
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
         )?;
         let pipeline = Pipeline::graphics(
@@ -121,6 +128,7 @@ impl ShadowMaps {
             staging,
             size,
             vpl_layers,
+            max_pass_layers,
         })
     }
 
@@ -130,14 +138,22 @@ impl ShadowMaps {
     }
 
     /// Whether a pass of `vpl_maps` VPL maps (plus the spotlight's) renders into the staging
-    /// image: then the spotlight's slot must name layer 0 and the VPLs' slots layers 1, 2, ..
-    /// in the order of the pass's layers.
+    /// image: when they fit it, or when the whole array is more layers than one rendering may
+    /// span (then in chunks of [`ShadowMaps::staged_layer`]'s batch). Staged, the spotlight's
+    /// slot must name layer 0 and the VPLs' slots the layers [`ShadowMaps::staged_layer`]
+    /// gives, in the order of the pass's layers.
     pub fn staged(&self, vpl_maps: usize) -> bool {
-        vpl_maps < self.staging.layers as usize
+        vpl_maps < self.staging.layers as usize || self.vpl_layers + 1 > self.max_pass_layers
     }
 
-    /// Records one layered pass that clears and renders the spotlight's layer and the layers of
-    /// `vpl_slots` (slots `first_slot + 1 ..` of the bound slot buffer; slot `first_slot` is the
+    /// The staging layer of the `i`-th VPL map of a staged pass: chunks of the staging
+    /// image's layers after the spotlight's (layer 0), so 1, 2, .., then 1, 2, .. again.
+    pub fn staged_layer(&self, i: usize) -> u32 {
+        (i as u32 % (self.staging.layers - 1)) + 1
+    }
+
+    /// Records one layered pass (or its chunks, see [`ShadowMaps::staged`]) that clears and
+    /// renders the spotlight's layer and the layers of `vpl_slots` (slots `first_slot + 1 ..` of the bound slot buffer; slot `first_slot` is the
     /// spotlight). `push` is the graphics push block whose params.x/y this sets. Leaves the array
     /// sampled by compute for the gather passes. Returns the number of VPL shadow maps drawn,
     /// counted from the triangles the recorder saw.
@@ -155,46 +171,85 @@ impl ShadowMaps {
                 self.vpl_layers
             )));
         }
-        let staged = self.staged(vpl_layers.len());
-        if staged {
+        let maps = if self.staged(vpl_layers.len()) {
+            self.record_staged(rec, pass, push, first_slot, vpl_layers)?
+        } else {
+            self.begin(rec, vpl_layers)?;
+            let maps = self.draw(rec, pass, push, first_slot, vpl_layers.len() as u32, true);
+            rec.end_rendering();
+            maps
+        };
+        rec.transition(&self.image, ImageUse::SampledByCompute);
+        Ok(maps)
+    }
+
+    /// Renders the maps through the staging image, in chunks of its layers after the
+    /// spotlight's: each chunk is one rendering over at most the staging image's layers (the
+    /// spotlight's map at layer 0 in the first, the chunk's VPL maps at 1, 2, ..), then a copy
+    /// of those layers into the array. Returns the VPL maps drawn.
+    fn record_staged(
+        &self,
+        rec: &mut Recorder,
+        pass: &ShadowPass,
+        push: &mut [f32; 24],
+        first_slot: u32,
+        vpl_layers: &[u32],
+    ) -> Result<u32> {
+        let batch = (self.staging.layers - 1) as usize;
+        let mut maps = 0;
+        let mut pairs = Vec::with_capacity(batch + 1);
+        for c in 0..vpl_layers.len().div_ceil(batch).max(1) {
+            let chunk = &vpl_layers[c * batch..((c + 1) * batch).min(vpl_layers.len())];
             rec.discard(&self.staging, ImageUse::DepthAttachment);
             let depth = Attachment {
                 image: &self.staging,
                 load: Load::ClearDepth(1.0),
                 store: true,
             };
-            rec.begin_rendering(&[], Some(depth), vpl_layers.len() as u32 + 1)?;
-        } else {
-            self.begin(rec, vpl_layers)?;
-        }
-        rec.bind_pipeline(&self.pipeline);
-        rec.bind_graphics_set(pass.layout, pass.set);
-        // The spotlight's map: one instance.
-        push[20] = first_slot as f32;
-        push[21] = pass.far;
-        rec.push_constants(pass.layout, &as_bytes(&push[..]));
-        rec.draw(pass.vertex_count, 1);
-        // The VPLs' maps: one instance per slot, gl_Layer from the slot.
-        let before = rec.counts.triangles;
-        if !vpl_layers.is_empty() {
-            push[20] = (first_slot + 1) as f32;
-            rec.push_constants(pass.layout, &as_bytes(&push[..]));
-            rec.draw(pass.vertex_count, vpl_layers.len() as u32);
-        }
-        let maps = (rec.counts.triangles - before) / (pass.vertex_count as u64 / 3).max(1);
-        rec.end_rendering();
-        if staged {
+            rec.begin_rendering(&[], Some(depth), chunk.len() as u32 + 1)?;
+            // Slot `first`: the spotlight's (drawn in the first chunk only); then the chunk's.
+            let first = first_slot + (c * batch) as u32;
+            maps += self.draw(rec, pass, push, first, chunk.len() as u32, c == 0);
+            rec.end_rendering();
             rec.transition(&self.staging, ImageUse::TransferSrc);
             rec.transition(&self.image, ImageUse::TransferDst);
-            let pairs: Vec<(u32, u32)> = std::iter::once(self.spot_layer())
-                .chain(vpl_layers.iter().copied())
-                .enumerate()
-                .map(|(i, l)| (i as u32, l))
-                .collect();
+            pairs.clear();
+            if c == 0 {
+                pairs.push((0, self.spot_layer()));
+            }
+            pairs.extend(chunk.iter().enumerate().map(|(i, &l)| (i as u32 + 1, l)));
             rec.copy_layers(&self.staging, &self.image, &pairs)?;
         }
-        rec.transition(&self.image, ImageUse::SampledByCompute);
-        Ok(maps as u32)
+        Ok(maps)
+    }
+
+    /// Draws the spotlight's map from slot `first_slot` (when `spot`) and `vpl_maps` VPL maps
+    /// from the slots after it (one instance per slot, gl_Layer from the slot). Returns the
+    /// VPL maps drawn, counted from the triangles the recorder saw.
+    fn draw(
+        &self,
+        rec: &mut Recorder,
+        pass: &ShadowPass,
+        push: &mut [f32; 24],
+        first_slot: u32,
+        vpl_maps: u32,
+        spot: bool,
+    ) -> u32 {
+        rec.bind_pipeline(&self.pipeline);
+        rec.bind_graphics_set(pass.layout, pass.set);
+        push[21] = pass.far;
+        if spot {
+            push[20] = first_slot as f32;
+            rec.push_constants(pass.layout, &as_bytes(&push[..]));
+            rec.draw(pass.vertex_count, 1);
+        }
+        let before = rec.counts.triangles;
+        if vpl_maps > 0 {
+            push[20] = (first_slot + 1) as f32;
+            rec.push_constants(pass.layout, &as_bytes(&push[..]));
+            rec.draw(pass.vertex_count, vpl_maps);
+        }
+        ((rec.counts.triangles - before) / (pass.vertex_count as u64 / 3).max(1)) as u32
     }
 
     /// Starts the layered rendering over every layer and clears the layers drawn now (the

@@ -267,13 +267,16 @@ pub struct Recorder {
     drawn_objects: Vec<u32>,
     /// Objects whose render-state draws also count as `mover_draws` (empty: none).
     movers: std::ops::Range<u32>,
+    /// The device's `maxComputeWorkGroupCount`, checked by every dispatch.
+    max_work_group_count: [u32; 3],
 }
 
 impl Recorder {
-    /// A recorder for `device`; call [`Recorder::set_command_buffer`] before recording.
-    pub fn new(device: ash::Device) -> Recorder {
+    /// A recorder for `ctx`'s device (and its limits); call [`Recorder::set_command_buffer`]
+    /// before recording.
+    pub fn new(ctx: &GpuContext) -> Recorder {
         Recorder {
-            device,
+            device: ctx.device.clone(),
             cmd: vk::CommandBuffer::null(),
             bound: None,
             last_kind: None,
@@ -283,6 +286,7 @@ impl Recorder {
             log_objects: false,
             drawn_objects: Vec::new(),
             movers: 0..0,
+            max_work_group_count: ctx.info.max_compute_work_group_count,
         }
     }
 
@@ -798,11 +802,15 @@ impl Recorder {
         };
     }
 
-    /// Dispatches the bound compute pipeline; counts the dispatch.
-    pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {
-        // SAFETY: compute pipeline bound.
+    /// Dispatches the bound compute pipeline (`what` names it in errors); counts the dispatch.
+    /// A workgroup count above the device's `maxComputeWorkGroupCount` is [`Error::Limit`]
+    /// and nothing is recorded.
+    pub fn dispatch(&mut self, what: &str, x: u32, y: u32, z: u32) -> Result<()> {
+        super::DeviceInfo::check_group_count(what, [x, y, z], self.max_work_group_count)?;
+        // SAFETY: compute pipeline bound; the counts are within the device's limits.
         unsafe { self.device.cmd_dispatch(self.cmd, x, y, z) };
         self.counts.dispatches += 1;
+        Ok(())
     }
 
     /// `vkCmdDrawIndexedIndirectCount`: up to `max_draws` indexed draw commands of 20 bytes

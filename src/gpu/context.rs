@@ -181,6 +181,23 @@ pub struct ContextOptions {
     /// At most this many bytes of GPU memory may be allocated through the context; an
     /// allocation beyond it fails with [`Error::OutOfDeviceMemory`] (`None`: no budget).
     pub memory_budget: Option<u64>,
+    /// Device limits to lower below what the device reports, so that lavapipe runs the code
+    /// paths of devices with smaller limits (tests); see [`LimitOverrides`].
+    pub lower_limits: LimitOverrides,
+}
+
+/// Limits a context uses below the device's (each `None` keeps the device's; a value above the
+/// device's is ignored: a limit is only ever lowered). Every check and every split of work
+/// reads [`DeviceInfo`], so a lowered limit takes the same paths a device with that limit
+/// would.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LimitOverrides {
+    /// `maxFramebufferLayers`.
+    pub max_framebuffer_layers: Option<u32>,
+    /// `maxImageArrayLayers`.
+    pub max_image_array_layers: Option<u32>,
+    /// `maxComputeWorkGroupCount`.
+    pub max_compute_work_group_count: Option<[u32; 3]>,
 }
 
 /// What the context's allocator holds (gpu-allocator's report), for soak runs and leak checks.
@@ -330,18 +347,37 @@ impl DeviceInfo {
         Self::within(what, "maxComputeWorkGroupInvocations", invocations, max)
     }
 
+    /// Lowers the limits named in `lower` (never raises one).
+    pub fn lower_limits(&mut self, lower: &LimitOverrides) {
+        let min = |v: &mut u32, o: Option<u32>| *v = o.map_or(*v, |o| o.min(*v));
+        min(
+            &mut self.max_framebuffer_layers,
+            lower.max_framebuffer_layers,
+        );
+        min(
+            &mut self.max_image_array_layers,
+            lower.max_image_array_layers,
+        );
+        if let Some(counts) = lower.max_compute_work_group_count {
+            for (v, o) in self.max_compute_work_group_count.iter_mut().zip(counts) {
+                min(v, Some(o));
+            }
+        }
+    }
+
     /// A dispatch of `groups` workgroups fits `maxComputeWorkGroupCount`.
     pub fn check_dispatch(&self, what: &str, groups: [u32; 3]) -> Result<()> {
+        Self::check_group_count(what, groups, self.max_compute_work_group_count)
+    }
+
+    /// [`DeviceInfo::check_dispatch`] against the limit `max` (the recorder keeps a copy).
+    pub(crate) fn check_group_count(what: &str, groups: [u32; 3], max: [u32; 3]) -> Result<()> {
         const NAMES: [&str; 3] = [
             "maxComputeWorkGroupCount[0]",
             "maxComputeWorkGroupCount[1]",
             "maxComputeWorkGroupCount[2]",
         ];
-        for ((name, v), max) in NAMES
-            .iter()
-            .zip(groups)
-            .zip(self.max_compute_work_group_count)
-        {
+        for ((name, v), max) in NAMES.iter().zip(groups).zip(max) {
             Self::within(what, name, v.into(), max.into())?;
         }
         Ok(())
@@ -471,6 +507,7 @@ impl GpuContext {
         });
         let (physical_device, queue_family, mut info) = pick_device(&instance, filter.as_deref())?;
         info.validation = options.validation;
+        info.lower_limits(&options.lower_limits);
         check_features(&instance, physical_device)?;
         info.optional = optional_features(&instance, physical_device);
         let device = create_device(

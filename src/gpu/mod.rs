@@ -21,8 +21,8 @@ use std::sync::Arc;
 
 pub use commands::{Access, Attachment, CommandBuffer, CommandCounts, CommandPool, Load, Recorder};
 pub use context::{
-    ContextOptions, DeviceInfo, GpuContext, MemoryUsage, OptionalFeatures, Severity, ValidationLog,
-    ValidationMessage,
+    ContextOptions, DeviceInfo, GpuContext, LimitOverrides, MemoryUsage, OptionalFeatures,
+    Severity, ValidationLog, ValidationMessage,
 };
 pub use descriptors::{Binding, DescriptorSet, DescriptorSets, Sampler};
 pub use memory::{as_bytes, bytes_of, Buffer, Image, ImageUse, Pod};

@@ -87,16 +87,19 @@ impl Calibration {
         out
     }
 
-    fn matches(&self, ctx: &GpuContext) -> std::result::Result<(), String> {
+    fn matches_device(
+        &self,
+        device: &str,
+        driver: &str,
+        api_version: &str,
+    ) -> std::result::Result<(), String> {
         if self.format != FORMAT || self.version != VERSION {
-            return Err(format!("format {} v{}", self.format, self.version));
+            // The file's strings are Debug-quoted: they may hold line breaks.
+            return Err(format!("format {:?} v{}", self.format, self.version));
         }
-        if self.device != ctx.info.name
-            || self.driver != ctx.info.driver
-            || self.api_version != ctx.info.api_version
-        {
+        if self.device != device || self.driver != driver || self.api_version != api_version {
             return Err(format!(
-                "made for {} ({}, Vulkan {})",
+                "made for {:?} ({:?}, Vulkan {:?})",
                 self.device, self.driver, self.api_version
             ));
         }
@@ -186,10 +189,28 @@ fn read_cache(path: &Path, ctx: &GpuContext) -> std::result::Result<Option<Calib
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(e) => return Err(format!("unreadable: {e}")),
     };
-    let cal: Calibration = serde_json::from_str(&text).map_err(|e| format!("corrupt: {e}"))?;
-    cal.matches(ctx)
+    parse_cache(
+        &text,
+        &ctx.info.name,
+        &ctx.info.driver,
+        &ctx.info.api_version,
+    )
+    .map(Some)
+}
+
+/// A calibration cache file's text checked as `load_or_calibrate` checks it: JSON of a
+/// [`Calibration`] of this format and version, made for this device, driver and Vulkan
+/// version, with all costs positive and finite. `Err` says why it cannot be trusted.
+pub fn parse_cache(
+    text: &str,
+    device: &str,
+    driver: &str,
+    api_version: &str,
+) -> std::result::Result<Calibration, String> {
+    let cal: Calibration = serde_json::from_str(text).map_err(|e| format!("corrupt: {e}"))?;
+    cal.matches_device(device, driver, api_version)
         .map_err(|why| format!("foreign or invalid: {why}"))?;
-    Ok(Some(cal))
+    Ok(cal)
 }
 
 /// Measures the device's costs (a few seconds on lavapipe).

@@ -284,7 +284,8 @@ impl HizCuller {
             Access::ComputeReadWrite,
         );
         self.record_phase(r, 1, &vp)?;
-        self.pyramid.record_build(&mut r.recorder, &r.target.depth);
+        self.pyramid
+            .record_build(&mut r.recorder, &r.target.depth)?;
         pass_timestamp(r)?;
         self.record_phase(r, 2, &vp)?;
         if let Some(readback) = &self.readback {
@@ -355,7 +356,12 @@ impl HizCuller {
         rec.bind_compute_pipeline(&self.cull);
         rec.bind_compute_set(&self.cull_layout, self.cull_sets.get(0));
         rec.push_constants(&self.cull_layout, &push);
-        rec.dispatch(self.object_count.div_ceil(GROUP).max(1), 1, 1);
+        rec.dispatch(
+            "hiz culling",
+            self.object_count.div_ceil(GROUP).max(1),
+            1,
+            1,
+        )?;
         rec.memory_barrier(Access::ComputeReadWrite, Access::IndirectRead);
         pass_timestamp(r)?;
         r.begin_target_rendering(phase == 1)?;
@@ -422,10 +428,8 @@ impl HizCuller {
     /// For tests and inspection; frames build their own.
     pub fn build_pyramid(&mut self, r: &mut Renderer) -> Result<()> {
         let (pyramid, depth) = (&mut self.pyramid, &r.target.depth);
-        r.oneshot.run(&mut r.recorder, |rec| {
-            pyramid.record_build(rec, depth);
-            Ok(())
-        })
+        r.oneshot
+            .run(&mut r.recorder, |rec| pyramid.record_build(rec, depth))
     }
 
     /// Number of pyramid levels.

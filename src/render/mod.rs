@@ -127,7 +127,7 @@ impl Renderer {
         let uploaded = upload::upload_scene_with_spare(ctx, scene, spare)?;
         let pipelines = ScenePipelines::for_scene(ctx, scene.has_materials())?;
         let mut oneshot = OneShot::new(ctx)?;
-        let mut recorder = Recorder::new(ctx.device.clone());
+        let mut recorder = Recorder::new(ctx);
         let (descriptors, materials) = scene_descriptors(
             ctx,
             scene,

@@ -143,7 +143,7 @@ pub fn load_or_build(
 ) -> Result<PvsBuild> {
     let key = key(scene_id, scale, scene, path, s);
     let file = dir.join(format!("pvs-{:016x}.bin", fnv1a(key.as_bytes())));
-    match Pvs::load(&file, &key) {
+    match Pvs::load_for_scene(&file, &key, scene.objects.len()) {
         Ok(Some(pvs)) => {
             let file_bytes = std::fs::metadata(&file).map(|m| m.len()).unwrap_or(0);
             return Ok(PvsBuild {

@@ -293,7 +293,7 @@ impl App {
         Ok(Running {
             swapchain,
             renderer,
-            recorder: Recorder::new(ctx.device.clone()),
+            recorder: Recorder::new(&ctx),
             culler,
             hiz,
             algorithm: cfg.algorithm.clone(),

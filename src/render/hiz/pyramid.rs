@@ -82,7 +82,7 @@ impl DepthPyramid {
     /// Records the reduction of `depth` (the image this pyramid was made for) into every
     /// level. Leaves `depth` sampled by compute (the caller moves it back to an attachment)
     /// and the pyramid readable by compute shaders.
-    pub fn record_build(&mut self, rec: &mut Recorder, depth: &Image) {
+    pub fn record_build(&mut self, rec: &mut Recorder, depth: &Image) -> Result<()> {
         rec.transition(depth, ImageUse::SampledByCompute);
         rec.mip_barrier(
             &mut self.image,
@@ -101,9 +101,15 @@ impl DepthPyramid {
             };
             let dst = self.valid[level as usize];
             rec.push_constants(&self.layout, bytes_of(&[src.0, src.1, dst.0, dst.1]));
-            rec.dispatch(dst.0.div_ceil(GROUP), dst.1.div_ceil(GROUP), 1);
+            rec.dispatch(
+                "depth pyramid level",
+                dst.0.div_ceil(GROUP),
+                dst.1.div_ceil(GROUP),
+                1,
+            )?;
         }
         rec.memory_barrier(Access::ComputeReadWrite, Access::ComputeReadWrite);
+        Ok(())
     }
 }
 
