@@ -2,7 +2,7 @@
 #extension GL_GOOGLE_include_directive : require
 #extension GL_ARB_shader_viewport_layer_array : require
 // Imperfect shadow maps: every surface point is splatted into the paraboloid map of one VPL
-// (point i belongs to slot i mod n), all maps in one layered pass. A point is drawn as one small
+// (point i belongs to slot i mod n), all maps in one layered pass (or in chunks of layers). A point is drawn as one small
 // triangle (three vertices) that covers the texel it falls in, so no point-size state is needed.
 // Depth is len / far as in gi_shadow.vert; points behind the VPL's hemisphere are dropped.
 
@@ -23,7 +23,14 @@ void main() {
     int corner = gl_VertexIndex - point * 3;
     int count = max(int(pc.eye.w), 1);
     Slot s = slots[int(pc.params.x) + point % count];
-    gl_Layer = int(s.position_layer.w);
+    // This rendering spans layers params.w .. params.w + eye.x of the array (chunks when the
+    // array has more layers than maxFramebufferLayers): other layers' points are dropped.
+    int layer = int(s.position_layer.w) - int(pc.params.w);
+    if (layer < 0 || layer >= int(pc.eye.x)) {
+        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+        return;
+    }
+    gl_Layer = layer;
     vec3 n = normalize(s.normal.xyz);
     vec3 t, b;
     basis(n, t, b);

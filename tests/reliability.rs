@@ -229,6 +229,14 @@ fn lowered_context(lower: LimitOverrides) -> Arc<GpuContext> {
 fn gi_frames(
     ctx: &Arc<GpuContext>,
 ) -> coherent::Result<(Vec<Vec<u8>>, Vec<coherent::gi::GiFrame>)> {
+    gi_frames_with(ctx, None)
+}
+
+/// [`gi_frames`] with imperfect shadow maps when `ism` is given.
+fn gi_frames_with(
+    ctx: &Arc<GpuContext>,
+    ism: Option<coherent::gi::ism::IsmOptions>,
+) -> coherent::Result<(Vec<Vec<u8>>, Vec<coherent::gi::GiFrame>)> {
     use coherent::gi::geometry::WorldGeometry;
     use coherent::gi::session::{default_camera, LightPath};
     use coherent::gi::vpl::VplSet;
@@ -246,7 +254,10 @@ fn gi_frames(
         max_vpls: 32,
         shadow_size: 32,
     };
-    let mut renderer = GiRenderer::new(ctx, &geometry, options)?;
+    let mut renderer = match ism {
+        Some(ism) => GiRenderer::with_ism(ctx, &geometry, options, ism)?,
+        None => GiRenderer::new(ctx, &geometry, options)?,
+    };
     let mut set = VplSet::new(32, 4);
     let (mut images, mut counts) = (Vec::new(), Vec::new());
     for f in 0..4 {
@@ -311,6 +322,40 @@ fn gi_shadow_maps_split_at_max_framebuffer_layers() {
     assert!(err.to_string().contains("array layers"), "{err}");
     drop(tiny);
     common::assert_silent(&tiny_log);
+}
+
+#[test]
+fn imperfect_shadow_maps_split_at_max_framebuffer_layers() {
+    // 32 ISM layers: one layered splat on lavapipe; with maxFramebufferLayers lowered to 6,
+    // six splats of at most 6 layers through the staging image, copied into the array.
+    let ism = coherent::gi::ism::IsmOptions {
+        map_size: 16,
+        points_per_vpl: 256,
+    };
+    let (ctx, log) = common::context();
+    let (whole, whole_counts) = gi_frames_with(&ctx, Some(ism)).expect("unsplit ism frames");
+    drop(ctx);
+    common::assert_silent(&log);
+    let low = lowered_context(LimitOverrides {
+        max_framebuffer_layers: Some(6),
+        ..Default::default()
+    });
+    let low_log = low.validation_log();
+    let (split, split_counts) = gi_frames_with(&low, Some(ism)).expect("split ism frames");
+    drop(low);
+    common::assert_silent(&low_log);
+    for (f, (a, b)) in whole.iter().zip(&split).enumerate() {
+        assert_eq!(common::diff_pixels(a, b), 0, "frame {f}: images differ");
+        let (a, b) = (&whole_counts[f], &split_counts[f]);
+        assert_eq!(a.ism_maps, b.ism_maps, "frame {f}");
+        assert!(a.ism_maps > 0, "frame {f}: no imperfect shadow maps");
+        // One splat draw per chunk instead of one.
+        assert_eq!(
+            b.counts.draw_calls - a.counts.draw_calls,
+            32u32.div_ceil(6) - 1,
+            "frame {f}"
+        );
+    }
 }
 
 #[test]

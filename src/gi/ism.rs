@@ -123,6 +123,9 @@ pub struct ImperfectShadowMaps {
     pub depth: Image,
     /// The hole-filled maps (R32F, one layer per VPL layer), sampled by the gather.
     pub maps: Image,
+    /// Where the splats are rendered in chunks of layers when `depth` has more layers than one
+    /// rendering may span (`maxFramebufferLayers`); each chunk is then copied into `depth`.
+    staging: Option<Image>,
     /// The surface points (vec4 each).
     pub points: Buffer,
     /// Where each point lies (its triangle and barycentrics) and its current place, kept to
@@ -173,10 +176,26 @@ impl ImperfectShadowMaps {
             points.write(0, &as_bytes(&data))?;
         }
         let storage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
+        let attachment = vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT;
         let depth_use =
-            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::SAMPLED;
+            attachment | vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST;
         let extent = (size, size);
         let depth = Image::new(ctx, "ism splats", SPLAT_FORMAT, extent, layers, depth_use)?;
+        let max_pass = ctx.info.max_framebuffer_layers;
+        let staging = if layers > max_pass {
+            let usage = attachment | vk::ImageUsageFlags::TRANSFER_SRC;
+            let name = "ism splat staging";
+            Some(Image::new(
+                ctx,
+                name,
+                SPLAT_FORMAT,
+                extent,
+                max_pass,
+                usage,
+            )?)
+        } else {
+            None
+        };
         let maps = Image::new(ctx, "ism maps", MAP_FORMAT, extent, layers, storage)?;
         let pull_push_layout = PipelineLayout::new(
             ctx,
@@ -199,6 +218,7 @@ impl ImperfectShadowMaps {
             pull_push_layout,
             depth,
             maps,
+            staging,
             points,
             point_count: data.len() as u32,
             samples,
@@ -249,24 +269,32 @@ impl ImperfectShadowMaps {
     ) -> Result<()> {
         let (set, pull_push_set) = sets;
         let (first_slot, vpl_count) = slots;
-        rec.discard(&self.depth, ImageUse::DepthAttachment);
-        let depth = Attachment {
-            image: &self.depth,
-            load: Load::ClearDepth(1.0),
-            store: true,
+        let splat = Splat {
+            layout,
+            set,
+            first_slot,
+            vpl_count,
+            far,
         };
-        rec.begin_rendering(&[], Some(depth), self.layers)?;
-        if vpl_count > 0 && self.point_count > 0 {
-            rec.bind_pipeline(&self.splat);
-            rec.bind_graphics_set(layout, set);
-            push[19] = vpl_count as f32;
-            push[20] = first_slot as f32;
-            push[21] = far;
-            push[22] = self.map_size as f32;
-            rec.push_constants(layout, &as_bytes(&push[..]));
-            rec.draw(self.point_count * 3, 1);
+        // push[16] (eye.x, unused by the splat) and push[23] (params.w) carry the rendering's
+        // layer count and first layer; restored afterwards for the other passes.
+        let saved = (push[16], push[23]);
+        match &self.staging {
+            None => self.splat_layers(rec, &self.depth, &splat, push, (0, self.layers))?,
+            Some(staging) => {
+                let mut pairs = Vec::with_capacity(staging.layers as usize);
+                for base in (0..self.layers).step_by(staging.layers as usize) {
+                    let count = staging.layers.min(self.layers - base);
+                    self.splat_layers(rec, staging, &splat, push, (base, count))?;
+                    rec.transition(staging, ImageUse::TransferSrc);
+                    rec.transition(&self.depth, ImageUse::TransferDst);
+                    pairs.clear();
+                    pairs.extend((0..count).map(|i| (i, base + i)));
+                    rec.copy_layers(staging, &self.depth, &pairs)?;
+                }
+            }
         }
-        rec.end_rendering();
+        (push[16], push[23]) = saved;
         rec.transition(&self.depth, ImageUse::SampledByCompute);
         rec.discard(&self.maps, ImageUse::ComputeReadWrite);
         rec.bind_compute_pipeline(&self.pull_push);
@@ -275,17 +303,70 @@ impl ImperfectShadowMaps {
         rec.transition(&self.maps, ImageUse::SampledByCompute);
         Ok(())
     }
+
+    /// One layered rendering into `target` of the splats whose layer lies in `layers` =
+    /// (first, count), drawn at target layer `layer - first` (the others are dropped by the
+    /// shader).
+    fn splat_layers(
+        &self,
+        rec: &mut Recorder,
+        target: &Image,
+        splat: &Splat,
+        push: &mut [f32; 24],
+        (first, count): (u32, u32),
+    ) -> Result<()> {
+        rec.discard(target, ImageUse::DepthAttachment);
+        let depth = Attachment {
+            image: target,
+            load: Load::ClearDepth(1.0),
+            store: true,
+        };
+        rec.begin_rendering(&[], Some(depth), count)?;
+        if splat.vpl_count > 0 && self.point_count > 0 {
+            rec.bind_pipeline(&self.splat);
+            rec.bind_graphics_set(splat.layout, splat.set);
+            push[16] = count as f32;
+            push[19] = splat.vpl_count as f32;
+            push[20] = splat.first_slot as f32;
+            push[21] = splat.far;
+            push[22] = self.map_size as f32;
+            push[23] = first as f32;
+            rec.push_constants(splat.layout, &as_bytes(&push[..]));
+            rec.draw(self.point_count * 3, 1);
+        }
+        rec.end_rendering();
+        Ok(())
+    }
 }
 
-/// The device limits the maps rely on: layered rendering over every VPL layer, a 64-invocation
-/// workgroup and the pull-push pyramid in shared memory.
+/// What one splat rendering draws: the graphics layout and set of the points and slots, the
+/// slots used and the far distance.
+struct Splat<'a> {
+    layout: &'a PipelineLayout,
+    set: DescriptorSet,
+    first_slot: u32,
+    vpl_count: u32,
+    far: f32,
+}
+
+/// The device limits the maps rely on: an array of every VPL layer (rendered in chunks of at
+/// most `maxFramebufferLayers` layers, at least 2), a 64-invocation workgroup and the pull-push
+/// pyramid in shared memory.
 fn check_limits(ctx: &GpuContext, vpl_layers: u32) -> Result<()> {
     let info = &ctx.info;
-    if vpl_layers.max(2) > info.max_framebuffer_layers.min(info.max_image_array_layers) {
+    if vpl_layers.max(2) > info.max_image_array_layers {
         return Err(Error::Input(format!(
-            "{vpl_layers} imperfect shadow maps exceed the device's {} framebuffer layers",
-            info.max_framebuffer_layers
+            "{vpl_layers} imperfect shadow maps exceed the device's {} array layers",
+            info.max_image_array_layers
         )));
+    }
+    if info.max_framebuffer_layers < 2 {
+        return Err(Error::Unsupported {
+            feature: format!(
+                "layered rendering over 2 layers (the device's maxFramebufferLayers is {})",
+                info.max_framebuffer_layers
+            ),
+        });
     }
     // Vulkan guarantees 128 invocations and 16 KiB of shared memory per workgroup; the
     // pull-push shader uses 64 and under 11 KiB, so no device lacks them.
