@@ -915,6 +915,10 @@ impl OcclusionBackend for Engine {
     }
 
     fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> CullResult<QueryId> {
+        // First: starting the frame's recording resets the slot's query count, so the count
+        // read after it is this frame's (before it, the first query of a frame took the index
+        // after the last one of the slot's previous frame: a query begun twice).
+        self.ensure_recording().map_err(host_error)?;
         let queries = self.slots[self.current].queries;
         if queries == MAX_QUERIES || self.stats.boxes + boxes.len() as u64 > MAX_BOXES {
             return Err(host_error("query budget of this engine exceeded"));
@@ -922,7 +926,6 @@ impl OcclusionBackend for Engine {
         if boxes.len() > 1024 {
             return Err(host_error("more than 1024 boxes in one query"));
         }
-        self.ensure_recording().map_err(host_error)?;
         self.set_state(true);
         let corners: Vec<f32> = boxes
             .iter()
