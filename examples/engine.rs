@@ -860,7 +860,13 @@ impl Engine {
                     slot.results.0,
                     0,
                     16,
-                    vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WITH_AVAILABILITY,
+                    // WAIT: the copy (on the GPU timeline, not the host) waits for each
+                    // query's result; without it an implementation may copy a query that
+                    // has not finished as unavailable (lavapipe does, its rasterizer
+                    // threads finish after the copy starts) and the culler never sees it.
+                    vk::QueryResultFlags::TYPE_64
+                        | vk::QueryResultFlags::WITH_AVAILABILITY
+                        | vk::QueryResultFlags::WAIT,
                 );
                 self.device.cmd_pipeline_barrier2(
                     slot.cmd,
