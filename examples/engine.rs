@@ -539,16 +539,6 @@ impl Engine {
                     stencil: 0,
                 },
             });
-        let extent = vk::Extent2D {
-            width: WIDTH,
-            height: HEIGHT,
-        };
-        let rendering = vk::RenderingInfo::default()
-            .render_area(extent.into())
-            .layer_count(1)
-            .color_attachments(&color_att)
-            .depth_attachment(&depth_att);
-        let push: Vec<u8> = self.push.iter().flat_map(|f| f.to_le_bytes()).collect();
         // SAFETY: the buffer was reset after its fence; the pool is reset outside rendering.
         unsafe {
             self.device
@@ -559,33 +549,13 @@ impl Engine {
                 cmd,
                 &vk::DependencyInfo::default().image_memory_barriers(&barriers),
             );
-            self.device.cmd_begin_rendering(cmd, &rendering);
-            let viewport = vk::Viewport {
-                x: 0.0,
-                y: HEIGHT as f32,
-                width: WIDTH as f32,
-                height: -(HEIGHT as f32),
-                min_depth: 0.0,
-                max_depth: 1.0,
-            };
-            self.device.cmd_set_viewport(cmd, 0, &[viewport]);
-            self.device.cmd_set_scissor(cmd, 0, &[extent.into()]);
-            self.device.cmd_bind_descriptor_sets(
+            raw_host::begin_rendering(
+                &self.device,
                 cmd,
-                vk::PipelineBindPoint::GRAPHICS,
-                self.layout,
-                0,
-                &[self.set],
-                &[],
-            );
-            self.device.cmd_push_constants(
-                cmd,
-                self.layout,
-                vk::ShaderStageFlags::VERTEX
-                    | vk::ShaderStageFlags::FRAGMENT
-                    | vk::ShaderStageFlags::COMPUTE,
-                0,
-                &push,
+                &color_att,
+                &depth_att,
+                (self.layout, self.set),
+                &self.push,
             );
         }
         self.recording = true;
