@@ -4,8 +4,7 @@
 //!
 //! Run: `cargo run --release --example embed` (validation on; exits non-zero on any message).
 
-use std::ffi::c_void;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::Ordering;
 
 use anyhow::{bail, Context, Result};
 use ash::{ext, vk};
@@ -14,37 +13,13 @@ use coherent::culling::{ChcppParams, Culler, FrameInput, OcclusionBackend, Query
 use coherent::scene::camera::Camera;
 use coherent::scene::{Aabb, Scene};
 
-const WIDTH: u32 = 320;
-const HEIGHT: u32 = 180;
 const MAX_QUERIES: u32 = 8192;
 const MAX_BOXES: u64 = 65536;
 
-static MESSAGES: AtomicUsize = AtomicUsize::new(0);
+#[path = "common/raw_host.rs"]
+mod raw_host;
 
-unsafe extern "system" fn on_message(
-    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
-    _: vk::DebugUtilsMessageTypeFlagsEXT,
-    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
-    _: *mut c_void,
-) -> vk::Bool32 {
-    if severity.intersects(
-        vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
-            | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-    ) {
-        MESSAGES.fetch_add(1, Ordering::SeqCst);
-        // SAFETY: the layer passes a valid callback data struct for the duration of the call.
-        if let Some(msg) = unsafe { data.as_ref() }.and_then(|d| unsafe { d.message_as_c_str() }) {
-            eprintln!("validation: {}", msg.to_string_lossy());
-        }
-    }
-    vk::FALSE
-}
-
-/// A buffer or image allocation in host-visible memory (the host keeps things simple).
-struct Memory {
-    memory: vk::DeviceMemory,
-    ptr: *mut u8,
-}
+use raw_host::{Memory, HEIGHT, MESSAGES, WIDTH};
 
 /// The host engine's renderer.
 struct Host {
@@ -82,31 +57,7 @@ struct Host {
 
 impl Host {
     fn new(scene: &Scene) -> Result<Host> {
-        // SAFETY: loads the system loader once.
-        let entry = unsafe { ash::Entry::load() }.context("loading Vulkan")?;
-        let layers = [c"VK_LAYER_KHRONOS_validation".as_ptr()];
-        let exts = [ext::debug_utils::NAME.as_ptr()];
-        let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_3);
-        let info = vk::InstanceCreateInfo::default()
-            .application_info(&app)
-            .enabled_layer_names(&layers)
-            .enabled_extension_names(&exts);
-        // SAFETY: valid create info.
-        let instance = unsafe { entry.create_instance(&info, None) }
-            .context("instance (is vulkan-validationlayers installed?)")?;
-        let debug = ext::debug_utils::Instance::new(&entry, &instance);
-        let messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
-            .message_severity(
-                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
-                    | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-            )
-            .message_type(
-                vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
-            )
-            .pfn_user_callback(Some(on_message));
-        // SAFETY: valid instance.
-        let messenger = unsafe { debug.create_debug_utils_messenger(&messenger_info, None) }?;
+        let (entry, instance, debug, messenger) = raw_host::instance()?;
         // SAFETY: valid instance.
         let physical = unsafe { instance.enumerate_physical_devices() }?
             .into_iter()
@@ -172,49 +123,16 @@ impl Host {
         Ok(host)
     }
 
-    fn memory_type(&self, bits: u32, flags: vk::MemoryPropertyFlags) -> Result<u32> {
-        (0..self.memory_types.memory_type_count)
-            .find(|&i| {
-                bits & (1 << i) != 0
-                    && self.memory_types.memory_types[i as usize]
-                        .property_flags
-                        .contains(flags)
-            })
-            .context("no suitable memory type")
-    }
-
     fn buffer(
         &mut self,
         size: u64,
         usage: vk::BufferUsageFlags,
         data: &[u8],
     ) -> Result<vk::Buffer> {
-        let info = vk::BufferCreateInfo::default()
-            .size(size.max(16))
-            .usage(usage);
-        // SAFETY: valid device and create info; memory is bound right after.
-        unsafe {
-            let buffer = self.device.create_buffer(&info, None)?;
-            let req = self.device.get_buffer_memory_requirements(buffer);
-            let kind = self.memory_type(
-                req.memory_type_bits,
-                vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
-            )?;
-            let memory = self.device.allocate_memory(
-                &vk::MemoryAllocateInfo::default()
-                    .allocation_size(req.size)
-                    .memory_type_index(kind),
-                None,
-            )?;
-            self.device.bind_buffer_memory(buffer, memory, 0)?;
-            let ptr =
-                self.device
-                    .map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty())?
-                    as *mut u8;
-            std::ptr::copy_nonoverlapping(data.as_ptr(), ptr, data.len().min(req.size as usize));
-            self.buffers.push((buffer, Memory { memory, ptr }));
-            Ok(buffer)
-        }
+        let (buffer, memory) =
+            raw_host::buffer(&self.device, &self.memory_types, size, usage, data)?;
+        self.buffers.push((buffer, memory));
+        Ok(buffer)
     }
 
     fn image(
@@ -223,153 +141,9 @@ impl Host {
         usage: vk::ImageUsageFlags,
         aspect: vk::ImageAspectFlags,
     ) -> Result<vk::ImageView> {
-        let info = vk::ImageCreateInfo::default()
-            .image_type(vk::ImageType::TYPE_2D)
-            .format(format)
-            .extent(vk::Extent3D {
-                width: WIDTH,
-                height: HEIGHT,
-                depth: 1,
-            })
-            .mip_levels(1)
-            .array_layers(1)
-            .samples(vk::SampleCountFlags::TYPE_1)
-            .usage(usage);
-        // SAFETY: valid device and create infos; memory bound before the view is created.
-        unsafe {
-            let image = self.device.create_image(&info, None)?;
-            let req = self.device.get_image_memory_requirements(image);
-            let kind =
-                self.memory_type(req.memory_type_bits, vk::MemoryPropertyFlags::DEVICE_LOCAL)?;
-            let memory = self.device.allocate_memory(
-                &vk::MemoryAllocateInfo::default()
-                    .allocation_size(req.size)
-                    .memory_type_index(kind),
-                None,
-            )?;
-            self.device.bind_image_memory(image, memory, 0)?;
-            let view = self.device.create_image_view(
-                &vk::ImageViewCreateInfo::default()
-                    .image(image)
-                    .view_type(vk::ImageViewType::TYPE_2D)
-                    .format(format)
-                    .subresource_range(
-                        vk::ImageSubresourceRange::default()
-                            .aspect_mask(aspect)
-                            .level_count(1)
-                            .layer_count(1),
-                    ),
-                None,
-            )?;
-            self.images.push((image, view, memory));
-            Ok(view)
-        }
-    }
-
-    fn pipeline(&self, vert: &[u8], frag: Option<&[u8]>, query: bool) -> Result<vk::Pipeline> {
-        let module = |bytes: &[u8]| -> Result<vk::ShaderModule> {
-            let words = ash::util::read_spv(&mut std::io::Cursor::new(bytes))?;
-            // SAFETY: valid SPIR-V from coherent's build.
-            Ok(unsafe {
-                self.device
-                    .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None)
-            }?)
-        };
-        let vs = module(vert)?;
-        let fs = frag.map(module).transpose()?;
-        let mut stages = vec![vk::PipelineShaderStageCreateInfo::default()
-            .stage(vk::ShaderStageFlags::VERTEX)
-            .module(vs)
-            .name(c"main")];
-        if let Some(fs) = fs {
-            stages.push(
-                vk::PipelineShaderStageCreateInfo::default()
-                    .stage(vk::ShaderStageFlags::FRAGMENT)
-                    .module(fs)
-                    .name(c"main"),
-            );
-        }
-        let stride = if query { 12 } else { 24 };
-        let bindings = [vk::VertexInputBindingDescription::default().stride(stride)];
-        let attrs_scene = [
-            vk::VertexInputAttributeDescription::default()
-                .location(0)
-                .format(vk::Format::R32G32B32_SFLOAT),
-            vk::VertexInputAttributeDescription::default()
-                .location(1)
-                .format(vk::Format::R32G32B32_SFLOAT)
-                .offset(12),
-        ];
-        let attrs = if query {
-            &attrs_scene[..1]
-        } else {
-            &attrs_scene[..]
-        };
-        let vertex = vk::PipelineVertexInputStateCreateInfo::default()
-            .vertex_binding_descriptions(&bindings)
-            .vertex_attribute_descriptions(attrs);
-        let assembly = vk::PipelineInputAssemblyStateCreateInfo::default()
-            .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
-        let viewport = vk::PipelineViewportStateCreateInfo::default()
-            .viewport_count(1)
-            .scissor_count(1);
-        let raster = vk::PipelineRasterizationStateCreateInfo::default()
-            .cull_mode(if query {
-                vk::CullModeFlags::NONE
-            } else {
-                vk::CullModeFlags::BACK
-            })
-            .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
-            .line_width(1.0);
-        let ms = vk::PipelineMultisampleStateCreateInfo::default()
-            .rasterization_samples(vk::SampleCountFlags::TYPE_1);
-        let depth = vk::PipelineDepthStencilStateCreateInfo::default()
-            .depth_test_enable(true)
-            .depth_write_enable(!query)
-            .depth_compare_op(if query {
-                vk::CompareOp::LESS_OR_EQUAL
-            } else {
-                vk::CompareOp::LESS
-            });
-        let mask = if query {
-            vk::ColorComponentFlags::empty()
-        } else {
-            vk::ColorComponentFlags::RGBA
-        };
-        let blend_att = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(mask)];
-        let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_att);
-        let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
-        let dynamic = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
-        let formats = [vk::Format::R8G8B8A8_UNORM];
-        let mut rendering = vk::PipelineRenderingCreateInfo::default()
-            .color_attachment_formats(&formats)
-            .depth_attachment_format(vk::Format::D32_SFLOAT);
-        let info = vk::GraphicsPipelineCreateInfo::default()
-            .stages(&stages)
-            .vertex_input_state(&vertex)
-            .input_assembly_state(&assembly)
-            .viewport_state(&viewport)
-            .rasterization_state(&raster)
-            .multisample_state(&ms)
-            .depth_stencil_state(&depth)
-            .color_blend_state(&blend)
-            .dynamic_state(&dynamic)
-            .layout(self.layout)
-            .push_next(&mut rendering);
-        // SAFETY: all state outlives the call; modules are destroyed after creation.
-        let pipeline = unsafe {
-            self.device
-                .create_graphics_pipelines(vk::PipelineCache::null(), &[info], None)
-        }
-        .map_err(|(_, e)| e)?[0];
-        // SAFETY: no longer needed once the pipeline exists.
-        unsafe {
-            self.device.destroy_shader_module(vs, None);
-            if let Some(fs) = fs {
-                self.device.destroy_shader_module(fs, None);
-            }
-        }
-        Ok(pipeline)
+        let image = raw_host::image(&self.device, &self.memory_types, format, usage, aspect)?;
+        self.images.push(image);
+        Ok(image.1)
     }
 
     fn create_resources(&mut self, scene: &Scene) -> Result<()> {
@@ -485,12 +259,22 @@ impl Host {
             self.device
                 .reset_query_pool(self.query_pool, 0, MAX_QUERIES);
         }
-        self.render_pipeline = self.pipeline(
+        self.render_pipeline = raw_host::pipeline(
+            &self.device,
+            self.layout,
             coherent::gpu::shaders::SCENE_VERT,
             Some(coherent::gpu::shaders::SCENE_FRAG),
             false,
+            false,
         )?;
-        self.query_pipeline = self.pipeline(coherent::gpu::shaders::BOX_VERT, None, true)?;
+        self.query_pipeline = raw_host::pipeline(
+            &self.device,
+            self.layout,
+            coherent::gpu::shaders::BOX_VERT,
+            None,
+            true,
+            false,
+        )?;
         Ok(())
     }
 
@@ -609,16 +393,6 @@ impl Host {
                     stencil: 0,
                 },
             });
-        let extent = vk::Extent2D {
-            width: WIDTH,
-            height: HEIGHT,
-        };
-        let rendering = vk::RenderingInfo::default()
-            .render_area(extent.into())
-            .layer_count(1)
-            .color_attachments(&color_att)
-            .depth_attachment(&depth_att);
-        let push: Vec<u8> = self.push.iter().flat_map(|f| f.to_le_bytes()).collect();
         // SAFETY: the buffer was reset with its pool; attachments are in the right layouts.
         unsafe {
             self.device
@@ -627,33 +401,13 @@ impl Host {
                 cmd,
                 &vk::DependencyInfo::default().image_memory_barriers(&barriers),
             );
-            self.device.cmd_begin_rendering(cmd, &rendering);
-            let viewport = vk::Viewport {
-                x: 0.0,
-                y: HEIGHT as f32,
-                width: WIDTH as f32,
-                height: -(HEIGHT as f32),
-                min_depth: 0.0,
-                max_depth: 1.0,
-            };
-            self.device.cmd_set_viewport(cmd, 0, &[viewport]);
-            self.device.cmd_set_scissor(cmd, 0, &[extent.into()]);
-            self.device.cmd_bind_descriptor_sets(
+            raw_host::begin_rendering(
+                &self.device,
                 cmd,
-                vk::PipelineBindPoint::GRAPHICS,
-                self.layout,
-                0,
-                &[self.set],
-                &[],
-            );
-            self.device.cmd_push_constants(
-                cmd,
-                self.layout,
-                vk::ShaderStageFlags::VERTEX
-                    | vk::ShaderStageFlags::FRAGMENT
-                    | vk::ShaderStageFlags::COMPUTE,
-                0,
-                &push,
+                &color_att,
+                &depth_att,
+                (self.layout, self.set),
+                &self.push,
             );
         }
         self.recording = true;
@@ -851,14 +605,11 @@ impl Drop for Host {
             self.device.destroy_pipeline_layout(self.layout, None);
             self.device
                 .destroy_descriptor_set_layout(self.set_layout, None);
-            for (image, view, memory) in self.images.drain(..) {
-                self.device.destroy_image_view(view, None);
-                self.device.destroy_image(image, None);
-                self.device.free_memory(memory, None);
+            for image in self.images.drain(..) {
+                raw_host::destroy_image(&self.device, image);
             }
-            for (buffer, memory) in self.buffers.drain(..) {
-                self.device.destroy_buffer(buffer, None);
-                self.device.free_memory(memory.memory, None);
+            for buffer in self.buffers.drain(..) {
+                raw_host::destroy_buffer(&self.device, buffer);
             }
             self.device.destroy_device(None);
             self.debug

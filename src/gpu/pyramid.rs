@@ -14,6 +14,60 @@ use super::memory::Buffer;
 use super::{GpuContext, OneShot};
 use crate::error::{Error, Result, VkContext};
 
+/// Create info of an optimal-tiling, exclusive 2D image of `size` with `levels` mips.
+pub(super) fn mip_image_info(
+    format: vk::Format,
+    size: (u32, u32),
+    levels: u32,
+    usage: vk::ImageUsageFlags,
+) -> vk::ImageCreateInfo<'static> {
+    vk::ImageCreateInfo::default()
+        .image_type(vk::ImageType::TYPE_2D)
+        .format(format)
+        .extent(vk::Extent3D {
+            width: size.0,
+            height: size.1,
+            depth: 1,
+        })
+        .mip_levels(levels)
+        .array_layers(1)
+        .samples(vk::SampleCountFlags::TYPE_1)
+        .tiling(vk::ImageTiling::OPTIMAL)
+        .usage(usage)
+        .sharing_mode(vk::SharingMode::EXCLUSIVE)
+        .initial_layout(vk::ImageLayout::UNDEFINED)
+}
+
+/// Allocates GPU-only memory for image `handle` (outside the context's memory budget) and
+/// binds it. The allocation goes into `slot` even when binding fails, so the owner frees it.
+pub(super) fn bind_gpu_only_memory(
+    ctx: &GpuContext,
+    handle: vk::Image,
+    name: &str,
+    slot: &mut Option<Allocation>,
+) -> Result<()> {
+    // SAFETY: handle is an image of this device.
+    let requirements = unsafe { ctx.device.get_image_memory_requirements(handle) };
+    let allocation = ctx
+        .allocator()
+        .allocate(&AllocationCreateDesc {
+            name,
+            requirements,
+            location: MemoryLocation::GpuOnly,
+            linear: false,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        })
+        .map_err(|e| Error::Alloc(format!("{name}: {e}")))?;
+    // SAFETY: the allocation satisfies the image's requirements; the memory handle is only
+    // used to bind this image.
+    let bound = unsafe {
+        ctx.device
+            .bind_image_memory(handle, allocation.memory(), allocation.offset())
+    };
+    *slot = Some(allocation);
+    bound.vk("vkBindImageMemory")
+}
+
 /// A 2D image with `levels` mips, a view per level and one over all levels.
 pub struct MipImage {
     ctx: Arc<GpuContext>,
@@ -48,25 +102,14 @@ impl MipImage {
             )));
         }
         let sizes = mip_sizes(size);
-        let info = vk::ImageCreateInfo::default()
-            .image_type(vk::ImageType::TYPE_2D)
-            .format(format)
-            .extent(vk::Extent3D {
-                width: size.0,
-                height: size.1,
-                depth: 1,
-            })
-            .mip_levels(sizes.len() as u32)
-            .array_layers(1)
-            .samples(vk::SampleCountFlags::TYPE_1)
-            .tiling(vk::ImageTiling::OPTIMAL)
-            .usage(
-                vk::ImageUsageFlags::STORAGE
-                    | vk::ImageUsageFlags::SAMPLED
-                    | vk::ImageUsageFlags::TRANSFER_SRC,
-            )
-            .sharing_mode(vk::SharingMode::EXCLUSIVE)
-            .initial_layout(vk::ImageLayout::UNDEFINED);
+        let info = mip_image_info(
+            format,
+            size,
+            sizes.len() as u32,
+            vk::ImageUsageFlags::STORAGE
+                | vk::ImageUsageFlags::SAMPLED
+                | vk::ImageUsageFlags::TRANSFER_SRC,
+        );
         // SAFETY: valid device and create info.
         let handle = unsafe { ctx.device.create_image(&info, None) }.vk("vkCreateImage")?;
         let mut image = MipImage {
@@ -85,26 +128,7 @@ impl MipImage {
     }
 
     fn allocate(&mut self, name: &str) -> Result<()> {
-        let d = &self.ctx.device;
-        // SAFETY: handle is an image of this device.
-        let requirements = unsafe { d.get_image_memory_requirements(self.handle) };
-        let allocation = self
-            .ctx
-            .allocator()
-            .allocate(&AllocationCreateDesc {
-                name,
-                requirements,
-                location: MemoryLocation::GpuOnly,
-                linear: false,
-                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-            })
-            .map_err(|e| Error::Alloc(format!("{name}: {e}")))?;
-        // SAFETY: the allocation satisfies the image's requirements; the memory handle is only
-        // used to bind this image.
-        let bound =
-            unsafe { d.bind_image_memory(self.handle, allocation.memory(), allocation.offset()) };
-        self.allocation = Some(allocation);
-        bound.vk("vkBindImageMemory")
+        bind_gpu_only_memory(&self.ctx, self.handle, name, &mut self.allocation)
     }
 
     fn create_views(&mut self) -> Result<()> {

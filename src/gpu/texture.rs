@@ -6,12 +6,12 @@
 use std::sync::Arc;
 
 use ash::vk;
-use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
-use gpu_allocator::MemoryLocation;
+use gpu_allocator::vulkan::Allocation;
 
 use super::commands::Recorder;
 use super::descriptors::Sampler;
 use super::memory::Buffer;
+use super::pyramid::{bind_gpu_only_memory, mip_image_info};
 use super::{GpuContext, OneShot};
 use crate::error::{Error, Result, VkContext};
 
@@ -180,25 +180,14 @@ impl Texture {
     }
 
     fn create(ctx: &Arc<GpuContext>, name: &str, size: (u32, u32), levels: u32) -> Result<Texture> {
-        let info = vk::ImageCreateInfo::default()
-            .image_type(vk::ImageType::TYPE_2D)
-            .format(TEXTURE_FORMAT)
-            .extent(vk::Extent3D {
-                width: size.0,
-                height: size.1,
-                depth: 1,
-            })
-            .mip_levels(levels)
-            .array_layers(1)
-            .samples(vk::SampleCountFlags::TYPE_1)
-            .tiling(vk::ImageTiling::OPTIMAL)
-            .usage(
-                vk::ImageUsageFlags::SAMPLED
-                    | vk::ImageUsageFlags::TRANSFER_DST
-                    | vk::ImageUsageFlags::TRANSFER_SRC,
-            )
-            .sharing_mode(vk::SharingMode::EXCLUSIVE)
-            .initial_layout(vk::ImageLayout::UNDEFINED);
+        let info = mip_image_info(
+            TEXTURE_FORMAT,
+            size,
+            levels,
+            vk::ImageUsageFlags::SAMPLED
+                | vk::ImageUsageFlags::TRANSFER_DST
+                | vk::ImageUsageFlags::TRANSFER_SRC,
+        );
         // SAFETY: valid device and create info.
         let handle = unsafe { ctx.device.create_image(&info, None) }.vk("vkCreateImage")?;
         let mut tex = Texture {
@@ -208,26 +197,7 @@ impl Texture {
             levels,
             allocation: None,
         };
-        // SAFETY: handle is an image of this device.
-        let requirements = unsafe { ctx.device.get_image_memory_requirements(handle) };
-        let allocation = ctx
-            .allocator()
-            .allocate(&AllocationCreateDesc {
-                name,
-                requirements,
-                location: MemoryLocation::GpuOnly,
-                linear: false,
-                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-            })
-            .map_err(|e| Error::Alloc(format!("{name}: {e}")))?;
-        // SAFETY: the allocation satisfies the image's requirements; the memory handle is only
-        // used to bind this image.
-        let bound = unsafe {
-            ctx.device
-                .bind_image_memory(handle, allocation.memory(), allocation.offset())
-        };
-        tex.allocation = Some(allocation);
-        bound.vk("vkBindImageMemory")?;
+        bind_gpu_only_memory(ctx, handle, name, &mut tex.allocation)?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(handle)
             .view_type(vk::ImageViewType::TYPE_2D)
