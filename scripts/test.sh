@@ -7,6 +7,8 @@ bash scripts/setup.sh
 export PATH="$HOME/.cargo/bin:$PATH"
 # Use lavapipe unless the caller chose a device.
 export COHERENT_DEVICE="${COHERENT_DEVICE:-llvmpipe}"
+# A one-off build gains nothing from incremental compilation, whose caches take gigabytes.
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 cargo fmt --all -- --check
 cargo clippy --all-targets -- -D warnings
 cargo test --all-targets
