@@ -32,10 +32,8 @@ struct Host {
     memory_types: vk::PhysicalDeviceMemoryProperties,
     buffers: Vec<(vk::Buffer, Memory)>,
     images: Vec<(vk::Image, vk::ImageView, vk::DeviceMemory)>,
-    set_layout: vk::DescriptorSetLayout,
-    layout: vk::PipelineLayout,
-    descriptor_pool: vk::DescriptorPool,
-    set: vk::DescriptorSet,
+    /// Set 0 (the object buffer) and the pipeline layout.
+    set: raw_host::StorageSet,
     render_pipeline: vk::Pipeline,
     query_pipeline: vk::Pipeline,
     command_pool: vk::CommandPool,
@@ -94,10 +92,7 @@ impl Host {
             memory_types,
             buffers: Vec::new(),
             images: Vec::new(),
-            set_layout: vk::DescriptorSetLayout::null(),
-            layout: vk::PipelineLayout::null(),
-            descriptor_pool: vk::DescriptorPool::null(),
-            set: vk::DescriptorSet::null(),
+            set: raw_host::StorageSet::null(),
             render_pipeline: vk::Pipeline::null(),
             query_pipeline: vk::Pipeline::null(),
             command_pool: vk::CommandPool::null(),
@@ -147,50 +142,9 @@ impl Host {
     }
 
     fn create_resources(&mut self, scene: &Scene) -> Result<()> {
-        let bytes = |v: &[f32]| v.iter().flat_map(|f| f.to_le_bytes()).collect::<Vec<u8>>();
-        let verts: Vec<f32> = scene
-            .vertices
-            .iter()
-            .flat_map(|v| v.position.into_iter().chain(v.normal))
-            .collect();
-        let vdata = bytes(&verts);
-        self.buffer(
-            vdata.len() as u64,
-            vk::BufferUsageFlags::VERTEX_BUFFER,
-            &vdata,
-        )?;
-        let idata: Vec<u8> = scene.indices.iter().flat_map(|i| i.to_le_bytes()).collect();
-        self.buffer(
-            idata.len() as u64,
-            vk::BufferUsageFlags::INDEX_BUFFER,
-            &idata,
-        )?;
-        let mut objects = Vec::new();
-        for o in &scene.objects {
-            objects.extend(o.transform.to_cols_array());
-            objects.extend(o.transform.inverse().transpose().to_cols_array());
-            objects.extend(o.color.to_array());
-        }
-        let odata = bytes(&objects);
-        let object_buffer = self.buffer(
-            odata.len() as u64,
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-            &odata,
-        )?;
+        // Vertices, indices, objects, box indices (0..=3), then the box corners (4).
+        self.buffers = raw_host::scene_buffers(&self.device, &self.memory_types, scene)?;
         self.buffer(MAX_BOXES * 96, vk::BufferUsageFlags::VERTEX_BUFFER, &[])?;
-        let faces: [u32; 36] = [
-            0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4,
-            6, 1, 3, 5, 3, 7, 5,
-        ];
-        let box_indices: Vec<u8> = (0..1024u32)
-            .flat_map(|b| faces.map(|i| i + 8 * b))
-            .flat_map(|i| i.to_le_bytes())
-            .collect();
-        self.buffer(
-            box_indices.len() as u64,
-            vk::BufferUsageFlags::INDEX_BUFFER,
-            &box_indices,
-        )?;
         self.image(
             vk::Format::R8G8B8A8_UNORM,
             vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
@@ -201,52 +155,9 @@ impl Host {
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
             vk::ImageAspectFlags::DEPTH,
         )?;
-        let all = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
-        let binding = [vk::DescriptorSetLayoutBinding::default()
-            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-            .descriptor_count(1)
-            .stage_flags(all | vk::ShaderStageFlags::COMPUTE)];
-        let ranges = [vk::PushConstantRange::default()
-            .stage_flags(all | vk::ShaderStageFlags::COMPUTE)
-            .size(80)];
+        self.set = raw_host::storage_set(&self.device, self.buffers[2].0)?;
         // SAFETY: valid device and create infos; everything is destroyed in Drop.
         unsafe {
-            self.set_layout = self.device.create_descriptor_set_layout(
-                &vk::DescriptorSetLayoutCreateInfo::default().bindings(&binding),
-                None,
-            )?;
-            let set_layouts = [self.set_layout];
-            self.layout = self.device.create_pipeline_layout(
-                &vk::PipelineLayoutCreateInfo::default()
-                    .set_layouts(&set_layouts)
-                    .push_constant_ranges(&ranges),
-                None,
-            )?;
-            let sizes = [vk::DescriptorPoolSize {
-                ty: vk::DescriptorType::STORAGE_BUFFER,
-                descriptor_count: 1,
-            }];
-            self.descriptor_pool = self.device.create_descriptor_pool(
-                &vk::DescriptorPoolCreateInfo::default()
-                    .max_sets(1)
-                    .pool_sizes(&sizes),
-                None,
-            )?;
-            self.set = self.device.allocate_descriptor_sets(
-                &vk::DescriptorSetAllocateInfo::default()
-                    .descriptor_pool(self.descriptor_pool)
-                    .set_layouts(&set_layouts),
-            )?[0];
-            let info = [vk::DescriptorBufferInfo {
-                buffer: object_buffer,
-                offset: 0,
-                range: vk::WHOLE_SIZE,
-            }];
-            let write = vk::WriteDescriptorSet::default()
-                .dst_set(self.set)
-                .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                .buffer_info(&info);
-            self.device.update_descriptor_sets(&[write], &[]);
             self.command_pool = self
                 .device
                 .create_command_pool(&vk::CommandPoolCreateInfo::default(), None)?;
@@ -261,7 +172,7 @@ impl Host {
         }
         self.render_pipeline = raw_host::pipeline(
             &self.device,
-            self.layout,
+            self.set.layout,
             coherent::gpu::shaders::SCENE_VERT,
             Some(coherent::gpu::shaders::SCENE_FRAG),
             false,
@@ -269,7 +180,7 @@ impl Host {
         )?;
         self.query_pipeline = raw_host::pipeline(
             &self.device,
-            self.layout,
+            self.set.layout,
             coherent::gpu::shaders::BOX_VERT,
             None,
             true,
@@ -406,7 +317,7 @@ impl Host {
                 cmd,
                 &color_att,
                 &depth_att,
-                (self.layout, self.set),
+                (self.set.layout, self.set.set),
                 &self.push,
             );
         }
@@ -421,7 +332,7 @@ impl Host {
         }
         let cmd = self.segments[self.used - 1].0;
         let (pipeline, vb, ib) = if query {
-            (self.query_pipeline, self.buffers[3].0, self.buffers[4].0)
+            (self.query_pipeline, self.buffers[4].0, self.buffers[3].0)
         } else {
             (self.render_pipeline, self.buffers[0].0, self.buffers[1].0)
         };
@@ -488,7 +399,7 @@ impl OcclusionBackend for Host {
                 })
             })
             .collect();
-        let ptr = self.buffers[3].1.ptr;
+        let ptr = self.buffers[4].1.ptr;
         // SAFETY: the box buffer is mapped, large enough (checked above) and this range is unused
         // by submitted work (ranges only grow within a frame).
         unsafe {
@@ -600,11 +511,7 @@ impl Drop for Host {
             self.device.destroy_query_pool(self.query_pool, None);
             self.device.destroy_pipeline(self.render_pipeline, None);
             self.device.destroy_pipeline(self.query_pipeline, None);
-            self.device
-                .destroy_descriptor_pool(self.descriptor_pool, None);
-            self.device.destroy_pipeline_layout(self.layout, None);
-            self.device
-                .destroy_descriptor_set_layout(self.set_layout, None);
+            raw_host::destroy_storage_set(&self.device, &self.set);
             for image in self.images.drain(..) {
                 raw_host::destroy_image(&self.device, image);
             }

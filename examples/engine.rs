@@ -164,10 +164,8 @@ struct Engine {
     /// Vertex, index, object and box-index buffers (shared by all frames, never written after
     /// creation).
     buffers: Vec<(vk::Buffer, Memory)>,
-    set_layout: vk::DescriptorSetLayout,
-    layout: vk::PipelineLayout,
-    descriptor_pool: vk::DescriptorPool,
-    set: vk::DescriptorSet,
+    /// Set 0 (the object buffer) and the pipeline layout.
+    set: raw_host::StorageSet,
     render_pipeline: vk::Pipeline,
     query_pipeline: vk::Pipeline,
     command_pool: vk::CommandPool,
@@ -235,10 +233,7 @@ impl Engine {
             queue,
             memory_types,
             buffers: Vec::new(),
-            set_layout: vk::DescriptorSetLayout::null(),
-            layout: vk::PipelineLayout::null(),
-            descriptor_pool: vk::DescriptorPool::null(),
-            set: vk::DescriptorSet::null(),
+            set: raw_host::StorageSet::null(),
             render_pipeline: vk::Pipeline::null(),
             query_pipeline: vk::Pipeline::null(),
             command_pool: vk::CommandPool::null(),
@@ -254,7 +249,7 @@ impl Engine {
                 .collect(),
             stats: FrameStats::default(),
         };
-        engine.create_scene_buffers(scene)?;
+        engine.buffers = raw_host::scene_buffers(&engine.device, &engine.memory_types, scene)?;
         engine.create_pipelines()?;
         for _ in 0..FRAMES_IN_FLIGHT {
             let slot = engine.create_slot()?;
@@ -281,106 +276,11 @@ impl Engine {
         raw_host::image(&self.device, &self.memory_types, format, usage, aspect)
     }
 
-    /// Vertices, indices, per-object data and the box index pattern, shared by every frame.
-    fn create_scene_buffers(&mut self, scene: &Scene) -> Result<()> {
-        let bytes = |v: &[f32]| v.iter().flat_map(|f| f.to_le_bytes()).collect::<Vec<u8>>();
-        let verts: Vec<f32> = scene
-            .vertices
-            .iter()
-            .flat_map(|v| v.position.into_iter().chain(v.normal))
-            .collect();
-        let vdata = bytes(&verts);
-        let vb = self.buffer(
-            vdata.len() as u64,
-            vk::BufferUsageFlags::VERTEX_BUFFER,
-            &vdata,
-        )?;
-        self.buffers.push(vb);
-        let idata: Vec<u8> = scene.indices.iter().flat_map(|i| i.to_le_bytes()).collect();
-        let ib = self.buffer(
-            idata.len() as u64,
-            vk::BufferUsageFlags::INDEX_BUFFER,
-            &idata,
-        )?;
-        self.buffers.push(ib);
-        let mut objects = Vec::new();
-        for o in &scene.objects {
-            objects.extend(o.transform.to_cols_array());
-            objects.extend(o.transform.inverse().transpose().to_cols_array());
-            objects.extend(o.color.to_array());
-        }
-        let odata = bytes(&objects);
-        let ob = self.buffer(
-            odata.len() as u64,
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-            &odata,
-        )?;
-        self.buffers.push(ob);
-        let faces: [u32; 36] = [
-            0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4,
-            6, 1, 3, 5, 3, 7, 5,
-        ];
-        let box_indices: Vec<u8> = (0..1024u32)
-            .flat_map(|b| faces.map(|i| i + 8 * b))
-            .flat_map(|i| i.to_le_bytes())
-            .collect();
-        let bib = self.buffer(
-            box_indices.len() as u64,
-            vk::BufferUsageFlags::INDEX_BUFFER,
-            &box_indices,
-        )?;
-        self.buffers.push(bib);
-        Ok(())
-    }
-
     /// Layout, descriptor set, the opaque and the query pipeline (reverse-Z compares).
     fn create_pipelines(&mut self) -> Result<()> {
-        let all = vk::ShaderStageFlags::VERTEX
-            | vk::ShaderStageFlags::FRAGMENT
-            | vk::ShaderStageFlags::COMPUTE;
-        let binding = [vk::DescriptorSetLayoutBinding::default()
-            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-            .descriptor_count(1)
-            .stage_flags(all)];
-        let ranges = [vk::PushConstantRange::default().stage_flags(all).size(80)];
-        // SAFETY: valid device and create infos; everything is destroyed in Drop.
+        self.set = raw_host::storage_set(&self.device, self.buffers[2].0)?;
+        // SAFETY: valid device and create info; destroyed in Drop.
         unsafe {
-            self.set_layout = self.device.create_descriptor_set_layout(
-                &vk::DescriptorSetLayoutCreateInfo::default().bindings(&binding),
-                None,
-            )?;
-            let set_layouts = [self.set_layout];
-            self.layout = self.device.create_pipeline_layout(
-                &vk::PipelineLayoutCreateInfo::default()
-                    .set_layouts(&set_layouts)
-                    .push_constant_ranges(&ranges),
-                None,
-            )?;
-            let sizes = [vk::DescriptorPoolSize {
-                ty: vk::DescriptorType::STORAGE_BUFFER,
-                descriptor_count: 1,
-            }];
-            self.descriptor_pool = self.device.create_descriptor_pool(
-                &vk::DescriptorPoolCreateInfo::default()
-                    .max_sets(1)
-                    .pool_sizes(&sizes),
-                None,
-            )?;
-            self.set = self.device.allocate_descriptor_sets(
-                &vk::DescriptorSetAllocateInfo::default()
-                    .descriptor_pool(self.descriptor_pool)
-                    .set_layouts(&set_layouts),
-            )?[0];
-            let info = [vk::DescriptorBufferInfo {
-                buffer: self.buffers[2].0,
-                offset: 0,
-                range: vk::WHOLE_SIZE,
-            }];
-            let write = vk::WriteDescriptorSet::default()
-                .dst_set(self.set)
-                .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                .buffer_info(&info);
-            self.device.update_descriptor_sets(&[write], &[]);
             self.command_pool = self.device.create_command_pool(
                 &vk::CommandPoolCreateInfo::default()
                     .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
@@ -389,7 +289,7 @@ impl Engine {
         }
         self.render_pipeline = raw_host::pipeline(
             &self.device,
-            self.layout,
+            self.set.layout,
             coherent::gpu::shaders::SCENE_VERT,
             Some(coherent::gpu::shaders::SCENE_FRAG),
             false,
@@ -397,7 +297,7 @@ impl Engine {
         )?;
         self.query_pipeline = raw_host::pipeline(
             &self.device,
-            self.layout,
+            self.set.layout,
             coherent::gpu::shaders::BOX_VERT,
             None,
             true,
@@ -554,7 +454,7 @@ impl Engine {
                 cmd,
                 &color_att,
                 &depth_att,
-                (self.layout, self.set),
+                (self.set.layout, self.set.set),
                 &self.push,
             );
         }
@@ -806,11 +706,7 @@ impl Drop for Engine {
             self.device.destroy_command_pool(self.command_pool, None);
             self.device.destroy_pipeline(self.render_pipeline, None);
             self.device.destroy_pipeline(self.query_pipeline, None);
-            self.device
-                .destroy_descriptor_pool(self.descriptor_pool, None);
-            self.device.destroy_pipeline_layout(self.layout, None);
-            self.device
-                .destroy_descriptor_set_layout(self.set_layout, None);
+            raw_host::destroy_storage_set(&self.device, &self.set);
             for buffer in self.buffers.drain(..) {
                 raw_host::destroy_buffer(&self.device, buffer);
             }

@@ -179,6 +179,150 @@ pub fn image(
     }
 }
 
+/// The scene's buffers, in this order: vertices (position and normal), indices, per-object data
+/// (model matrix, normal matrix, color: a storage buffer) and the index pattern of 1024 query
+/// boxes (8 corners each, 36 indices).
+pub fn scene_buffers(
+    device: &ash::Device,
+    memory_types: &vk::PhysicalDeviceMemoryProperties,
+    scene: &coherent::scene::Scene,
+) -> Result<Vec<(vk::Buffer, Memory)>> {
+    let bytes = |v: &[f32]| v.iter().flat_map(|f| f.to_le_bytes()).collect::<Vec<u8>>();
+    let verts: Vec<f32> = scene
+        .vertices
+        .iter()
+        .flat_map(|v| v.position.into_iter().chain(v.normal))
+        .collect();
+    let indices: Vec<u8> = scene.indices.iter().flat_map(|i| i.to_le_bytes()).collect();
+    let mut objects = Vec::new();
+    for o in &scene.objects {
+        objects.extend(o.transform.to_cols_array());
+        objects.extend(o.transform.inverse().transpose().to_cols_array());
+        objects.extend(o.color.to_array());
+    }
+    let faces: [u32; 36] = [
+        0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4, 6,
+        1, 3, 5, 3, 7, 5,
+    ];
+    let box_indices: Vec<u8> = (0..1024u32)
+        .flat_map(|b| faces.map(|i| i + 8 * b))
+        .flat_map(|i| i.to_le_bytes())
+        .collect();
+    let contents = [
+        (bytes(&verts), vk::BufferUsageFlags::VERTEX_BUFFER),
+        (indices, vk::BufferUsageFlags::INDEX_BUFFER),
+        (bytes(&objects), vk::BufferUsageFlags::STORAGE_BUFFER),
+        (box_indices, vk::BufferUsageFlags::INDEX_BUFFER),
+    ];
+    let mut out = Vec::with_capacity(contents.len());
+    for (data, usage) in contents {
+        match buffer(device, memory_types, data.len() as u64, usage, &data) {
+            Ok(b) => out.push(b),
+            Err(e) => {
+                for b in out {
+                    // SAFETY: nothing has used these buffers yet.
+                    unsafe { destroy_buffer(device, b) };
+                }
+                return Err(e);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The one descriptor set both hosts use: a storage buffer (`objects`) at binding 0 of set 0,
+/// and 80 bytes of push constants, for every graphics and compute stage.
+pub struct StorageSet {
+    pub set_layout: vk::DescriptorSetLayout,
+    pub layout: vk::PipelineLayout,
+    pub pool: vk::DescriptorPool,
+    pub set: vk::DescriptorSet,
+}
+
+impl StorageSet {
+    /// No objects yet (what a host holds before `storage_set`; destroying it does nothing).
+    pub fn null() -> StorageSet {
+        StorageSet {
+            set_layout: vk::DescriptorSetLayout::null(),
+            layout: vk::PipelineLayout::null(),
+            pool: vk::DescriptorPool::null(),
+            set: vk::DescriptorSet::null(),
+        }
+    }
+}
+
+/// Creates the [`StorageSet`] and points it at `objects`.
+pub fn storage_set(device: &ash::Device, objects: vk::Buffer) -> Result<StorageSet> {
+    let all = vk::ShaderStageFlags::VERTEX
+        | vk::ShaderStageFlags::FRAGMENT
+        | vk::ShaderStageFlags::COMPUTE;
+    let binding = [vk::DescriptorSetLayoutBinding::default()
+        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+        .descriptor_count(1)
+        .stage_flags(all)];
+    let ranges = [vk::PushConstantRange::default().stage_flags(all).size(80)];
+    let sizes = [vk::DescriptorPoolSize {
+        ty: vk::DescriptorType::STORAGE_BUFFER,
+        descriptor_count: 1,
+    }];
+    // SAFETY: valid device and create infos; the caller destroys the result with
+    // `destroy_storage_set`. A failure part way leaks nothing the example keeps running with:
+    // the examples exit on any error.
+    unsafe {
+        let set_layout = device.create_descriptor_set_layout(
+            &vk::DescriptorSetLayoutCreateInfo::default().bindings(&binding),
+            None,
+        )?;
+        let set_layouts = [set_layout];
+        let layout = device.create_pipeline_layout(
+            &vk::PipelineLayoutCreateInfo::default()
+                .set_layouts(&set_layouts)
+                .push_constant_ranges(&ranges),
+            None,
+        )?;
+        let pool = device.create_descriptor_pool(
+            &vk::DescriptorPoolCreateInfo::default()
+                .max_sets(1)
+                .pool_sizes(&sizes),
+            None,
+        )?;
+        let set = device.allocate_descriptor_sets(
+            &vk::DescriptorSetAllocateInfo::default()
+                .descriptor_pool(pool)
+                .set_layouts(&set_layouts),
+        )?[0];
+        let info = [vk::DescriptorBufferInfo {
+            buffer: objects,
+            offset: 0,
+            range: vk::WHOLE_SIZE,
+        }];
+        let write = vk::WriteDescriptorSet::default()
+            .dst_set(set)
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .buffer_info(&info);
+        device.update_descriptor_sets(&[write], &[]);
+        Ok(StorageSet {
+            set_layout,
+            layout,
+            pool,
+            set,
+        })
+    }
+}
+
+/// Destroys a [`StorageSet`] (null handles are ignored by Vulkan).
+///
+/// # Safety
+/// The device is idle and the set is destroyed once.
+pub unsafe fn destroy_storage_set(device: &ash::Device, s: &StorageSet) {
+    // SAFETY: the caller guarantees nothing uses the set any more.
+    unsafe {
+        device.destroy_descriptor_pool(s.pool, None);
+        device.destroy_pipeline_layout(s.layout, None);
+        device.destroy_descriptor_set_layout(s.set_layout, None);
+    }
+}
+
 /// Destroys a buffer from [`buffer`] and frees its memory.
 ///
 /// # Safety
