@@ -337,13 +337,7 @@ impl Host {
             (self.render_pipeline, self.buffers[0].0, self.buffers[1].0)
         };
         // SAFETY: recording inside rendering; buffers and pipeline are valid.
-        unsafe {
-            self.device
-                .cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-            self.device.cmd_bind_vertex_buffers(cmd, 0, &[vb], &[0]);
-            self.device
-                .cmd_bind_index_buffer(cmd, ib, 0, vk::IndexType::UINT32);
-        }
+        unsafe { raw_host::bind_state(&self.device, cmd, pipeline, vb, ib) };
         if self.bound_query_state.is_some() {
             self.switches += 1;
         }

@@ -474,14 +474,7 @@ impl Engine {
             (self.render_pipeline, self.buffers[0].0, self.buffers[1].0)
         };
         // SAFETY: recording inside rendering; buffers and pipeline are valid.
-        unsafe {
-            self.device
-                .cmd_bind_pipeline(slot.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-            self.device
-                .cmd_bind_vertex_buffers(slot.cmd, 0, &[vb], &[0]);
-            self.device
-                .cmd_bind_index_buffer(slot.cmd, ib, 0, vk::IndexType::UINT32);
-        }
+        unsafe { raw_host::bind_state(&self.device, slot.cmd, pipeline, vb, ib) };
         self.bound_query_state = Some(query);
     }
 

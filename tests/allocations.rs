@@ -4,45 +4,13 @@
 
 mod common;
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicUsize, Ordering};
+#[path = "common/counting_alloc.rs"]
+mod counting_alloc;
+
+use std::sync::atomic::Ordering;
 
 use coherent::culling;
 use coherent::render::Renderer;
-
-struct Counting;
-
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
-thread_local! {
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-}
-
-// SAFETY: forwards to the system allocator; only adds a counter.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.with(Cell::get) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.with(Cell::get) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
 
 #[test]
 fn steady_frames_do_not_allocate() {
@@ -58,13 +26,13 @@ fn steady_frames_do_not_allocate() {
             let mut per_frame = Vec::with_capacity(counted as usize);
             for f in 0..warmup + counted {
                 let cam = r.camera(path.sample(f, warmup + counted), &bvh);
-                let before = ALLOCATIONS.load(Ordering::Relaxed);
-                COUNTING.with(|c| c.set(f >= warmup));
+                let before = counting_alloc::ALLOCATIONS.load(Ordering::Relaxed);
+                counting_alloc::COUNTING.with(|c| c.set(f >= warmup));
                 let res = r.render_frame(alg.as_mut(), &bvh, &cam, f as u64);
-                COUNTING.with(|c| c.set(false));
+                counting_alloc::COUNTING.with(|c| c.set(false));
                 res.unwrap();
                 if f >= warmup {
-                    per_frame.push(ALLOCATIONS.load(Ordering::Relaxed) - before);
+                    per_frame.push(counting_alloc::ALLOCATIONS.load(Ordering::Relaxed) - before);
                 }
             }
             assert!(

@@ -521,3 +521,23 @@ pub unsafe fn begin_rendering(
         );
     }
 }
+
+/// Binds `pipeline` with its vertex buffer `vb` and its 32-bit index buffer `ib`: how both hosts
+/// switch between the scene state and the query-box state.
+///
+/// # Safety
+/// `cmd` is recording inside a rendering; the pipeline and buffers are valid.
+pub unsafe fn bind_state(
+    device: &ash::Device,
+    cmd: vk::CommandBuffer,
+    pipeline: vk::Pipeline,
+    vb: vk::Buffer,
+    ib: vk::Buffer,
+) {
+    // SAFETY: guaranteed by the caller.
+    unsafe {
+        device.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+        device.cmd_bind_vertex_buffers(cmd, 0, &[vb], &[0]);
+        device.cmd_bind_index_buffer(cmd, ib, 0, vk::IndexType::UINT32);
+    }
+}
