@@ -14,6 +14,10 @@ use crate::scene::{AlphaMode, SamplerDesc, Scene, TextureImage, Wrap};
 
 /// No texture: the triangle's alpha is its corners' (base color factor x vertex color).
 pub const NO_IMAGE: u32 = u32::MAX;
+/// A point is kept when its alpha over the cutoff reaches this: 1 less a little, as the
+/// rasterizer's interpolation of three equal corner values may come out an ulp below them
+/// (the same constant is in include/gi_mask.glsl).
+pub const KEEP: f32 = 1.0 - 1e-4;
 
 /// The mask of one triangle. A point with barycentric weights `w` is kept when
 /// `dot(alpha, w) * texture alpha >= 1`: `alpha` is already divided by the cutoff.
@@ -125,7 +129,7 @@ impl TriangleMasks {
             }
             _ => 1.0,
         };
-        alpha * tex >= 1.0
+        alpha * tex >= KEEP
     }
 
     /// Appends one triangle's mask (`None`: opaque), keeping `triangles` empty while every
@@ -206,8 +210,11 @@ impl TriangleMasks {
                 .copied()
                 .flatten()
                 .map_or(-1.0, |i| i as f32);
+            // Opaque triangles (no texture, corners at least 1) get a margin well above KEEP.
+            let opaque = m.is_opaque();
             for k in 0..3 {
-                vertices.extend_from_slice(&[m.uv[k].x, m.uv[k].y, m.alpha[k], image]);
+                let alpha = if opaque { 2.0 } else { m.alpha[k] };
+                vertices.extend_from_slice(&[m.uv[k].x, m.uv[k].y, alpha, image]);
             }
         }
         Some((vertices, words))
