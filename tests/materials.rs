@@ -340,11 +340,14 @@ fn glb_views_jpeg_and_unsupported_images() {
 /// Two quads facing +Z: object 0 red and `doubleSided`, object 1 green and single-sided
 /// (the glTF default), side by side.
 fn two_sided_scene() -> Scene {
-    let mut b = GltfBuilder::default();
-    b.materials = vec![
-        r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,0,0,1]},"doubleSided":true}"#.to_string(),
-        r#"{"pbrMetallicRoughness":{"baseColorFactor":[0,1,0,1]}}"#.to_string(),
-    ];
+    let mut b = GltfBuilder {
+        materials: vec![
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,0,0,1]},"doubleSided":true}"#
+                .to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[0,1,0,1]}}"#.to_string(),
+        ],
+        ..Default::default()
+    };
     let red = quad(&mut b, (-2.0, -1.0, -0.2, 1.0, 0.0), 1.0, None, 0);
     let green = quad(&mut b, (0.2, -1.0, 2.0, 1.0, 0.0), 1.0, None, 1);
     for m in [red, green] {

@@ -77,11 +77,13 @@ fn quad(
 fn write_scene() -> PathBuf {
     let dir = std::env::temp_dir().join(format!("coherent-materials-gi-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
-    let mut b = GltfBuilder::default();
-    b.materials = vec![
-        r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.1,0.8,0.1,1]}}"#.to_string(),
-        r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"alphaMode":"MASK","alphaCutoff":0.5}"#.to_string(),
-    ];
+    let mut b = GltfBuilder {
+        materials: vec![
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.1,0.8,0.1,1]}}"#.to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"alphaMode":"MASK","alphaCutoff":0.5}"#.to_string(),
+        ],
+        ..Default::default()
+    };
     let floor = quad(&mut b, (-6.0, -6.0, 6.0, 6.0, 0.0), 0);
     let masked = quad(&mut b, (-2.0, -2.0, 2.0, 2.0, QUAD_Y), 1);
     for m in [floor, masked] {

@@ -43,8 +43,9 @@ pub struct RayScene {
     /// Original triangle index of each reordered triangle (a boxed slice: `RayScene` stays
     /// as small as it was before the movers' field).
     original: Box<[u32]>,
-    /// Albedo per original triangle index.
-    albedo: Vec<Vec3>,
+    /// Albedo per original triangle index (a boxed slice, as `original`: `RayScene` stays as
+    /// small as it was before the masks' field).
+    albedo: Box<[Vec3]>,
     /// Moving objects' triangles at their current places (see [`RayScene::set_movers`]),
     /// rebuilt when they move; their hits' triangle indices follow the static ones.
     movers: Option<Box<RayScene>>,
@@ -64,7 +65,7 @@ impl RayScene {
                 bvh: None,
                 triangles: Vec::new(),
                 original: Box::default(),
-                albedo,
+                albedo: albedo.into(),
                 movers: None,
                 masks: None,
             };
@@ -85,7 +86,7 @@ impl RayScene {
             bvh: Some(bvh),
             triangles: reordered,
             original,
-            albedo,
+            albedo: albedo.into(),
             movers: None,
             masks: None,
         }

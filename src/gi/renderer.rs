@@ -225,12 +225,7 @@ impl GiRenderer {
         let max_vpls = options.max_vpls.max(options.vpl_layers);
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
         let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
-        if let Some(m) = &masks {
-            shadow.enable_masks(ctx, GRAPHICS_PUSH, &vertices, &slots, m)?;
-            if let Some((layout, _)) = shadow.masked_set() {
-                gbuffer.enable_masks(ctx, layout)?;
-            }
-        }
+        enable_masks(ctx, &masks, &mut shadow, &mut gbuffer, &vertices, &slots)?;
         // Entries are indexed by layer, a whole number of chunks of `vpl_layers`.
         let vpl_entries = max_vpls.div_ceil(options.vpl_layers) * options.vpl_layers;
         let vpl_buffer = host_storage(ctx, "gi vpls", vpl_entries as usize * VPL_FLOATS)?;
@@ -749,6 +744,26 @@ fn check_device(ctx: &GpuContext, options: &GiOptions) -> Result<()> {
                 ctx.info.max_per_stage_storage_images
             ),
         });
+    }
+    Ok(())
+}
+
+/// With `masks`, switches the shadow and G-buffer passes to their masked pipelines (which read
+/// `vertices`, `slots` and the mask data); without, leaves them as they are.
+fn enable_masks(
+    ctx: &Arc<GpuContext>,
+    masks: &Option<MaskData>,
+    shadow: &mut ShadowMaps,
+    gbuffer: &mut GBuffer,
+    vertices: &Buffer,
+    slots: &Buffer,
+) -> Result<()> {
+    let Some(masks) = masks else {
+        return Ok(());
+    };
+    shadow.enable_masks(ctx, GRAPHICS_PUSH, vertices, slots, masks)?;
+    if let Some((layout, _)) = shadow.masked_set() {
+        gbuffer.enable_masks(ctx, layout)?;
     }
     Ok(())
 }
