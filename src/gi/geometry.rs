@@ -3,7 +3,7 @@
 
 use glam::{Mat3, Mat4, Vec3};
 
-use super::mask::TriangleMasks;
+use super::mask::{TriangleMask, TriangleMasks};
 use super::raycast::RayScene;
 use crate::scene::material::surface_color;
 use crate::scene::{Aabb, SamplerDesc, Scene, TextureImage, VertexAttributes};
@@ -152,7 +152,9 @@ impl WorldGeometry {
                         );
                 if longest <= max2 || depth >= 12 || !longest.is_finite() {
                     if masked {
-                        out.masks.triangles.push(self.masks.triangles[index].sub(w));
+                        let mask = self.masks.triangles.get(index);
+                        let mask = mask.copied().unwrap_or(TriangleMask::OPAQUE);
+                        out.masks.triangles.push(mask.sub(w));
                     }
                     out.triangles.push(p);
                     out.normals.push(m);

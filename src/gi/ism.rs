@@ -48,8 +48,8 @@ impl Default for IsmOptions {
 }
 
 /// `count` points on the surfaces of `geometry`, area-weighted (uniform per unit area), in a
-/// deterministic random order, as vec4 (w = 1); none on the masked-out texels of alpha masks. Any contiguous or strided subset is itself a
-/// uniform sample of the surfaces.
+/// deterministic random order, as vec4 (w = 1); none on the masked-out texels of alpha masks.
+/// Any contiguous or strided subset is itself a uniform sample of the surfaces.
 pub fn sample_surface_points(geometry: &WorldGeometry, count: usize, seed: u64) -> Vec<[f32; 4]> {
     sample_surface(geometry, count, seed)
         .iter()

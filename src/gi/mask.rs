@@ -140,7 +140,7 @@ impl TriangleMasks {
                 self.triangles.resize(count, TriangleMask::OPAQUE);
                 self.triangles.push(m);
             }
-            _ if self.any() => self.triangles.push(TriangleMask::OPAQUE),
+            _ if self.any() => self.triangles.resize(count + 1, TriangleMask::OPAQUE),
             _ => {}
         }
     }
