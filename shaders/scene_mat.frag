@@ -8,7 +8,7 @@ layout(location = 0) out vec4 out_color;
 
 void main() {
     vec4 base = material_color();
-    vec3 n = normalize(v_normal);
+    vec3 n = facing_normal();
     float lambert = max(dot(n, normalize(pc.sun_dir.xyz)), 0.0);
     float sky = 0.5 + 0.5 * n.y;
     vec3 c = base.rgb * (0.75 * lambert + 0.25 * sky + 0.05);

@@ -52,6 +52,7 @@ fn open_scene(hole: Option<Hole>) -> WorldGeometry {
         normals: Vec::new(),
         albedo: Vec::new(),
         bounds: Aabb::EMPTY,
+        masks: Default::default(),
     };
     let cells = (4.0 * CELLS_PER_UNIT) as i32;
     let s = 1.0 / CELLS_PER_UNIT;

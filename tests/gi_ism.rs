@@ -32,6 +32,7 @@ fn scene(occluder: bool) -> WorldGeometry {
         normals: Vec::new(),
         albedo: Vec::new(),
         bounds: Aabb::EMPTY,
+        masks: Default::default(),
     };
     for i in 0..12 {
         for j in 0..12 {

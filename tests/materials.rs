@@ -336,3 +336,100 @@ fn glb_views_jpeg_and_unsupported_images() {
         .any(|p| is_red([p[0], p[1], p[2], p[3]])));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Two quads facing +Z: object 0 red and `doubleSided`, object 1 green and single-sided
+/// (the glTF default), side by side.
+fn two_sided_scene() -> Scene {
+    let mut b = GltfBuilder {
+        materials: vec![
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,0,0,1]},"doubleSided":true}"#
+                .to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[0,1,0,1]}}"#.to_string(),
+        ],
+        ..Default::default()
+    };
+    let red = quad(&mut b, (-2.0, -1.0, -0.2, 1.0, 0.0), 1.0, None, 0);
+    let green = quad(&mut b, (0.2, -1.0, 2.0, 1.0, 0.0), 1.0, None, 1);
+    for m in [red, green] {
+        b.node(m, [0.0, 0.0, 0.0]);
+    }
+    let dir = temp_dir("two-sided");
+    let path = dir.join("two_sided.gltf");
+    std::fs::write(&path, b.gltf_embedded()).expect("write");
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("load");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    std::fs::remove_dir_all(&dir).ok();
+    scene
+}
+
+/// Renders `scene` with vfc from `eye` (looking at the origin); returns the pixels, the ID
+/// pass's pixels per object and the frame's pipeline binds.
+fn render_from(scene: &Scene, eye: Vec3) -> (Vec<u8>, Vec<u32>, u32) {
+    let (ctx, log) = common::context();
+    let pose = CameraPose {
+        eye,
+        target: Vec3::ZERO,
+    };
+    let out = {
+        let bvh = common::bvh_of(scene);
+        let mut r = Renderer::new(&ctx, scene, W, H).expect("renderer");
+        let mut vfc = culling::create("vfc", &Default::default()).expect("vfc");
+        let (res, px) = common::frame(&mut r, vfc.as_mut(), &bvh, pose, 0);
+        let cam = r.camera(pose, &bvh);
+        let mut ids = Vec::new();
+        r.object_pixels(&bvh, &cam, &mut ids).expect("ids");
+        (px, ids, res.counts.pipeline_binds)
+    };
+    drop(ctx);
+    common::assert_silent(&log);
+    out
+}
+
+#[test]
+fn double_sided_quads_are_seen_from_behind() {
+    let scene = two_sided_scene();
+    assert!(scene.materials.iter().any(|m| m.double_sided));
+    let dominant = |p: [u8; 4], c: usize| {
+        let p = p.map(u32::from);
+        p[c] > 60 && (0..3).all(|k| k == c || p[c] > 2 * p[k])
+    };
+    let is_green = |p: [u8; 4]| dominant(p, 1);
+    let is_red = |p: [u8; 4]| dominant(p, 0);
+    let count = |px: &[u8], f: &dyn Fn([u8; 4]) -> bool| {
+        px.chunks_exact(4)
+            .filter(|c| f([c[0], c[1], c[2], c[3]]))
+            .count()
+    };
+    // From the front both quads are drawn.
+    let (front, front_ids, _) = render_from(&scene, Vec3::new(0.0, 0.0, 5.0));
+    let (red, green) = (count(&front, &is_red), count(&front, &is_green));
+    assert!(
+        red > 1000 && green > 1000,
+        "front: red {red}, green {green}"
+    );
+    assert_eq!(front_ids[1] as usize, green, "ID pixels of the green quad");
+    // From behind only the double-sided one, with the same pixels in the ID pass; the
+    // switch between the two-sided and the culling pipeline is a counted bind.
+    let (back, back_ids, binds) = render_from(&scene, Vec3::new(0.0, 0.0, -5.0));
+    let (red, green) = (count(&back, &is_red), count(&back, &is_green));
+    assert!(red > 1000, "behind: red {red}");
+    assert_eq!(green, 0, "behind: the single-sided quad is drawn");
+    assert_eq!(
+        back_ids[0] as usize, red,
+        "ID pixels of the double-sided quad"
+    );
+    assert_eq!(back_ids[1], 0, "ID pixels of the culled quad");
+    assert!(binds >= 2, "{binds} pipeline binds");
+    // Without doubleSided, both are culled from behind.
+    let mut single = scene.clone();
+    for m in &mut single.materials {
+        m.double_sided = false;
+    }
+    let (back, back_ids, _) = render_from(&single, Vec3::new(0.0, 0.0, -5.0));
+    assert_eq!(
+        count(&back, &is_red),
+        0,
+        "single-sided red drawn from behind"
+    );
+    assert_eq!(back_ids[0], 0);
+}

@@ -10,6 +10,13 @@ layout(set = 0, binding = 1) uniform sampler2D base_color;
 
 #include "include/scene_push.glsl"
 
+// The unit normal towards the viewer's side: flipped on back faces, which only the two-sided
+// pipelines (glTF doubleSided) draw.
+vec3 facing_normal() {
+    vec3 n = normalize(v_normal);
+    return gl_FrontFacing ? n : -n;
+}
+
 vec4 material_color() {
     vec4 c = v_color * texture(base_color, v_uv);
 #ifdef MASKED

@@ -21,6 +21,9 @@ const DEPTH_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
 /// The G-buffer, the indirect-light accumulation image and the tone-mapped output.
 pub struct GBuffer {
     gbuffer_pipeline: Pipeline,
+    /// For scenes with alpha masks: the G-buffer pipeline that discards masked-out texels,
+    /// used instead (see [`GBuffer::enable_masks`]).
+    masked_pipeline: Option<Pipeline>,
     /// World position (w = 1 where a surface was hit).
     pub position: Image,
     /// World normal, facing the camera.
@@ -80,27 +83,10 @@ impl GBuffer {
             1,
             vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_SRC,
         )?;
-        let gbuffer_pipeline = Pipeline::graphics(
-            ctx,
-            layout,
-            &PipelineDesc {
-                name: "gi gbuffer",
-                vert: shaders::GI_GBUFFER_VERT,
-                frag: Some(shaders::GI_GBUFFER_FRAG),
-                vertex_stride: 0,
-                attributes: &[],
-                color_formats: &[FLOAT_FORMAT, FLOAT_FORMAT, UNORM_FORMAT],
-                color_write: true,
-                depth_format: DEPTH_FORMAT,
-                depth_compare: vk::CompareOp::LESS,
-                depth_write: true,
-                cull: vk::CullModeFlags::NONE,
-                kind: PipelineKind::Other,
-                depth_bias: (0.0, 0.0),
-            },
-        )?;
+        let gbuffer_pipeline = Pipeline::graphics(ctx, layout, &gbuffer_desc())?;
         Ok(GBuffer {
             gbuffer_pipeline,
+            masked_pipeline: None,
             position,
             normal,
             albedo,
@@ -113,6 +99,20 @@ impl GBuffer {
             size: extent,
             half_size,
         })
+    }
+
+    /// Draws later G-buffer passes with the pipeline that discards masked-out texels; its
+    /// `layout` is the masked shadow pass's (vertices, slots, mask per vertex, mask images),
+    /// whose set the caller then passes to [`GBuffer::record_gbuffer`].
+    pub fn enable_masks(&mut self, ctx: &Arc<GpuContext>, layout: &PipelineLayout) -> Result<()> {
+        let desc = PipelineDesc {
+            name: "gi gbuffer masked",
+            vert: shaders::GI_GBUFFER_MASKED_VERT,
+            frag: Some(shaders::GI_GBUFFER_MASKED_FRAG),
+            ..gbuffer_desc()
+        };
+        self.masked_pipeline = Some(Pipeline::graphics(ctx, layout, &desc)?);
+        Ok(())
     }
 
     /// Records the G-buffer pass (all `vertex_count` world-space vertices, pulled in the shader)
@@ -146,7 +146,11 @@ impl GBuffer {
             store: false,
         };
         rec.begin_rendering(&color, Some(depth), 1)?;
-        rec.bind_pipeline(&self.gbuffer_pipeline);
+        rec.bind_pipeline(
+            self.masked_pipeline
+                .as_ref()
+                .unwrap_or(&self.gbuffer_pipeline),
+        );
         rec.bind_graphics_set(layout, set);
         rec.push_constants(layout, &crate::gpu::as_bytes(&push[..]));
         if vertex_count > 0 {
@@ -200,5 +204,24 @@ impl GBuffer {
             self.half_size.1.div_ceil(8),
             1,
         )
+    }
+}
+
+/// The G-buffer pipeline: three color targets and depth, no culling.
+fn gbuffer_desc() -> PipelineDesc<'static> {
+    PipelineDesc {
+        name: "gi gbuffer",
+        vert: shaders::GI_GBUFFER_VERT,
+        frag: Some(shaders::GI_GBUFFER_FRAG),
+        vertex_stride: 0,
+        attributes: &[],
+        color_formats: &[FLOAT_FORMAT, FLOAT_FORMAT, UNORM_FORMAT],
+        color_write: true,
+        depth_format: DEPTH_FORMAT,
+        depth_compare: vk::CompareOp::LESS,
+        depth_write: true,
+        cull: vk::CullModeFlags::NONE,
+        kind: PipelineKind::Other,
+        depth_bias: (0.0, 0.0),
     }
 }

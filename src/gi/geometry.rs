@@ -3,6 +3,7 @@
 
 use glam::{Mat3, Mat4, Vec3};
 
+use super::mask::{TriangleMask, TriangleMasks};
 use super::raycast::RayScene;
 use crate::scene::material::surface_color;
 use crate::scene::{Aabb, SamplerDesc, Scene, TextureImage, VertexAttributes};
@@ -37,6 +38,8 @@ pub struct WorldGeometry {
     pub albedo: Vec<Vec3>,
     /// World bounds.
     pub bounds: Aabb,
+    /// Alpha masks of the triangles (empty when none is masked).
+    pub masks: TriangleMasks,
 }
 
 impl WorldGeometry {
@@ -68,6 +71,7 @@ impl WorldGeometry {
             normals: Vec::new(),
             albedo: Vec::new(),
             bounds: Aabb::EMPTY,
+            masks: TriangleMasks::default(),
         }
     }
 
@@ -90,6 +94,9 @@ impl WorldGeometry {
                 n[k] = (normal_matrix * Vec3::from(v.normal)).normalize_or_zero();
                 self.bounds.grow(p[k]);
             }
+            let corners = [0, 1, 2].map(|k| (o.vertex_offset + tri[k]) as usize);
+            let mask = self.masks.for_triangle(scene, index, corners);
+            self.masks.push(self.triangles.len(), mask);
             self.triangles.push(p);
             self.normals.push(n);
             self.albedo.push(if scene.has_materials() {
@@ -112,12 +119,24 @@ impl WorldGeometry {
             normals: Vec::with_capacity(self.triangles.len()),
             albedo: Vec::with_capacity(self.triangles.len()),
             bounds: self.bounds,
+            masks: TriangleMasks {
+                triangles: Vec::new(),
+                images: self.masks.images.clone(),
+            },
         };
         let max2 = max_edge * max_edge;
         let mut stack = Vec::new();
-        for ((t, n), a) in self.triangles.iter().zip(&self.normals).zip(&self.albedo) {
-            stack.push((*t, *n, 0u32));
-            while let Some((p, m, depth)) = stack.pop() {
+        let masked = self.masks.any();
+        for (index, ((t, n), a)) in self
+            .triangles
+            .iter()
+            .zip(&self.normals)
+            .zip(&self.albedo)
+            .enumerate()
+        {
+            // Corners as barycentric weights of the original triangle (for its mask).
+            stack.push((*t, *n, 0u32, [Vec3::X, Vec3::Y, Vec3::Z]));
+            while let Some((p, m, depth, w)) = stack.pop() {
                 let lens = [
                     p[0].distance_squared(p[1]),
                     p[1].distance_squared(p[2]),
@@ -132,6 +151,11 @@ impl WorldGeometry {
                             |best, (i, l)| if l > best.1 { (i, l) } else { best },
                         );
                 if longest <= max2 || depth >= 12 || !longest.is_finite() {
+                    if masked {
+                        let mask = self.masks.triangles.get(index);
+                        let mask = mask.copied().unwrap_or(TriangleMask::OPAQUE);
+                        out.masks.triangles.push(mask.sub(w));
+                    }
                     out.triangles.push(p);
                     out.normals.push(m);
                     out.albedo.push(*a);
@@ -141,12 +165,15 @@ impl WorldGeometry {
                 let (i, j) = (k, (k + 1) % 3);
                 let mid = (p[i] + p[j]) * 0.5;
                 let mid_n = (m[i] + m[j]).normalize_or(m[i]);
-                let mut first = (p, m, depth + 1);
+                let mid_w = (w[i] + w[j]) * 0.5;
+                let mut first = (p, m, depth + 1, w);
                 first.0[j] = mid;
                 first.1[j] = mid_n;
-                let mut second = (p, m, depth + 1);
+                first.3[j] = mid_w;
+                let mut second = (p, m, depth + 1, w);
                 second.0[i] = mid;
                 second.1[i] = mid_n;
+                second.3[i] = mid_w;
                 stack.push(first);
                 stack.push(second);
             }
@@ -156,6 +183,8 @@ impl WorldGeometry {
 
     /// Appends `other`'s triangles after this one's and grows the bounds.
     pub fn append(&mut self, other: &WorldGeometry) {
+        self.masks
+            .append(self.triangles.len(), &other.masks, other.triangles.len());
         self.triangles.extend_from_slice(&other.triangles);
         self.normals.extend_from_slice(&other.normals);
         self.albedo.extend_from_slice(&other.albedo);
@@ -164,7 +193,12 @@ impl WorldGeometry {
 
     /// The CPU ray-casting scene (BVH over the same triangles).
     pub fn ray_scene(&self) -> RayScene {
-        RayScene::new(self.triangles.clone(), self.albedo.clone())
+        let rays = RayScene::new(self.triangles.clone(), self.albedo.clone());
+        if self.masks.any() {
+            rays.with_masks(self.masks.clone())
+        } else {
+            rays
+        }
     }
 
     /// Non-indexed GPU vertices, [`VERTEX_FLOATS`] floats each.

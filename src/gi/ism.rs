@@ -48,8 +48,8 @@ impl Default for IsmOptions {
 }
 
 /// `count` points on the surfaces of `geometry`, area-weighted (uniform per unit area), in a
-/// deterministic random order, as vec4 (w = 1). Any contiguous or strided subset is itself a
-/// uniform sample of the surfaces.
+/// deterministic random order, as vec4 (w = 1); none on the masked-out texels of alpha masks.
+/// Any contiguous or strided subset is itself a uniform sample of the surfaces.
 pub fn sample_surface_points(geometry: &WorldGeometry, count: usize, seed: u64) -> Vec<[f32; 4]> {
     sample_surface(geometry, count, seed)
         .iter()
@@ -94,23 +94,38 @@ pub fn sample_surface(geometry: &WorldGeometry, count: usize, seed: u64) -> Vec<
         return Vec::new();
     }
     let mut rng = Rng::new(seed);
-    (0..count)
-        .map(|_| {
-            let u = f64::from(rng.f32()) * total;
-            let i = cumulative
-                .partition_point(|&c| c <= u)
-                .min(cumulative.len() - 1);
-            let (mut a, mut b) = (rng.f32(), rng.f32());
-            if a + b > 1.0 {
-                (a, b) = (1.0 - a, 1.0 - b);
-            }
-            SurfaceSample {
-                triangle: i as u32,
-                a,
-                b,
-            }
-        })
-        .collect()
+    // With alpha masks, samples on masked-out texels are drawn again (at most 16 draws per
+    // point on average, so a scene that is nearly all holes gets fewer points); without, every
+    // draw is kept, the same sequence as always.
+    let masks = &geometry.masks;
+    let draws = if masks.any() {
+        count.saturating_mul(16)
+    } else {
+        count
+    };
+    let mut out = Vec::with_capacity(count);
+    for _ in 0..draws {
+        if out.len() == count {
+            break;
+        }
+        let u = f64::from(rng.f32()) * total;
+        let i = cumulative
+            .partition_point(|&c| c <= u)
+            .min(cumulative.len() - 1);
+        let (mut a, mut b) = (rng.f32(), rng.f32());
+        if a + b > 1.0 {
+            (a, b) = (1.0 - a, 1.0 - b);
+        }
+        if masks.any() && !masks.keeps(i, a, b) {
+            continue;
+        }
+        out.push(SurfaceSample {
+            triangle: i as u32,
+            a,
+            b,
+        });
+    }
+    out
 }
 
 /// The point buffer, the layered splat target, the hole-filled maps and their passes.

@@ -3,6 +3,7 @@
 //! maps, and deferred shading.
 
 pub mod light;
+pub mod mask;
 pub mod raycast;
 pub mod vpl;
 

@@ -124,6 +124,7 @@ impl WorldGeometry {
             normals,
             albedo: self.albedo.clone(),
             bounds,
+            masks: self.masks.clone(),
         }
     }
 }

@@ -5,6 +5,8 @@
 use std::time::Duration;
 
 use glam::{Vec3, Vec3A};
+
+use super::mask::TriangleMasks;
 use obvhs::{
     bvh2::{builder::build_bvh2_from_tris, Bvh2},
     ray::{Ray, RayHit},
@@ -41,11 +43,15 @@ pub struct RayScene {
     /// Original triangle index of each reordered triangle (a boxed slice: `RayScene` stays
     /// as small as it was before the movers' field).
     original: Box<[u32]>,
-    /// Albedo per original triangle index.
-    albedo: Vec<Vec3>,
+    /// Albedo per original triangle index (a boxed slice, as `original`: `RayScene` stays as
+    /// small as it was before the masks' field).
+    albedo: Box<[Vec3]>,
     /// Moving objects' triangles at their current places (see [`RayScene::set_movers`]),
     /// rebuilt when they move; their hits' triangle indices follow the static ones.
     movers: Option<Box<RayScene>>,
+    /// Alpha masks by original triangle index: rays pass through masked-out texels (see
+    /// [`RayScene::with_masks`]); `None` for scenes without masks.
+    masks: Option<Box<TriangleMasks>>,
 }
 
 impl RayScene {
@@ -59,8 +65,9 @@ impl RayScene {
                 bvh: None,
                 triangles: Vec::new(),
                 original: Box::default(),
-                albedo,
+                albedo: albedo.into(),
                 movers: None,
+                masks: None,
             };
         }
         let tris: Vec<Triangle> = triangles
@@ -79,8 +86,29 @@ impl RayScene {
             bvh: Some(bvh),
             triangles: reordered,
             original,
-            albedo,
+            albedo: albedo.into(),
             movers: None,
+            masks: None,
+        }
+    }
+
+    /// The same scene whose rays pass through the masked-out texels of `masks` (parallel to
+    /// the triangles given to [`RayScene::new`]): a candidate hit is tested against its
+    /// triangle's mask before it counts. Scenes without masks never pay for the test.
+    pub fn with_masks(mut self, masks: TriangleMasks) -> RayScene {
+        self.masks = masks.any().then(|| Box::new(masks));
+        self
+    }
+
+    /// The hit distance of reordered triangle `id` for a masked scene: infinity when the ray
+    /// meets it on a masked-out texel.
+    #[inline(always)]
+    fn masked_hit(&self, masks: &TriangleMasks, id: usize, ray: &Ray) -> f32 {
+        let (t, a, b) = intersect_triangle_uv(&self.triangles[id], ray);
+        if t.is_finite() && !masks.keeps(self.original[id] as usize, a, b) {
+            f32::INFINITY
+        } else {
+            t
         }
     }
 
@@ -120,9 +148,13 @@ impl RayScene {
         }
         let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), 0.0, t_max);
         let mut hit = RayHit::none();
-        if !bvh.ray_traverse(ray, &mut hit, |r, id| {
-            intersect_triangle(&self.triangles[id], r)
-        }) {
+        let found = match &self.masks {
+            None => bvh.ray_traverse(ray, &mut hit, |r, id| {
+                intersect_triangle(&self.triangles[id], r)
+            }),
+            Some(m) => bvh.ray_traverse(ray, &mut hit, |r, id| self.masked_hit(m, id, r)),
+        };
+        if !found {
             return None;
         }
         let tri = &self.triangles[hit.primitive_id as usize];
@@ -161,7 +193,10 @@ impl RayScene {
         }
         let dir = delta / dist;
         let ray = Ray::new(Vec3A::from(from), Vec3A::from(dir), eps, dist - eps);
-        !bvh.ray_traverse_miss(ray, |r, id| intersect_triangle(&self.triangles[id], r))
+        match &self.masks {
+            None => !bvh.ray_traverse_miss(ray, |r, id| intersect_triangle(&self.triangles[id], r)),
+            Some(m) => !bvh.ray_traverse_miss(ray, |r, id| self.masked_hit(m, id, r)),
+        }
     }
 }
 
@@ -170,13 +205,19 @@ impl RayScene {
 /// within `[ray.tmin, ray.tmax]`, or infinity on a miss.
 #[inline(always)]
 fn intersect_triangle(tri: &Triangle, ray: &Ray) -> f32 {
+    intersect_triangle_uv(tri, ray).0
+}
+
+/// [`intersect_triangle`] with the hit's barycentric weights of corners 1 and 2.
+#[inline(always)]
+fn intersect_triangle_uv(tri: &Triangle, ray: &Ray) -> (f32, f32, f32) {
     const BARY_EPS: f32 = 1e-6;
     let e1 = tri.v1 - tri.v0;
     let e2 = tri.v2 - tri.v0;
     let p = ray.direction.cross(e2);
     let det = e1.dot(p);
     if det == 0.0 || !det.is_finite() {
-        return f32::INFINITY;
+        return (f32::INFINITY, 0.0, 0.0);
     }
     let inv_det = 1.0 / det;
     let s = ray.origin - tri.v0;
@@ -184,13 +225,13 @@ fn intersect_triangle(tri: &Triangle, ray: &Ray) -> f32 {
     let q = s.cross(e1);
     let v = ray.direction.dot(q) * inv_det;
     if u < -BARY_EPS || v < -BARY_EPS || u + v > 1.0 + BARY_EPS {
-        return f32::INFINITY;
+        return (f32::INFINITY, u, v);
     }
     let t = e2.dot(q) * inv_det;
     if t >= ray.tmin && t <= ray.tmax {
-        t
+        (t, u, v)
     } else {
-        f32::INFINITY
+        (f32::INFINITY, u, v)
     }
 }
 

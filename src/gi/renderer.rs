@@ -204,9 +204,9 @@ impl GiRenderer {
         ism_options: Option<IsmOptions>,
     ) -> Result<GiRenderer> {
         check_device(ctx, &options)?;
-        let (vertex_data, vertex_count) = gpu_vertices(geometry)?;
+        let (vertex_data, vertex_count, masks) = gpu_vertices(geometry)?;
         let (graphics_layout, compute_layout) = create_layouts(ctx)?;
-        let shadow = ShadowMaps::new(
+        let mut shadow = ShadowMaps::new(
             ctx,
             &graphics_layout,
             options.vpl_layers,
@@ -219,12 +219,13 @@ impl GiRenderer {
             options.vpl_layers,
             ism_options,
         )?;
-        let gbuffer = GBuffer::new(ctx, &graphics_layout, options.width, options.height)?;
+        let mut gbuffer = GBuffer::new(ctx, &graphics_layout, options.width, options.height)?;
         let mut vertices = host_storage(ctx, "gi vertices", vertex_data.len())?;
         vertices.write(0, &as_bytes(&vertex_data))?;
         let max_vpls = options.max_vpls.max(options.vpl_layers);
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
         let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
+        enable_masks(ctx, &masks, &mut shadow, &mut gbuffer, &vertices, &slots)?;
         // Entries are indexed by layer, a whole number of chunks of `vpl_layers`.
         let vpl_entries = max_vpls.div_ceil(options.vpl_layers) * options.vpl_layers;
         let vpl_buffer = host_storage(ctx, "gi vpls", vpl_entries as usize * VPL_FLOATS)?;
@@ -337,13 +338,12 @@ impl GiRenderer {
         let mut gpush = [0f32; 24];
         gpush[..16].copy_from_slice(&camera.view_proj().to_cols_array());
         gpush[16..19].copy_from_slice(&camera.eye.to_array());
-        self.gbuffer.record_gbuffer(
-            &mut self.recorder,
-            &self.graphics_layout,
-            self.descriptors.get(0),
-            &gpush,
-            self.vertex_count,
-        )?;
+        let (layout, set) = self
+            .shadow
+            .masked_set()
+            .unwrap_or((&self.graphics_layout, self.descriptors.get(0)));
+        self.gbuffer
+            .record_gbuffer(&mut self.recorder, layout, set, &gpush, self.vertex_count)?;
         self.stamp(Stamp::GBuffer)?;
         let mut cpush = self.compute_push(light);
         let mut maps = 0;
@@ -748,15 +748,39 @@ fn check_device(ctx: &GpuContext, options: &GiOptions) -> Result<()> {
     Ok(())
 }
 
+/// With `masks`, switches the shadow and G-buffer passes to their masked pipelines (which read
+/// `vertices`, `slots` and the mask data); without, leaves them as they are.
+fn enable_masks(
+    ctx: &Arc<GpuContext>,
+    masks: &Option<MaskData>,
+    shadow: &mut ShadowMaps,
+    gbuffer: &mut GBuffer,
+    vertices: &Buffer,
+    slots: &Buffer,
+) -> Result<()> {
+    let Some(masks) = masks else {
+        return Ok(());
+    };
+    shadow.enable_masks(ctx, GRAPHICS_PUSH, vertices, slots, masks)?;
+    if let Some((layout, _)) = shadow.masked_set() {
+        gbuffer.enable_masks(ctx, layout)?;
+    }
+    Ok(())
+}
+
+/// What the masked shadow pass reads: a vec4 per GPU vertex and the packed mask images.
+type MaskData = (Vec<f32>, Vec<u32>);
+
 /// The geometry's triangles as the shaders' vertex floats, long triangles split so the
-/// paraboloid maps' straight-edge error stays small; and the vertex count.
-fn gpu_vertices(geometry: &WorldGeometry) -> Result<(Vec<f32>, u32)> {
-    let data = geometry
-        .tessellated(geometry.diagonal() * MAX_EDGE_FRACTION)
-        .gpu_vertices();
+/// paraboloid maps' straight-edge error stays small; the vertex count; and, when triangles are
+/// alpha-masked, what the masked shadow pass reads (see `TriangleMasks::gpu_data`).
+fn gpu_vertices(geometry: &WorldGeometry) -> Result<(Vec<f32>, u32, Option<MaskData>)> {
+    let tessellated = geometry.tessellated(geometry.diagonal() * MAX_EDGE_FRACTION);
+    let data = tessellated.gpu_vertices();
     let count = u32::try_from(data.len() / VERTEX_FLOATS)
         .map_err(|_| Error::Input("scene has too many triangles for GI".into()))?;
-    Ok((data, count))
+    let masks = tessellated.masks.gpu_data(tessellated.triangles.len());
+    Ok((data, count, masks))
 }
 
 /// A host-visible storage buffer of `floats` f32.

@@ -11,8 +11,8 @@ use ash::vk;
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    as_bytes, shaders, Attachment, DescriptorSet, GpuContext, Image, ImageUse, Load, Pipeline,
-    PipelineDesc, PipelineKind, PipelineLayout, Recorder,
+    as_bytes, shaders, Attachment, Binding, Buffer, DescriptorSet, DescriptorSets, GpuContext,
+    Image, ImageUse, Load, Pipeline, PipelineDesc, PipelineKind, PipelineLayout, Recorder,
 };
 
 /// Shadow-map depth format.
@@ -45,6 +45,9 @@ impl ShadowSlot {
 pub struct ShadowMaps {
     /// Pipeline first so it is dropped before anything it refers to.
     pipeline: Pipeline,
+    /// For scenes with alpha masks: the pipeline that discards masked-out texels, used
+    /// instead of `pipeline` (see [`ShadowMaps::enable_masks`]).
+    masked: Option<MaskedShadow>,
     /// The D32 array: layers `0..vpl_layers` for VPLs, layer `vpl_layers` for the spotlight.
     pub image: Image,
     /// Small passes render here first (layer 0 the spotlight, then the VPLs in order).
@@ -101,35 +104,42 @@ impl ShadowMaps {
             STAGING_LAYERS.min(layers).min(max_pass_layers).max(2),
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
         )?;
-        let pipeline = Pipeline::graphics(
-            ctx,
-            layout,
-            &PipelineDesc {
-                name: "gi shadow",
-                vert: shaders::GI_SHADOW_VERT,
-                frag: None,
-                vertex_stride: 0,
-                attributes: &[],
-                color_formats: &[],
-                color_write: false,
-                depth_format: SHADOW_FORMAT,
-                depth_compare: vk::CompareOp::LESS,
-                depth_write: true,
-                // The paraboloid map can flip winding; both sides occlude.
-                cull: vk::CullModeFlags::NONE,
-                kind: PipelineKind::Other,
-                // The bias is applied at lookup time (distance-proportional, see gi_gather.comp).
-                depth_bias: (0.0, 0.0),
-            },
-        )?;
+        let pipeline = Pipeline::graphics(ctx, layout, &shadow_desc())?;
         Ok(ShadowMaps {
             pipeline,
+            masked: None,
             image,
             staging,
             size,
             vpl_layers,
             max_pass_layers,
         })
+    }
+
+    /// Draws every later pass with the masked pipeline: `masks` holds the vec4 per vertex of
+    /// `vertices` and the packed images (see `TriangleMasks::gpu_data`); `slots` is the slot
+    /// buffer the passes read; `push_size` the graphics push block's size.
+    pub fn enable_masks(
+        &mut self,
+        ctx: &Arc<GpuContext>,
+        push_size: u32,
+        vertices: &Buffer,
+        slots: &Buffer,
+        masks: &(Vec<f32>, Vec<u32>),
+    ) -> Result<()> {
+        self.masked = Some(MaskedShadow::new(ctx, push_size, vertices, slots, masks)?);
+        Ok(())
+    }
+
+    /// Whether the passes discard masked-out texels.
+    pub fn masked(&self) -> bool {
+        self.masked.is_some()
+    }
+
+    /// The masked passes' layout and set (vertices, slots, mask per vertex, mask images), when
+    /// masks are enabled: the G-buffer's masked pipeline draws with them too.
+    pub fn masked_set(&self) -> Option<(&PipelineLayout, DescriptorSet)> {
+        self.masked.as_ref().map(|m| (&m.layout, m.sets.get(0)))
     }
 
     /// The spotlight's layer.
@@ -235,18 +245,28 @@ impl ShadowMaps {
         vpl_maps: u32,
         spot: bool,
     ) -> u32 {
-        rec.bind_pipeline(&self.pipeline);
-        rec.bind_graphics_set(pass.layout, pass.set);
+        let layout = match &self.masked {
+            None => {
+                rec.bind_pipeline(&self.pipeline);
+                rec.bind_graphics_set(pass.layout, pass.set);
+                pass.layout
+            }
+            Some(m) => {
+                rec.bind_pipeline(&m.pipeline);
+                rec.bind_graphics_set(&m.layout, m.sets.get(0));
+                &m.layout
+            }
+        };
         push[21] = pass.far;
         if spot {
             push[20] = first_slot as f32;
-            rec.push_constants(pass.layout, &as_bytes(&push[..]));
+            rec.push_constants(layout, &as_bytes(&push[..]));
             rec.draw(pass.vertex_count, 1);
         }
         let before = rec.counts.triangles;
         if vpl_maps > 0 {
             push[20] = (first_slot + 1) as f32;
-            rec.push_constants(pass.layout, &as_bytes(&push[..]));
+            rec.push_constants(layout, &as_bytes(&push[..]));
             rec.draw(pass.vertex_count, vpl_maps);
         }
         ((rec.counts.triangles - before) / (pass.vertex_count as u64 / 3).max(1)) as u32
@@ -279,4 +299,88 @@ pub struct ShadowPass<'a> {
     pub vertex_count: u32,
     /// Depth normalization distance.
     pub far: f32,
+}
+
+/// The masked shadow pipeline and what it reads: set 0 = (vertices, slots, mask per vertex,
+/// packed mask images), the same push block as the opaque pass. Four storage buffers, the
+/// minimum every device allows per stage (`maxPerStageDescriptorStorageBuffers` >= 4).
+struct MaskedShadow {
+    // Sets and the pipeline before the layout, buffers last.
+    sets: DescriptorSets,
+    pipeline: Pipeline,
+    layout: PipelineLayout,
+    #[allow(dead_code)] // owned here; the set points at them
+    buffers: [Buffer; 2],
+}
+
+impl MaskedShadow {
+    fn new(
+        ctx: &Arc<GpuContext>,
+        push_size: u32,
+        vertices: &Buffer,
+        slots: &Buffer,
+        (mask_vertices, words): &(Vec<f32>, Vec<u32>),
+    ) -> Result<MaskedShadow> {
+        let storage = vk::DescriptorType::STORAGE_BUFFER;
+        let layout = PipelineLayout::new(ctx, &[storage; 4], push_size)?;
+        let upload = |name, bytes: &[u8]| -> Result<Buffer> {
+            let mut b = Buffer::new(
+                ctx,
+                name,
+                bytes.len().max(16) as u64,
+                vk::BufferUsageFlags::STORAGE_BUFFER,
+                gpu_allocator::MemoryLocation::CpuToGpu,
+            )?;
+            b.write(0, bytes)?;
+            Ok(b)
+        };
+        let buffers = [
+            upload("gi shadow mask vertices", &as_bytes(mask_vertices))?,
+            upload("gi shadow mask images", &as_bytes(words))?,
+        ];
+        let pipeline = Pipeline::graphics(
+            ctx,
+            &layout,
+            &PipelineDesc {
+                name: "gi shadow masked",
+                vert: shaders::GI_SHADOW_MASKED_VERT,
+                frag: Some(shaders::GI_SHADOW_MASKED_FRAG),
+                ..shadow_desc()
+            },
+        )?;
+        let bindings = [
+            Binding::StorageBuffer(vertices),
+            Binding::StorageBuffer(slots),
+            Binding::StorageBuffer(&buffers[0]),
+            Binding::StorageBuffer(&buffers[1]),
+        ];
+        let sets = DescriptorSets::new(ctx, &[(&layout, &bindings)])?;
+        Ok(MaskedShadow {
+            sets,
+            pipeline,
+            layout,
+            buffers,
+        })
+    }
+}
+
+/// The opaque shadow pipeline: depth only, no culling, no bias.
+fn shadow_desc() -> PipelineDesc<'static> {
+    PipelineDesc {
+        name: "gi shadow",
+        vert: shaders::GI_SHADOW_VERT,
+        frag: None,
+        vertex_stride: 0,
+        attributes: &[],
+        color_formats: &[],
+        color_write: false,
+        depth_format: SHADOW_FORMAT,
+        depth_compare: vk::CompareOp::LESS,
+        depth_write: true,
+        // The paraboloid map can flip winding; both sides occlude.
+        cull: vk::CullModeFlags::NONE,
+        kind: PipelineKind::Other,
+        // The bias is applied at lookup time (distance-proportional, see gi_gather.comp).
+        depth_bias: (0.0, 0.0),
+    }
 }

@@ -34,8 +34,16 @@ pub const BOX_VERT: &[u8] = spirv!("box.vert");
 pub const GI_GBUFFER_VERT: &[u8] = spirv!("gi_gbuffer.vert");
 /// GI G-buffer fragment shader.
 pub const GI_GBUFFER_FRAG: &[u8] = spirv!("gi_gbuffer.frag");
+/// GI G-buffer vertex shader of scenes with alpha masks (adds the mask's coordinates).
+pub const GI_GBUFFER_MASKED_VERT: &[u8] = spirv!("gi_gbuffer_masked.vert");
+/// GI G-buffer fragment shader of scenes with alpha masks (discards masked-out texels).
+pub const GI_GBUFFER_MASKED_FRAG: &[u8] = spirv!("gi_gbuffer_masked.frag");
 /// GI layered paraboloid shadow-map vertex shader.
 pub const GI_SHADOW_VERT: &[u8] = spirv!("gi_shadow.vert");
+/// GI shadow-map vertex shader of scenes with alpha masks (adds the mask's coordinates).
+pub const GI_SHADOW_MASKED_VERT: &[u8] = spirv!("gi_shadow_masked.vert");
+/// GI shadow-map fragment shader of scenes with alpha masks (discards masked-out texels).
+pub const GI_SHADOW_MASKED_FRAG: &[u8] = spirv!("gi_shadow_masked.frag");
 /// GI interleaved VPL gather (compute).
 pub const GI_GATHER_COMP: &[u8] = spirv!("gi_gather.comp");
 /// GI resolve: blur, direct light, tone mapping (compute).

@@ -57,6 +57,8 @@ struct ObjectDraw {
     set: u32,
     /// Alpha cutoff of a masked material.
     mask: Option<f32>,
+    /// Whether its material is `doubleSided` (drawn without back-face culling).
+    double_sided: bool,
 }
 
 /// The forward renderer: scene geometry on the GPU, the render/query/ID pipelines, an offscreen
@@ -125,7 +127,10 @@ impl Renderer {
     ) -> Result<Renderer> {
         let target = Target::new(ctx, width, height)?;
         let uploaded = upload::upload_scene_with_spare(ctx, scene, spare)?;
-        let pipelines = ScenePipelines::for_scene(ctx, scene.has_materials())?;
+        let mut pipelines = ScenePipelines::for_scene(ctx, scene.has_materials())?;
+        if scene.materials.iter().any(|m| m.double_sided) {
+            pipelines.add_two_sided(ctx)?;
+        }
         let mut oneshot = OneShot::new(ctx)?;
         let mut recorder = Recorder::new(ctx);
         let (descriptors, materials) = scene_descriptors(
@@ -154,6 +159,7 @@ impl Renderer {
                     bounds: o.bounds,
                     set: object_set(scene, i),
                     mask: object_mask(scene, i),
+                    double_sided: scene.object_material(i).is_some_and(|m| m.double_sided),
                 })
                 .collect(),
             triangles: scene.objects.iter().map(|o| o.triangle_count()).sum(),
@@ -691,7 +697,7 @@ impl MaterialState {
         MaterialState { push: p, set: 0 }
     }
 
-    /// Binds what object `d` needs that is not bound: the (masked) render or ID pipeline, its
+    /// Binds what object `d` needs that is not bound: the (masked, two-sided) render or ID pipeline, its
     /// texture set, its cutoff. Every bind goes through the recorder, which counts it.
     fn bind(
         &mut self,
@@ -701,17 +707,7 @@ impl MaterialState {
         d: &ObjectDraw,
         ids: bool,
     ) {
-        let masked = match (d.mask, ids) {
-            (Some(_), false) => pipelines.render_masked.as_ref(),
-            (Some(_), true) => pipelines.id_masked.as_ref(),
-            (None, _) => None,
-        };
-        let opaque = if ids {
-            &pipelines.id
-        } else {
-            &pipelines.render
-        };
-        rec.bind_pipeline(masked.unwrap_or(opaque));
+        rec.bind_pipeline(pipelines.material_pipeline(d.mask.is_some(), d.double_sided, ids));
         if d.set != self.set {
             rec.bind_texture_set(&pipelines.layout, sets.get(d.set as usize));
             self.set = d.set;

@@ -45,6 +45,9 @@ pub struct ScenePipelines {
     pub render_masked: Option<Pipeline>,
     /// Object IDs of alpha-masked geometry (scenes with materials only).
     pub id_masked: Option<Pipeline>,
+    /// Variants without back-face culling for `doubleSided` materials (see
+    /// [`ScenePipelines::add_two_sided`]).
+    pub two_sided: Option<TwoSidedPipelines>,
     /// Whether these are the material pipelines (set 0 binding 1 is the base color texture,
     /// vertices are interleaved with texture coordinates and colors).
     pub materials: bool,
@@ -62,6 +65,7 @@ impl ScenePipelines {
             id: Pipeline::graphics(ctx, &layout, &scene_desc("id", ids()))?,
             render_masked: None,
             id_masked: None,
+            two_sided: None,
             materials: false,
             layout,
         })
@@ -107,9 +111,71 @@ impl ScenePipelines {
                 &layout,
                 &mat("id masked", shaders::ID_MASKED_FRAG, ids()),
             )?),
+            two_sided: None,
             materials: true,
             layout,
         })
+    }
+}
+
+/// The material pipelines without back-face culling, for `doubleSided` materials: opaque and
+/// masked render, ID and masked ID.
+pub struct TwoSidedPipelines {
+    pub render: Pipeline,
+    pub render_masked: Pipeline,
+    pub id: Pipeline,
+    pub id_masked: Pipeline,
+}
+
+impl ScenePipelines {
+    /// Adds the [`TwoSidedPipelines`] to material pipelines (a scene with a `doubleSided`
+    /// material); nothing for the plain ones, which have no materials.
+    pub fn add_two_sided(&mut self, ctx: &Arc<GpuContext>) -> Result<()> {
+        if !self.materials || self.two_sided.is_some() {
+            return Ok(());
+        }
+        let layout = &self.layout;
+        let mat = |name, frag, out: SceneOutput| -> Result<Pipeline> {
+            let desc = PipelineDesc {
+                vert: shaders::SCENE_MAT_VERT,
+                vertex_stride: MATERIAL_VERTEX_STRIDE,
+                attributes: &MATERIAL_ATTRIBUTES,
+                frag: Some(frag),
+                cull: vk::CullModeFlags::NONE,
+                ..scene_desc(name, out)
+            };
+            Pipeline::graphics(ctx, layout, &desc)
+        };
+        self.two_sided = Some(TwoSidedPipelines {
+            render: mat("render two-sided", shaders::SCENE_MAT_FRAG, shaded())?,
+            render_masked: mat(
+                "render masked two-sided",
+                shaders::SCENE_MAT_MASKED_FRAG,
+                shaded(),
+            )?,
+            id: mat("id two-sided", shaders::ID_FRAG, ids())?,
+            id_masked: mat("id masked two-sided", shaders::ID_MASKED_FRAG, ids())?,
+        });
+        Ok(())
+    }
+
+    /// The material pipeline for an object: masked or not, two-sided or not (when the
+    /// two-sided variants exist), the render or the ID pass.
+    pub fn material_pipeline(&self, masked: bool, two_sided: bool, ids: bool) -> &Pipeline {
+        if let Some(t) = self.two_sided.as_ref().filter(|_| two_sided) {
+            return match (masked, ids) {
+                (false, false) => &t.render,
+                (true, false) => &t.render_masked,
+                (false, true) => &t.id,
+                (true, true) => &t.id_masked,
+            };
+        }
+        let masked_pipeline = match ids {
+            false => self.render_masked.as_ref(),
+            true => self.id_masked.as_ref(),
+        };
+        let opaque = if ids { &self.id } else { &self.render };
+        masked_pipeline.filter(|_| masked).unwrap_or(opaque)
     }
 }
 

@@ -43,7 +43,8 @@ impl MaterialLoader {
     }
 
     /// Our material for a primitive's glTF material: `None` when it has neither a usable base
-    /// color texture nor alpha mode MASK (then the base color factor says it all).
+    /// color texture nor alpha mode MASK nor `doubleSided` (then the base color factor says it
+    /// all).
     pub fn material(
         &mut self,
         m: &::gltf::Material<'_>,
@@ -71,12 +72,14 @@ impl MaterialLoader {
             }
             ::gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
         };
-        let ours = if texture.is_none() && alpha == AlphaMode::Opaque {
+        let double_sided = m.double_sided();
+        let ours = if texture.is_none() && alpha == AlphaMode::Opaque && !double_sided {
             None
         } else {
             self.materials.push(Material {
                 base_color_texture: texture,
                 alpha,
+                double_sided,
             });
             Some(self.materials.len() as u32 - 1)
         };

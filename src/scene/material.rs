@@ -135,8 +135,8 @@ impl TextureImage {
         )
     }
 
-    /// Samples level 0 at `uv` with the sampler's wrap modes and magnification filter, as the
-    /// GPU does for a magnified texture (linear RGBA). For the CPU ray caster's hit colors.
+    /// Samples level 0 at `uv` with the sampler's wrap modes and magnification filter, as
+    /// the GPU does for a magnified texture (linear RGBA). For the CPU ray caster's hit colors.
     pub fn sample(&self, uv: Vec2, s: &SamplerDesc) -> Vec4 {
         if self.width == 0
             || self.height == 0
@@ -144,41 +144,7 @@ impl TextureImage {
         {
             return Vec4::ONE;
         }
-        let (w, h) = (self.width as f32, self.height as f32);
-        let u = s.wrap_u.apply(uv.x) * w;
-        let v = s.wrap_v.apply(uv.y) * h;
-        if !s.mag_linear {
-            return self.texel(
-                (u as u32).min(self.width - 1),
-                (v as u32).min(self.height - 1),
-            );
-        }
-        let (fx, fy) = (u - 0.5, v - 0.5);
-        let (x0, y0) = (fx.floor(), fy.floor());
-        let (tx, ty) = (fx - x0, fy - y0);
-        let wrap = |i: f32, n: u32, mode: Wrap| -> u32 {
-            let n = n as i64;
-            let i = i as i64;
-            match mode {
-                Wrap::Repeat => i.rem_euclid(n) as u32,
-                Wrap::ClampToEdge => i.clamp(0, n - 1) as u32,
-                Wrap::MirroredRepeat => {
-                    let m = i.rem_euclid(2 * n);
-                    (if m >= n { 2 * n - 1 - m } else { m }) as u32
-                }
-            }
-        };
-        let xs = [
-            wrap(x0, self.width, s.wrap_u),
-            wrap(x0 + 1.0, self.width, s.wrap_u),
-        ];
-        let ys = [
-            wrap(y0, self.height, s.wrap_v),
-            wrap(y0 + 1.0, self.height, s.wrap_v),
-        ];
-        let top = self.texel(xs[0], ys[0]).lerp(self.texel(xs[1], ys[0]), tx);
-        let bottom = self.texel(xs[0], ys[1]).lerp(self.texel(xs[1], ys[1]), tx);
-        top.lerp(bottom, ty)
+        sample_texels(self.width, self.height, uv, s, |x, y| self.texel(x, y))
     }
 
     /// The next mip level: half the size (rounded down, at least 1), each texel the average of
@@ -245,13 +211,57 @@ pub enum AlphaMode {
     Mask(f32),
 }
 
-/// A material: an optional base color texture and the alpha mode.
+/// A material: an optional base color texture, the alpha mode and whether back faces are drawn.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct Material {
     /// Index into `Scene::textures`.
     pub base_color_texture: Option<u32>,
     /// Opaque or masked.
     pub alpha: AlphaMode,
+    /// glTF `doubleSided`: drawn without back-face culling (back faces lit with the flipped
+    /// normal).
+    pub double_sided: bool,
+}
+
+/// Samples a `width` x `height` level at `uv` with the sampler's wrap modes and magnification
+/// filter (nearest, or bilinear between the four nearest texels), reading texels with `texel`
+/// (called with coordinates inside the image). An empty image samples as 1.
+pub fn sample_texels(
+    width: u32,
+    height: u32,
+    uv: Vec2,
+    s: &SamplerDesc,
+    texel: impl Fn(u32, u32) -> Vec4,
+) -> Vec4 {
+    if width == 0 || height == 0 {
+        return Vec4::ONE;
+    }
+    let (w, h) = (width as f32, height as f32);
+    let u = s.wrap_u.apply(uv.x) * w;
+    let v = s.wrap_v.apply(uv.y) * h;
+    if !s.mag_linear {
+        return texel((u as u32).min(width - 1), (v as u32).min(height - 1));
+    }
+    let (fx, fy) = (u - 0.5, v - 0.5);
+    let (x0, y0) = (fx.floor(), fy.floor());
+    let (tx, ty) = (fx - x0, fy - y0);
+    let wrap = |i: f32, n: u32, mode: Wrap| -> u32 {
+        let n = n as i64;
+        let i = i as i64;
+        match mode {
+            Wrap::Repeat => i.rem_euclid(n) as u32,
+            Wrap::ClampToEdge => i.clamp(0, n - 1) as u32,
+            Wrap::MirroredRepeat => {
+                let m = i.rem_euclid(2 * n);
+                (if m >= n { 2 * n - 1 - m } else { m }) as u32
+            }
+        }
+    };
+    let xs = [wrap(x0, width, s.wrap_u), wrap(x0 + 1.0, width, s.wrap_u)];
+    let ys = [wrap(y0, height, s.wrap_v), wrap(y0 + 1.0, height, s.wrap_v)];
+    let top = texel(xs[0], ys[0]).lerp(texel(xs[1], ys[0]), tx);
+    let bottom = texel(xs[0], ys[1]).lerp(texel(xs[1], ys[1]), tx);
+    top.lerp(bottom, ty)
 }
 
 /// What the scene's materials need of one object: its base color (factor x vertex color x
