@@ -73,9 +73,13 @@ fn quad(
 }
 
 /// Writes the scene: a 12 x 12 floor (object 0) and the masked quad (object 1, cutoff 0.5,
-/// nearest filtering, clamped) at `QUAD_Y`.
-fn write_scene() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("coherent-materials-gi-{}", std::process::id()));
+/// nearest filtering, clamped) at `QUAD_Y`, into a directory of its own for `test` (the tests
+/// run in parallel, and each removes its directory after loading).
+fn write_scene(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "coherent-materials-gi-{}-{test}",
+        std::process::id()
+    ));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let mut b = GltfBuilder {
         materials: vec![
@@ -104,8 +108,8 @@ fn write_scene() -> PathBuf {
 }
 
 /// The scene, and the same scene with its mask turned off (the control).
-fn scenes() -> (Scene, Scene) {
-    let path = write_scene();
+fn scenes(test: &str) -> (Scene, Scene) {
+    let path = write_scene(test);
     let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("load");
     assert!(warnings.is_empty(), "{warnings:?}");
     std::fs::remove_dir_all(path.parent().expect("dir")).ok();
@@ -148,7 +152,7 @@ fn along_light(p: Vec3, y: f32) -> Vec3 {
 
 #[test]
 fn ray_cast_vpls_and_ism_points_skip_the_holes() {
-    let (scene, opaque) = scenes();
+    let (scene, opaque) = scenes("ray_cast");
     // (VPLs on the floor under the quad, of them under a hole, VPLs on the quad on a hole)
     let count = |s: &Scene| {
         let geometry = WorldGeometry::from_scene(s);
@@ -283,7 +287,7 @@ fn pixel(vp: Mat4, p: Vec3) -> Option<(i32, i32)> {
 
 #[test]
 fn the_shadow_maps_let_light_through_the_holes_only() {
-    let (scene, opaque) = scenes();
+    let (scene, opaque) = scenes("shadow_maps");
     let masked = direct_light(&scene);
     let opaque_images = direct_light(&opaque);
     let (masked_px, opaque_px) = (&masked[0], &opaque_images[0]);
