@@ -170,22 +170,8 @@ impl Host {
             self.device
                 .reset_query_pool(self.query_pool, 0, MAX_QUERIES);
         }
-        self.render_pipeline = raw_host::pipeline(
-            &self.device,
-            self.set.layout,
-            coherent::gpu::shaders::SCENE_VERT,
-            Some(coherent::gpu::shaders::SCENE_FRAG),
-            false,
-            false,
-        )?;
-        self.query_pipeline = raw_host::pipeline(
-            &self.device,
-            self.set.layout,
-            coherent::gpu::shaders::BOX_VERT,
-            None,
-            true,
-            false,
-        )?;
+        (self.render_pipeline, self.query_pipeline) =
+            raw_host::scene_and_query_pipelines(&self.device, self.set.layout, false)?;
         Ok(())
     }
 

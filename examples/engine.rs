@@ -287,22 +287,8 @@ impl Engine {
                 None,
             )?;
         }
-        self.render_pipeline = raw_host::pipeline(
-            &self.device,
-            self.set.layout,
-            coherent::gpu::shaders::SCENE_VERT,
-            Some(coherent::gpu::shaders::SCENE_FRAG),
-            false,
-            true,
-        )?;
-        self.query_pipeline = raw_host::pipeline(
-            &self.device,
-            self.set.layout,
-            coherent::gpu::shaders::BOX_VERT,
-            None,
-            true,
-            true,
-        )?;
+        (self.render_pipeline, self.query_pipeline) =
+            raw_host::scene_and_query_pipelines(&self.device, self.set.layout, true)?;
         Ok(())
     }
 

@@ -92,6 +92,26 @@ fn memory_type(
         .context("no suitable memory type")
 }
 
+/// Memory for `req` of a type with `flags`.
+fn allocate(
+    device: &ash::Device,
+    memory_types: &vk::PhysicalDeviceMemoryProperties,
+    req: vk::MemoryRequirements,
+    flags: vk::MemoryPropertyFlags,
+) -> Result<vk::DeviceMemory> {
+    let kind = memory_type(memory_types, req.memory_type_bits, flags)?;
+    // SAFETY: valid device and allocate info; the caller binds and frees the memory.
+    let memory = unsafe {
+        device.allocate_memory(
+            &vk::MemoryAllocateInfo::default()
+                .allocation_size(req.size)
+                .memory_type_index(kind),
+            None,
+        )?
+    };
+    Ok(memory)
+}
+
 /// A host-visible, coherent, mapped buffer filled with `data`.
 pub fn buffer(
     device: &ash::Device,
@@ -107,16 +127,11 @@ pub fn buffer(
     unsafe {
         let buffer = device.create_buffer(&info, None)?;
         let req = device.get_buffer_memory_requirements(buffer);
-        let kind = memory_type(
+        let memory = allocate(
+            device,
             memory_types,
-            req.memory_type_bits,
+            req,
             vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
-        )?;
-        let memory = device.allocate_memory(
-            &vk::MemoryAllocateInfo::default()
-                .allocation_size(req.size)
-                .memory_type_index(kind),
-            None,
         )?;
         device.bind_buffer_memory(buffer, memory, 0)?;
         let ptr =
@@ -150,16 +165,11 @@ pub fn image(
     unsafe {
         let image = device.create_image(&info, None)?;
         let req = device.get_image_memory_requirements(image);
-        let kind = memory_type(
+        let memory = allocate(
+            device,
             memory_types,
-            req.memory_type_bits,
+            req,
             vk::MemoryPropertyFlags::DEVICE_LOCAL,
-        )?;
-        let memory = device.allocate_memory(
-            &vk::MemoryAllocateInfo::default()
-                .allocation_size(req.size)
-                .memory_type_index(kind),
-            None,
         )?;
         device.bind_image_memory(image, memory, 0)?;
         let view = device.create_image_view(
@@ -520,6 +530,30 @@ pub unsafe fn begin_rendering(
             &push,
         );
     }
+}
+
+/// The scene pipeline and the query-box pipeline of both hosts, in that order (see
+/// [`pipeline`]).
+pub fn scene_and_query_pipelines(
+    device: &ash::Device,
+    layout: vk::PipelineLayout,
+    reverse_z: bool,
+) -> Result<(vk::Pipeline, vk::Pipeline)> {
+    use coherent::gpu::shaders::{BOX_VERT, SCENE_FRAG, SCENE_VERT};
+    let render = pipeline(
+        device,
+        layout,
+        SCENE_VERT,
+        Some(SCENE_FRAG),
+        false,
+        reverse_z,
+    )?;
+    let query = pipeline(device, layout, BOX_VERT, None, true, reverse_z);
+    if query.is_err() {
+        // SAFETY: the pipeline was just created and never used.
+        unsafe { device.destroy_pipeline(render, None) };
+    }
+    Ok((render, query?))
 }
 
 /// Binds `pipeline` with its vertex buffer `vb` and its 32-bit index buffer `ib`: how both hosts
