@@ -16,6 +16,8 @@
 // Triangles entirely behind the base plane (l.z < 0) are culled; straddling ones are clipped to
 // the plane in the shader (each vertex sees its whole triangle).
 
+// The fast variant: clipping at the base plane by gl_ClipDistance (see the include).
+#define SHADOW_CLIP_DISTANCE
 #include "include/gi_shadow_vertex.glsl"
 
 void main() {

@@ -6,6 +6,8 @@
 // its triangle's mask image), interpolated at the vertex's place in its (clipped) triangle for
 // gi_shadow_masked.frag.
 
+// The fast variant: clipping at the base plane by gl_ClipDistance (see the include).
+#define SHADOW_CLIP_DISTANCE
 #include "include/gi_shadow_vertex.glsl"
 
 // Per GPU vertex: u, v, alpha over cutoff, mask image (-1: none).

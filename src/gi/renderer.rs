@@ -226,6 +226,7 @@ impl GiRenderer {
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
         let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
         enable_masks(ctx, &masks, &mut shadow, &mut gbuffer, &vertices, &slots)?;
+        shadow.enable_indexed(ctx, &graphics_layout, &vertex_data, VERTEX_FLOATS)?;
         // Entries are indexed by layer, a whole number of chunks of `vpl_layers`.
         let vpl_entries = max_vpls.div_ceil(options.vpl_layers) * options.vpl_layers;
         let vpl_buffer = host_storage(ctx, "gi vpls", vpl_entries as usize * VPL_FLOATS)?;
@@ -278,6 +279,20 @@ impl GiRenderer {
         })
     }
 
+    /// Whether the shadow maps are drawn from the indexed mesh with fixed-function clipping
+    /// (devices with `shaderClipDistance`, scenes without alpha masks).
+    pub fn indexed_shadows(&self) -> bool {
+        self.shadow.indexed()
+    }
+
+    /// Renders later shadow maps with the exact variant (clipping at each hemisphere's base
+    /// plane in the vertex shader, as on devices without `shaderClipDistance`): slower; for
+    /// comparing the two.
+    pub fn use_exact_shadow_clipping(&mut self) -> Result<()> {
+        self.shadow
+            .use_exact_clipping(&self.ctx, &self.graphics_layout)
+    }
+
     /// Whether VPL visibility comes from imperfect shadow maps.
     pub fn uses_ism(&self) -> bool {
         self.ism.is_some()
@@ -309,8 +324,10 @@ impl GiRenderer {
             )));
         }
         let offset = first as usize * 3 * VERTEX_FLOATS * 4;
-        self.vertices
-            .write(offset, &as_bytes(&tail.gpu_vertices()))?;
+        let moved = tail.gpu_vertices();
+        self.vertices.write(offset, &as_bytes(&moved))?;
+        self.shadow
+            .move_vertices(first as usize * 3, &moved, VERTEX_FLOATS)?;
         if let Some(ism) = &mut self.ism {
             ism.move_points(first, tail)?;
         }

@@ -48,6 +48,9 @@ pub struct ShadowMaps {
     /// For scenes with alpha masks: the pipeline that discards masked-out texels, used
     /// instead of `pipeline` (see [`ShadowMaps::enable_masks`]).
     masked: Option<MaskedShadow>,
+    /// On devices with `shaderClipDistance`, scenes without masks: the indexed mesh and its
+    /// pipeline, used instead of `pipeline` (see [`ShadowMaps::enable_indexed`]).
+    indexed: Option<IndexedShadow>,
     /// The D32 array: layers `0..vpl_layers` for VPLs, layer `vpl_layers` for the spotlight.
     pub image: Image,
     /// Small passes render here first (layer 0 the spotlight, then the VPLs in order).
@@ -104,10 +107,11 @@ impl ShadowMaps {
             STAGING_LAYERS.min(layers).min(max_pass_layers).max(2),
             vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
         )?;
-        let pipeline = Pipeline::graphics(ctx, layout, &shadow_desc())?;
+        let pipeline = Pipeline::graphics(ctx, layout, &shadow_desc(ctx))?;
         Ok(ShadowMaps {
             pipeline,
             masked: None,
+            indexed: None,
             image,
             staging,
             size,
@@ -129,6 +133,92 @@ impl ShadowMaps {
     ) -> Result<()> {
         self.masked = Some(MaskedShadow::new(ctx, push_size, vertices, slots, masks)?);
         Ok(())
+    }
+
+    /// Draws later passes from an indexed copy of the positions in `vertex_floats` (the
+    /// renderer's vertices, `floats_per_vertex` each, position first): corners at the same
+    /// position share one vertex, so the vertex stage (lavapipe's bottleneck in this pass)
+    /// runs about once per vertex instead of three times per triangle. Needs
+    /// `shaderClipDistance` (the indexed shader clips in fixed function); without it, or with
+    /// masks enabled, this does nothing and the passes pull the vertices as before.
+    pub fn enable_indexed(
+        &mut self,
+        ctx: &Arc<GpuContext>,
+        layout: &PipelineLayout,
+        vertex_floats: &[f32],
+        floats_per_vertex: usize,
+    ) -> Result<()> {
+        if !ctx.info.optional.shader_clip_distance || self.masked.is_some() {
+            return Ok(());
+        }
+        let corners = vertex_floats
+            .chunks_exact(floats_per_vertex.max(3))
+            .map(|v| [v[0], v[1], v[2]])
+            .collect();
+        self.indexed = Some(IndexedShadow::new(ctx, layout, corners)?);
+        Ok(())
+    }
+
+    /// Moves vertices `first..` of the indexed copy to the positions in `vertex_floats` (the
+    /// same layout as [`ShadowMaps::enable_indexed`]'s) and merges again; nothing to do
+    /// without it (the passes read the renderer's vertex buffer). Call between frames.
+    pub fn move_vertices(
+        &mut self,
+        first: usize,
+        vertex_floats: &[f32],
+        floats_per_vertex: usize,
+    ) -> Result<()> {
+        let Some(ix) = &mut self.indexed else {
+            return Ok(());
+        };
+        let moved = vertex_floats.chunks_exact(floats_per_vertex.max(3));
+        let end = first + moved.len();
+        if end > ix.corners.len() {
+            return Err(Error::Input(format!(
+                "moved vertices {first}..{end} exceed the shadow mesh's {}",
+                ix.corners.len()
+            )));
+        }
+        for (c, v) in ix.corners[first..end].iter_mut().zip(moved) {
+            *c = [v[0], v[1], v[2]];
+        }
+        ix.upload()
+    }
+
+    /// Renders later passes with the exact variant, which clips at the base plane in the
+    /// vertex shader and pulls all three corners of each triangle (what devices without
+    /// `shaderClipDistance` always run): drops the indexed mesh and rebuilds the pipelines.
+    /// Slower; for comparing the two variants.
+    pub fn use_exact_clipping(
+        &mut self,
+        ctx: &Arc<GpuContext>,
+        layout: &PipelineLayout,
+    ) -> Result<()> {
+        self.indexed = None;
+        self.pipeline = Pipeline::graphics(
+            ctx,
+            layout,
+            &PipelineDesc {
+                vert: shaders::GI_SHADOW_EXACT_VERT,
+                ..shadow_desc(ctx)
+            },
+        )?;
+        if let Some(m) = &mut self.masked {
+            m.pipeline = Pipeline::graphics(
+                ctx,
+                &m.layout,
+                &PipelineDesc {
+                    vert: shaders::GI_SHADOW_MASKED_EXACT_VERT,
+                    ..MaskedShadow::desc(ctx)
+                },
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Whether the passes draw the indexed mesh (see [`ShadowMaps::enable_indexed`]).
+    pub fn indexed(&self) -> bool {
+        self.indexed.is_some()
     }
 
     /// Whether the passes discard masked-out texels.
@@ -245,29 +335,40 @@ impl ShadowMaps {
         vpl_maps: u32,
         spot: bool,
     ) -> u32 {
-        let layout = match &self.masked {
-            None => {
-                rec.bind_pipeline(&self.pipeline);
-                rec.bind_graphics_set(pass.layout, pass.set);
-                pass.layout
-            }
-            Some(m) => {
+        let (layout, indexed) = match (&self.masked, &self.indexed) {
+            (Some(m), _) => {
                 rec.bind_pipeline(&m.pipeline);
                 rec.bind_graphics_set(&m.layout, m.sets.get(0));
-                &m.layout
+                (&m.layout, false)
             }
+            (None, Some(ix)) => {
+                rec.bind_pipeline(&ix.pipeline);
+                rec.bind_graphics_set(pass.layout, pass.set);
+                rec.bind_buffers(&ix.positions, 0, Some(&ix.indices));
+                (pass.layout, true)
+            }
+            (None, None) => {
+                rec.bind_pipeline(&self.pipeline);
+                rec.bind_graphics_set(pass.layout, pass.set);
+                (pass.layout, false)
+            }
+        };
+        // The indexed copy has one index per corner of the renderer's vertices, in order.
+        let draw = |rec: &mut Recorder, instances: u32| match indexed {
+            true => rec.draw_indexed(pass.vertex_count, instances, 0, 0, 0),
+            false => rec.draw(pass.vertex_count, instances),
         };
         push[21] = pass.far;
         if spot {
             push[20] = first_slot as f32;
             rec.push_constants(layout, &as_bytes(&push[..]));
-            rec.draw(pass.vertex_count, 1);
+            draw(rec, 1);
         }
         let before = rec.counts.triangles;
         if vpl_maps > 0 {
             push[20] = (first_slot + 1) as f32;
             rec.push_constants(layout, &as_bytes(&push[..]));
-            rec.draw(pass.vertex_count, vpl_maps);
+            draw(rec, vpl_maps);
         }
         ((rec.counts.triangles - before) / (pass.vertex_count as u64 / 3).max(1)) as u32
     }
@@ -314,6 +415,20 @@ struct MaskedShadow {
 }
 
 impl MaskedShadow {
+    /// The masked pipeline: the fast vertex variant where the device has `shaderClipDistance`.
+    fn desc(ctx: &GpuContext) -> PipelineDesc<'static> {
+        PipelineDesc {
+            name: "gi shadow masked",
+            vert: if ctx.info.optional.shader_clip_distance {
+                shaders::GI_SHADOW_MASKED_VERT
+            } else {
+                shaders::GI_SHADOW_MASKED_EXACT_VERT
+            },
+            frag: Some(shaders::GI_SHADOW_MASKED_FRAG),
+            ..shadow_desc(ctx)
+        }
+    }
+
     fn new(
         ctx: &Arc<GpuContext>,
         push_size: u32,
@@ -338,16 +453,7 @@ impl MaskedShadow {
             upload("gi shadow mask vertices", &as_bytes(mask_vertices))?,
             upload("gi shadow mask images", &as_bytes(words))?,
         ];
-        let pipeline = Pipeline::graphics(
-            ctx,
-            &layout,
-            &PipelineDesc {
-                name: "gi shadow masked",
-                vert: shaders::GI_SHADOW_MASKED_VERT,
-                frag: Some(shaders::GI_SHADOW_MASKED_FRAG),
-                ..shadow_desc()
-            },
-        )?;
+        let pipeline = Pipeline::graphics(ctx, &layout, &MaskedShadow::desc(ctx))?;
         let bindings = [
             Binding::StorageBuffer(vertices),
             Binding::StorageBuffer(slots),
@@ -364,11 +470,105 @@ impl MaskedShadow {
     }
 }
 
-/// The opaque shadow pipeline: depth only, no culling, no bias.
-fn shadow_desc() -> PipelineDesc<'static> {
+/// The indexed shadow pass: the scene's corner positions merged where they are bit-identical
+/// (an index per corner, in the renderer's vertex order), read as a vertex attribute. The
+/// vertex stage then runs once per shared vertex (within the driver's vertex cache) and fetches
+/// 12 bytes, where the pulled variant runs three times per triangle.
+struct IndexedShadow {
+    pipeline: Pipeline,
+    /// Merged positions, three floats each (room for every corner, so moves never grow it).
+    positions: Buffer,
+    /// One u32 per corner.
+    indices: Buffer,
+    /// The renderer's corner positions, kept to merge again after moves.
+    corners: Vec<[f32; 3]>,
+}
+
+impl IndexedShadow {
+    fn new(
+        ctx: &Arc<GpuContext>,
+        layout: &PipelineLayout,
+        corners: Vec<[f32; 3]>,
+    ) -> Result<IndexedShadow> {
+        let buffer = |name, bytes: u64, usage| {
+            Buffer::new(
+                ctx,
+                name,
+                bytes.max(16),
+                usage,
+                gpu_allocator::MemoryLocation::CpuToGpu,
+            )
+        };
+        let n = corners.len() as u64;
+        let positions = buffer(
+            "gi shadow positions",
+            n * 12,
+            vk::BufferUsageFlags::VERTEX_BUFFER,
+        )?;
+        let indices = buffer(
+            "gi shadow indices",
+            n * 4,
+            vk::BufferUsageFlags::INDEX_BUFFER,
+        )?;
+        let pipeline = Pipeline::graphics(
+            ctx,
+            layout,
+            &PipelineDesc {
+                name: "gi shadow indexed",
+                vert: shaders::GI_SHADOW_INDEXED_VERT,
+                vertex_stride: 12,
+                attributes: &[(0, vk::Format::R32G32B32_SFLOAT, 0)],
+                ..shadow_desc(ctx)
+            },
+        )?;
+        let mut ix = IndexedShadow {
+            pipeline,
+            positions,
+            indices,
+            corners,
+        };
+        ix.upload()?;
+        Ok(ix)
+    }
+
+    /// Merges the corners and writes both buffers.
+    fn upload(&mut self) -> Result<()> {
+        let (positions, indices) = merge_corners(&self.corners);
+        self.positions.write(0, &as_bytes(&positions))?;
+        self.indices.write(0, &as_bytes(&indices))?;
+        Ok(())
+    }
+}
+
+/// Corners at bit-identical positions become one vertex: returns the vertices (three floats
+/// each, in order of first use) and an index per corner.
+fn merge_corners(corners: &[[f32; 3]]) -> (Vec<f32>, Vec<u32>) {
+    let mut first_use = std::collections::HashMap::with_capacity(corners.len());
+    let mut positions = Vec::with_capacity(corners.len() * 3);
+    let indices = corners
+        .iter()
+        .map(|c| {
+            let key = c.map(f32::to_bits);
+            *first_use.entry(key).or_insert_with(|| {
+                positions.extend_from_slice(c);
+                (positions.len() / 3 - 1) as u32
+            })
+        })
+        .collect();
+    (positions, indices)
+}
+
+/// The opaque shadow pipeline: depth only, no culling, no bias. Its vertex shader clips at
+/// the hemisphere's base plane with `gl_ClipDistance` where the device has
+/// `shaderClipDistance`, else in the shader (see include/gi_shadow_vertex.glsl).
+fn shadow_desc(ctx: &GpuContext) -> PipelineDesc<'static> {
     PipelineDesc {
         name: "gi shadow",
-        vert: shaders::GI_SHADOW_VERT,
+        vert: if ctx.info.optional.shader_clip_distance {
+            shaders::GI_SHADOW_VERT
+        } else {
+            shaders::GI_SHADOW_EXACT_VERT
+        },
         frag: None,
         vertex_stride: 0,
         attributes: &[],
@@ -382,5 +582,33 @@ fn shadow_desc() -> PipelineDesc<'static> {
         kind: PipelineKind::Other,
         // The bias is applied at lookup time (distance-proportional, see gi_gather.comp).
         depth_bias: (0.0, 0.0),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::merge_corners;
+
+    #[test]
+    fn corners_at_one_position_share_a_vertex() {
+        // Two triangles sharing an edge, and a third apart.
+        let corners = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [5.0, 5.0, 5.0],
+            [6.0, 5.0, 5.0],
+            [5.0, 6.0, 5.0],
+        ];
+        let (positions, indices) = merge_corners(&corners);
+        assert_eq!(indices, [0, 1, 2, 1, 3, 2, 4, 5, 6]);
+        assert_eq!(positions.len(), 7 * 3);
+        for (c, &i) in corners.iter().zip(&indices) {
+            assert_eq!(&positions[i as usize * 3..i as usize * 3 + 3], c);
+        }
+        assert_eq!(merge_corners(&[]), (vec![], vec![]));
     }
 }

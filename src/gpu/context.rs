@@ -400,6 +400,9 @@ pub struct OptionalFeatures {
     pub depth_sampled: bool,
     /// R32_SFLOAT images can be storage images and sampled (optimal tiling): the depth pyramid.
     pub r32f_storage: bool,
+    /// `gl_ClipDistance` in shaders (`shaderClipDistance`): the GI shadow maps clip at the
+    /// hemisphere's base plane in fixed function (else in the vertex shader, slower).
+    pub shader_clip_distance: bool,
 }
 
 /// The features `coherent` relies on, for `coherent info`.
@@ -767,7 +770,8 @@ fn create_device(
     let features10 = vk::PhysicalDeviceFeatures::default()
         .occlusion_query_precise(true)
         .multi_draw_indirect(optional.multi_draw_indirect)
-        .draw_indirect_first_instance(optional.draw_indirect_first_instance);
+        .draw_indirect_first_instance(optional.draw_indirect_first_instance)
+        .shader_clip_distance(optional.shader_clip_distance);
     let mut features12 = vk::PhysicalDeviceVulkan12Features::default()
         .host_query_reset(true)
         .shader_output_layer(true)
@@ -952,6 +956,7 @@ fn optional_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Option
         multi_draw_indirect: f10.multi_draw_indirect != 0,
         draw_indirect_first_instance: f10.draw_indirect_first_instance != 0,
         sampler_filter_minmax: f12.sampler_filter_minmax != 0,
+        shader_clip_distance: f10.shader_clip_distance != 0,
     }
 }
 

@@ -38,10 +38,18 @@ pub const GI_GBUFFER_FRAG: &[u8] = spirv!("gi_gbuffer.frag");
 pub const GI_GBUFFER_MASKED_VERT: &[u8] = spirv!("gi_gbuffer_masked.vert");
 /// GI G-buffer fragment shader of scenes with alpha masks (discards masked-out texels).
 pub const GI_GBUFFER_MASKED_FRAG: &[u8] = spirv!("gi_gbuffer_masked.frag");
-/// GI layered paraboloid shadow-map vertex shader.
+/// GI layered paraboloid shadow-map vertex shader (clips at the base plane with
+/// `gl_ClipDistance`; needs `shaderClipDistance`).
 pub const GI_SHADOW_VERT: &[u8] = spirv!("gi_shadow.vert");
+/// GI shadow-map vertex shader of the indexed pass: the position is a vertex attribute (needs
+/// `shaderClipDistance`, like [`GI_SHADOW_VERT`]).
+pub const GI_SHADOW_INDEXED_VERT: &[u8] = spirv!("gi_shadow_indexed.vert");
+/// GI shadow-map vertex shader that clips in the shader (devices without `shaderClipDistance`).
+pub const GI_SHADOW_EXACT_VERT: &[u8] = spirv!("gi_shadow_exact.vert");
 /// GI shadow-map vertex shader of scenes with alpha masks (adds the mask's coordinates).
 pub const GI_SHADOW_MASKED_VERT: &[u8] = spirv!("gi_shadow_masked.vert");
+/// [`GI_SHADOW_MASKED_VERT`] clipping in the shader (devices without `shaderClipDistance`).
+pub const GI_SHADOW_MASKED_EXACT_VERT: &[u8] = spirv!("gi_shadow_masked_exact.vert");
 /// GI shadow-map fragment shader of scenes with alpha masks (discards masked-out texels).
 pub const GI_SHADOW_MASKED_FRAG: &[u8] = spirv!("gi_shadow_masked.frag");
 /// GI interleaved VPL gather (compute).
