@@ -288,6 +288,11 @@ pub fn info() -> Result<()> {
         i.optional.sampler_filter_minmax
     );
     println!(
+        "gi shadow maps:  shaderClipDistance {} (without it they clip in the vertex shader, \
+         slower)",
+        i.optional.shader_clip_distance
+    );
+    println!(
         "features used:   {} (all present)",
         coherent::gpu::context::REQUIRED_FEATURES.join(", ")
     );

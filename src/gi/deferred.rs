@@ -6,9 +6,10 @@ use std::sync::Arc;
 
 use ash::vk;
 
-use crate::error::Result;
+use crate::error::{Error, Result};
+use crate::gi::geometry::VERTEX_FLOATS;
 use crate::gpu::{
-    shaders, Attachment, ComputePipeline, DescriptorSet, GpuContext, Image, ImageUse, Load,
+    shaders, Attachment, Buffer, ComputePipeline, DescriptorSet, GpuContext, Image, ImageUse, Load,
     Pipeline, PipelineDesc, PipelineKind, PipelineLayout, Recorder,
 };
 
@@ -24,6 +25,9 @@ pub struct GBuffer {
     /// For scenes with alpha masks: the G-buffer pipeline that discards masked-out texels,
     /// used instead (see [`GBuffer::enable_masks`]).
     masked_pipeline: Option<Pipeline>,
+    /// Scenes without masks: the indexed pipeline and its indices (see
+    /// [`GBuffer::enable_indexed`]).
+    indexed: Option<IndexedGBuffer>,
     /// World position (w = 1 where a surface was hit).
     pub position: Image,
     /// World normal, facing the camera.
@@ -87,6 +91,7 @@ impl GBuffer {
         Ok(GBuffer {
             gbuffer_pipeline,
             masked_pipeline: None,
+            indexed: None,
             position,
             normal,
             albedo,
@@ -115,16 +120,77 @@ impl GBuffer {
         Ok(())
     }
 
-    /// Records the G-buffer pass (all `vertex_count` world-space vertices, pulled in the shader)
-    /// and leaves its images for the compute passes: the G-buffer read-only, the indirect and
-    /// output images read-write (their old contents discarded).
+    /// Draws later passes indexed, reading the renderer's vertex buffer (`vertex_floats`, its
+    /// contents, [`VERTEX_FLOATS`] per vertex) as vertex attributes: corners with identical
+    /// position, normal and albedo share an index, so the vertex stage runs about once per
+    /// vertex instead of once per corner. Nothing changes for scenes with masks (their
+    /// pipeline pulls per-corner mask data by vertex index).
+    pub fn enable_indexed(
+        &mut self,
+        ctx: &Arc<GpuContext>,
+        layout: &PipelineLayout,
+        vertex_floats: &[f32],
+    ) -> Result<()> {
+        if self.masked_pipeline.is_some() {
+            return Ok(());
+        }
+        let indices = Buffer::new(
+            ctx,
+            "gi gbuffer indices",
+            (vertex_floats.len() / VERTEX_FLOATS * 4).max(16) as u64,
+            vk::BufferUsageFlags::INDEX_BUFFER,
+            gpu_allocator::MemoryLocation::CpuToGpu,
+        )?;
+        let desc = PipelineDesc {
+            name: "gi gbuffer indexed",
+            vert: shaders::GI_GBUFFER_INDEXED_VERT,
+            vertex_stride: (VERTEX_FLOATS * 4) as u32,
+            attributes: &[
+                (0, vk::Format::R32G32B32_SFLOAT, 0),
+                (1, vk::Format::R32G32B32_SFLOAT, 16),
+                (2, vk::Format::R32G32B32_SFLOAT, 32),
+            ],
+            ..gbuffer_desc()
+        };
+        let mut indexed = IndexedGBuffer {
+            pipeline: Pipeline::graphics(ctx, layout, &desc)?,
+            indices,
+            vertices: vertex_floats.to_vec(),
+        };
+        indexed.upload()?;
+        self.indexed = Some(indexed);
+        Ok(())
+    }
+
+    /// Moves vertices `first..` of the indexed pass's copy to `vertex_floats` and merges again
+    /// (nothing to do when the pass is not indexed). Call between frames.
+    pub fn move_vertices(&mut self, first: usize, vertex_floats: &[f32]) -> Result<()> {
+        let Some(ix) = &mut self.indexed else {
+            return Ok(());
+        };
+        let start = first * VERTEX_FLOATS;
+        let end = start + vertex_floats.len();
+        if end > ix.vertices.len() {
+            return Err(Error::Input(format!(
+                "moved vertices end at float {end}, past the G-buffer's {}",
+                ix.vertices.len()
+            )));
+        }
+        ix.vertices[start..end].copy_from_slice(vertex_floats);
+        ix.upload()
+    }
+
+    /// Records the G-buffer pass (all `vertex_count` world-space vertices of `vertices`, pulled
+    /// in the shader or, when indexed, read as attributes) and leaves its images for the compute
+    /// passes: the G-buffer read-only, the indirect and output images read-write (their old
+    /// contents discarded).
     pub fn record_gbuffer(
         &self,
         rec: &mut Recorder,
         layout: &PipelineLayout,
         set: DescriptorSet,
         push: &[f32; 24],
-        vertex_count: u32,
+        (vertices, vertex_count): (&Buffer, u32),
     ) -> Result<()> {
         let targets = [&self.position, &self.normal, &self.albedo];
         for image in targets {
@@ -146,15 +212,29 @@ impl GBuffer {
             store: false,
         };
         rec.begin_rendering(&color, Some(depth), 1)?;
-        rec.bind_pipeline(
-            self.masked_pipeline
-                .as_ref()
-                .unwrap_or(&self.gbuffer_pipeline),
-        );
+        let indexed = self
+            .indexed
+            .as_ref()
+            .filter(|_| self.masked_pipeline.is_none());
+        match indexed {
+            Some(ix) => {
+                rec.bind_pipeline(&ix.pipeline);
+                rec.bind_buffers(vertices, 0, Some(&ix.indices));
+            }
+            None => {
+                rec.bind_pipeline(
+                    self.masked_pipeline
+                        .as_ref()
+                        .unwrap_or(&self.gbuffer_pipeline),
+                );
+            }
+        }
         rec.bind_graphics_set(layout, set);
         rec.push_constants(layout, &crate::gpu::as_bytes(&push[..]));
-        if vertex_count > 0 {
-            rec.draw(vertex_count, 1);
+        match (vertex_count, indexed) {
+            (0, _) => {}
+            (_, Some(_)) => rec.draw_indexed(vertex_count, 1, 0, 0, 0),
+            (_, None) => rec.draw(vertex_count, 1),
         }
         rec.end_rendering();
         for image in targets {
@@ -208,6 +288,38 @@ impl GBuffer {
 }
 
 /// The G-buffer pipeline: three color targets and depth, no culling.
+/// The indexed G-buffer pass: indices into the renderer's vertex buffer, each corner pointing
+/// at the first vertex with the same [`VERTEX_FLOATS`] floats.
+struct IndexedGBuffer {
+    pipeline: Pipeline,
+    /// One u32 per corner.
+    indices: Buffer,
+    /// The vertex buffer's contents, kept to merge again after moves.
+    vertices: Vec<f32>,
+}
+
+impl IndexedGBuffer {
+    /// Merges the vertices and writes the indices.
+    fn upload(&mut self) -> Result<()> {
+        let indices = first_identical(&self.vertices);
+        self.indices.write(0, &crate::gpu::as_bytes(&indices))
+    }
+}
+
+/// For each vertex of `floats` ([`VERTEX_FLOATS`] floats each), the index of the first vertex
+/// with the same bits.
+fn first_identical(floats: &[f32]) -> Vec<u32> {
+    let mut first = std::collections::HashMap::with_capacity(floats.len() / VERTEX_FLOATS);
+    floats
+        .chunks_exact(VERTEX_FLOATS)
+        .enumerate()
+        .map(|(i, v)| {
+            let key: [u32; VERTEX_FLOATS] = std::array::from_fn(|k| v[k].to_bits());
+            *first.entry(key).or_insert(i as u32)
+        })
+        .collect()
+}
+
 fn gbuffer_desc() -> PipelineDesc<'static> {
     PipelineDesc {
         name: "gi gbuffer",
@@ -223,5 +335,22 @@ fn gbuffer_desc() -> PipelineDesc<'static> {
         cull: vk::CullModeFlags::NONE,
         kind: PipelineKind::Other,
         depth_bias: (0.0, 0.0),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{first_identical, VERTEX_FLOATS};
+
+    #[test]
+    fn identical_vertices_point_at_the_first() {
+        let mut floats = Vec::new();
+        for v in [0.0, 1.0, 0.0, 2.0, 1.0] {
+            floats.extend(std::iter::repeat_n(v, VERTEX_FLOATS));
+        }
+        // The same position with another normal is another vertex.
+        floats[VERTEX_FLOATS * 2 + 4] = 9.0;
+        assert_eq!(first_identical(&floats), [0, 1, 2, 3, 1]);
+        assert!(first_identical(&[]).is_empty());
     }
 }

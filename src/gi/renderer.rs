@@ -220,13 +220,21 @@ impl GiRenderer {
             ism_options,
         )?;
         let mut gbuffer = GBuffer::new(ctx, &graphics_layout, options.width, options.height)?;
-        let mut vertices = host_storage(ctx, "gi vertices", vertex_data.len())?;
+        // Pulled by the shaders, and read as vertex attributes by the indexed G-buffer pass.
+        let mut vertices = Buffer::new(
+            ctx,
+            "gi vertices",
+            vertex_data.len() as u64 * 4,
+            vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::VERTEX_BUFFER,
+            MemoryLocation::CpuToGpu,
+        )?;
         vertices.write(0, &as_bytes(&vertex_data))?;
         let max_vpls = options.max_vpls.max(options.vpl_layers);
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
         let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
         enable_masks(ctx, &masks, &mut shadow, &mut gbuffer, &vertices, &slots)?;
         shadow.enable_indexed(ctx, &graphics_layout, &vertex_data, VERTEX_FLOATS)?;
+        gbuffer.enable_indexed(ctx, &graphics_layout, &vertex_data)?;
         // Entries are indexed by layer, a whole number of chunks of `vpl_layers`.
         let vpl_entries = max_vpls.div_ceil(options.vpl_layers) * options.vpl_layers;
         let vpl_buffer = host_storage(ctx, "gi vpls", vpl_entries as usize * VPL_FLOATS)?;
@@ -328,6 +336,7 @@ impl GiRenderer {
         self.vertices.write(offset, &as_bytes(&moved))?;
         self.shadow
             .move_vertices(first as usize * 3, &moved, VERTEX_FLOATS)?;
+        self.gbuffer.move_vertices(first as usize * 3, &moved)?;
         if let Some(ism) = &mut self.ism {
             ism.move_points(first, tail)?;
         }
@@ -359,8 +368,13 @@ impl GiRenderer {
             .shadow
             .masked_set()
             .unwrap_or((&self.graphics_layout, self.descriptors.get(0)));
-        self.gbuffer
-            .record_gbuffer(&mut self.recorder, layout, set, &gpush, self.vertex_count)?;
+        self.gbuffer.record_gbuffer(
+            &mut self.recorder,
+            layout,
+            set,
+            &gpush,
+            (&self.vertices, self.vertex_count),
+        )?;
         self.stamp(Stamp::GBuffer)?;
         let mut cpush = self.compute_push(light);
         let mut maps = 0;

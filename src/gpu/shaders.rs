@@ -32,6 +32,8 @@ pub const BOX_VERT: &[u8] = spirv!("box.vert");
 
 /// GI G-buffer vertex shader (pulls world-space vertices from a storage buffer).
 pub const GI_GBUFFER_VERT: &[u8] = spirv!("gi_gbuffer.vert");
+/// GI G-buffer vertex shader of the indexed pass (position, normal, albedo as attributes).
+pub const GI_GBUFFER_INDEXED_VERT: &[u8] = spirv!("gi_gbuffer_indexed.vert");
 /// GI G-buffer fragment shader.
 pub const GI_GBUFFER_FRAG: &[u8] = spirv!("gi_gbuffer.frag");
 /// GI G-buffer vertex shader of scenes with alpha masks (adds the mask's coordinates).
