@@ -25,6 +25,9 @@ const DISK_POLYGON_SIDES: usize = 128;
 const MIN_FACING_COS: f32 = 1e-6;
 /// Golden angle in radians, for the sunflower spiral.
 const GOLDEN_ANGLE: f64 = 2.399_963_229_728_653;
+/// Interleave classes of the gather: a VPL is gathered by the pixels of class `layer % 16`
+/// (4x4 interleaved sampling, see gi_gather.comp).
+pub const INTERLEAVE_CLASSES: u32 = 16;
 
 /// A virtual point light: a one-bounce sample of the spotlight's emission.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -290,17 +293,24 @@ impl VplSet {
 
     /// Casts a ray through `disk_point`; a hit becomes a VPL taking a free layer,
     /// a miss becomes a void.
+    /// With `stratify`, the layer is chosen to keep interleave classes spread (see
+    /// `take_stratified_layer`); else it is the last freed one (the spiral's order).
     fn shoot(
         &mut self,
         disk_point: Vec2,
         light: &Spotlight,
         scene: &RayScene,
         stats: &mut UpdateStats,
+        stratify: bool,
     ) {
         let dir = light.disk_to_direction(disk_point);
         match scene.intersect(light.position, dir, f32::INFINITY) {
             Some(hit) => {
-                let Some(layer) = self.free_layers.pop() else {
+                let layer = match stratify {
+                    true => self.take_stratified_layer(disk_point),
+                    false => self.free_layers.pop(),
+                };
+                let Some(layer) = layer else {
                     return;
                 };
                 self.vpls.push(Vpl {
@@ -330,7 +340,7 @@ impl VplSet {
             let r = ((i as f64 + 0.5) / n as f64).sqrt();
             let angle = i as f64 * GOLDEN_ANGLE;
             let p = Vec2::new((r * angle.cos()) as f32, (r * angle.sin()) as f32);
-            self.shoot(p, light, scene, stats);
+            self.shoot(p, light, scene, stats, false);
         }
     }
 
@@ -392,8 +402,30 @@ impl VplSet {
             {
                 break;
             }
-            self.shoot(disk_point, light, scene, stats);
+            self.shoot(disk_point, light, scene, stats, true);
         }
+    }
+
+    /// The free layer for a new VPL at `disk_point`, chosen so that each interleave class stays
+    /// spread over the disk: the free layer whose class's nearest VPL is farthest from it.
+    /// (Taking whichever layer was freed last would give the new VPL the class of one that
+    /// died elsewhere, and over a moving light each class would drift into clumps: every
+    /// 4x4 block then gathers unrepresentative subsets and the blur leaves the pattern.)
+    /// Ties go to the most recently freed layer.
+    fn take_stratified_layer(&mut self, disk_point: Vec2) -> Option<u32> {
+        let mut nearest = [f32::INFINITY; INTERLEAVE_CLASSES as usize];
+        for v in &self.vpls {
+            let c = (v.layer % INTERLEAVE_CLASSES) as usize;
+            nearest[c] = nearest[c].min(v.disk_point.distance_squared(disk_point));
+        }
+        let gap = |layer: u32| nearest[(layer % INTERLEAVE_CLASSES) as usize];
+        let mut best = self.free_layers.len().checked_sub(1)?;
+        for (i, &layer) in self.free_layers.iter().enumerate().rev() {
+            if gap(layer) > gap(self.free_layers[best]) {
+                best = i;
+            }
+        }
+        Some(self.free_layers.remove(best))
     }
 
     /// Step (4): each VPL's weight is the area of its Voronoi cell (over all
@@ -820,6 +852,33 @@ mod tests {
                 0
             );
         }
+    }
+
+    #[test]
+    fn a_new_vpl_takes_the_free_class_whose_nearest_member_is_farthest() {
+        let vpl = |layer: u32, x: f32| Vpl {
+            id: layer as u64,
+            position: Vec3::ZERO,
+            normal: Vec3::Y,
+            albedo: Vec3::ONE,
+            disk_point: Vec2::new(x, 0.0),
+            weight: 0.0,
+            layer,
+        };
+        let mut set = VplSet::new(N, B);
+        // Class 0 sits at x = 0.5, class 1 at x = -0.5; layers 16 and 17 (classes 0, 1) free.
+        set.vpls = vec![vpl(0, 0.5), vpl(1, -0.5)];
+        set.free_layers = vec![16, 17];
+        assert_eq!(set.take_stratified_layer(Vec2::new(0.5, 0.1)), Some(17));
+        set.free_layers = vec![17, 16];
+        assert_eq!(set.take_stratified_layer(Vec2::new(-0.5, 0.1)), Some(16));
+        assert_eq!(set.free_layers, [17]);
+        // A tie (no VPL of either class) goes to the most recently freed layer.
+        set.vpls.clear();
+        set.free_layers = vec![16, 17];
+        assert_eq!(set.take_stratified_layer(Vec2::ZERO), Some(17));
+        set.free_layers.clear();
+        assert_eq!(set.take_stratified_layer(Vec2::ZERO), None);
     }
 
     #[test]
