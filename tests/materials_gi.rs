@@ -229,7 +229,9 @@ fn cameras() -> [Camera; 2] {
 
 /// The spotlight's direct light only (its shadow map is drawn by the same layered pipeline as
 /// the VPLs'), as RGBA8, from each of [`cameras`].
-fn direct_light(scene: &Scene) -> Vec<Vec<u8>> {
+/// The direct-light images from both cameras; with `exact`, the shadow maps clip in the vertex
+/// shader (the variant of devices without `shaderClipDistance`).
+fn direct_light_with(scene: &Scene, exact: bool) -> Vec<Vec<u8>> {
     let (ctx, log) = common::context();
     let out = {
         let geometry = WorldGeometry::from_scene(scene);
@@ -247,6 +249,11 @@ fn direct_light(scene: &Scene) -> Vec<Vec<u8>> {
         )
         .expect("renderer");
         renderer.output = OutputMode::DirectOnly;
+        if exact {
+            renderer
+                .use_exact_shadow_clipping()
+                .expect("exact pipelines");
+        }
         let mut set = VplSet::new(16, 16);
         let stats = set.recompute_all(&light(), &rays);
         let mut images = Vec::new();
@@ -263,6 +270,10 @@ fn direct_light(scene: &Scene) -> Vec<Vec<u8>> {
     drop(ctx);
     common::assert_silent(&log);
     out
+}
+
+fn direct_light(scene: &Scene) -> Vec<Vec<u8>> {
+    direct_light_with(scene, false)
 }
 
 /// Mean brightness of a 3x3 window around pixel (x, y).
@@ -285,12 +296,10 @@ fn pixel(vp: Mat4, p: Vec3) -> Option<(i32, i32)> {
     (x >= 2 && y >= 2 && x < W as i32 - 2 && y < H as i32 - 2).then_some((x, y))
 }
 
-#[test]
-fn the_shadow_maps_let_light_through_the_holes_only() {
-    let (scene, opaque) = scenes("shadow_maps");
-    let masked = direct_light(&scene);
-    let opaque_images = direct_light(&opaque);
-    let (masked_px, opaque_px) = (&masked[0], &opaque_images[0]);
+/// Under the spotlight, every hole cell of the quad that is big enough on screen lights its
+/// floor cell in `masked_px` and every opaque cell leaves its floor cell dark; `opaque_px` (the
+/// same scene without the mask) is dark under every cell.
+fn check_hole_shadows(masked_px: &[u8], opaque_px: &[u8]) {
     let vp = cameras()[0].view_proj();
     let (mut lit_holes, mut dark_cells, mut checked_holes) = (0, 0, 0);
     for i in 0..CELLS as i32 {
@@ -327,6 +336,19 @@ fn the_shadow_maps_let_light_through_the_holes_only() {
     );
     assert_eq!(lit_holes, checked_holes, "hole cells lit");
     assert!(dark_cells >= 3, "{dark_cells} opaque cells checked");
+}
+
+#[test]
+fn the_shadow_maps_let_light_through_the_holes_only() {
+    let (scene, opaque) = scenes("shadow_maps");
+    let masked = direct_light(&scene);
+    let opaque_images = direct_light(&opaque);
+    // The masked pass with the in-shader clipping (devices without shaderClipDistance) must
+    // let the same light through: the holes' cells below are checked in its image too.
+    let exact = direct_light_with(&scene, true);
+    for masked_px in [&masked[0], &exact[0]] {
+        check_hole_shadows(masked_px, &opaque_images[0]);
+    }
 
     // From beside the light: the G-buffer shows the lit green floor through every hole and the
     // white quad elsewhere; with the mask off, the quad everywhere.
