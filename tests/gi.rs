@@ -2,11 +2,13 @@
 //! shadow-map counts of incremental vs full recompute taken from the command recorder.
 
 use coherent::gi::geometry::WorldGeometry;
+use coherent::gi::light::Spotlight;
 use coherent::gi::session::{default_camera, LightPath};
 use coherent::gi::vpl::VplSet;
 use coherent::gi::{GiOptions, GiRenderer, OutputMode};
 use coherent::gpu::GpuContext;
-use coherent::scene::Scene;
+use coherent::scene::camera::Camera;
+use coherent::scene::{CameraPose, Scene};
 use glam::Vec3;
 
 /// Mean R/G over the pixels in a 7x7 window around the projection of `p`.
@@ -154,6 +156,42 @@ fn incremental_renders_at_most_budget_shadow_maps_full_renders_all() {
             .expect("frame");
         assert!(frame.chunks > 1);
         assert_eq!(frame.shadow_maps_rendered as usize, set.vpls().len());
+    }
+    drop(ctx);
+    assert_eq!(log.count(), 0, "validation messages: {:?}", log.messages());
+}
+
+#[test]
+fn empty_geometry_renders_dark_frames_in_every_shadow_variant() {
+    let ctx = GpuContext::headless().expect("context");
+    let log = ctx.validation_log();
+    {
+        let options = GiOptions {
+            width: 64,
+            height: 48,
+            vpl_layers: 4,
+            max_vpls: 4,
+            shadow_size: 32,
+        };
+        let mut r = GiRenderer::new(&ctx, &WorldGeometry::empty(), options).expect("renderer");
+        let pose = CameraPose {
+            eye: Vec3::new(0.0, 1.0, -3.0),
+            target: Vec3::ZERO,
+        };
+        let camera = Camera::from_pose(pose, 64.0 / 48.0, 20.0);
+        let light = Spotlight::new(Vec3::new(0.0, 2.0, 0.0), Vec3::NEG_Y, Vec3::ONE);
+        for exact in [false, true] {
+            if exact {
+                r.use_exact_shadow_clipping().expect("exact pipelines");
+            }
+            let frame = r.frame(&light, &[], &[], &camera).expect("frame");
+            assert_eq!(frame.shadow_maps_rendered, 0);
+            let px = r.read_output().expect("readback");
+            assert!(
+                px.chunks_exact(4).all(|p| p[..3] == [0, 0, 0]),
+                "nothing lit"
+            );
+        }
     }
     drop(ctx);
     assert_eq!(log.count(), 0, "validation messages: {:?}", log.messages());

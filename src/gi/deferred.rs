@@ -212,10 +212,12 @@ impl GBuffer {
             store: false,
         };
         rec.begin_rendering(&color, Some(depth), 1)?;
+        // Nothing to draw binds no vertex buffers (left bound for a later pipeline without
+        // vertex input, they draw a best-practices warning).
         let indexed = self
             .indexed
             .as_ref()
-            .filter(|_| self.masked_pipeline.is_none());
+            .filter(|_| self.masked_pipeline.is_none() && vertex_count > 0);
         match indexed {
             Some(ix) => {
                 rec.bind_pipeline(&ix.pipeline);

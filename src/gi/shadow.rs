@@ -335,6 +335,10 @@ impl ShadowMaps {
         vpl_maps: u32,
         spot: bool,
     ) -> u32 {
+        if pass.vertex_count == 0 {
+            // An empty scene casts no shadow: the cleared layers are its maps.
+            return 0;
+        }
         let (layout, indexed) = match (&self.masked, &self.indexed) {
             (Some(m), _) => {
                 rec.bind_pipeline(&m.pipeline);
