@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use ash::vk;
 
-use crate::error::{Error, Result};
-use crate::gi::geometry::VERTEX_FLOATS;
+use crate::error::Result;
+use crate::gi::geometry::{first_identical, VERTEX_FLOATS};
 use crate::gpu::{
     shaders, Attachment, Buffer, ComputePipeline, DescriptorSet, GpuContext, Image, ImageUse, Load,
     Pipeline, PipelineDesc, PipelineKind, PipelineLayout, Recorder,
@@ -152,32 +152,29 @@ impl GBuffer {
             ],
             ..gbuffer_desc()
         };
-        let mut indexed = IndexedGBuffer {
+        self.indexed = Some(IndexedGBuffer {
             pipeline: Pipeline::graphics(ctx, layout, &desc)?,
             indices,
-            vertices: vertex_floats.to_vec(),
-        };
-        indexed.upload()?;
-        self.indexed = Some(indexed);
-        Ok(())
+        });
+        self.reindex(vertex_floats)
     }
 
-    /// Moves vertices `first..` of the indexed pass's copy to `vertex_floats` and merges again
-    /// (nothing to do when the pass is not indexed). Call between frames.
-    pub fn move_vertices(&mut self, first: usize, vertex_floats: &[f32]) -> Result<()> {
-        let Some(ix) = &mut self.indexed else {
-            return Ok(());
-        };
-        let start = first * VERTEX_FLOATS;
-        let end = start + vertex_floats.len();
-        if end > ix.vertices.len() {
-            return Err(Error::Input(format!(
-                "moved vertices end at float {end}, past the G-buffer's {}",
-                ix.vertices.len()
-            )));
+    /// Whether the pass draws indexed (see [`GBuffer::enable_indexed`]).
+    pub fn indexed(&self) -> bool {
+        self.indexed.is_some()
+    }
+
+    /// Rewrites the indexed pass's indices for the vertex buffer's new contents
+    /// (`vertex_floats`, as in [`GBuffer::enable_indexed`]; the same vertex count); nothing to
+    /// do when the pass is not indexed. Call between frames, after vertices moved.
+    pub fn reindex(&mut self, vertex_floats: &[f32]) -> Result<()> {
+        match &mut self.indexed {
+            Some(ix) => {
+                let indices = first_identical::<VERTEX_FLOATS>(vertex_floats, VERTEX_FLOATS);
+                ix.indices.write(0, &crate::gpu::as_bytes(&indices))
+            }
+            None => Ok(()),
         }
-        ix.vertices[start..end].copy_from_slice(vertex_floats);
-        ix.upload()
     }
 
     /// Records the G-buffer pass (all `vertex_count` world-space vertices of `vertices`, pulled
@@ -289,39 +286,15 @@ impl GBuffer {
     }
 }
 
-/// The G-buffer pipeline: three color targets and depth, no culling.
 /// The indexed G-buffer pass: indices into the renderer's vertex buffer, each corner pointing
 /// at the first vertex with the same [`VERTEX_FLOATS`] floats.
 struct IndexedGBuffer {
     pipeline: Pipeline,
     /// One u32 per corner.
     indices: Buffer,
-    /// The vertex buffer's contents, kept to merge again after moves.
-    vertices: Vec<f32>,
 }
 
-impl IndexedGBuffer {
-    /// Merges the vertices and writes the indices.
-    fn upload(&mut self) -> Result<()> {
-        let indices = first_identical(&self.vertices);
-        self.indices.write(0, &crate::gpu::as_bytes(&indices))
-    }
-}
-
-/// For each vertex of `floats` ([`VERTEX_FLOATS`] floats each), the index of the first vertex
-/// with the same bits.
-fn first_identical(floats: &[f32]) -> Vec<u32> {
-    let mut first = std::collections::HashMap::with_capacity(floats.len() / VERTEX_FLOATS);
-    floats
-        .chunks_exact(VERTEX_FLOATS)
-        .enumerate()
-        .map(|(i, v)| {
-            let key: [u32; VERTEX_FLOATS] = std::array::from_fn(|k| v[k].to_bits());
-            *first.entry(key).or_insert(i as u32)
-        })
-        .collect()
-}
-
+/// The G-buffer pipeline: three color targets and depth, no culling.
 fn gbuffer_desc() -> PipelineDesc<'static> {
     PipelineDesc {
         name: "gi gbuffer",
@@ -337,22 +310,5 @@ fn gbuffer_desc() -> PipelineDesc<'static> {
         cull: vk::CullModeFlags::NONE,
         kind: PipelineKind::Other,
         depth_bias: (0.0, 0.0),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::{first_identical, VERTEX_FLOATS};
-
-    #[test]
-    fn identical_vertices_point_at_the_first() {
-        let mut floats = Vec::new();
-        for v in [0.0, 1.0, 0.0, 2.0, 1.0] {
-            floats.extend(std::iter::repeat_n(v, VERTEX_FLOATS));
-        }
-        // The same position with another normal is another vertex.
-        floats[VERTEX_FLOATS * 2 + 4] = 9.0;
-        assert_eq!(first_identical(&floats), [0, 1, 2, 3, 1]);
-        assert!(first_identical(&[]).is_empty());
     }
 }

@@ -224,6 +224,23 @@ impl WorldGeometry {
     }
 }
 
+/// For each vertex of `floats` (`stride` floats each), the index of the first vertex whose
+/// first `K` floats have the same bits: the index buffer of an indexed draw over the same
+/// vertices, where vertices that agree in those floats share an index (the shadow pass keys on
+/// the position, the G-buffer on the whole vertex).
+pub fn first_identical<const K: usize>(floats: &[f32], stride: usize) -> Vec<u32> {
+    let stride = stride.max(K).max(1);
+    let mut first = std::collections::HashMap::with_capacity(floats.len() / stride);
+    floats
+        .chunks_exact(stride)
+        .enumerate()
+        .map(|(i, v)| {
+            let key: [u32; K] = std::array::from_fn(|k| v[k].to_bits());
+            *first.entry(key).or_insert(i as u32)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod material_tests {
     use glam::{Mat4, Vec3, Vec4};
@@ -307,6 +324,52 @@ mod material_tests {
                 .abs()
                 .max_element()
                 < 1e-5
+        );
+    }
+}
+
+#[cfg(test)]
+mod index_tests {
+    use super::{first_identical, VERTEX_FLOATS};
+
+    #[test]
+    fn corners_at_one_position_share_an_index() {
+        // Two triangles sharing an edge, and a third apart (positions only).
+        let corners = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [5.0, 5.0, 5.0],
+            [6.0, 5.0, 5.0],
+            [5.0, 6.0, 5.0],
+        ];
+        let floats: Vec<f32> = corners.iter().flatten().copied().collect();
+        assert_eq!(
+            first_identical::<3>(&floats, 3),
+            [0, 1, 2, 1, 4, 2, 6, 7, 8]
+        );
+        assert!(first_identical::<3>(&[], 3).is_empty());
+    }
+
+    #[test]
+    fn only_the_key_floats_decide() {
+        let mut floats = Vec::new();
+        for v in [0.0, 1.0, 0.0, 2.0, 1.0] {
+            floats.extend(std::iter::repeat_n(v, VERTEX_FLOATS));
+        }
+        // The same position with another normal: another vertex by the whole vertex, the
+        // same by the position.
+        floats[VERTEX_FLOATS * 2 + 4] = 9.0;
+        assert_eq!(
+            first_identical::<VERTEX_FLOATS>(&floats, VERTEX_FLOATS),
+            [0, 1, 2, 3, 1]
+        );
+        assert_eq!(
+            first_identical::<3>(&floats, VERTEX_FLOATS),
+            [0, 1, 0, 3, 1]
         );
     }
 }

@@ -129,6 +129,9 @@ pub struct GiRenderer {
     stamps: Vec<Stamp>,
     oneshot: OneShot,
     vertex_count: u32,
+    /// The vertex buffer's contents, kept while a pass draws it indexed (its indices are
+    /// merged again after moves); empty otherwise.
+    vertex_data: Vec<f32>,
     max_vpls: u32,
     max_slots: u32,
     /// Entries of the VPL buffer (indexed by layer).
@@ -233,8 +236,12 @@ impl GiRenderer {
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
         let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
         enable_masks(ctx, &masks, &mut shadow, &mut gbuffer, &vertices, &slots)?;
-        shadow.enable_indexed(ctx, &graphics_layout, &vertex_data, VERTEX_FLOATS)?;
+        shadow.enable_indexed(ctx, &graphics_layout, &vertex_data)?;
         gbuffer.enable_indexed(ctx, &graphics_layout, &vertex_data)?;
+        let vertex_data = match shadow.indexed() || gbuffer.indexed() {
+            true => vertex_data,
+            false => Vec::new(),
+        };
         // Entries are indexed by layer, a whole number of chunks of `vpl_layers`.
         let vpl_entries = max_vpls.div_ceil(options.vpl_layers) * options.vpl_layers;
         let vpl_buffer = host_storage(ctx, "gi vpls", vpl_entries as usize * VPL_FLOATS)?;
@@ -274,6 +281,7 @@ impl GiRenderer {
             stamps: Vec::new(),
             oneshot: OneShot::new(ctx)?,
             vertex_count,
+            vertex_data,
             max_vpls,
             max_slots,
             vpl_entries,
@@ -334,9 +342,13 @@ impl GiRenderer {
         let offset = first as usize * 3 * VERTEX_FLOATS * 4;
         let moved = tail.gpu_vertices();
         self.vertices.write(offset, &as_bytes(&moved))?;
-        self.shadow
-            .move_vertices(first as usize * 3, &moved, VERTEX_FLOATS)?;
-        self.gbuffer.move_vertices(first as usize * 3, &moved)?;
+        if self.shadow.indexed() || self.gbuffer.indexed() {
+            // The indexed passes merge identical vertices of the whole buffer: again.
+            let start = offset / 4;
+            self.vertex_data[start..start + moved.len()].copy_from_slice(&moved);
+            self.shadow.reindex(&self.vertex_data)?;
+            self.gbuffer.reindex(&self.vertex_data)?;
+        }
         if let Some(ism) = &mut self.ism {
             ism.move_points(first, tail)?;
         }
@@ -575,6 +587,7 @@ impl GiRenderer {
         let pass = ShadowPass {
             layout: &self.graphics_layout,
             set: self.descriptors.get(0),
+            vertices: &self.vertices,
             vertex_count: self.vertex_count,
             far: self.far,
         };

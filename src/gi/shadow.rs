@@ -10,6 +10,7 @@ use std::sync::Arc;
 use ash::vk;
 
 use crate::error::{Error, Result};
+use crate::gi::geometry::{first_identical, VERTEX_FLOATS};
 use crate::gpu::{
     as_bytes, shaders, Attachment, Binding, Buffer, DescriptorSet, DescriptorSets, GpuContext,
     Image, ImageUse, Load, Pipeline, PipelineDesc, PipelineKind, PipelineLayout, Recorder,
@@ -135,54 +136,55 @@ impl ShadowMaps {
         Ok(())
     }
 
-    /// Draws later passes from an indexed copy of the positions in `vertex_floats` (the
-    /// renderer's vertices, `floats_per_vertex` each, position first): corners at the same
-    /// position share one vertex, so the vertex stage (lavapipe's bottleneck in this pass)
-    /// runs about once per vertex instead of three times per triangle. Needs
-    /// `shaderClipDistance` (the indexed shader clips in fixed function); without it, or with
-    /// masks enabled, this does nothing and the passes pull the vertices as before.
+    /// Draws later passes indexed over the renderer's vertex buffer (`vertex_floats`, its
+    /// contents, [`VERTEX_FLOATS`] per vertex, position first), the position read as a vertex
+    /// attribute: corners at the same position share an index, so the vertex stage (lavapipe's
+    /// bottleneck in this pass) runs about once per vertex instead of three times per
+    /// triangle. Needs `shaderClipDistance` (the indexed shader clips in fixed function);
+    /// without it, or with masks enabled, this does nothing and the passes pull the vertices
+    /// as before.
     pub fn enable_indexed(
         &mut self,
         ctx: &Arc<GpuContext>,
         layout: &PipelineLayout,
         vertex_floats: &[f32],
-        floats_per_vertex: usize,
     ) -> Result<()> {
         if !ctx.info.optional.shader_clip_distance || self.masked.is_some() {
             return Ok(());
         }
-        let corners = vertex_floats
-            .chunks_exact(floats_per_vertex.max(3))
-            .map(|v| [v[0], v[1], v[2]])
-            .collect();
-        self.indexed = Some(IndexedShadow::new(ctx, layout, corners)?);
-        Ok(())
+        let indices = Buffer::new(
+            ctx,
+            "gi shadow indices",
+            (vertex_floats.len() / VERTEX_FLOATS * 4).max(16) as u64,
+            vk::BufferUsageFlags::INDEX_BUFFER,
+            gpu_allocator::MemoryLocation::CpuToGpu,
+        )?;
+        let pipeline = Pipeline::graphics(
+            ctx,
+            layout,
+            &PipelineDesc {
+                name: "gi shadow indexed",
+                vert: shaders::GI_SHADOW_INDEXED_VERT,
+                vertex_stride: (VERTEX_FLOATS * 4) as u32,
+                attributes: &[(0, vk::Format::R32G32B32_SFLOAT, 0)],
+                ..shadow_desc(ctx)
+            },
+        )?;
+        self.indexed = Some(IndexedShadow { pipeline, indices });
+        self.reindex(vertex_floats)
     }
 
-    /// Moves vertices `first..` of the indexed copy to the positions in `vertex_floats` (the
-    /// same layout as [`ShadowMaps::enable_indexed`]'s) and merges again; nothing to do
-    /// without it (the passes read the renderer's vertex buffer). Call between frames.
-    pub fn move_vertices(
-        &mut self,
-        first: usize,
-        vertex_floats: &[f32],
-        floats_per_vertex: usize,
-    ) -> Result<()> {
-        let Some(ix) = &mut self.indexed else {
-            return Ok(());
-        };
-        let moved = vertex_floats.chunks_exact(floats_per_vertex.max(3));
-        let end = first + moved.len();
-        if end > ix.corners.len() {
-            return Err(Error::Input(format!(
-                "moved vertices {first}..{end} exceed the shadow mesh's {}",
-                ix.corners.len()
-            )));
+    /// Rewrites the indexed pass's indices for the vertex buffer's new contents
+    /// (`vertex_floats`, as in [`ShadowMaps::enable_indexed`]; the same vertex count); nothing
+    /// to do when the pass is not indexed. Call between frames, after vertices moved.
+    pub fn reindex(&mut self, vertex_floats: &[f32]) -> Result<()> {
+        match &mut self.indexed {
+            Some(ix) => {
+                let indices = first_identical::<3>(vertex_floats, VERTEX_FLOATS);
+                ix.indices.write(0, &as_bytes(&indices))
+            }
+            None => Ok(()),
         }
-        for (c, v) in ix.corners[first..end].iter_mut().zip(moved) {
-            *c = [v[0], v[1], v[2]];
-        }
-        ix.upload()
     }
 
     /// Renders later passes with the exact variant, which clips at the base plane in the
@@ -348,7 +350,7 @@ impl ShadowMaps {
             (None, Some(ix)) => {
                 rec.bind_pipeline(&ix.pipeline);
                 rec.bind_graphics_set(pass.layout, pass.set);
-                rec.bind_buffers(&ix.positions, 0, Some(&ix.indices));
+                rec.bind_buffers(pass.vertices, 0, Some(&ix.indices));
                 (pass.layout, true)
             }
             (None, None) => {
@@ -357,7 +359,7 @@ impl ShadowMaps {
                 (pass.layout, false)
             }
         };
-        // The indexed copy has one index per corner of the renderer's vertices, in order.
+        // The indexed pass has one index per vertex of the renderer's buffer, in order.
         let draw = |rec: &mut Recorder, instances: u32| match indexed {
             true => rec.draw_indexed(pass.vertex_count, instances, 0, 0, 0),
             false => rec.draw(pass.vertex_count, instances),
@@ -400,7 +402,10 @@ pub struct ShadowPass<'a> {
     pub layout: &'a PipelineLayout,
     /// Its descriptor set.
     pub set: DescriptorSet,
-    /// World-space vertices to draw (pulled from the storage buffer).
+    /// The renderer's vertex buffer (bound as vertex input by the indexed pass; the others pull
+    /// it through the set).
+    pub vertices: &'a Buffer,
+    /// World-space vertices to draw.
     pub vertex_count: u32,
     /// Depth normalization distance.
     pub far: f32,
@@ -423,11 +428,11 @@ impl MaskedShadow {
     fn desc(ctx: &GpuContext) -> PipelineDesc<'static> {
         PipelineDesc {
             name: "gi shadow masked",
-            vert: if ctx.info.optional.shader_clip_distance {
-                shaders::GI_SHADOW_MASKED_VERT
-            } else {
-                shaders::GI_SHADOW_MASKED_EXACT_VERT
-            },
+            vert: clip_variant(
+                ctx,
+                shaders::GI_SHADOW_MASKED_VERT,
+                shaders::GI_SHADOW_MASKED_EXACT_VERT,
+            ),
             frag: Some(shaders::GI_SHADOW_MASKED_FRAG),
             ..shadow_desc(ctx)
         }
@@ -474,92 +479,23 @@ impl MaskedShadow {
     }
 }
 
-/// The indexed shadow pass: the scene's corner positions merged where they are bit-identical
-/// (an index per corner, in the renderer's vertex order), read as a vertex attribute. The
-/// vertex stage then runs once per shared vertex (within the driver's vertex cache) and fetches
-/// 12 bytes, where the pulled variant runs three times per triangle.
+/// The indexed shadow pass: indices into the renderer's vertex buffer, each corner pointing at
+/// the first vertex with the same position; the position is read as a vertex attribute. The
+/// vertex stage then runs once per shared vertex (within the driver's vertex cache), where the
+/// pulled variant runs three times per triangle and reads all three corners.
 struct IndexedShadow {
     pipeline: Pipeline,
-    /// Merged positions, three floats each (room for every corner, so moves never grow it).
-    positions: Buffer,
     /// One u32 per corner.
     indices: Buffer,
-    /// The renderer's corner positions, kept to merge again after moves.
-    corners: Vec<[f32; 3]>,
 }
 
-impl IndexedShadow {
-    fn new(
-        ctx: &Arc<GpuContext>,
-        layout: &PipelineLayout,
-        corners: Vec<[f32; 3]>,
-    ) -> Result<IndexedShadow> {
-        let buffer = |name, bytes: u64, usage| {
-            Buffer::new(
-                ctx,
-                name,
-                bytes.max(16),
-                usage,
-                gpu_allocator::MemoryLocation::CpuToGpu,
-            )
-        };
-        let n = corners.len() as u64;
-        let positions = buffer(
-            "gi shadow positions",
-            n * 12,
-            vk::BufferUsageFlags::VERTEX_BUFFER,
-        )?;
-        let indices = buffer(
-            "gi shadow indices",
-            n * 4,
-            vk::BufferUsageFlags::INDEX_BUFFER,
-        )?;
-        let pipeline = Pipeline::graphics(
-            ctx,
-            layout,
-            &PipelineDesc {
-                name: "gi shadow indexed",
-                vert: shaders::GI_SHADOW_INDEXED_VERT,
-                vertex_stride: 12,
-                attributes: &[(0, vk::Format::R32G32B32_SFLOAT, 0)],
-                ..shadow_desc(ctx)
-            },
-        )?;
-        let mut ix = IndexedShadow {
-            pipeline,
-            positions,
-            indices,
-            corners,
-        };
-        ix.upload()?;
-        Ok(ix)
+/// The vertex shader that clips at the base plane with `gl_ClipDistance` (`fast`) where the
+/// device has `shaderClipDistance`, else the one that clips in the shader (`exact`).
+fn clip_variant(ctx: &GpuContext, fast: &'static [u8], exact: &'static [u8]) -> &'static [u8] {
+    match ctx.info.optional.shader_clip_distance {
+        true => fast,
+        false => exact,
     }
-
-    /// Merges the corners and writes both buffers.
-    fn upload(&mut self) -> Result<()> {
-        let (positions, indices) = merge_corners(&self.corners);
-        self.positions.write(0, &as_bytes(&positions))?;
-        self.indices.write(0, &as_bytes(&indices))?;
-        Ok(())
-    }
-}
-
-/// Corners at bit-identical positions become one vertex: returns the vertices (three floats
-/// each, in order of first use) and an index per corner.
-fn merge_corners(corners: &[[f32; 3]]) -> (Vec<f32>, Vec<u32>) {
-    let mut first_use = std::collections::HashMap::with_capacity(corners.len());
-    let mut positions = Vec::with_capacity(corners.len() * 3);
-    let indices = corners
-        .iter()
-        .map(|c| {
-            let key = c.map(f32::to_bits);
-            *first_use.entry(key).or_insert_with(|| {
-                positions.extend_from_slice(c);
-                (positions.len() / 3 - 1) as u32
-            })
-        })
-        .collect();
-    (positions, indices)
 }
 
 /// The opaque shadow pipeline: depth only, no culling, no bias. Its vertex shader clips at
@@ -568,11 +504,7 @@ fn merge_corners(corners: &[[f32; 3]]) -> (Vec<f32>, Vec<u32>) {
 fn shadow_desc(ctx: &GpuContext) -> PipelineDesc<'static> {
     PipelineDesc {
         name: "gi shadow",
-        vert: if ctx.info.optional.shader_clip_distance {
-            shaders::GI_SHADOW_VERT
-        } else {
-            shaders::GI_SHADOW_EXACT_VERT
-        },
+        vert: clip_variant(ctx, shaders::GI_SHADOW_VERT, shaders::GI_SHADOW_EXACT_VERT),
         frag: None,
         vertex_stride: 0,
         attributes: &[],
@@ -586,33 +518,5 @@ fn shadow_desc(ctx: &GpuContext) -> PipelineDesc<'static> {
         kind: PipelineKind::Other,
         // The bias is applied at lookup time (distance-proportional, see gi_gather.comp).
         depth_bias: (0.0, 0.0),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::merge_corners;
-
-    #[test]
-    fn corners_at_one_position_share_a_vertex() {
-        // Two triangles sharing an edge, and a third apart.
-        let corners = [
-            [0.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [5.0, 5.0, 5.0],
-            [6.0, 5.0, 5.0],
-            [5.0, 6.0, 5.0],
-        ];
-        let (positions, indices) = merge_corners(&corners);
-        assert_eq!(indices, [0, 1, 2, 1, 3, 2, 4, 5, 6]);
-        assert_eq!(positions.len(), 7 * 3);
-        for (c, &i) in corners.iter().zip(&indices) {
-            assert_eq!(&positions[i as usize * 3..i as usize * 3 + 3], c);
-        }
-        assert_eq!(merge_corners(&[]), (vec![], vec![]));
     }
 }
