@@ -23,14 +23,6 @@ fn temp_dir(test: &str) -> PathBuf {
     dir
 }
 
-fn png(w: u32, h: u32, rgba: Vec<u8>) -> Vec<u8> {
-    let img = image::RgbaImage::from_raw(w, h, rgba).expect("image");
-    let mut out = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut out, image::ImageFormat::Png)
-        .expect("png");
-    out.into_inner()
-}
-
 /// 8x8 checker: texel (x, y) white when x + y is even, else black.
 fn checker_png() -> Vec<u8> {
     let rgba = (0..64)
@@ -39,12 +31,12 @@ fn checker_png() -> Vec<u8> {
             [c, c, c, 255]
         })
         .collect();
-    png(8, 8, rgba)
+    common::png(8, 8, rgba)
 }
 
 /// 2x1 red: the left texel transparent, the right one opaque.
 fn mask_png() -> Vec<u8> {
-    png(2, 1, vec![255, 0, 0, 0, 255, 0, 0, 255])
+    common::png(2, 1, vec![255, 0, 0, 0, 255, 0, 0, 255])
 }
 
 fn base64(data: &[u8]) -> String {

@@ -27,14 +27,6 @@ const CELLS: u32 = 4;
 const W: u32 = 320;
 const H: u32 = 240;
 
-fn png(w: u32, h: u32, rgba: Vec<u8>) -> Vec<u8> {
-    let img = image::RgbaImage::from_raw(w, h, rgba).expect("image");
-    let mut out = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut out, image::ImageFormat::Png)
-        .expect("png");
-    out.into_inner()
-}
-
 /// Whether checker texel (i, j) (i along u = x, j along v = z) is a hole.
 fn hole(i: i32, j: i32) -> bool {
     (i + j) % 2 != 0
@@ -46,7 +38,7 @@ fn holes_png() -> Vec<u8> {
     let rgba = (0..n * n)
         .flat_map(|k| [255, 255, 255, if hole(k % n, k / n) { 0 } else { 255 }])
         .collect();
-    png(CELLS, CELLS, rgba)
+    common::png(CELLS, CELLS, rgba)
 }
 
 /// A horizontal quad at height `y` from (x0, z0) to (x1, z1), facing +Y, with texture

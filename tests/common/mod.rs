@@ -101,3 +101,13 @@ pub fn setup(tris: Vec<u32>, size: (u32, u32), query_ms: f64) -> coherent::culli
         ..Default::default()
     }
 }
+
+/// `rgba` (`w` x `h` RGBA8) encoded as a PNG file's bytes (textures of the glTF files tests
+/// write).
+pub fn png(w: u32, h: u32, rgba: Vec<u8>) -> Vec<u8> {
+    let img = image::RgbaImage::from_raw(w, h, rgba).expect("image");
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png)
+        .expect("png");
+    out.into_inner()
+}
