@@ -4,7 +4,9 @@
 //! the oracle's object draws at the same pose. Validation off; one line per frame on stdout
 //! (tab separated, with a header), medians at the end.
 //!
-//! Run: `cargo run --release --example chcpp_profile -- [scene] [path] [frames] [WxH]`
+//! Run: `cargo run --release --example chcpp_profile -- [scene] [path] [frames] [WxH] [scale]
+//! [no-oracle]` (`no-oracle` skips the oracle, whose exact ID pass dominates large scales; its column is
+//! then NaN)
 
 use anyhow::Result;
 use coherent::bvh::ObjectBvh;
@@ -29,8 +31,10 @@ fn main() -> Result<()> {
         .and_then(|s| s.split_once('x'))
         .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
         .unwrap_or((640, 360));
+    let scale: f32 = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(1.0);
+    let with_oracle = args.get(6).map(String::as_str) != Some("no-oracle");
     let ctx = GpuContext::new(&ContextOptions::default())?;
-    let scene = Scene::load(scene_name, 1.0, 4096)?;
+    let scene = Scene::load(scene_name, scale, 4096)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, 1);
     let path = scene.path(path_name)?.clone();
@@ -49,6 +53,8 @@ fn main() -> Result<()> {
         "v_queries",
         "multi",
         "failed",
+        "visible_results",
+        "query_culled",
         "batches",
         "state_changes",
         "submits",
@@ -59,7 +65,12 @@ fn main() -> Result<()> {
     for i in 0..frames + warmup {
         let cam = renderer.camera(path.sample(i, frames + warmup), &bvh);
         let r = renderer.render_frame(&mut chcpp, &bvh, &cam, i as u64)?;
-        let o = renderer.render_frame(oracle.as_mut(), &bvh, &cam, i as u64)?;
+        let oracle_draws = if with_oracle {
+            let o = renderer.render_frame(oracle.as_mut(), &bvh, &cam, i as u64)?;
+            o.counts.object_draws as f64
+        } else {
+            f64::NAN
+        };
         if i < warmup {
             continue;
         }
@@ -68,13 +79,15 @@ fn main() -> Result<()> {
             r.frame_ms,
             r.stall_ms,
             r.counts.object_draws as f64,
-            o.counts.object_draws as f64,
+            oracle_draws,
             r.counts.query_draws as f64,
             r.counts.queries_begun as f64,
             r.cull.invisible_node_queries as f64,
             r.cull.visible_leaf_queries as f64,
             r.cull.multiqueries as f64,
             r.cull.failed_multiqueries as f64,
+            r.cull.visible_results as f64,
+            r.cull.query_culled as f64,
             r.cull.query_batches as f64,
             r.counts.state_changes as f64,
             r.counts.submits as f64,
