@@ -73,6 +73,16 @@ fn vpl(position: Vec3, normal: Vec3, layer: u32) -> Vpl {
     }
 }
 
+/// A: high above the floor looking down, the occluder between it and the floor. B: low at the
+/// floor's near edge, tilted away: the occluder is behind its base plane, the strip of floor at
+/// z < -1.56 in front of it.
+fn two_vpls() -> [Vpl; 2] {
+    [
+        vpl(Vec3::new(0.0, 2.0, 0.0), Vec3::NEG_Y, 0),
+        vpl(Vec3::new(0.0, 0.2, -1.5), Vec3::new(0.0, 0.3, -1.0), 1),
+    ]
+}
+
 fn camera() -> Camera {
     Camera::from_pose(
         CameraPose {
@@ -106,13 +116,7 @@ fn a_moved_occluder_changes_only_the_map_of_the_vpl_that_sees_it() {
     let (ctx, log) = common::context();
     {
         let light = Spotlight::new(Vec3::new(0.0, 3.0, 0.0), Vec3::NEG_Y, Vec3::splat(40.0));
-        // A: high above the floor looking down, the occluder between it and the floor.
-        // B: low at the floor's near edge, tilted away: the occluder is behind its base plane,
-        // the strip of floor at z < -1.56 in front of it.
-        let vpls = [
-            vpl(Vec3::new(0.0, 2.0, 0.0), Vec3::NEG_Y, 0),
-            vpl(Vec3::new(0.0, 0.2, -1.5), Vec3::new(0.0, 0.3, -1.0), 1),
-        ];
+        let vpls = two_vpls();
         let (before, after) = (Mat4::IDENTITY, Mat4::from_translation(Vec3::X));
         let mut scene = floor();
         let first = scene.triangles.len() as u32;
@@ -168,10 +172,7 @@ fn a_mover_merged_with_a_static_twin_is_drawn_where_it_moved() {
     let (ctx, log) = common::context();
     {
         let light = Spotlight::new(Vec3::new(0.0, 3.0, 0.0), Vec3::NEG_Y, Vec3::splat(40.0));
-        let vpls = [
-            vpl(Vec3::new(0.0, 2.0, 0.0), Vec3::NEG_Y, 0),
-            vpl(Vec3::new(0.0, 0.2, -1.5), Vec3::new(0.0, 0.3, -1.0), 1),
-        ];
+        let vpls = two_vpls();
         // A static copy of the occluder, then the mover at the same place: every vertex of the
         // mover is bit-identical to one of the static copy's, so the indexed passes point the
         // mover's corners at the static ones until they are merged again after the move.

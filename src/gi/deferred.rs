@@ -7,7 +7,7 @@ use std::sync::Arc;
 use ash::vk;
 
 use crate::error::Result;
-use crate::gi::geometry::{first_identical, VERTEX_FLOATS};
+use crate::gi::geometry::{SharedCorners, VERTEX_FLOATS};
 use crate::gpu::{
     shaders, Attachment, Buffer, ComputePipeline, DescriptorSet, GpuContext, Image, ImageUse, Load,
     Pipeline, PipelineDesc, PipelineKind, PipelineLayout, Recorder,
@@ -134,13 +134,6 @@ impl GBuffer {
         if self.masked_pipeline.is_some() {
             return Ok(());
         }
-        let indices = Buffer::new(
-            ctx,
-            "gi gbuffer indices",
-            (vertex_floats.len() / VERTEX_FLOATS * 4).max(16) as u64,
-            vk::BufferUsageFlags::INDEX_BUFFER,
-            gpu_allocator::MemoryLocation::CpuToGpu,
-        )?;
         let desc = PipelineDesc {
             name: "gi gbuffer indexed",
             vert: shaders::GI_GBUFFER_INDEXED_VERT,
@@ -154,9 +147,9 @@ impl GBuffer {
         };
         self.indexed = Some(IndexedGBuffer {
             pipeline: Pipeline::graphics(ctx, layout, &desc)?,
-            indices,
+            indices: SharedCorners::new(ctx, "gi gbuffer indices", vertex_floats)?,
         });
-        self.reindex(vertex_floats)
+        Ok(())
     }
 
     /// Whether the pass draws indexed (see [`GBuffer::enable_indexed`]).
@@ -169,10 +162,7 @@ impl GBuffer {
     /// do when the pass is not indexed. Call between frames, after vertices moved.
     pub fn reindex(&mut self, vertex_floats: &[f32]) -> Result<()> {
         match &mut self.indexed {
-            Some(ix) => {
-                let indices = first_identical::<VERTEX_FLOATS>(vertex_floats, VERTEX_FLOATS);
-                ix.indices.write(0, &crate::gpu::as_bytes(&indices))
-            }
+            Some(ix) => ix.indices.rewrite(vertex_floats),
             None => Ok(()),
         }
     }
@@ -218,7 +208,7 @@ impl GBuffer {
         match indexed {
             Some(ix) => {
                 rec.bind_pipeline(&ix.pipeline);
-                rec.bind_buffers(vertices, 0, Some(&ix.indices));
+                rec.bind_buffers(vertices, 0, Some(ix.indices.buffer()));
             }
             None => {
                 rec.bind_pipeline(
@@ -290,8 +280,8 @@ impl GBuffer {
 /// at the first vertex with the same [`VERTEX_FLOATS`] floats.
 struct IndexedGBuffer {
     pipeline: Pipeline,
-    /// One u32 per corner.
-    indices: Buffer,
+    /// Identical vertices share an index.
+    indices: SharedCorners<VERTEX_FLOATS>,
 }
 
 /// The G-buffer pipeline: three color targets and depth, no culling.

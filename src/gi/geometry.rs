@@ -241,6 +241,46 @@ pub fn first_identical<const K: usize>(floats: &[f32], stride: usize) -> Vec<u32
         .collect()
 }
 
+/// The index buffer of an indexed pass over the GI vertex buffer ([`VERTEX_FLOATS`] floats per
+/// vertex): one u32 per corner, pointing at the first vertex whose first `K` floats are
+/// bit-identical ([`first_identical`]). The shadow pass keys on the position (`K` = 3), the
+/// G-buffer on the whole vertex.
+pub(crate) struct SharedCorners<const K: usize> {
+    indices: crate::gpu::Buffer,
+}
+
+impl<const K: usize> SharedCorners<K> {
+    /// A host-visible index buffer for `vertex_floats`' vertices, filled.
+    pub(crate) fn new(
+        ctx: &std::sync::Arc<crate::gpu::GpuContext>,
+        name: &str,
+        vertex_floats: &[f32],
+    ) -> crate::error::Result<Self> {
+        let indices = crate::gpu::Buffer::new(
+            ctx,
+            name,
+            (vertex_floats.len() / VERTEX_FLOATS * 4).max(16) as u64,
+            ash::vk::BufferUsageFlags::INDEX_BUFFER,
+            gpu_allocator::MemoryLocation::CpuToGpu,
+        )?;
+        let mut shared = SharedCorners { indices };
+        shared.rewrite(vertex_floats)?;
+        Ok(shared)
+    }
+
+    /// Rewrites the indices for the vertex buffer's new contents (the same vertex count), e.g.
+    /// after vertices moved.
+    pub(crate) fn rewrite(&mut self, vertex_floats: &[f32]) -> crate::error::Result<()> {
+        let indices = first_identical::<K>(vertex_floats, VERTEX_FLOATS);
+        self.indices.write(0, &crate::gpu::as_bytes(&indices))
+    }
+
+    /// The index buffer to bind.
+    pub(crate) fn buffer(&self) -> &crate::gpu::Buffer {
+        &self.indices
+    }
+}
+
 #[cfg(test)]
 mod material_tests {
     use glam::{Mat4, Vec3, Vec4};

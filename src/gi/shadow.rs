@@ -10,7 +10,7 @@ use std::sync::Arc;
 use ash::vk;
 
 use crate::error::{Error, Result};
-use crate::gi::geometry::{first_identical, VERTEX_FLOATS};
+use crate::gi::geometry::{SharedCorners, VERTEX_FLOATS};
 use crate::gpu::{
     as_bytes, shaders, Attachment, Binding, Buffer, DescriptorSet, DescriptorSets, GpuContext,
     Image, ImageUse, Load, Pipeline, PipelineDesc, PipelineKind, PipelineLayout, Recorder,
@@ -152,13 +152,6 @@ impl ShadowMaps {
         if !ctx.info.optional.shader_clip_distance || self.masked.is_some() {
             return Ok(());
         }
-        let indices = Buffer::new(
-            ctx,
-            "gi shadow indices",
-            (vertex_floats.len() / VERTEX_FLOATS * 4).max(16) as u64,
-            vk::BufferUsageFlags::INDEX_BUFFER,
-            gpu_allocator::MemoryLocation::CpuToGpu,
-        )?;
         let pipeline = Pipeline::graphics(
             ctx,
             layout,
@@ -170,8 +163,9 @@ impl ShadowMaps {
                 ..shadow_desc(ctx)
             },
         )?;
+        let indices = SharedCorners::new(ctx, "gi shadow indices", vertex_floats)?;
         self.indexed = Some(IndexedShadow { pipeline, indices });
-        self.reindex(vertex_floats)
+        Ok(())
     }
 
     /// Rewrites the indexed pass's indices for the vertex buffer's new contents
@@ -179,10 +173,7 @@ impl ShadowMaps {
     /// to do when the pass is not indexed. Call between frames, after vertices moved.
     pub fn reindex(&mut self, vertex_floats: &[f32]) -> Result<()> {
         match &mut self.indexed {
-            Some(ix) => {
-                let indices = first_identical::<3>(vertex_floats, VERTEX_FLOATS);
-                ix.indices.write(0, &as_bytes(&indices))
-            }
+            Some(ix) => ix.indices.rewrite(vertex_floats),
             None => Ok(()),
         }
     }
@@ -350,7 +341,7 @@ impl ShadowMaps {
             (None, Some(ix)) => {
                 rec.bind_pipeline(&ix.pipeline);
                 rec.bind_graphics_set(pass.layout, pass.set);
-                rec.bind_buffers(pass.vertices, 0, Some(&ix.indices));
+                rec.bind_buffers(pass.vertices, 0, Some(ix.indices.buffer()));
                 (pass.layout, true)
             }
             (None, None) => {
@@ -485,8 +476,8 @@ impl MaskedShadow {
 /// pulled variant runs three times per triangle and reads all three corners.
 struct IndexedShadow {
     pipeline: Pipeline,
-    /// One u32 per corner.
-    indices: Buffer,
+    /// Corners at one position share an index.
+    indices: SharedCorners<3>,
 }
 
 /// The vertex shader that clips at the base plane with `gl_ClipDistance` (`fast`) where the
