@@ -1,6 +1,8 @@
 //! The scene flattened to world-space triangles for GI: one list feeds the CPU ray caster
 //! ([`RayScene`]) and, expanded to non-indexed vertices, the GPU passes (vertex pulling).
 
+use std::collections::HashMap;
+
 use glam::{Mat3, Mat4, Vec3};
 
 use super::mask::{TriangleMask, TriangleMasks};
@@ -229,16 +231,91 @@ impl WorldGeometry {
 /// vertices, where vertices that agree in those floats share an index (the shadow pass keys on
 /// the position, the G-buffer on the whole vertex).
 pub fn first_identical<const K: usize>(floats: &[f32], stride: usize) -> Vec<u32> {
+    let mut indices = Vec::new();
+    first_identical_from::<K>(floats, stride, 0, &HashMap::new(), &mut indices);
+    indices
+}
+
+/// One vertex's key: the bits of its first `K` floats.
+fn corner_key<const K: usize>(vertex: &[f32]) -> [u32; K] {
+    std::array::from_fn(|k| vertex[k].to_bits())
+}
+
+/// [`first_identical`] for the vertices from `first` on, given `prefix`: the key of every
+/// vertex before `first`, mapped to the first vertex with that key. `indices` keeps its
+/// entries before `first` and gets the rest.
+fn first_identical_from<const K: usize>(
+    floats: &[f32],
+    stride: usize,
+    first: usize,
+    prefix: &HashMap<[u32; K], u32>,
+    indices: &mut Vec<u32>,
+) {
     let stride = stride.max(K).max(1);
-    let mut first = std::collections::HashMap::with_capacity(floats.len() / stride);
-    floats
-        .chunks_exact(stride)
-        .enumerate()
-        .map(|(i, v)| {
-            let key: [u32; K] = std::array::from_fn(|k| v[k].to_bits());
-            *first.entry(key).or_insert(i as u32)
-        })
-        .collect()
+    let count = floats.len() / stride;
+    indices.truncate(first);
+    let mut tail = HashMap::with_capacity(count.saturating_sub(first));
+    for (i, v) in floats.chunks_exact(stride).enumerate().skip(first) {
+        let key = corner_key::<K>(v);
+        let index = match prefix.get(&key) {
+            Some(&j) => j,
+            None => *tail.entry(key).or_insert(i as u32),
+        };
+        indices.push(index);
+    }
+}
+
+/// [`first_identical`] kept up to date while vertices from some point on change (the renderer's
+/// moving tail): the keys of the unchanged vertices before that point are hashed once, the
+/// first time a tail changes, so a change re-hashes only the tail. Until then nothing but the
+/// indices is kept (a scene without movers pays no map).
+pub(crate) struct CornerIndex<const K: usize> {
+    stride: usize,
+    indices: Vec<u32>,
+    /// Key of every vertex before `hashed`, to the first vertex with that key.
+    prefix: HashMap<[u32; K], u32>,
+    hashed: usize,
+}
+
+impl<const K: usize> CornerIndex<K> {
+    /// The indices of `floats` (`stride` floats per vertex).
+    pub(crate) fn new(floats: &[f32], stride: usize) -> Self {
+        CornerIndex {
+            stride,
+            indices: first_identical::<K>(floats, stride),
+            prefix: HashMap::new(),
+            hashed: 0,
+        }
+    }
+
+    /// The indices, one per vertex.
+    pub(crate) fn indices(&self) -> &[u32] {
+        &self.indices
+    }
+
+    /// Updates the indices after the vertices from `first` on changed (`floats` is the whole
+    /// buffer, the same vertex count as before); returns `first`, the first index that may
+    /// have changed: an index depends only on the vertices up to its own.
+    pub(crate) fn update(&mut self, floats: &[f32], first: usize) -> usize {
+        let stride = self.stride.max(K).max(1);
+        let first = first.min(floats.len() / stride);
+        if first < self.hashed {
+            // Keys first seen at `first` or later are not in the new prefix.
+            self.prefix.retain(|_, &mut i| (i as usize) < first);
+        } else {
+            for (i, v) in floats
+                .chunks_exact(stride)
+                .enumerate()
+                .take(first)
+                .skip(self.hashed)
+            {
+                self.prefix.entry(corner_key::<K>(v)).or_insert(i as u32);
+            }
+        }
+        self.hashed = first;
+        first_identical_from::<K>(floats, stride, first, &self.prefix, &mut self.indices);
+        first
+    }
 }
 
 /// The index buffer of an indexed pass over the GI vertex buffer ([`VERTEX_FLOATS`] floats per
@@ -247,6 +324,7 @@ pub fn first_identical<const K: usize>(floats: &[f32], stride: usize) -> Vec<u32
 /// G-buffer on the whole vertex.
 pub(crate) struct SharedCorners<const K: usize> {
     indices: crate::gpu::Buffer,
+    corners: CornerIndex<K>,
 }
 
 impl<const K: usize> SharedCorners<K> {
@@ -256,23 +334,29 @@ impl<const K: usize> SharedCorners<K> {
         name: &str,
         vertex_floats: &[f32],
     ) -> crate::error::Result<Self> {
-        let indices = crate::gpu::Buffer::new(
+        let mut indices = crate::gpu::Buffer::new(
             ctx,
             name,
             (vertex_floats.len() / VERTEX_FLOATS * 4).max(16) as u64,
             ash::vk::BufferUsageFlags::INDEX_BUFFER,
             gpu_allocator::MemoryLocation::CpuToGpu,
         )?;
-        let mut shared = SharedCorners { indices };
-        shared.rewrite(vertex_floats)?;
-        Ok(shared)
+        let corners = CornerIndex::new(vertex_floats, VERTEX_FLOATS);
+        indices.write(0, &crate::gpu::as_bytes(corners.indices()))?;
+        Ok(SharedCorners { indices, corners })
     }
 
-    /// Rewrites the indices for the vertex buffer's new contents (the same vertex count), e.g.
-    /// after vertices moved.
-    pub(crate) fn rewrite(&mut self, vertex_floats: &[f32]) -> crate::error::Result<()> {
-        let indices = first_identical::<K>(vertex_floats, VERTEX_FLOATS);
-        self.indices.write(0, &crate::gpu::as_bytes(&indices))
+    /// Rewrites the indices after the vertices from `first_vertex` on changed (the buffer's
+    /// new contents, the same vertex count), e.g. after objects at the buffer's tail moved:
+    /// only the indices from `first_vertex` on are recomputed and written.
+    pub(crate) fn rewrite(
+        &mut self,
+        vertex_floats: &[f32],
+        first_vertex: usize,
+    ) -> crate::error::Result<()> {
+        let from = self.corners.update(vertex_floats, first_vertex);
+        let changed = &self.corners.indices()[from..];
+        self.indices.write(from * 4, &crate::gpu::as_bytes(changed))
     }
 
     /// The index buffer to bind.
@@ -370,7 +454,7 @@ mod material_tests {
 
 #[cfg(test)]
 mod index_tests {
-    use super::{first_identical, VERTEX_FLOATS};
+    use super::{first_identical, CornerIndex, VERTEX_FLOATS};
 
     #[test]
     fn corners_at_one_position_share_an_index() {
@@ -411,5 +495,36 @@ mod index_tests {
             first_identical::<3>(&floats, VERTEX_FLOATS),
             [0, 1, 0, 3, 1]
         );
+    }
+
+    #[test]
+    fn tail_updates_equal_a_full_rebuild() {
+        // 64 vertices of 3 floats drawn from 6 values each, so many keys repeat; then tails
+        // from changing points (later, earlier, the same, the end) are overwritten.
+        let mut seed = 0x2545_f491_u32;
+        let mut next = move || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            seed >> 16
+        };
+        let mut floats: Vec<f32> = (0..64 * 3).map(|_| (next() % 6) as f32).collect();
+        let mut index = CornerIndex::<3>::new(&floats, 3);
+        assert_eq!(index.indices(), first_identical::<3>(&floats, 3));
+        for first in [40usize, 40, 50, 10, 30, 64, 0, 63] {
+            for f in &mut floats[first * 3..] {
+                *f = (next() % 6) as f32;
+            }
+            let before = index.indices()[..first].to_vec();
+            assert_eq!(index.update(&floats, first), first);
+            assert_eq!(
+                index.indices(),
+                first_identical::<3>(&floats, 3),
+                "tail from {first}"
+            );
+            assert_eq!(
+                index.indices()[..first],
+                before[..],
+                "prefix before {first} kept"
+            );
+        }
     }
 }

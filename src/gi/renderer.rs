@@ -343,11 +343,13 @@ impl GiRenderer {
         let moved = tail.gpu_vertices();
         self.vertices.write(offset, &as_bytes(&moved))?;
         if self.shadow.indexed() || self.gbuffer.indexed() {
-            // The indexed passes merge identical vertices of the whole buffer: again.
+            // The indexed passes merge identical vertices: the moved ones again (with each
+            // other and with the unchanged vertices before them).
             let start = offset / 4;
             self.vertex_data[start..start + moved.len()].copy_from_slice(&moved);
-            self.shadow.reindex(&self.vertex_data)?;
-            self.gbuffer.reindex(&self.vertex_data)?;
+            let first_vertex = first as usize * 3;
+            self.shadow.reindex(&self.vertex_data, first_vertex)?;
+            self.gbuffer.reindex(&self.vertex_data, first_vertex)?;
         }
         if let Some(ism) = &mut self.ism {
             ism.move_points(first, tail)?;

@@ -168,12 +168,13 @@ impl ShadowMaps {
         Ok(())
     }
 
-    /// Rewrites the indexed pass's indices for the vertex buffer's new contents
-    /// (`vertex_floats`, as in [`ShadowMaps::enable_indexed`]; the same vertex count); nothing
-    /// to do when the pass is not indexed. Call between frames, after vertices moved.
-    pub fn reindex(&mut self, vertex_floats: &[f32]) -> Result<()> {
+    /// Rewrites the indexed pass's indices after the vertices from `first_vertex` on changed
+    /// (`vertex_floats` is the whole buffer's new contents, as in [`ShadowMaps::enable_indexed`];
+    /// the same vertex count): only those vertices are hashed again. Nothing to do when the
+    /// pass is not indexed. Call between frames, after vertices moved.
+    pub fn reindex(&mut self, vertex_floats: &[f32], first_vertex: usize) -> Result<()> {
         match &mut self.indexed {
-            Some(ix) => ix.indices.rewrite(vertex_floats),
+            Some(ix) => ix.indices.rewrite(vertex_floats, first_vertex),
             None => Ok(()),
         }
     }
