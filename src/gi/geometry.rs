@@ -270,6 +270,7 @@ fn first_identical_from<const K: usize>(
 /// first time a tail changes, so a change re-hashes only the tail. Until then nothing but the
 /// indices is kept (a scene without movers pays no map).
 pub(crate) struct CornerIndex<const K: usize> {
+    /// Floats per vertex, at least `K` (as [`first_identical`] reads it).
     stride: usize,
     indices: Vec<u32>,
     /// Key of every vertex before `hashed`, to the first vertex with that key.
@@ -281,7 +282,7 @@ impl<const K: usize> CornerIndex<K> {
     /// The indices of `floats` (`stride` floats per vertex).
     pub(crate) fn new(floats: &[f32], stride: usize) -> Self {
         CornerIndex {
-            stride,
+            stride: stride.max(K).max(1),
             indices: first_identical::<K>(floats, stride),
             prefix: HashMap::new(),
             hashed: 0,
@@ -297,7 +298,7 @@ impl<const K: usize> CornerIndex<K> {
     /// buffer, the same vertex count as before); returns `first`, the first index that may
     /// have changed: an index depends only on the vertices up to its own.
     pub(crate) fn update(&mut self, floats: &[f32], first: usize) -> usize {
-        let stride = self.stride.max(K).max(1);
+        let stride = self.stride;
         let first = first.min(floats.len() / stride);
         if first < self.hashed {
             // Keys first seen at `first` or later are not in the new prefix.
