@@ -1,6 +1,8 @@
 //! Where a CHC++ frame goes on a walk: per frame, the recorder's counts (object draws, query
 //! draws, state changes, submits), the stall, and the algorithm's own split of its queries
-//! (i-queue nodes, v-queue leaves, multiqueries and how many failed, query batches), next to
+//! (previously invisible nodes tested, i-queue queries, v-queue leaves, multiqueries and how many failed, query batches, those issued
+//! because the i-queue held `b` nodes, nodes re-queried after a failed multiquery, and the
+//! round trips: times the traversal ran dry and blocked on a result), next to
 //! the oracle's object draws at the same pose. Validation off; one line per frame on stdout
 //! (tab separated, with a header), medians at the end.
 //!
@@ -49,6 +51,7 @@ fn main() -> Result<()> {
         "oracle_draws",
         "query_draws",
         "queries",
+        "i_nodes",
         "i_queries",
         "v_queries",
         "multi",
@@ -56,6 +59,9 @@ fn main() -> Result<()> {
         "visible_results",
         "query_culled",
         "batches",
+        "full_batches",
+        "requeried",
+        "waits",
         "state_changes",
         "submits",
     ];
@@ -82,6 +88,7 @@ fn main() -> Result<()> {
             oracle_draws,
             r.counts.query_draws as f64,
             r.counts.queries_begun as f64,
+            r.cull.invisible_nodes_tested as f64,
             r.cull.invisible_node_queries as f64,
             r.cull.visible_leaf_queries as f64,
             r.cull.multiqueries as f64,
@@ -89,6 +96,9 @@ fn main() -> Result<()> {
             r.cull.visible_results as f64,
             r.cull.query_culled as f64,
             r.cull.query_batches as f64,
+            r.cull.full_batches as f64,
+            r.cull.requeried as f64,
+            r.cull.blocking_waits as f64,
             r.counts.state_changes as f64,
             r.counts.submits as f64,
         ];

@@ -474,6 +474,11 @@ impl Chcpp {
         if self.i_queue.is_empty() && self.requery.is_empty() {
             return Ok(());
         }
+        // Issued before the traversal ran dry only once it holds `b` nodes; at the end of the
+        // traversal it holds fewer.
+        if self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size() {
+            stats.full_batches += 1;
+        }
         self.flush_render_queue(backend)?;
         stats.query_batches += 1;
         // Nodes of failed multiqueries: one query each.
@@ -618,6 +623,7 @@ impl Chcpp {
         if visible && q.count > 1 {
             // A failed multiquery: each node is queried on its own in the next batch.
             stats.failed_multiqueries += 1;
+            stats.requeried += q.count;
             self.requery.extend_from_slice(&self.query_nodes[nodes]);
             if self.requery.len() + self.i_queue.len() >= self.params.batch_size.max(1) {
                 self.issue_i_queue(bvh, backend, stats)?;
@@ -711,6 +717,7 @@ impl Chcpp {
                 }
                 None => {
                     self.flush_render_queue(backend)?;
+                    stats.blocking_waits += 1;
                     backend.wait_query(id)?
                 }
             };
@@ -807,6 +814,7 @@ impl Chcpp {
         }
         s.last_visited = self.frame;
         s.tested = true;
+        stats.invisible_nodes_tested += 1;
         if self.params.batching {
             self.i_queue.push(node);
             if self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size() {
@@ -1123,12 +1131,16 @@ mod tests {
     use glam::Vec3;
 
     /// A backend without a GPU: a query sees pixels when one of its boxes touches a region
-    /// marked visible. Results are ready at once. It logs every query's box count.
+    /// marked visible. Results are ready at once, or with `hold` only after a wait, which
+    /// completes everything issued so far (a device that runs in order). It logs every
+    /// query's box count.
     #[derive(Default)]
     struct Mock {
         visible: Vec<Aabb>,
         results: Vec<u64>,
         boxes_per_query: Vec<usize>,
+        hold: bool,
+        completed: usize,
     }
 
     fn touches(a: &Aabb, b: &Aabb) -> bool {
@@ -1151,9 +1163,13 @@ mod tests {
             Ok(())
         }
         fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+            if self.hold && query as usize >= self.completed {
+                return Ok(None);
+            }
             Ok(self.results.get(query as usize).copied())
         }
         fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+            self.completed = self.results.len();
             Ok(self.results[query as usize])
         }
         fn finish(&mut self) -> Result<()> {
@@ -1180,6 +1196,7 @@ mod tests {
     fn frame(c: &mut Chcpp, bvh: &ObjectBvh, cam: &Camera, m: &mut Mock, f: u64) -> CullStats {
         m.results.clear();
         m.boxes_per_query.clear();
+        m.completed = 0;
         let input = FrameInput {
             bvh,
             view: cam.into(),
@@ -1235,9 +1252,44 @@ mod tests {
         let s = frame(&mut c, &bvh, &cam, &mut m, 12);
         assert!(s.failed_multiqueries > 0);
         assert!(s.queries > s.multiqueries + s.failed_multiqueries);
+        // Each failed multiquery held at least two nodes, and each of them got a query.
+        assert!(s.requeried >= 2 * s.failed_multiqueries);
+        assert!(s.invisible_node_queries >= s.multiqueries + s.requeried);
         for l in leaves(&bvh) {
             assert!(c.state[l as usize].visible, "leaf {l} found visible again");
         }
+    }
+
+    #[test]
+    fn round_trips_and_full_batches_are_counted() {
+        let (bvh, cam) = row();
+        let params = ChcppParams {
+            batch_size: 2,
+            multiqueries: false,
+            tight_bounds: false,
+            ..ChcppParams::default()
+        };
+        let mut c = Chcpp::new(params.clone());
+        let mut m = Mock {
+            visible: vec![Aabb::new(Vec3::splat(-100.0), Vec3::splat(100.0))],
+            hold: true,
+            ..Mock::default()
+        };
+        // First frame: nothing is known, everything is visible, so the hierarchy is opened one
+        // level per round trip: the traversal runs dry and waits once per level.
+        let levels = bvh.nodes.iter().map(|n| n.depth).max().unwrap() + 1;
+        let s = frame(&mut c, &bvh, &cam, &mut m, 1);
+        assert_eq!(s.blocking_waits, levels);
+        // Every node was tested once, each with its own query.
+        assert_eq!(s.invisible_nodes_tested as usize, bvh.nodes.len());
+        assert_eq!(s.invisible_node_queries, s.invisible_nodes_tested);
+        // The root went out alone when the traversal ran dry; wider levels fill batches of 2.
+        assert!(s.full_batches > 0 && s.full_batches < s.query_batches);
+        // Results ready at once: nothing waits.
+        let mut c = Chcpp::new(params);
+        m.hold = false;
+        let s = frame(&mut c, &bvh, &cam, &mut m, 1);
+        assert_eq!(s.blocking_waits, 0);
     }
 
     #[test]

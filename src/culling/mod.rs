@@ -288,6 +288,9 @@ pub struct CullStats {
     pub queries: u32,
     /// Queries for nodes that were invisible last frame (the i-queue), multiqueries included.
     pub invisible_node_queries: u32,
+    /// Nodes that were invisible last frame and were tested this frame (put in the i-queue when
+    /// batching), each counted once: the re-queries after a failed multiquery are `requeried`.
+    pub invisible_nodes_tested: u32,
     /// Queries for previously visible leaves (the v-queue).
     pub visible_leaf_queries: u32,
     /// Multiqueries (queries covering more than one node).
@@ -298,6 +301,15 @@ pub struct CullStats {
     pub visible_results: u32,
     /// Query batches (switches into query state by the algorithm).
     pub query_batches: u32,
+    /// Of those, i-queue batches issued because the i-queue reached its batch size `b` (the
+    /// others went out when the traversal queue ran dry, or carried only v-queue leaves).
+    pub full_batches: u32,
+    /// Nodes queried one by one because the multiquery that held them came back visible.
+    pub requeried: u32,
+    /// Times the traversal had nothing left to do and blocked on a query result inside the
+    /// frame: each is a round trip to the device (reading the results after the frame is not
+    /// counted).
+    pub blocking_waits: u32,
     /// Nodes culled by the frustum.
     pub frustum_culled: u32,
     /// Nodes culled by a query result.
