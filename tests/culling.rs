@@ -333,6 +333,8 @@ fn query_pools_grow_past_their_initial_size() {
             res.counts.queries_begun
         );
         assert!(r.query_capacity() > initial);
+        // Every result came from the segments' copies in host memory, the grown pools' too.
+        assert_eq!(r.driver_query_reads(), 0);
         assert_eq!(common::diff_pixels(&reference, &px), 0);
     }
     drop(ctx);

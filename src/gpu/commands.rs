@@ -678,6 +678,42 @@ impl Recorder {
         unsafe { self.device.cmd_pipeline_barrier2(self.cmd, &dep) };
     }
 
+    /// Copies the results of queries `first..first + count` of `pools` (a readback pool) into
+    /// their result buffers, value and availability, each waited for on the device, and makes
+    /// the copies visible to host reads once this command buffer completes. Outside rendering;
+    /// does nothing for pools without readback.
+    pub fn copy_query_results(&mut self, pools: &QueryPools, first: u32, count: u32) {
+        let end = first.saturating_add(count).min(pools.used());
+        let mut id = first;
+        while id < end {
+            let (pool, slot) = pools.location(id);
+            let n = (pools.chunk() - slot).min(end - id);
+            let Some(buffer) = pools.result_buffer(id) else {
+                return;
+            };
+            // SAFETY: recording outside rendering; the queries were reset this frame and ended
+            // earlier in this queue's order; the range lies inside the pool and, at 16 bytes a
+            // result, inside the pool's result buffer (TRANSFER_DST); the offset is a multiple
+            // of 8 as 64-bit results require.
+            unsafe {
+                self.device.cmd_copy_query_pool_results(
+                    self.cmd,
+                    pool,
+                    slot,
+                    n,
+                    buffer.handle,
+                    u64::from(slot) * super::queries::COPIED_RESULT_BYTES,
+                    super::queries::COPIED_RESULT_BYTES,
+                    vk::QueryResultFlags::TYPE_64
+                        | vk::QueryResultFlags::WAIT
+                        | vk::QueryResultFlags::WITH_AVAILABILITY,
+                )
+            };
+            self.host_read_barrier(buffer);
+            id += n;
+        }
+    }
+
     /// Makes transfer writes to `buffer` visible to host reads.
     pub(crate) fn host_read_barrier(&mut self, buffer: &Buffer) {
         let b = vk::BufferMemoryBarrier2::default()

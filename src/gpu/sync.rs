@@ -3,6 +3,7 @@
 //! [`Timeline::submit`], which signals a timeline semaphore so completion can be polled
 //! ([`Timeline::is_complete`], never blocks) or waited for ([`Timeline::wait`], blocks).
 
+use std::cell::Cell;
 use std::sync::Arc;
 
 use ash::vk;
@@ -16,6 +17,10 @@ pub struct Timeline {
     ctx: Arc<GpuContext>,
     semaphore: vk::Semaphore,
     last: u64,
+    /// The highest value seen completed. A timeline's value never decreases, so a value at or
+    /// below it is complete without asking the driver (on lavapipe each
+    /// `vkGetSemaphoreCounterValue` takes a lock and wakes the queue thread).
+    completed: Cell<u64>,
 }
 
 /// Binary semaphores a submission waits on and signals (swapchain acquire and present).
@@ -39,6 +44,7 @@ impl Timeline {
             ctx: ctx.clone(),
             semaphore,
             last: 0,
+            completed: Cell::new(0),
         })
     }
 
@@ -97,10 +103,18 @@ impl Timeline {
 
     /// Whether the submission that signals `value` has completed; never blocks.
     pub fn is_complete(&self, value: u64) -> Result<bool> {
+        if value <= self.completed.get() {
+            return Ok(true);
+        }
         // SAFETY: valid timeline semaphore.
         let now = unsafe { self.ctx.device.get_semaphore_counter_value(self.semaphore) }
             .vk("vkGetSemaphoreCounterValue")?;
+        self.completed.set(self.completed.get().max(now));
         Ok(now >= value)
+    }
+
+    pub fn completed_value(&self) -> u64 {
+        self.completed.get()
     }
 
     /// Blocks until the submission that signals `value` has completed.
@@ -111,7 +125,9 @@ impl Timeline {
             .semaphores(&semaphores)
             .values(&values);
         // SAFETY: valid timeline semaphore; `value` was (or will be) signalled by a submission.
-        unsafe { self.ctx.device.wait_semaphores(&info, u64::MAX) }.vk("vkWaitSemaphores")
+        unsafe { self.ctx.device.wait_semaphores(&info, u64::MAX) }.vk("vkWaitSemaphores")?;
+        self.completed.set(self.completed.get().max(value));
+        Ok(())
     }
 
     /// Blocks until everything submitted on this timeline has completed.

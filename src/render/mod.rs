@@ -98,6 +98,11 @@ pub struct Renderer {
     timestamps: QueryPools,
     query_segment: Vec<u32>,
     query_read: Vec<bool>,
+    /// Occlusion results read from the driver this frame (a segment's copy was missing).
+    driver_reads: u32,
+    /// Id of the first occlusion query of the segment being recorded: the segment copies the
+    /// results of its queries into host memory at its end.
+    segment_first_query: u32,
     recorder: Recorder,
     oneshot: OneShot,
     push: [u8; PUSH_SIZE as usize],
@@ -181,10 +186,12 @@ impl Renderer {
             box_used: 0,
             target,
             id_image: None,
-            occlusion: QueryPools::new(ctx, vk::QueryType::OCCLUSION, 1024)?,
+            occlusion: QueryPools::with_readback(ctx, vk::QueryType::OCCLUSION, 1024)?,
             timestamps: QueryPools::new(ctx, vk::QueryType::TIMESTAMP, 256)?,
             query_segment: Vec::new(),
             query_read: Vec::new(),
+            segment_first_query: 0,
+            driver_reads: 0,
             recorder,
             oneshot,
             push: initial_push(scene),
@@ -284,6 +291,14 @@ impl Renderer {
         self.occlusion.capacity()
     }
 
+    /// Occlusion results of the last frame that had to be read through
+    /// `vkGetQueryPoolResults` because the segment's copy of them was missing. Every segment
+    /// copies its queries' results into host memory when it ends, so this is 0; a read through
+    /// the driver may wait for the whole device (lavapipe does).
+    pub fn driver_query_reads(&self) -> u32 {
+        self.driver_reads
+    }
+
     /// A camera with this target's aspect ratio for `pose`, with a far plane that covers `bvh`.
     pub fn camera(&self, pose: crate::scene::CameraPose, bvh: &ObjectBvh) -> Camera {
         let b = bvh.nodes[0].bounds;
@@ -364,6 +379,7 @@ impl Renderer {
         self.timestamps.reset();
         self.query_segment.clear();
         self.query_read.clear();
+        self.driver_reads = 0;
         self.box_chunk = 0;
         self.box_used = 0;
         self.stall = Duration::ZERO;
@@ -389,6 +405,7 @@ impl Renderer {
         let cmd = self.segments.begin_next()?;
         self.recorder.set_command_buffer(cmd);
         self.bound = None;
+        self.segment_first_query = self.occlusion.used();
         let ts = self.timestamps.allocate()?;
         self.recorder.write_timestamp(&self.timestamps, ts);
         self.begin_target_rendering(first)?;
@@ -436,6 +453,9 @@ impl Renderer {
             return Ok(());
         }
         self.recorder.end_rendering();
+        let first = self.segment_first_query;
+        self.recorder
+            .copy_query_results(&self.occlusion, first, self.occlusion.used() - first);
         let ts = self.timestamps.allocate()?;
         self.recorder.write_timestamp(&self.timestamps, ts);
         self.recording = false;
@@ -885,7 +905,14 @@ impl OcclusionBackend for Renderer {
         if !self.timeline.is_complete(value)? {
             return Ok(None);
         }
-        let r = self.occlusion.poll(query)?;
+        // The segment copied its results into host memory; asking the driver is the fallback.
+        let r = match self.occlusion.copied(query) {
+            Some(v) => Some(v),
+            None => {
+                self.driver_reads += 1;
+                self.occlusion.poll(query)?
+            }
+        };
         if let Some(v) = r {
             if !self.query_read[query as usize] {
                 self.query_read[query as usize] = true;
