@@ -62,8 +62,12 @@
 //!    - `flush` (in-frame mode only): end the pass, submit, begin a new pass with LOAD ops on
 //!      the same color and depth (the image layouts stay attachment layouts; no barrier
 //!      beyond the pass's own). `query_result` must never block: check that the submission
-//!      holding the query has completed (a timeline value or fence) before
-//!      `vkGetQueryPoolResults`. `wait_query` waits for it (that is stall time).
+//!      holding the query has completed (a timeline value or fence) before reading it. The
+//!      built-in renderer reads no result through `vkGetQueryPoolResults` in the frame: each
+//!      submission ends with `vkCmdCopyQueryPoolResults` of its queries into a host-visible
+//!      buffer, read once the submission has completed (on lavapipe `vkGetQueryPoolResults`
+//!      waits for the whole device, so it would also wait for later submissions).
+//!      `wait_query` waits for the submission (that is stall time).
 //!    - `finish`: submit what is left and wait for it (the built-in renderer does). In the
 //!      latency modes with `k = 1` the culler reads its queries with `query_result` right
 //!      after `finish` and never waits; a result not back then is dropped and its node keeps
