@@ -1,9 +1,9 @@
 //! Where a CHC++ frame goes on a walk: per frame, the recorder's counts (object draws, query
 //! draws, state changes, submits), the stall, and the algorithm's own split of its queries
-//! (previously invisible nodes tested, i-queue queries, v-queue leaves, multiqueries and how many failed, query batches, those issued
-//! because the i-queue held `b` nodes, nodes re-queried after a failed multiquery, and the
-//! round trips: times the traversal ran dry and blocked on a result), next to
-//! the oracle's object draws at the same pose. Validation off; one line per frame on stdout
+//! (previously invisible nodes tested, i-queue queries, v-queue leaves, multiqueries and how
+//! many failed, query batches, those issued because the i-queue held `b` nodes, nodes
+//! re-queried after a failed multiquery, and the round trips: times the traversal ran dry and
+//! blocked on a result), next to the oracle's object draws at the same pose. Validation off; one line per frame on stdout
 //! (tab separated, with a header), medians at the end.
 //!
 //! Run: `cargo run --release --example chcpp_profile -- [scene] [path] [frames] [WxH] [scale]

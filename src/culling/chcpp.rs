@@ -476,7 +476,7 @@ impl Chcpp {
         }
         // Issued before the traversal ran dry only once it holds `b` nodes; at the end of the
         // traversal it holds fewer.
-        if self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size() {
+        if self.i_queue_full() {
             stats.full_batches += 1;
         }
         self.flush_render_queue(backend)?;
@@ -625,7 +625,7 @@ impl Chcpp {
             stats.failed_multiqueries += 1;
             stats.requeried += q.count;
             self.requery.extend_from_slice(&self.query_nodes[nodes]);
-            if self.requery.len() + self.i_queue.len() >= self.params.batch_size.max(1) {
+            if self.i_queue_full() {
                 self.issue_i_queue(bvh, backend, stats)?;
             }
             return Ok(());
@@ -689,6 +689,11 @@ impl Chcpp {
         } else {
             1
         }
+    }
+
+    /// Whether the i-queue (with the nodes of failed multiqueries) holds a full batch.
+    fn i_queue_full(&self) -> bool {
+        self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size()
     }
 
     /// Handles returned queries in order. While the traversal has work, stops at the first
@@ -817,7 +822,7 @@ impl Chcpp {
         stats.invisible_nodes_tested += 1;
         if self.params.batching {
             self.i_queue.push(node);
-            if self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size() {
+            if self.i_queue_full() {
                 self.issue_i_queue(bvh, backend, stats)?;
             }
             Ok(())

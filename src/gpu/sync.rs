@@ -113,10 +113,6 @@ impl Timeline {
         Ok(now >= value)
     }
 
-    pub fn completed_value(&self) -> u64 {
-        self.completed.get()
-    }
-
     /// Blocks until the submission that signals `value` has completed.
     pub fn wait(&self, value: u64) -> Result<()> {
         let semaphores = [self.semaphore];
