@@ -15,6 +15,7 @@ use coherent::culling::nohc::NohcParams;
 use coherent::culling::pvs::{fnv1a, Pvs};
 use coherent::culling::{create_with, CullerSetup, FrameInput, OcclusionBackend, QueryId};
 use coherent::render::calibrate;
+use coherent::render::pvs_build::PvsFile;
 use coherent::scene::camera::Camera;
 use coherent::scene::{paths, Aabb, CameraPose};
 
@@ -208,32 +209,32 @@ struct HostBackend {
 }
 
 impl OcclusionBackend for HostBackend {
-    fn draw_objects(&mut self, objects: &[u32]) -> coherent::Result<()> {
+    fn draw_objects(&mut self, objects: &[u32]) -> coherent::culling::Result<()> {
         assert!(
             objects.iter().all(|&o| o < OBJECTS),
             "culler drew an object out of range: {objects:?}"
         );
         Ok(())
     }
-    fn issue_query(&mut self, boxes: &[Aabb]) -> coherent::Result<QueryId> {
+    fn issue_query(&mut self, boxes: &[Aabb]) -> coherent::culling::Result<QueryId> {
         assert!(!boxes.is_empty(), "query without boxes");
         self.queries += 1;
         Ok(self.queries - 1)
     }
-    fn flush(&mut self) -> coherent::Result<()> {
+    fn flush(&mut self) -> coherent::culling::Result<()> {
         Ok(())
     }
-    fn query_result(&mut self, query: QueryId) -> coherent::Result<Option<u64>> {
+    fn query_result(&mut self, query: QueryId) -> coherent::culling::Result<Option<u64>> {
         assert!(
             query < self.queries,
             "read of a query never issued: {query}"
         );
         Ok(Some(u64::from(query.wrapping_mul(2_654_435_761) % 7) * 40))
     }
-    fn wait_query(&mut self, query: QueryId) -> coherent::Result<u64> {
+    fn wait_query(&mut self, query: QueryId) -> coherent::culling::Result<u64> {
         self.query_result(query).map(Option::unwrap_or_default)
     }
-    fn finish(&mut self) -> coherent::Result<()> {
+    fn finish(&mut self) -> coherent::culling::Result<()> {
         Ok(())
     }
 }

@@ -65,6 +65,10 @@ pub enum Error {
     /// Bad input from the caller (flags, sizes, names).
     #[error("{0}")]
     Input(String),
+    /// A culler refused its input or its backend (an error of the culling core that is not
+    /// one of this crate's own errors coming back through the backend).
+    #[error("{0}")]
+    Cull(coherent_cull::Error),
     /// File I/O failed.
     #[error("I/O error: {0}")]
     Io(#[from] std::io::Error),
@@ -107,6 +111,30 @@ impl Error {
                 what: format!("{what}: the allocator found no memory"),
             },
             e => Error::Alloc(format!("{what}: {e}")),
+        }
+    }
+}
+
+/// A culling error: a backend error of this crate travelling back through a culler comes out
+/// as itself, everything else as [`Error::Cull`] (input errors as [`Error::Input`]).
+impl From<coherent_cull::Error> for Error {
+    fn from(e: coherent_cull::Error) -> Error {
+        match e.into_backend::<Error>() {
+            Ok(own) => own,
+            Err(coherent_cull::Error::Input(msg)) => Error::Input(msg),
+            Err(other) => Error::Cull(other),
+        }
+    }
+}
+
+/// This crate's errors leave through [`coherent_cull::OcclusionBackend`] boxed, and come back
+/// whole through `From<coherent_cull::Error>`.
+impl From<Error> for coherent_cull::Error {
+    fn from(e: Error) -> coherent_cull::Error {
+        match e {
+            Error::Cull(inner) => inner,
+            Error::Input(msg) => coherent_cull::Error::Input(msg),
+            other => coherent_cull::Error::backend(other),
         }
     }
 }

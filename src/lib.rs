@@ -120,8 +120,10 @@
 //! bvh.update();
 //! assert_eq!(bvh.object_bounds(car).map(|b| b.to_arrays()), Some([[5.0, 0.0, 5.0], [6.0, 1.0, 7.0]]));
 //! ```
-pub mod bvh;
-pub mod culling;
+/// The culling core: every algorithm, the backend trait, the camera math (`coherent-cull`).
+pub use coherent_cull as culling;
+/// The object hierarchy (from `coherent-cull`).
+pub use coherent_cull::bvh;
 pub mod error;
 pub mod gi;
 pub mod gpu;

@@ -462,7 +462,7 @@ fn polls_never_read_pending_segments() {
                 &mut self,
                 input: &coherent::culling::FrameInput,
                 backend: &mut dyn OcclusionBackend,
-            ) -> coherent::Result<coherent::culling::CullStats> {
+            ) -> coherent::culling::Result<coherent::culling::CullStats> {
                 let all: Vec<u32> = (0..input.bvh.leaf_objects.len() as u32).collect();
                 backend.draw_objects(&all)?;
                 let b = input.bvh.nodes[0].bounds;

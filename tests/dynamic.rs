@@ -11,7 +11,6 @@ use coherent::culling::{
 use coherent::render::{walk, Renderer};
 use coherent::scene::movers::Movers;
 use coherent::scene::{Aabb, CameraPose, Scene};
-use coherent::Result;
 use glam::{Mat4, Vec3};
 
 /// A culler that records which objects its inner culler drew this frame.
@@ -26,29 +25,33 @@ struct SpyBackend<'a> {
 }
 
 impl OcclusionBackend for SpyBackend<'_> {
-    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
+    fn draw_objects(&mut self, objects: &[u32]) -> coherent_cull::Result<()> {
         self.drawn.extend_from_slice(objects);
         self.inner.draw_objects(objects)
     }
-    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+    fn issue_query(&mut self, boxes: &[Aabb]) -> coherent_cull::Result<QueryId> {
         self.inner.issue_query(boxes)
     }
-    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+    fn issue_query_for(
+        &mut self,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> coherent_cull::Result<QueryId> {
         self.inner.issue_query_for(boxes, purpose)
     }
-    fn restore_render_state(&mut self) -> Result<()> {
+    fn restore_render_state(&mut self) -> coherent_cull::Result<()> {
         self.inner.restore_render_state()
     }
-    fn flush(&mut self) -> Result<()> {
+    fn flush(&mut self) -> coherent_cull::Result<()> {
         self.inner.flush()
     }
-    fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+    fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
         self.inner.query_result(query)
     }
-    fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+    fn wait_query(&mut self, query: QueryId) -> coherent_cull::Result<u64> {
         self.inner.wait_query(query)
     }
-    fn finish(&mut self) -> Result<()> {
+    fn finish(&mut self) -> coherent_cull::Result<()> {
         self.inner.finish()
     }
 }
@@ -64,7 +67,7 @@ impl Culler for Spy {
         &mut self,
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
-    ) -> Result<CullStats> {
+    ) -> coherent_cull::Result<CullStats> {
         self.drawn.clear();
         let mut spy = SpyBackend {
             inner: backend,

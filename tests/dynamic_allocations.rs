@@ -22,7 +22,7 @@ fn mover_updates_do_not_allocate() {
         let before = counting_alloc::ALLOCATIONS.load(Ordering::Relaxed);
         counting_alloc::COUNTING.with(|c| c.set(true));
         movers
-            .for_each_at(f, |object, b, _| bvh.set_bounds(object, b))
+            .for_each_at(f, |object, b, _| Ok(bvh.set_bounds(object, b)?))
             .unwrap();
         let stats = bvh.update();
         counting_alloc::COUNTING.with(|c| c.set(false));

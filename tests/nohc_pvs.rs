@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use coherent::culling::chcpp::{Chcpp, ChcppParams};
 use coherent::culling::{self, Culler, CullerSetup};
 use coherent::render::calibrate::{self, Source};
+use coherent::render::pvs_build::PvsFile;
 use coherent::render::pvs_build::{self, PvsSettings};
 use coherent::render::Renderer;
 use coherent::scene::mesh::{Mesh, SceneBuilder};

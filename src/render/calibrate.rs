@@ -285,7 +285,7 @@ impl Culler for Script {
         &mut self,
         _: &FrameInput,
         backend: &mut dyn OcclusionBackend,
-    ) -> Result<CullStats> {
+    ) -> coherent_cull::Result<CullStats> {
         let mut queries: Vec<QueryId> = Vec::new();
         for step in &self.0 {
             match step {

@@ -826,7 +826,7 @@ fn box_chunk(ctx: &Arc<GpuContext>) -> Result<Buffer> {
 }
 
 impl OcclusionBackend for Renderer {
-    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
+    fn draw_objects(&mut self, objects: &[u32]) -> coherent_cull::Result<()> {
         if objects.is_empty() {
             return Ok(());
         }
@@ -855,7 +855,7 @@ impl OcclusionBackend for Renderer {
         Ok(())
     }
 
-    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+    fn issue_query(&mut self, boxes: &[Aabb]) -> coherent_cull::Result<QueryId> {
         self.ensure_recording()?;
         self.use_pipeline(PipelineKind::Query);
         let id = self.occlusion.allocate()?;
@@ -870,7 +870,11 @@ impl OcclusionBackend for Renderer {
         Ok(id)
     }
 
-    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+    fn issue_query_for(
+        &mut self,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> coherent_cull::Result<QueryId> {
         let id = self.issue_query(boxes)?;
         self.recorder.tag_query(
             purpose == QueryPurpose::Multiquery,
@@ -879,18 +883,18 @@ impl OcclusionBackend for Renderer {
         Ok(id)
     }
 
-    fn restore_render_state(&mut self) -> Result<()> {
+    fn restore_render_state(&mut self) -> coherent_cull::Result<()> {
         if self.recording {
             self.use_pipeline(PipelineKind::Render);
         }
         Ok(())
     }
 
-    fn flush(&mut self) -> Result<()> {
-        self.submit_segment()
+    fn flush(&mut self) -> coherent_cull::Result<()> {
+        Ok(self.submit_segment()?)
     }
 
-    fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+    fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
         let seg = *self
             .query_segment
             .get(query as usize)
@@ -922,7 +926,7 @@ impl OcclusionBackend for Renderer {
         Ok(r)
     }
 
-    fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+    fn wait_query(&mut self, query: QueryId) -> coherent_cull::Result<u64> {
         if let Some(v) = self.query_result(query)? {
             return Ok(v);
         }
@@ -942,13 +946,13 @@ impl OcclusionBackend for Renderer {
         Ok(value)
     }
 
-    fn finish(&mut self) -> Result<()> {
+    fn finish(&mut self) -> coherent_cull::Result<()> {
         if self.segments.used() == 0 {
             // Nothing was drawn: still clear the target.
             self.ensure_recording()?;
         }
         self.submit_segment()?;
-        self.timeline.wait_all()
+        Ok(self.timeline.wait_all()?)
     }
 }
 

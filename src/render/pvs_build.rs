@@ -26,7 +26,7 @@ use glam::Vec3;
 use super::Renderer;
 use crate::bvh::ObjectBvh;
 use crate::culling::pvs::{fnv1a, Pvs, ViewCell};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::scene::camera::Camera;
 use crate::scene::{CameraPath, Scene};
@@ -434,4 +434,58 @@ fn halton(mut i: u32, base: u32) -> f32 {
         i /= base;
     }
     r
+}
+
+/// The PVS cache file: [`Pvs`] is data in `coherent-cull` (bytes in, bytes out); reading and
+/// writing its file is the application's.
+pub trait PvsFile: Sized {
+    /// Writes the cache file (through a temporary file, so a crash leaves no half file).
+    fn save(&self, path: &Path) -> Result<()>;
+    /// Reads a cache file made for `key`: `Ok(None)` if there is none, `Err` with the reason
+    /// when it exists but cannot be trusted.
+    fn load(path: &Path, key: &str) -> Result<Option<Self>>;
+    /// [`PvsFile::load`] for a scene of `objects` objects: a file whose object count differs
+    /// is refused too.
+    fn load_for_scene(path: &Path, key: &str, objects: usize) -> Result<Option<Self>>;
+}
+
+impl PvsFile for Pvs {
+    /// Writes the cache file.
+    fn save(&self, path: &Path) -> Result<()> {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        let tmp = path.with_extension("tmp");
+        std::fs::write(&tmp, self.to_bytes())?;
+        std::fs::rename(&tmp, path)?;
+        Ok(())
+    }
+
+    /// Reads a cache file made for `key`: `Ok(None)` if there is none, `Err` with the reason
+    /// when it exists but cannot be trusted.
+    fn load(path: &Path, key: &str) -> Result<Option<Pvs>> {
+        let bytes = match std::fs::read(path) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(e.into()),
+        };
+        Pvs::from_bytes(&bytes, key)
+            .map(Some)
+            .map_err(|why| Error::Input(format!("{}: {why}", path.display())))
+    }
+
+    /// [`Pvs::load`] for a scene of `objects` objects: a file whose object count differs is
+    /// refused too (its ids are only checked against its own count, and the culler sizes
+    /// its per-object state by it: a damaged file claiming 4 billion objects would cost
+    /// gigabytes).
+    fn load_for_scene(path: &Path, key: &str, objects: usize) -> Result<Option<Pvs>> {
+        match <Pvs as PvsFile>::load(path, key)? {
+            Some(p) if p.objects as usize != objects => Err(Error::Input(format!(
+                "{}: made for {} objects, the scene has {objects}",
+                path.display(),
+                p.objects
+            ))),
+            other => Ok(other),
+        }
+    }
 }

@@ -710,7 +710,7 @@ impl Culler for Observed<'_> {
         &mut self,
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
-    ) -> Result<CullStats> {
+    ) -> coherent_cull::Result<CullStats> {
         let mut probe = Probe {
             inner: backend,
             log: &mut self.log,
@@ -723,40 +723,44 @@ impl Culler for Observed<'_> {
 }
 
 impl OcclusionBackend for Probe<'_> {
-    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
+    fn draw_objects(&mut self, objects: &[u32]) -> coherent_cull::Result<()> {
         self.log.drawn.extend_from_slice(objects);
         self.inner.draw_objects(objects)
     }
-    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+    fn issue_query(&mut self, boxes: &[Aabb]) -> coherent_cull::Result<QueryId> {
         let id = self.inner.issue_query(boxes)?;
         self.log.queries.push((id, boxes.to_vec(), false));
         Ok(id)
     }
-    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+    fn issue_query_for(
+        &mut self,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> coherent_cull::Result<QueryId> {
         let id = self.inner.issue_query_for(boxes, purpose)?;
         let multiquery = purpose == QueryPurpose::Multiquery;
         self.log.queries.push((id, boxes.to_vec(), multiquery));
         Ok(id)
     }
-    fn restore_render_state(&mut self) -> Result<()> {
+    fn restore_render_state(&mut self) -> coherent_cull::Result<()> {
         self.inner.restore_render_state()
     }
-    fn flush(&mut self) -> Result<()> {
+    fn flush(&mut self) -> coherent_cull::Result<()> {
         self.inner.flush()
     }
-    fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+    fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
         let r = self.inner.query_result(query)?;
         if let Some(v) = r {
             self.log.results.insert(query, v);
         }
         Ok(r)
     }
-    fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+    fn wait_query(&mut self, query: QueryId) -> coherent_cull::Result<u64> {
         let v = self.inner.wait_query(query)?;
         self.log.results.insert(query, v);
         Ok(v)
     }
-    fn finish(&mut self) -> Result<()> {
+    fn finish(&mut self) -> coherent_cull::Result<()> {
         self.inner.finish()
     }
 }

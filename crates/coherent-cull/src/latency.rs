@@ -7,7 +7,7 @@
 
 use super::{CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose};
 use crate::error::{Error, Result};
-use crate::scene::Aabb;
+use crate::Aabb;
 
 /// One frame-in-flight slot: the queries its last frame issued and, once that frame has
 /// completed, their results.

@@ -11,14 +11,13 @@
 //! or made for another key is refused with the reason, never trusted.
 
 use std::collections::HashMap;
-use std::path::Path;
 use std::sync::Arc;
 
 use glam::Vec3;
 
 use super::{CullStats, Culler, FrameInput, OcclusionBackend};
-use crate::error::{Error, Result};
-use crate::scene::Aabb;
+use crate::error::Result;
+use crate::Aabb;
 
 const MAGIC: &[u8; 8] = b"COHPVS01";
 
@@ -181,45 +180,6 @@ impl Pvs {
             return Err("trailing bytes".into());
         }
         Ok(Pvs::new(key, objects, origin, cell_size, cells))
-    }
-
-    /// Writes the cache file.
-    pub fn save(&self, path: &Path) -> Result<()> {
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir)?;
-        }
-        let tmp = path.with_extension("tmp");
-        std::fs::write(&tmp, self.to_bytes())?;
-        std::fs::rename(&tmp, path)?;
-        Ok(())
-    }
-
-    /// Reads a cache file made for `key`: `Ok(None)` if there is none, `Err` with the reason
-    /// when it exists but cannot be trusted.
-    pub fn load(path: &Path, key: &str) -> Result<Option<Pvs>> {
-        let bytes = match std::fs::read(path) {
-            Ok(b) => b,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(e) => return Err(e.into()),
-        };
-        Pvs::from_bytes(&bytes, key)
-            .map(Some)
-            .map_err(|why| Error::Input(format!("{}: {why}", path.display())))
-    }
-
-    /// [`Pvs::load`] for a scene of `objects` objects: a file whose object count differs is
-    /// refused too (its ids are only checked against its own count, and the culler sizes
-    /// its per-object state by it: a damaged file claiming 4 billion objects would cost
-    /// gigabytes).
-    pub fn load_for_scene(path: &Path, key: &str, objects: usize) -> Result<Option<Pvs>> {
-        match Pvs::load(path, key)? {
-            Some(p) if p.objects as usize != objects => Err(Error::Input(format!(
-                "{}: made for {} objects, the scene has {objects}",
-                path.display(),
-                p.objects
-            ))),
-            other => Ok(other),
-        }
     }
 }
 

@@ -24,10 +24,11 @@
 use glam::{Mat4, Vec3};
 
 use crate::bvh::ObjectBvh;
-use crate::scene::Aabb;
+use crate::Aabb;
 
 /// Per-operation costs of the device in milliseconds, measured by `coherent calibrate`.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct CostModel {
     /// One draw call (state already bound).
     pub draw_ms: f64,
@@ -263,8 +264,8 @@ fn subtree_sums(bvh: &ObjectBvh, object_triangles: &[u32]) -> Vec<(u32, u64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::camera::Camera;
-    use crate::scene::CameraPose;
+    use crate::camera::Camera;
+    use crate::camera::CameraPose;
 
     fn costs() -> CostModel {
         CostModel {

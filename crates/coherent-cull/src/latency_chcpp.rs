@@ -8,8 +8,8 @@ use std::collections::VecDeque;
 
 use super::{Chcpp, Pending};
 use crate::bvh::ObjectBvh;
-use crate::culling::{CullStats, Latency, OcclusionBackend};
 use crate::error::{Error, Result};
+use crate::{CullStats, Latency, OcclusionBackend};
 
 /// One frame's queries, kept until they are read.
 #[derive(Default)]

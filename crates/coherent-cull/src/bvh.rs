@@ -21,7 +21,7 @@ use obvhs::bvh2::Bvh2;
 use obvhs::{Boundable, BvhBuildParams};
 
 use crate::error::{Error, Result};
-use crate::scene::Aabb;
+use crate::Aabb;
 
 /// One node: an interior node with two children, or a leaf with a range of objects.
 #[derive(Clone, Debug)]
@@ -764,7 +764,7 @@ fn interior_area(nodes: &[BvhNode]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::mesh::Rng;
+    use crate::rng::Rng;
 
     fn unit_box(p: Vec3) -> Aabb {
         Aabb::new(p, p + Vec3::ONE)

@@ -33,21 +33,30 @@
 //! [`ObjectBvh::epoch`] of its last test, apply rule 2 with `changed_since` wherever it would
 //! skip a test, and refit its per-node caches when [`ObjectBvh::structure`] changes.
 
+pub mod aabb;
+pub mod bvh;
+pub mod camera;
 pub mod chc;
 pub mod chcpp;
+pub mod error;
 pub mod latency;
 pub mod nohc;
 pub mod oracle;
 pub mod pvs;
+pub mod rng;
 pub mod stop_and_wait;
+pub mod testing;
 pub mod vfc;
 
 use glam::Vec3;
 
-use crate::bvh::ObjectBvh;
-use crate::error::{Error, Result};
-use crate::scene::camera::{CameraView, Frustum};
-use crate::scene::Aabb;
+pub use aabb::Aabb;
+pub use bvh::ObjectBvh;
+pub use camera::{CameraView, DepthConvention, Frustum};
+pub use error::{Error, Result};
+/// The glam version this crate's math types use (hosts need not use glam: every input also
+/// takes plain arrays or `mint` types).
+pub use glam;
 
 pub use chcpp::ChcppParams;
 pub use nohc::{CostModel, NohcParams};
@@ -116,7 +125,7 @@ pub struct FrameInput<'a> {
     /// The object hierarchy.
     pub bvh: &'a ObjectBvh,
     /// The camera: view-projection matrix, eye and depth convention (`(&camera).into()` for
-    /// the built-in [`crate::scene::camera::Camera`]).
+    /// the built-in [`crate::camera::Camera`]).
     pub view: CameraView,
     /// Frame number (for temporal state).
     pub frame: u64,
@@ -428,7 +437,8 @@ pub fn eye_inside(bounds: &Aabb, view: &CameraView) -> bool {
 }
 
 /// Helper shared by the algorithms: the frustum, eye and front-to-back origin of a frame.
-pub(crate) struct View {
+#[doc(hidden)]
+pub struct View {
     pub frustum: Frustum,
     /// The point front-to-back order measures from ([`CameraView::order_point`]).
     pub eye: Vec3,

@@ -11,8 +11,8 @@ use super::{
 };
 use crate::bvh::{DistanceQueue, ObjectBvh};
 use crate::error::Result;
-use crate::scene::mesh::Rng;
-use crate::scene::Aabb;
+use crate::rng::Rng;
+use crate::Aabb;
 
 /// The parameters of CHC++ (defaults from the paper).
 #[derive(Clone, Debug, PartialEq)]
@@ -1131,8 +1131,8 @@ impl Chcpp {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::camera::Camera;
-    use crate::scene::CameraPose;
+    use crate::camera::Camera;
+    use crate::camera::CameraPose;
     use glam::Vec3;
 
     /// A backend without a GPU: a query sees pixels when one of its boxes touches a region

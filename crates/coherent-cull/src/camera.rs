@@ -1,0 +1,307 @@
+//! Camera math: a perspective [`Camera`], the [`CameraView`] a culler takes each frame (any
+//! projection, plain arrays or `mint` types in), [`Frustum`] planes, the [`DepthConvention`] and
+//! the projections engines use (reverse-Z, infinite far, off-axis, orthographic).
+
+use glam::{Mat4, Vec3, Vec4};
+
+use crate::Aabb;
+
+/// A camera pose: where the eye is and the point it looks at.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraPose {
+    /// Eye position.
+    pub eye: Vec3,
+    /// Point looked at.
+    pub target: Vec3,
+}
+
+/// A perspective camera (right-handed, y up, Vulkan depth 0..1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    /// Eye position.
+    pub eye: Vec3,
+    /// Point looked at.
+    pub target: Vec3,
+    /// Vertical field of view in radians.
+    pub fov_y: f32,
+    /// Width / height.
+    pub aspect: f32,
+    /// Near plane distance.
+    pub near: f32,
+    /// Far plane distance.
+    pub far: f32,
+}
+
+impl Camera {
+    /// A camera at `pose` with a 60° field of view.
+    pub fn from_pose(pose: CameraPose, aspect: f32, far: f32) -> Camera {
+        Camera {
+            eye: pose.eye,
+            target: pose.target,
+            fov_y: 60f32.to_radians(),
+            aspect,
+            near: 0.1,
+            far,
+        }
+    }
+    /// World to view.
+    pub fn view(&self) -> Mat4 {
+        let dir = (self.target - self.eye).normalize_or(Vec3::NEG_Z);
+        let up = if dir.cross(Vec3::Y).length_squared() < 1e-6 {
+            Vec3::Z
+        } else {
+            Vec3::Y
+        };
+        look_to_rh(self.eye, dir, up)
+    }
+    /// View to clip (depth 0..1).
+    pub fn projection(&self) -> Mat4 {
+        perspective_rh(self.fov_y, self.aspect, self.near, self.far)
+    }
+    /// World to clip.
+    pub fn view_proj(&self) -> Mat4 {
+        self.projection() * self.view()
+    }
+    /// Distance from the eye to a corner of the near-plane rectangle: a box closer than this to
+    /// the eye may be clipped by the near plane, so its query cannot be trusted.
+    pub fn near_corner_distance(&self) -> f32 {
+        let h = self.near * (self.fov_y * 0.5).tan();
+        let w = h * self.aspect;
+        (self.near * self.near + h * h + w * w).sqrt()
+    }
+    /// The view frustum.
+    pub fn frustum(&self) -> Frustum {
+        Frustum::from_matrix(&self.view_proj())
+    }
+}
+
+/// Six planes (a, b, c, d) with inside where a·x + b·y + c·z + d >= 0.
+#[derive(Clone, Copy, Debug)]
+pub struct Frustum {
+    /// Left, right, bottom, top, near, far.
+    pub planes: [Vec4; 6],
+}
+
+impl Frustum {
+    /// Extracts the planes of a clip matrix with depth 0..1.
+    pub fn from_matrix(m: &Mat4) -> Frustum {
+        let r0 = m.row(0);
+        let r1 = m.row(1);
+        let r2 = m.row(2);
+        let r3 = m.row(3);
+        let planes = [r3 + r0, r3 - r0, r3 + r1, r3 - r1, r2, r3 - r2];
+        Frustum {
+            planes: planes.map(|p| p / p.truncate().length().max(1e-20)),
+        }
+    }
+    /// Conservative box test: false only if the box is entirely outside one plane.
+    pub fn intersects(&self, b: &Aabb) -> bool {
+        self.planes.iter().all(|p| {
+            let n = p.truncate();
+            let v = Vec3::select(n.cmpge(Vec3::ZERO), b.max, b.min);
+            n.dot(v) + p.w >= 0.0
+        })
+    }
+}
+
+/// Right-handed view matrix looking along `dir`.
+pub fn look_to_rh(eye: Vec3, dir: Vec3, up: Vec3) -> Mat4 {
+    let f = dir.normalize();
+    let s = f.cross(up).normalize();
+    let u = s.cross(f);
+    Mat4::from_cols(
+        Vec4::new(s.x, u.x, -f.x, 0.0),
+        Vec4::new(s.y, u.y, -f.y, 0.0),
+        Vec4::new(s.z, u.z, -f.z, 0.0),
+        Vec4::new(-s.dot(eye), -u.dot(eye), f.dot(eye), 1.0),
+    )
+}
+
+/// Right-handed perspective projection with Vulkan's 0..1 depth range.
+pub fn perspective_rh(fov_y: f32, aspect: f32, near: f32, far: f32) -> Mat4 {
+    let f = 1.0 / (fov_y * 0.5).tan();
+    let r = far / (near - far);
+    Mat4::from_cols(
+        Vec4::new(f / aspect, 0.0, 0.0, 0.0),
+        Vec4::new(0.0, f, 0.0, 0.0),
+        Vec4::new(0.0, 0.0, r, -1.0),
+        Vec4::new(0.0, 0.0, r * near, 0.0),
+    )
+}
+
+/// How a clip matrix maps depth: the near plane to 0 (standard) or to 1 (reverse-Z), and whether
+/// the far plane is at infinity (then the frustum has no far plane).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DepthConvention {
+    /// Near maps to depth 1 and far to 0.
+    pub reverse_z: bool,
+    /// No far plane (an infinite perspective projection).
+    pub infinite_far: bool,
+}
+
+impl DepthConvention {
+    /// Near at 0, far at 1 (what [`Camera::projection`] produces).
+    pub const STANDARD: DepthConvention = DepthConvention {
+        reverse_z: false,
+        infinite_far: false,
+    };
+    /// Near at 1, far at 0.
+    pub const REVERSE_Z: DepthConvention = DepthConvention {
+        reverse_z: true,
+        infinite_far: false,
+    };
+    /// Near at 1, far at infinity (depth 0): what most engines ship.
+    pub const REVERSE_Z_INFINITE: DepthConvention = DepthConvention {
+        reverse_z: true,
+        infinite_far: true,
+    };
+}
+
+/// A culler's per-frame camera input: world-to-clip matrix (x, y in -1..1, depth 0..1 in
+/// `depth`'s convention), the eye position and the depth
+/// convention. Any projection works: perspective, off-axis, jittered, orthographic, infinite.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraView {
+    /// World to clip.
+    pub view_proj: Mat4,
+    /// Eye position (for an orthographic view, any point on the view axis).
+    pub eye: Vec3,
+    /// Depth convention of `view_proj`.
+    pub depth: DepthConvention,
+}
+
+impl CameraView {
+    /// A view from plain arrays or any `mint` type (glam, nalgebra and cgmath convert to
+    /// them): `view_proj` column-major world-to-clip, `eye` the eye position.
+    pub fn new(
+        view_proj: impl Into<mint::ColumnMatrix4<f32>>,
+        eye: impl Into<mint::Point3<f32>>,
+        depth: DepthConvention,
+    ) -> CameraView {
+        let m: [[f32; 4]; 4] = view_proj.into().into();
+        let e: [f32; 3] = eye.into().into();
+        CameraView {
+            view_proj: Mat4::from_cols_array_2d(&m),
+            eye: Vec3::from_array(e),
+            depth,
+        }
+    }
+    /// The view frustum: near and far planes by the depth convention, no far plane if infinite.
+    pub fn frustum(&self) -> Frustum {
+        Frustum::from_matrix_with(&self.view_proj, self.depth)
+    }
+    /// Whether the projection is orthographic (clip w does not depend on the position).
+    pub fn is_orthographic(&self) -> bool {
+        let w = self.view_proj.row(3);
+        w.truncate().length() <= 1e-6 * w.w.abs()
+    }
+    /// The four corners of the near-plane rectangle in world space.
+    pub fn near_corners(&self) -> [Vec3; 4] {
+        let inv = self.view_proj.inverse();
+        let z = if self.depth.reverse_z { 1.0 } else { 0.0 };
+        [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+            .map(|(x, y)| inv.project_point3(Vec3::new(x, y, z)))
+    }
+    /// Unit view direction: the near plane's inward normal.
+    pub fn forward(&self) -> Vec3 {
+        self.frustum().planes[4].truncate()
+    }
+    /// The point front-to-back order measures distance from: the eye for a perspective view;
+    /// for an orthographic one, a point far behind the near plane on the view axis, so that
+    /// distance grows with depth along the (parallel) view rays.
+    pub fn order_point(&self) -> Vec3 {
+        if !self.is_orthographic() {
+            return self.eye;
+        }
+        let c = self.near_corners();
+        let center = (c[0] + c[1] + c[2] + c[3]) * 0.25;
+        center - self.forward() * 1.0e4
+    }
+}
+
+impl From<&Camera> for CameraView {
+    fn from(c: &Camera) -> CameraView {
+        CameraView {
+            view_proj: c.view_proj(),
+            eye: c.eye,
+            depth: DepthConvention::STANDARD,
+        }
+    }
+}
+
+impl From<&CameraView> for CameraView {
+    fn from(v: &CameraView) -> CameraView {
+        *v
+    }
+}
+
+impl Frustum {
+    /// Extracts the planes of a clip matrix in a depth convention; an infinite far plane
+    /// becomes a plane every point is inside of.
+    pub fn from_matrix_with(m: &Mat4, depth: DepthConvention) -> Frustum {
+        let (r0, r1, r2, r3) = (m.row(0), m.row(1), m.row(2), m.row(3));
+        let (near, far) = if depth.reverse_z {
+            (r3 - r2, r2)
+        } else {
+            (r2, r3 - r2)
+        };
+        let far = if depth.infinite_far {
+            Vec4::new(0.0, 0.0, 0.0, 1.0)
+        } else {
+            far
+        };
+        let planes = [r3 + r0, r3 - r0, r3 + r1, r3 - r1, near, far];
+        Frustum {
+            planes: planes.map(|p| p / p.truncate().length().max(1e-20)),
+        }
+    }
+}
+
+/// Right-handed reverse-Z perspective projection with an infinite far plane (near at depth 1,
+/// infinity at 0): the projection most engines use.
+pub fn perspective_infinite_reverse_rh(fov_y: f32, aspect: f32, near: f32) -> Mat4 {
+    let f = 1.0 / (fov_y * 0.5).tan();
+    Mat4::from_cols(
+        Vec4::new(f / aspect, 0.0, 0.0, 0.0),
+        Vec4::new(0.0, f, 0.0, 0.0),
+        Vec4::new(0.0, 0.0, 0.0, -1.0),
+        Vec4::new(0.0, 0.0, near, 0.0),
+    )
+}
+
+/// Right-handed reverse-Z perspective projection with a finite far plane (near at depth 1,
+/// far at 0).
+pub fn perspective_reverse_rh(fov_y: f32, aspect: f32, near: f32, far: f32) -> Mat4 {
+    let f = 1.0 / (fov_y * 0.5).tan();
+    let r = far / (near - far);
+    Mat4::from_cols(
+        Vec4::new(f / aspect, 0.0, 0.0, 0.0),
+        Vec4::new(0.0, f, 0.0, 0.0),
+        Vec4::new(0.0, 0.0, -1.0 - r, -1.0),
+        Vec4::new(0.0, 0.0, -r * near, 0.0),
+    )
+}
+
+/// Right-handed off-axis (asymmetric) perspective projection, depth 0..1: the near-plane
+/// rectangle spans `left..right` and `bottom..top` at distance `near`.
+pub fn frustum_rh(left: f32, right: f32, bottom: f32, top: f32, near: f32, far: f32) -> Mat4 {
+    let (w, h) = (right - left, top - bottom);
+    let r = far / (near - far);
+    Mat4::from_cols(
+        Vec4::new(2.0 * near / w, 0.0, 0.0, 0.0),
+        Vec4::new(0.0, 2.0 * near / h, 0.0, 0.0),
+        Vec4::new((right + left) / w, (top + bottom) / h, r, -1.0),
+        Vec4::new(0.0, 0.0, r * near, 0.0),
+    )
+}
+
+/// Right-handed orthographic projection, depth 0..1.
+pub fn orthographic_rh(left: f32, right: f32, bottom: f32, top: f32, near: f32, far: f32) -> Mat4 {
+    let (w, h, d) = (right - left, top - bottom, far - near);
+    Mat4::from_cols(
+        Vec4::new(2.0 / w, 0.0, 0.0, 0.0),
+        Vec4::new(0.0, 2.0 / h, 0.0, 0.0),
+        Vec4::new(0.0, 0.0, -1.0 / d, 0.0),
+        Vec4::new(-(right + left) / w, -(top + bottom) / h, -near / d, 1.0),
+    )
+}

@@ -1,0 +1,329 @@
+//! A CPU [`OcclusionBackend`] for tests: [`MockBackend`] answers each occlusion query from a
+//! visibility function the test supplies (pixels seen by a box), completes results when the test
+//! says (at once, at the next submission, or only on a wait), and logs what a culler asked for,
+//! so a host can test its integration of a culler, and the algorithms their contract, with no
+//! GPU and no Vulkan driver.
+//!
+//! ```
+//! use coherent_cull::camera::{Camera, CameraPose};
+//! use coherent_cull::chcpp::{Chcpp, ChcppParams};
+//! use coherent_cull::glam::Vec3;
+//! use coherent_cull::testing::MockBackend;
+//! use coherent_cull::{Aabb, Culler, FrameInput, ObjectBvh};
+//!
+//! // Four boxes in a row; only the ones left of x = 3 can be seen.
+//! let bvh = ObjectBvh::from_boxes((0..4).map(|i| {
+//!     let x = 2.0 * i as f32;
+//!     [[x, 0.0, -10.0], [x + 1.0, 1.0, -9.0]]
+//! }), 1);
+//! let mut backend = MockBackend::new(|b: &Aabb| if b.min.x < 3.0 { 100 } else { 0 });
+//! let pose = CameraPose { eye: Vec3::new(3.0, 0.5, 5.0), target: Vec3::new(3.0, 0.5, -10.0) };
+//! let camera = Camera::from_pose(pose, 1.0, 100.0);
+//! let mut culler = Chcpp::new(ChcppParams::default());
+//! for frame in 0..3 {
+//!     let input = FrameInput { bvh: &bvh, view: (&camera).into(), frame, exact_visible: None };
+//!     culler.cull_frame(&input, &mut backend).unwrap();
+//!     if frame == 2 {
+//!         assert_eq!(backend.drawn_last_frame(), vec![0, 1]);
+//!     }
+//!     backend.end_frame();
+//! }
+//! ```
+
+use std::collections::BTreeSet;
+
+use crate::{Aabb, OcclusionBackend, QueryId, QueryPurpose, Result};
+
+/// When the mock's query results become readable through
+/// [`OcclusionBackend::query_result`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Completion {
+    /// As soon as the query is issued (an infinitely fast device).
+    Immediate,
+    /// Once the submission holding it went out: a [`OcclusionBackend::flush`],
+    /// [`OcclusionBackend::finish`] or [`OcclusionBackend::submit_frame`] (a fast device).
+    #[default]
+    AfterSubmit,
+    /// Only after a [`OcclusionBackend::wait_query`] (which completes everything issued so
+    /// far) or the end of the frame: a slow device, where every result is a round trip.
+    OnWait,
+}
+
+/// One thing a culler asked the mock for, in order: the decision trace of a frame.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum MockEvent {
+    /// Objects drawn by one call.
+    Draw(Vec<u32>),
+    /// A query: its id, purpose, number of boxes and whether it saw pixels.
+    Query {
+        /// The id handed out.
+        id: QueryId,
+        /// What the culler said it is for.
+        purpose: QueryPurpose,
+        /// Boxes drawn inside the query.
+        boxes: usize,
+        /// The answer the visibility function gave.
+        visible: bool,
+    },
+    /// Back to render state.
+    RestoreRenderState,
+    /// A submission inside the frame.
+    Flush,
+    /// A blocking wait for a query.
+    Wait(QueryId),
+    /// The end of the frame ([`OcclusionBackend::finish`] or
+    /// [`OcclusionBackend::submit_frame`]).
+    EndOfFrame,
+}
+
+/// Counts of one frame, as a recorder on a real device would count them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MockCounts {
+    /// Draw calls ([`OcclusionBackend::draw_objects`] calls with at least one object).
+    pub draw_calls: u32,
+    /// Objects drawn.
+    pub objects_drawn: u32,
+    /// Queries issued.
+    pub queries: u32,
+    /// Boxes drawn inside queries.
+    pub query_boxes: u32,
+    /// Switches between render state and query state (either way).
+    pub state_changes: u32,
+    /// Submissions: flushes inside the frame plus the end of the frame.
+    pub submits: u32,
+    /// Blocking waits.
+    pub waits: u32,
+}
+
+struct Issued {
+    pixels: u64,
+    frame: u64,
+    /// Readable through `query_result` (completed on the mock device).
+    complete: bool,
+}
+
+/// A CPU occlusion backend answering queries from a visibility function (see the module docs).
+pub struct MockBackend<'a> {
+    visibility: Box<dyn FnMut(&Aabb) -> u64 + 'a>,
+    completion: Completion,
+    frames_in_flight: u32,
+    frame: u64,
+    in_query_state: bool,
+    queries: Vec<Issued>,
+    events: Vec<MockEvent>,
+    counts: MockCounts,
+    drawn: BTreeSet<u32>,
+    early_reads: u64,
+}
+
+impl<'a> MockBackend<'a> {
+    /// A backend whose queries see `visibility(box)` pixels for each box drawn inside them
+    /// (a query sees the sum over its boxes). Results complete at the next submission, one
+    /// frame in flight.
+    pub fn new(visibility: impl FnMut(&Aabb) -> u64 + 'a) -> MockBackend<'a> {
+        MockBackend {
+            visibility: Box::new(visibility),
+            completion: Completion::default(),
+            frames_in_flight: 1,
+            frame: 0,
+            in_query_state: false,
+            queries: Vec::new(),
+            events: Vec::new(),
+            counts: MockCounts::default(),
+            drawn: BTreeSet::new(),
+            early_reads: 0,
+        }
+    }
+
+    /// A backend where a box sees 100 pixels when it overlaps one of `regions` (closed boxes),
+    /// else none.
+    pub fn visible_regions(regions: Vec<Aabb>) -> MockBackend<'a> {
+        MockBackend::new(move |b: &Aabb| {
+            let hit = regions
+                .iter()
+                .any(|r| b.min.cmple(r.max).all() && r.min.cmple(b.max).all());
+            if hit {
+                100
+            } else {
+                0
+            }
+        })
+    }
+
+    /// When results become readable (default [`Completion::AfterSubmit`]).
+    pub fn with_completion(mut self, completion: Completion) -> MockBackend<'a> {
+        self.completion = completion;
+        self
+    }
+
+    /// Pretends the host has `k` frames in flight (at least 1): query ids stay valid for `k`
+    /// frames, and a query of frame N is readable from frame N+k on (as after the host waited
+    /// for frame N's fence); reading it earlier answers "not ready" and counts an early read.
+    pub fn with_frames_in_flight(mut self, k: u32) -> MockBackend<'a> {
+        self.frames_in_flight = k.max(1);
+        self
+    }
+
+    /// Replaces the visibility function (the world changed).
+    pub fn set_visibility(&mut self, visibility: impl FnMut(&Aabb) -> u64 + 'a) {
+        self.visibility = Box::new(visibility);
+    }
+
+    /// Starts the next frame: clears the event log, the counts and the drawn set. Call it
+    /// after each `cull_frame`.
+    pub fn end_frame(&mut self) {
+        self.frame += 1;
+        self.events.clear();
+        self.counts = MockCounts::default();
+        self.drawn.clear();
+        self.in_query_state = false;
+    }
+
+    /// What the culler asked for since the last [`MockBackend::end_frame`], in order.
+    pub fn events(&self) -> &[MockEvent] {
+        &self.events
+    }
+
+    /// The counts since the last [`MockBackend::end_frame`].
+    pub fn counts(&self) -> MockCounts {
+        self.counts
+    }
+
+    /// Objects drawn since the last [`MockBackend::end_frame`], sorted, each once.
+    pub fn drawn_last_frame(&self) -> Vec<u32> {
+        self.drawn.iter().copied().collect()
+    }
+
+    /// Whether `object` was drawn since the last [`MockBackend::end_frame`].
+    pub fn was_drawn(&self, object: u32) -> bool {
+        self.drawn.contains(&object)
+    }
+
+    /// Reads of a query before its result was readable in the frames-in-flight contract (a
+    /// culler that keeps the contract never makes one).
+    pub fn early_reads(&self) -> u64 {
+        self.early_reads
+    }
+
+    fn complete_all(&mut self) {
+        for q in &mut self.queries {
+            q.complete = true;
+        }
+    }
+
+    fn to_render_state(&mut self) {
+        if self.in_query_state {
+            self.in_query_state = false;
+            self.counts.state_changes += 1;
+        }
+    }
+
+    fn issued(&self, query: QueryId) -> Result<&Issued> {
+        self.queries.get(query as usize).ok_or_else(|| {
+            crate::Error::Input(format!("query {query} was never issued on this backend"))
+        })
+    }
+
+    /// Whether frame `f`'s results are readable now: at once within the frame with one frame in
+    /// flight, else `k` frames later.
+    fn frame_readable(&self, f: u64) -> bool {
+        f == self.frame || f + u64::from(self.frames_in_flight) <= self.frame
+    }
+}
+
+impl OcclusionBackend for MockBackend<'_> {
+    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
+        if objects.is_empty() {
+            return Ok(());
+        }
+        self.to_render_state();
+        self.counts.draw_calls += 1;
+        self.counts.objects_drawn += objects.len() as u32;
+        self.drawn.extend(objects.iter().copied());
+        self.events.push(MockEvent::Draw(objects.to_vec()));
+        Ok(())
+    }
+
+    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+        self.issue_query_for(boxes, QueryPurpose::Node)
+    }
+
+    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+        if !self.in_query_state {
+            self.in_query_state = true;
+            self.counts.state_changes += 1;
+        }
+        let pixels: u64 = boxes.iter().map(|b| (self.visibility)(b)).sum();
+        let id = self.queries.len() as QueryId;
+        self.queries.push(Issued {
+            pixels,
+            frame: self.frame,
+            complete: self.completion == Completion::Immediate,
+        });
+        self.counts.queries += 1;
+        self.counts.query_boxes += boxes.len() as u32;
+        self.events.push(MockEvent::Query {
+            id,
+            purpose,
+            boxes: boxes.len(),
+            visible: pixels > 0,
+        });
+        Ok(id)
+    }
+
+    fn restore_render_state(&mut self) -> Result<()> {
+        self.to_render_state();
+        self.events.push(MockEvent::RestoreRenderState);
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        self.counts.submits += 1;
+        self.events.push(MockEvent::Flush);
+        if self.completion == Completion::AfterSubmit {
+            self.complete_all();
+        }
+        Ok(())
+    }
+
+    fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+        let q = self.issued(query)?;
+        let (pixels, frame, complete) = (q.pixels, q.frame, q.complete);
+        if !self.frame_readable(frame) {
+            self.early_reads += 1;
+            return Ok(None);
+        }
+        Ok(complete.then_some(pixels))
+    }
+
+    fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+        let q = self.issued(query)?;
+        let (pixels, frame) = (q.pixels, q.frame);
+        if !self.frame_readable(frame) {
+            // A host would wait for the frame's fence here: allowed, but it is a wait.
+            self.early_reads += 1;
+        }
+        self.counts.waits += 1;
+        self.events.push(MockEvent::Wait(query));
+        self.complete_all();
+        Ok(pixels)
+    }
+
+    fn finish(&mut self) -> Result<()> {
+        self.counts.submits += 1;
+        self.events.push(MockEvent::EndOfFrame);
+        self.complete_all();
+        Ok(())
+    }
+
+    fn frames_in_flight(&self) -> u32 {
+        self.frames_in_flight
+    }
+
+    fn submit_frame(&mut self) -> Result<()> {
+        self.counts.submits += 1;
+        self.events.push(MockEvent::EndOfFrame);
+        self.complete_all();
+        Ok(())
+    }
+}
