@@ -1,8 +1,7 @@
-//! Raw-ash plumbing shared by the standalone host examples (`embed` and `engine`): the
-//! validation messenger and instance, host-visible buffers, render targets and the scene and
-//! query-box graphics pipelines. Each example includes this file with
-//! `#[path = "common/raw_host.rs"] mod raw_host;` and keeps its own device, frame loop and
-//! `OcclusionBackend` implementation; nothing here goes through coherent's own GPU code.
+//! The engine example's own raw-ash plumbing, none of it about culling: the validation
+//! messenger and instance, host-visible buffers, render targets and the scene pipeline.
+//! `engine.rs` includes this file with `#[path = "common/raw_host.rs"] mod raw_host;`; nothing
+//! here goes through coherent's own GPU code.
 
 use std::ffi::c_void;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -38,7 +37,6 @@ unsafe extern "system" fn on_message(
 /// A buffer or image allocation in host-visible memory (the host keeps things simple).
 pub struct Memory {
     pub memory: vk::DeviceMemory,
-    pub ptr: *mut u8,
 }
 
 /// The Vulkan loader, a 1.3 instance with the Khronos validation layer, and a messenger that
@@ -54,10 +52,15 @@ pub fn instance() -> Result<(
     let layers = [c"VK_LAYER_KHRONOS_validation".as_ptr()];
     let exts = [ext::debug_utils::NAME.as_ptr()];
     let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_3);
+    // Core and synchronization validation (best practices would flag this simple host's own
+    // one-allocation-per-buffer memory; coherent-ash itself is tested with them on).
+    let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+    let mut features = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
     let info = vk::InstanceCreateInfo::default()
         .application_info(&app)
         .enabled_layer_names(&layers)
-        .enabled_extension_names(&exts);
+        .enabled_extension_names(&exts)
+        .push_next(&mut features);
     // SAFETY: valid create info.
     let instance = unsafe { entry.create_instance(&info, None) }
         .context("instance (is vulkan-validationlayers installed?)")?;
@@ -137,7 +140,7 @@ pub fn buffer(
         let ptr =
             device.map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty())? as *mut u8;
         std::ptr::copy_nonoverlapping(data.as_ptr(), ptr, data.len().min(req.size as usize));
-        Ok((buffer, Memory { memory, ptr }))
+        Ok((buffer, Memory { memory }))
     }
 }
 
@@ -532,32 +535,25 @@ pub unsafe fn begin_rendering(
     }
 }
 
-/// The scene pipeline and the query-box pipeline of both hosts, in that order (see
-/// [`pipeline`]).
-pub fn scene_and_query_pipelines(
+/// The scene pipeline (see [`pipeline`]).
+pub fn scene_pipeline(
     device: &ash::Device,
     layout: vk::PipelineLayout,
     reverse_z: bool,
-) -> Result<(vk::Pipeline, vk::Pipeline)> {
-    use coherent::gpu::shaders::{BOX_VERT, SCENE_FRAG, SCENE_VERT};
-    let render = pipeline(
+) -> Result<vk::Pipeline> {
+    use coherent::gpu::shaders::{SCENE_FRAG, SCENE_VERT};
+    pipeline(
         device,
         layout,
         SCENE_VERT,
         Some(SCENE_FRAG),
         false,
         reverse_z,
-    )?;
-    let query = pipeline(device, layout, BOX_VERT, None, true, reverse_z);
-    if query.is_err() {
-        // SAFETY: the pipeline was just created and never used.
-        unsafe { device.destroy_pipeline(render, None) };
-    }
-    Ok((render, query?))
+    )
 }
 
-/// Binds `pipeline` with its vertex buffer `vb` and its 32-bit index buffer `ib`: how both hosts
-/// switch between the scene state and the query-box state.
+/// Binds `pipeline` with its vertex buffer `vb` and its 32-bit index buffer `ib`: the engine's
+/// scene state.
 ///
 /// # Safety
 /// `cmd` is recording inside a rendering; the pipeline and buffers are valid.

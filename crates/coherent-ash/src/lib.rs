@@ -1,1 +1,596 @@
-//! placeholder
+//! # coherent-ash
+//!
+//! What an [ash](https://docs.rs/ash) host needs to run a [`coherent_cull`] culler inside its own
+//! frame: [`QueryBackend`], an [`OcclusionBackend`] that records into the host's command buffer
+//! on the host's `ash::Device`, inside the host's depth pass (dynamic rendering), with `k` frames
+//! in flight. It owns the query side and nothing else:
+//!
+//! - one precise occlusion query pool per frame-in-flight slot, reset inside the frame that
+//!   reuses the slot (`vkCmdResetQueryPool`, before the host begins rendering);
+//! - the results, copied at the end of the frame with `vkCmdCopyQueryPoolResults` (value and
+//!   availability) into host-visible memory and read when the host starts the slot's next
+//!   frame, after it waited for the slot's fence: `vkGetQueryPoolResults` is never called (on
+//!   some drivers, lavapipe among them, it waits for the whole device);
+//! - the box pipeline for the host's attachment formats and depth convention (depth test
+//!   *or-equal* towards the eye, a small depth bias towards the eye, no writes), its SPIR-V
+//!   shipped inside this crate: no shaderc, no C++ toolchain;
+//! - counts of what it recorded ([`QueryCounts`]): queries, boxes, pipeline binds, state
+//!   changes, the host's draw calls.
+//!
+//! The host keeps its device, its frame loop, its command buffers and its draws: the culler's
+//! "draw these objects" comes back to the host through a callback.
+//!
+//! ## A frame
+//!
+//! ```no_run
+//! # use ash::vk;
+//! # use coherent_ash::{QueryBackend, QueryBackendDesc};
+//! # use coherent_cull::chcpp::{Chcpp, ChcppParams};
+//! # use coherent_cull::{CameraView, Culler, DepthConvention, FrameInput, Latency, ObjectBvh};
+//! # fn host(instance: &ash::Instance, physical_device: vk::PhysicalDevice, device: &ash::Device,
+//! #         cmd: vk::CommandBuffer, bvh: &ObjectBvh, view_proj: [f32; 16], eye: [f32; 3],
+//! #         frame: u64) -> Result<(), Box<dyn std::error::Error>> {
+//! let desc = QueryBackendDesc {
+//!     frames_in_flight: 2,
+//!     depth_format: vk::Format::D32_SFLOAT,
+//!     depth: DepthConvention::REVERSE_Z_INFINITE,
+//!     ..QueryBackendDesc::default()
+//! };
+//! // Once, after creating the device (with `occlusionQueryPrecise` enabled).
+//! let mut queries = unsafe { QueryBackend::new(instance, physical_device, device, desc)? };
+//! let mut culler = Chcpp::new(ChcppParams::default())
+//!     .with_latency(Latency::NextFrame)
+//!     .with_frames_in_flight(2);
+//!
+//! // Each frame, in slot `frame % 2`, after waiting for the slot's fence, before rendering:
+//! unsafe { queries.begin_frame(cmd, (frame % 2) as u32)? };
+//! // ... vkCmdBeginRendering (the depth pass), viewport and scissor set ...
+//! let view = CameraView::new(view_proj, eye, DepthConvention::REVERSE_Z_INFINITE);
+//! let input = FrameInput { bvh, view, frame, exact_visible: None };
+//! let mut backend = queries.frame(cmd, view_proj, |cmd, objects: &[u32], rebind| {
+//!     // if rebind: bind the host's pipeline, descriptor sets and push constants again;
+//!     // then record the draws of `objects` into `cmd`.
+//!     Ok(())
+//! });
+//! culler.cull_frame(&input, &mut backend)?;
+//! // ... vkCmdEndRendering ...
+//! unsafe { queries.end_frame(cmd)? };
+//! // ... end the command buffer, one vkQueueSubmit with the slot's fence ...
+//! # Ok(()) }
+//! ```
+//!
+//! ## What the culler may ask
+//!
+//! A [`QueryBackend`] frame supports the latency modes of `coherent-cull` with `k` frames in
+//! flight (`Latency::NextFrame` or `Latency::NextFrameConservative`,
+//! `Chcpp::with_frames_in_flight(k)` with `k` at least 2 and at most the backend's
+//! `frames_in_flight`): one submission per frame and no waits. It refuses, with
+//! [`coherent_cull::Error::Unsupported`], what would need the host to submit or wait inside
+//! its frame: `flush` and `wait_query` (the in-frame mode and stop-and-wait), and `finish`
+//! (a culler reading its results in the same frame, `k = 1`).
+//!
+//! ## Requirements
+//!
+//! Vulkan 1.3 (or 1.2 with `VK_KHR_dynamic_rendering`) with `dynamicRendering` enabled, and
+//! `occlusionQueryPrecise` enabled on the device ([`QueryBackend::new`] checks that the
+//! physical device has it and says so if not). The host's rendering must match the formats,
+//! samples and view mask of [`QueryBackendDesc`], and set viewport and scissor dynamically.
+//!
+//! ## Lifetime
+//!
+//! Drop the backend (or call [`QueryBackend::destroy`]) after the device has finished every
+//! frame that used it and before the host destroys the device.
+
+#![deny(missing_docs)]
+
+mod pipeline;
+mod slots;
+
+use ash::vk;
+use coherent_cull::{
+    Aabb, DepthConvention, Error, OcclusionBackend, QueryId, QueryPurpose, Result,
+};
+
+pub use coherent_cull;
+
+use pipeline::BoxPipeline;
+use slots::{Arena, HostBuffer, Slot};
+
+/// SPIR-V of the box vertex shader (compiled from the workspace's `shaders/query_box.vert`).
+pub const QUERY_BOX_VERT_SPV: &[u8] = include_bytes!("../spirv/query_box.vert.spv");
+
+/// How the host renders, and how much the backend may record per frame.
+#[derive(Clone, Debug)]
+pub struct QueryBackendDesc {
+    /// Frames in flight: one query pool and result buffer per slot (at least 2; a host with one
+    /// frame in flight still uses 2, and its culler reads results two frames late).
+    pub frames_in_flight: u32,
+    /// Most queries one frame may issue.
+    pub max_queries: u32,
+    /// Most query boxes one frame may draw (a multiquery or a tight volume has several).
+    pub max_boxes: u32,
+    /// Depth attachment format of the host's depth pass.
+    pub depth_format: vk::Format,
+    /// Color attachment formats of the host's depth pass (the box pipeline writes none).
+    pub color_formats: Vec<vk::Format>,
+    /// Rasterization samples of the host's attachments.
+    pub samples: vk::SampleCountFlags,
+    /// View mask of the host's rendering (0 without multiview).
+    pub view_mask: u32,
+    /// The host's depth convention: which depth compare and bias face the eye.
+    pub depth: DepthConvention,
+}
+
+impl Default for QueryBackendDesc {
+    fn default() -> Self {
+        QueryBackendDesc {
+            frames_in_flight: 2,
+            max_queries: 4096,
+            max_boxes: 32768,
+            depth_format: vk::Format::D32_SFLOAT,
+            color_formats: Vec::new(),
+            samples: vk::SampleCountFlags::TYPE_1,
+            view_mask: 0,
+            depth: DepthConvention::REVERSE_Z_INFINITE,
+        }
+    }
+}
+
+/// What the backend recorded in the current frame (since [`QueryBackend::begin_frame`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct QueryCounts {
+    /// Occlusion queries begun (`vkCmdBeginQuery`).
+    pub queries: u32,
+    /// Of those, multiqueries (several nodes in one query).
+    pub multiqueries: u32,
+    /// Of those, queries of previously visible leaves (for a later frame).
+    pub visible_leaf_queries: u32,
+    /// Boxes drawn inside queries.
+    pub query_boxes: u32,
+    /// Box draws (`vkCmdDrawIndexed`, one per query).
+    pub box_draws: u32,
+    /// Binds of the box pipeline (`vkCmdBindPipeline`).
+    pub pipeline_binds: u32,
+    /// Switches between the host's render state and the query state, either way.
+    pub state_changes: u32,
+    /// Calls of the host's draw callback with at least one object.
+    pub object_draw_calls: u32,
+    /// Objects handed to the host's draw callback.
+    pub objects_drawn: u32,
+    /// Query pool resets recorded (`vkCmdResetQueryPool`).
+    pub resets: u32,
+    /// Result copies recorded (`vkCmdCopyQueryPoolResults`).
+    pub result_copies: u32,
+    /// Query results read from the host-visible copy at the start of the frame.
+    pub results_read: u32,
+}
+
+/// The host's draw callback: record draws of `objects` into the command buffer; `rebind` is
+/// true when the box pipeline was bound since the host's last draw (bind the host's pipeline,
+/// descriptor sets and push constants again).
+pub trait DrawObjects {
+    /// Records the draws (see the trait docs).
+    fn draw(&mut self, cmd: vk::CommandBuffer, objects: &[u32], rebind: bool) -> Result<()>;
+}
+
+impl<F> DrawObjects for F
+where
+    F: FnMut(vk::CommandBuffer, &[u32], bool) -> Result<()>,
+{
+    fn draw(&mut self, cmd: vk::CommandBuffer, objects: &[u32], rebind: bool) -> Result<()> {
+        self(cmd, objects, rebind)
+    }
+}
+
+/// Occlusion queries for a culler, recorded into the host's command buffers (see the crate
+/// docs).
+pub struct QueryBackend {
+    device: ash::Device,
+    desc: QueryBackendDesc,
+    pipeline: BoxPipeline,
+    /// The 36 indices of each of `max_boxes` boxes (8 corners each), shared by every slot.
+    indices: HostBuffer,
+    slots: Vec<Slot>,
+    /// The memory every buffer lives in.
+    arena: Arena,
+    /// The slot of the frame being recorded (`None` outside begin/end).
+    current: Option<u32>,
+    counts: QueryCounts,
+    destroyed: bool,
+}
+
+/// Corner indices of one box's 12 triangles (corner `c` = x | y << 1 | z << 2).
+const BOX_FACES: [u32; 36] = [
+    0, 2, 1, 1, 2, 3, // -z
+    4, 5, 6, 5, 7, 6, // +z
+    0, 1, 4, 1, 5, 4, // -y
+    2, 6, 3, 3, 6, 7, // +y
+    0, 4, 2, 2, 4, 6, // -x
+    1, 3, 5, 3, 7, 5, // +x
+];
+
+impl QueryBackend {
+    /// Creates the query pools, result and box buffers (host-visible memory) and the box
+    /// pipeline on the host's device.
+    ///
+    /// # Safety
+    /// `device` must have been created from `physical_device` of `instance`, with
+    /// `dynamicRendering` and `occlusionQueryPrecise` enabled, and must outlive the backend.
+    pub unsafe fn new(
+        instance: &ash::Instance,
+        physical_device: vk::PhysicalDevice,
+        device: &ash::Device,
+        desc: QueryBackendDesc,
+    ) -> Result<QueryBackend> {
+        check_desc(&desc)?;
+        // SAFETY: the caller guarantees that the handles belong together.
+        let features = unsafe { instance.get_physical_device_features(physical_device) };
+        if features.occlusion_query_precise == vk::FALSE {
+            return Err(Error::Unsupported {
+                feature: "occlusionQueryPrecise (precise occlusion queries)".into(),
+            });
+        }
+        // SAFETY: as above.
+        let memory = unsafe { instance.get_physical_device_memory_properties(physical_device) };
+        let mut out = QueryBackend {
+            device: device.clone(),
+            pipeline: BoxPipeline::null(),
+            indices: HostBuffer::null(),
+            slots: Vec::new(),
+            arena: Arena::null(),
+            current: None,
+            counts: QueryCounts::default(),
+            destroyed: false,
+            desc,
+        };
+        // On an error below, `out` is dropped and destroys what was created so far.
+        out.pipeline = unsafe { BoxPipeline::new(device, &out.desc)? };
+        let index_bytes = u64::from(out.desc.max_boxes) * 36 * 4;
+        out.indices =
+            unsafe { HostBuffer::create(device, index_bytes, vk::BufferUsageFlags::INDEX_BUFFER)? };
+        for _ in 0..out.desc.frames_in_flight {
+            let slot = unsafe { Slot::new(device, &out.desc)? };
+            out.slots.push(slot);
+        }
+        let mut buffers = vec![&mut out.indices];
+        for s in &mut out.slots {
+            buffers.extend(s.buffers());
+        }
+        out.arena = unsafe { Arena::new(device, &memory, &mut buffers)? };
+        let indices: Vec<u32> = (0..out.desc.max_boxes)
+            .flat_map(|b| BOX_FACES.iter().map(move |i| i + 8 * b))
+            .collect();
+        out.indices.write(0, as_bytes(&indices));
+        Ok(out)
+    }
+
+    /// The description the backend was made with.
+    pub fn desc(&self) -> &QueryBackendDesc {
+        &self.desc
+    }
+
+    /// Starts the frame that uses frame-in-flight `slot`: reads the results of the slot's
+    /// previous frame from host memory and records the reset of the queries it used into
+    /// `cmd` (so call it before the host begins rendering).
+    ///
+    /// # Safety
+    /// `cmd` is in the recording state, outside a render pass instance; the slot's previous
+    /// frame has completed on the device (the host waited for its fence).
+    pub unsafe fn begin_frame(&mut self, cmd: vk::CommandBuffer, slot: u32) -> Result<()> {
+        if slot >= self.desc.frames_in_flight {
+            return Err(Error::Input(format!(
+                "frame-in-flight slot {slot} out of range (the backend has {})",
+                self.desc.frames_in_flight
+            )));
+        }
+        if let Some(open) = self.current {
+            return Err(Error::Input(format!(
+                "begin_frame({slot}) while the frame in slot {open} was not ended (end_frame)"
+            )));
+        }
+        self.counts = QueryCounts::default();
+        let s = &mut self.slots[slot as usize];
+        self.counts.results_read = s.read_results();
+        // SAFETY: the caller guarantees the recording state outside rendering.
+        if unsafe { s.record_reset(&self.device, cmd) } {
+            self.counts.resets += 1;
+        }
+        self.current = Some(slot);
+        Ok(())
+    }
+
+    /// This frame as an [`OcclusionBackend`] for `cull_frame`: draws go to `draw`, queries are
+    /// recorded into `cmd` inside the host's depth pass, with `view_proj` (column-major
+    /// world-to-clip, the matrix of the frame's `CameraView`) for the boxes.
+    ///
+    /// Call it between [`QueryBackend::begin_frame`] and [`QueryBackend::end_frame`], with
+    /// `cmd` inside the host's rendering.
+    pub fn frame<D: DrawObjects>(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        view_proj: [f32; 16],
+        draw: D,
+    ) -> FrameBackend<'_, D> {
+        FrameBackend {
+            backend: self,
+            cmd,
+            view_proj,
+            draw,
+            in_query_state: false,
+            box_bound_since_draw: false,
+        }
+    }
+
+    /// Ends the frame: records the copy of its query results (value and availability) into
+    /// the slot's host-visible buffer and a barrier that makes them visible to the host. Call
+    /// it after the host ended rendering; the results are read by the `begin_frame` that
+    /// reuses the slot.
+    ///
+    /// # Safety
+    /// `cmd` is the command buffer of `begin_frame`, recording, outside a render pass instance.
+    pub unsafe fn end_frame(&mut self, cmd: vk::CommandBuffer) -> Result<()> {
+        let slot = self
+            .current
+            .take()
+            .ok_or_else(|| Error::Input("end_frame without begin_frame".into()))?;
+        let s = &mut self.slots[slot as usize];
+        // SAFETY: the caller guarantees the recording state outside rendering.
+        if unsafe { s.record_copy(&self.device, cmd) } {
+            self.counts.result_copies += 1;
+        }
+        Ok(())
+    }
+
+    /// What was recorded since the last [`QueryBackend::begin_frame`].
+    pub fn counts(&self) -> QueryCounts {
+        self.counts
+    }
+
+    /// Destroys every Vulkan object of the backend (also done on drop).
+    ///
+    /// # Safety
+    /// The device has finished every command buffer that used the backend.
+    pub unsafe fn destroy(&mut self) {
+        if self.destroyed {
+            return;
+        }
+        self.destroyed = true;
+        for s in &mut self.slots {
+            // SAFETY: the caller (or drop) guarantees the device is done with them.
+            unsafe { s.destroy(&self.device) };
+        }
+        self.slots.clear();
+        unsafe {
+            self.indices.destroy(&self.device);
+            self.arena.destroy(&self.device);
+            self.pipeline.destroy(&self.device);
+        }
+    }
+
+    fn slot_of(&self, id: QueryId) -> (u32, u32) {
+        let k = self.desc.frames_in_flight;
+        (id % k, id / k)
+    }
+}
+
+impl Drop for QueryBackend {
+    fn drop(&mut self) {
+        // SAFETY: the crate docs require dropping the backend only once the device is done
+        // with its frames.
+        unsafe { self.destroy() };
+    }
+}
+
+/// One frame of a [`QueryBackend`] as the culler's [`OcclusionBackend`] (from
+/// [`QueryBackend::frame`]).
+pub struct FrameBackend<'a, D: DrawObjects> {
+    backend: &'a mut QueryBackend,
+    cmd: vk::CommandBuffer,
+    view_proj: [f32; 16],
+    draw: D,
+    in_query_state: bool,
+    box_bound_since_draw: bool,
+}
+
+impl<D: DrawObjects> FrameBackend<'_, D> {
+    fn slot(&self) -> Result<u32> {
+        self.backend
+            .current
+            .ok_or_else(|| Error::Input("a culler frame outside begin_frame/end_frame".into()))
+    }
+
+    fn enter_query_state(&mut self) {
+        if self.in_query_state {
+            return;
+        }
+        self.in_query_state = true;
+        self.box_bound_since_draw = true;
+        let c = &mut self.backend.counts;
+        c.state_changes += 1;
+        c.pipeline_binds += 1;
+        let slot = &self.backend.slots[self.backend.current.unwrap_or(0) as usize];
+        // SAFETY: `cmd` is recording inside the host's rendering (the `frame` contract); the
+        // pipeline, layout and buffers live as long as the backend.
+        unsafe {
+            self.backend.pipeline.bind(
+                &self.backend.device,
+                self.cmd,
+                &self.view_proj,
+                slot.vertices.buffer,
+                self.backend.indices.buffer,
+            )
+        };
+    }
+}
+
+impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
+    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
+        if objects.is_empty() {
+            return Ok(());
+        }
+        if self.in_query_state {
+            self.in_query_state = false;
+            self.backend.counts.state_changes += 1;
+        }
+        let rebind = std::mem::take(&mut self.box_bound_since_draw);
+        self.draw.draw(self.cmd, objects, rebind)?;
+        self.backend.counts.object_draw_calls += 1;
+        self.backend.counts.objects_drawn += objects.len() as u32;
+        Ok(())
+    }
+
+    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+        self.issue_query_for(boxes, QueryPurpose::Node)
+    }
+
+    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+        let slot = self.slot()?;
+        let (max_q, max_b) = (self.backend.desc.max_queries, self.backend.desc.max_boxes);
+        let s = &self.backend.slots[slot as usize];
+        if s.issued >= max_q {
+            return Err(Error::Input(format!(
+                "more than {max_q} queries in one frame (raise QueryBackendDesc::max_queries)"
+            )));
+        }
+        if boxes.is_empty() || s.boxes_used + boxes.len() as u32 > max_b {
+            return Err(Error::Input(format!(
+                "a query of {} boxes: the frame has room for {} more (QueryBackendDesc::max_boxes)",
+                boxes.len(),
+                max_b - s.boxes_used
+            )));
+        }
+        self.enter_query_state();
+        let s = &mut self.backend.slots[slot as usize];
+        let index = s.issued;
+        let first_box = s.boxes_used;
+        s.write_corners(first_box, boxes);
+        // SAFETY: recording inside rendering with the box pipeline bound; the query was reset
+        // in this frame's begin_frame and is used once.
+        unsafe {
+            let d = &self.backend.device;
+            d.cmd_begin_query(self.cmd, s.pool, index, vk::QueryControlFlags::PRECISE);
+            d.cmd_draw_indexed(
+                self.cmd,
+                36 * boxes.len() as u32,
+                1,
+                0,
+                (first_box * 8) as i32,
+                0,
+            );
+            d.cmd_end_query(self.cmd, s.pool, index);
+        }
+        s.issued += 1;
+        s.boxes_used += boxes.len() as u32;
+        let c = &mut self.backend.counts;
+        c.queries += 1;
+        c.query_boxes += boxes.len() as u32;
+        c.box_draws += 1;
+        match purpose {
+            QueryPurpose::Multiquery => c.multiqueries += 1,
+            QueryPurpose::VisibleLeaf => c.visible_leaf_queries += 1,
+            QueryPurpose::Node => {}
+        }
+        Ok(slot + self.backend.desc.frames_in_flight * index)
+    }
+
+    fn restore_render_state(&mut self) -> Result<()> {
+        if self.in_query_state {
+            self.in_query_state = false;
+            self.backend.counts.state_changes += 1;
+        }
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        Err(Error::Unsupported {
+            feature: "submissions inside a frame (coherent-ash records into the host's one \
+                      command buffer per frame: use a latency mode with frames in flight)"
+                .into(),
+        })
+    }
+
+    fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
+        let current = self.slot()?;
+        let (slot, index) = self.backend.slot_of(query);
+        let s = &self.backend.slots[slot as usize];
+        if slot != current || s.issued > 0 {
+            // Another slot's frame has not been waited for, or this slot was reused already.
+            return Ok(None);
+        }
+        Ok(s.result(index))
+    }
+
+    fn wait_query(&mut self, query: QueryId) -> Result<u64> {
+        Err(Error::Unsupported {
+            feature: format!(
+                "waiting for query {query} inside a frame (coherent-ash never waits: use a \
+                 latency mode with frames in flight)"
+            ),
+        })
+    }
+
+    fn finish(&mut self) -> Result<()> {
+        Err(Error::Unsupported {
+            feature: "finishing the frame inside cull_frame (the host submits; configure the \
+                      culler with with_frames_in_flight(k), k >= 2)"
+                .into(),
+        })
+    }
+
+    fn frames_in_flight(&self) -> u32 {
+        self.backend.desc.frames_in_flight
+    }
+
+    fn submit_frame(&mut self) -> Result<()> {
+        // The host ends rendering, calls end_frame and submits.
+        Ok(())
+    }
+}
+
+fn check_desc(desc: &QueryBackendDesc) -> Result<()> {
+    if desc.frames_in_flight < 2 {
+        return Err(Error::Input(format!(
+            "frames_in_flight {} (at least 2: the culler reads a frame's results when its slot \
+             is reused)",
+            desc.frames_in_flight
+        )));
+    }
+    if desc.max_queries == 0 || desc.max_boxes == 0 {
+        return Err(Error::Input(
+            "max_queries and max_boxes must be at least 1".into(),
+        ));
+    }
+    if u64::from(desc.max_boxes) * 36 > u64::from(u32::MAX) {
+        return Err(Error::Input(format!(
+            "max_boxes {} is too large for 32-bit indices",
+            desc.max_boxes
+        )));
+    }
+    Ok(())
+}
+
+fn as_bytes(words: &[u32]) -> &[u8] {
+    // SAFETY: u32 has no padding and any byte pattern of it is a valid u8 sequence.
+    unsafe { std::slice::from_raw_parts(words.as_ptr().cast::<u8>(), std::mem::size_of_val(words)) }
+}
+
+fn vk_err(call: &'static str) -> impl Fn(vk::Result) -> Error {
+    move |r| Error::backend(VkError { call, result: r })
+}
+
+/// A failed Vulkan call of the backend (inside [`coherent_cull::Error::Backend`]).
+#[derive(Debug)]
+pub struct VkError {
+    /// The call.
+    pub call: &'static str,
+    /// What it returned.
+    pub result: vk::Result,
+}
+
+impl std::fmt::Display for VkError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Vulkan call {} failed: {}", self.call, self.result)
+    }
+}
+
+impl std::error::Error for VkError {}
