@@ -29,6 +29,9 @@ pub const SCENE_MAT_MASKED_FRAG: &[u8] = spirv!("scene_mat_masked.frag");
 pub const ID_MASKED_FRAG: &[u8] = spirv!("id_masked.frag");
 /// Query box vertex shader.
 pub const BOX_VERT: &[u8] = spirv!("box.vert");
+/// coherent-ash's query-box vertex shader, compiled from shaders/query_box.vert (the crate ships
+/// its own copy of these words; a test fails when they differ).
+pub const QUERY_BOX_VERT: &[u8] = spirv!("query_box.vert");
 
 /// GI G-buffer vertex shader (pulls world-space vertices from a storage buffer).
 pub const GI_GBUFFER_VERT: &[u8] = spirv!("gi_gbuffer.vert");

@@ -5,7 +5,7 @@
 //! validation messages with flat GPU memory. `COHERENT_SOAK_FRAMES=N` runs the long soak
 //! (`soak_long`, ignored by default; `scripts/soak.sh`).
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 use std::sync::Arc;

@@ -6,7 +6,7 @@
 //! maps' points avoid the holes. The same file with the mask off is
 //! the control: every check fails for it.
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 

@@ -2,7 +2,7 @@
 //! the public API between frames, every algorithm renders what vfc renders, frame after frame,
 //! under the validation layer.
 
-mod common;
+use crate::common;
 
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{

@@ -2,10 +2,9 @@
 //! performs no heap allocation in the culler or the renderer's recording path (counted with a
 //! global allocator that counts this thread's allocations while a frame is being rendered).
 
-mod common;
+use crate::common;
 
-#[path = "common/counting_alloc.rs"]
-mod counting_alloc;
+use crate::counting_alloc;
 
 use std::sync::atomic::Ordering;
 
@@ -14,6 +13,7 @@ use coherent::render::Renderer;
 
 #[test]
 fn steady_frames_do_not_allocate() {
+    let _serial = crate::SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let (ctx, log) = common::context();
     {
         let (scene, bvh) = common::scene("city", 0.1);

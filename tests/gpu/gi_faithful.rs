@@ -3,7 +3,7 @@
 //! interleave classes are stable (no flicker), kept shadow maps are the ones a full re-render
 //! gives, and incremental converges to the full recompute once the light stops.
 
-mod common;
+use crate::common;
 
 use coherent::gi::geometry::WorldGeometry;
 use coherent::gi::light::Spotlight;

@@ -1,7 +1,7 @@
 //! Imperfect shadow maps on the GPU under the validation layer: every VPL gets its own map, built
 //! every frame from the surface points, and an occluder between a VPL and a surface darkens it.
 
-mod common;
+use crate::common;
 
 use coherent::gi::geometry::WorldGeometry;
 use coherent::gi::light::Spotlight;

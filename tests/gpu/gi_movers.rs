@@ -3,7 +3,7 @@
 //! only the first again and gives the image of a fresh render of every map), and `gi --movers`
 //! runs all three modes with the incremental mode re-rendering the maps the movers touch.
 
-mod common;
+use crate::common;
 
 use coherent::gi::geometry::WorldGeometry;
 use coherent::gi::light::Spotlight;

@@ -184,7 +184,7 @@ fn corpus_replays_without_panic() {
 
 // ---- Path files, PVS cache files and calibration cache files (fuzz target `cache_files`) ----
 
-#[path = "../fuzz/cache_input.rs"]
+#[path = "../../fuzz/cache_input.rs"]
 mod cache_input;
 
 use cache_input::Kind;

@@ -1,7 +1,7 @@
 //! Foundation: context lifetime, validation capture, built-in scenes, glTF loading and its
 //! errors, all under the validation layer with zero messages and no leaks at teardown.
 
-mod common;
+use crate::common;
 
 use coherent::culling::{self, ChcppParams};
 use coherent::gpu::Severity;

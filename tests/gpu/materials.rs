@@ -3,7 +3,7 @@
 //! vertex colors; the render shows the texture, masked pixels show the wall, the ID pass agrees
 //! with the mask. Images come from a data URI, a file next to the .gltf and a GLB buffer view.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,7 @@
 //! the PVS of a scene with a known answer holds exactly what can be seen; PVS cache files and
 //! calibrations are reused, and refused when truncated, corrupt or foreign.
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 

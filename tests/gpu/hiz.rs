@@ -2,7 +2,7 @@
 //! frames equal VFC's pixel for pixel (first frame and camera cuts included, odd sizes too),
 //! and its counts come from the recorder — all under validation.
 
-mod common;
+use crate::common;
 
 use coherent::culling::{self, ChcppParams};
 use coherent::render::hiz::{FrameAlgorithm, HizCuller, HizParams};

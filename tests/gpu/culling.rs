@@ -1,7 +1,7 @@
 //! Occlusion culling: every algorithm gives VFC's image pixel for pixel, counts come from the
 //! recorder and behave as the papers say, and edge cases render correctly — all under validation.
 
-mod common;
+use crate::common;
 
 use coherent::bvh::ObjectBvh;
 use coherent::culling::chcpp::{Chcpp, ChcppParams};

@@ -2,8 +2,7 @@
 //! hierarchy) and refitting it, frame after frame, performs no heap allocation on frames without
 //! a rebuild (counted with a global allocator that counts this thread's allocations).
 
-#[path = "common/counting_alloc.rs"]
-mod counting_alloc;
+use crate::counting_alloc;
 
 use std::sync::atomic::Ordering;
 
@@ -13,6 +12,7 @@ use coherent::scene::Scene;
 
 #[test]
 fn mover_updates_do_not_allocate() {
+    let _serial = crate::SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let mut scene = Scene::load("city", 0.25, 4096).unwrap();
     let movers = Movers::add(&mut scene, 1000);
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();

@@ -1,7 +1,7 @@
 //! Scenes as users bring them: path files, glTF cameras and lights, compressed glTF, the
 //! automatic interior walk.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,0 +1,267 @@
+//! coherent-ash's `QueryBackend` on a real device under strict validation (core,
+//! synchronization, best practices): a culler in next-frame mode with two frames in flight,
+//! queries recorded into a host command buffer inside a depth pass, results copied and read two
+//! frames later; and the shipped SPIR-V of its box shader equals what the workspace's GLSL
+//! compiles to.
+
+use ash::vk;
+use coherent::gpu::memory::Image;
+use coherent::gpu::shaders::QUERY_BOX_VERT;
+use coherent_ash::{QueryBackend, QueryBackendDesc};
+use coherent_cull::camera::{Camera, CameraPose};
+use coherent_cull::chcpp::{Chcpp, ChcppParams};
+use coherent_cull::glam::Vec3;
+use coherent_cull::{CameraView, Culler, DepthConvention, FrameInput, Latency, ObjectBvh};
+
+use crate::common;
+
+/// The words coherent-ash ships must be what `shaders/query_box.vert` compiles to now: change
+/// the GLSL without regenerating them and this fails. Regenerate with
+/// `COHERENT_BLESS_SPIRV=1 cargo test --test gpu shipped_box_shader`.
+#[test]
+fn shipped_box_shader_is_current() {
+    let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("crates/coherent-ash/spirv/query_box.vert.spv");
+    if std::env::var_os("COHERENT_BLESS_SPIRV").is_some() {
+        std::fs::write(&shipped, QUERY_BOX_VERT).expect("write the shipped SPIR-V");
+    }
+    let on_disk = std::fs::read(&shipped).expect("crates/coherent-ash/spirv/query_box.vert.spv");
+    assert!(
+        on_disk == QUERY_BOX_VERT && coherent_ash::QUERY_BOX_VERT_SPV == QUERY_BOX_VERT,
+        "coherent-ash's shipped SPIR-V is stale: regenerate it with \
+         COHERENT_BLESS_SPIRV=1 cargo test --test gpu shipped_box_shader"
+    );
+}
+
+const W: u32 = 64;
+const H: u32 = 64;
+
+/// 16 unit boxes in a row along -z in front of the camera, at depths 5 to 35.
+fn row() -> (ObjectBvh, Camera) {
+    let boxes = (0..16).map(|i| {
+        let z = -5.0 - 2.0 * i as f32;
+        [[-0.5, -0.5, z - 1.0], [0.5, 0.5, z]]
+    });
+    let bvh = ObjectBvh::from_boxes(boxes, 1);
+    let pose = CameraPose {
+        eye: Vec3::new(0.0, 0.0, 0.0),
+        target: Vec3::new(0.0, 0.0, -10.0),
+    };
+    (bvh, Camera::from_pose(pose, 1.0, 100.0))
+}
+
+/// Depth (standard convention) of a point `d` in front of the camera.
+fn depth_at(cam: &Camera, d: f32) -> f32 {
+    let p = cam.view_proj() * coherent_cull::glam::Vec4::new(0.0, 0.0, -d, 1.0);
+    p.z / p.w
+}
+
+/// Runs `frames` frames of chcpp@next-frame-k2 through a QueryBackend; the depth pass draws
+/// nothing but is cleared to the depth of a wall `wall` units away, so boxes behind it are
+/// hidden. Returns the objects drawn in each frame and the backend's counts of the last frame.
+fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCounts) {
+    let (ctx, log) = common::context();
+    let result;
+    {
+        let (bvh, cam) = row();
+        let d = &ctx.device;
+        let depth = Image::new(
+            &ctx,
+            "query test depth",
+            vk::Format::D32_SFLOAT,
+            (W, H),
+            1,
+            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+        )
+        .expect("depth image");
+        let desc = QueryBackendDesc {
+            frames_in_flight: 2,
+            depth_format: vk::Format::D32_SFLOAT,
+            depth: DepthConvention::STANDARD,
+            max_queries: 256,
+            max_boxes: 1024,
+            ..QueryBackendDesc::default()
+        };
+        // SAFETY: the context's device has dynamic rendering and precise queries, and outlives
+        // the backend (dropped at the end of this block after the device went idle).
+        let mut queries = unsafe {
+            QueryBackend::new(&ctx.instance, ctx.physical_device, d, desc).expect("backend")
+        };
+        // SAFETY: valid device; everything below is destroyed before the block ends.
+        let (pool, cmds, fences) = unsafe {
+            let pool = d
+                .create_command_pool(
+                    &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
+                    None,
+                )
+                .expect("pool");
+            let cmds = d
+                .allocate_command_buffers(
+                    &vk::CommandBufferAllocateInfo::default()
+                        .command_pool(pool)
+                        .command_buffer_count(2),
+                )
+                .expect("command buffers");
+            let fences: Vec<vk::Fence> = (0..2)
+                .map(|_| {
+                    d.create_fence(
+                        &vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED),
+                        None,
+                    )
+                    .expect("fence")
+                })
+                .collect();
+            (pool, cmds, fences)
+        };
+        let mut culler = Chcpp::new(ChcppParams::default())
+            .with_latency(Latency::NextFrame)
+            .with_frames_in_flight(2);
+        let clear = depth_at(&cam, wall);
+        let view: CameraView = (&cam).into();
+        let view_proj = view.view_proj.to_cols_array();
+        let mut drawn = Vec::new();
+        for frame in 0..frames {
+            let slot = (frame % 2) as usize;
+            let cmd = cmds[slot];
+            let mut objects: Vec<u32> = Vec::new();
+            // SAFETY: the slot's fence is waited for before its command buffer and queries are
+            // reused; recording follows the backend's contract (begin outside rendering, frame
+            // inside, end outside).
+            unsafe {
+                d.wait_for_fences(&[fences[slot]], true, u64::MAX)
+                    .expect("wait");
+                d.reset_fences(&[fences[slot]]).expect("reset fence");
+                d.reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty())
+                    .expect("reset");
+                d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+                    .expect("begin");
+                queries.begin_frame(cmd, slot as u32).expect("begin_frame");
+                let range = vk::ImageSubresourceRange::default()
+                    .aspect_mask(vk::ImageAspectFlags::DEPTH)
+                    .level_count(1)
+                    .layer_count(1);
+                let stages = vk::PipelineStageFlags::EARLY_FRAGMENT_TESTS
+                    | vk::PipelineStageFlags::LATE_FRAGMENT_TESTS;
+                let access = vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_READ
+                    | vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_WRITE;
+                let to_attachment = vk::ImageMemoryBarrier::default()
+                    .image(depth.handle)
+                    .subresource_range(range)
+                    .old_layout(vk::ImageLayout::UNDEFINED)
+                    .new_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+                    .src_access_mask(access)
+                    .dst_access_mask(access);
+                d.cmd_pipeline_barrier(
+                    cmd,
+                    stages,
+                    stages,
+                    vk::DependencyFlags::empty(),
+                    &[],
+                    &[],
+                    &[to_attachment],
+                );
+                let attachment = vk::RenderingAttachmentInfo::default()
+                    .image_view(depth.view)
+                    .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+                    .load_op(vk::AttachmentLoadOp::CLEAR)
+                    .store_op(vk::AttachmentStoreOp::DONT_CARE)
+                    .clear_value(vk::ClearValue {
+                        depth_stencil: vk::ClearDepthStencilValue {
+                            depth: clear,
+                            stencil: 0,
+                        },
+                    });
+                let extent = vk::Extent2D {
+                    width: W,
+                    height: H,
+                };
+                d.cmd_begin_rendering(
+                    cmd,
+                    &vk::RenderingInfo::default()
+                        .render_area(extent.into())
+                        .layer_count(1)
+                        .depth_attachment(&attachment),
+                );
+                d.cmd_set_viewport(
+                    cmd,
+                    0,
+                    &[vk::Viewport {
+                        x: 0.0,
+                        y: 0.0,
+                        width: W as f32,
+                        height: H as f32,
+                        min_depth: 0.0,
+                        max_depth: 1.0,
+                    }],
+                );
+                d.cmd_set_scissor(cmd, 0, &[extent.into()]);
+            }
+            let input = FrameInput {
+                bvh: &bvh,
+                view,
+                frame,
+                exact_visible: None,
+            };
+            let draw = |_: vk::CommandBuffer, o: &[u32], _rebind: bool| {
+                objects.extend_from_slice(o);
+                Ok(())
+            };
+            culler
+                .cull_frame(&input, &mut queries.frame(cmd, view_proj, draw))
+                .expect("cull_frame");
+            // SAFETY: as above.
+            unsafe {
+                d.cmd_end_rendering(cmd);
+                queries.end_frame(cmd).expect("end_frame");
+                d.end_command_buffer(cmd).expect("end");
+                d.queue_submit(
+                    ctx.queue,
+                    &[vk::SubmitInfo::default().command_buffers(&[cmd])],
+                    fences[slot],
+                )
+                .expect("submit");
+            }
+            objects.sort_unstable();
+            objects.dedup();
+            drawn.push(objects);
+        }
+        result = (drawn, queries.counts());
+        // SAFETY: the device is idle before anything is destroyed.
+        unsafe {
+            d.device_wait_idle().expect("idle");
+            drop(queries);
+            for f in fences {
+                d.destroy_fence(f, None);
+            }
+            d.destroy_command_pool(pool, None);
+        }
+    }
+    common::assert_silent(&log);
+    result
+}
+
+/// With a wall between the 3rd and 4th box, the culler learns from results read two frames
+/// late to draw the boxes in front of it and none behind it.
+#[test]
+fn query_backend_culls_what_the_depth_hides_two_frames_late() {
+    let (drawn, counts) = run_frames(12, 10.5);
+    // Frames 0 and 1 have no results yet; whatever was drawn, later frames converge.
+    let last = drawn.last().expect("frames");
+    assert_eq!(last, &vec![0, 1, 2], "drawn per frame: {drawn:?}");
+    assert!(counts.queries > 0, "{counts:?}");
+    assert!(counts.results_read > 0, "{counts:?}");
+    assert_eq!(counts.resets, 1, "{counts:?}");
+    assert_eq!(counts.result_copies, 1, "{counts:?}");
+    assert!(counts.pipeline_binds <= counts.queries, "{counts:?}");
+}
+
+/// Without the wall every box is seen, and every one ends up drawn.
+#[test]
+fn query_backend_draws_everything_that_is_visible() {
+    let (drawn, _) = run_frames(10, 1000.0);
+    assert_eq!(
+        drawn.last().expect("frames"),
+        &(0..16).collect::<Vec<u32>>(),
+        "drawn per frame: {drawn:?}"
+    );
+}
