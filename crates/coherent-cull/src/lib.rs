@@ -1,5 +1,112 @@
-//! Occlusion culling: one trait ([`Culler`]) and one file per algorithm. Algorithms never call
-//! Vulkan; they speak to an [`OcclusionBackend`], which the renderer (or a host engine) implements.
+//! # coherent-cull
+//!
+//! Occlusion culling with hardware occlusion queries, as a library without a graphics API:
+//! CHC++ (Mattausch, Bittner, Wimmer, "CHC++: Coherent Hierarchical Culling Revisited", 2008)
+//! and what it is measured against — view-frustum culling, hierarchical stop-and-wait, CHC
+//! (Bittner et al. 2004), NOHC (Guthe et al. 2006), potentially visible sets and an
+//! exact-visibility oracle — over a BVH of the scene's objects ([`ObjectBvh`]). One trait for
+//! the algorithms ([`Culler`], one file each) and one for the renderer ([`OcclusionBackend`]):
+//! the algorithms decide what to draw and which boxes to query, the backend records the draws
+//! and queries on the device and reports the queries' pixel counts. No Vulkan, no I/O, no
+//! windowing; it depends on glam, mint and thiserror only.
+//!
+//! # Embedding in an engine
+//!
+//! A host keeps its own device, frame loop and camera and uses a culler in four steps.
+//!
+//! 1. **The hierarchy, from plain boxes.** [`ObjectBvh::from_boxes`] over the world boxes of
+//!    the objects to cull (object `i` is the host's draw `i`), as `[min, max]` arrays
+//!    (`[[f32; 3]; 2]`) or [`Aabb`]s ([`Aabb::from_min_max`] takes any `mint` point). Objects
+//!    that move, appear and vanish go through [`ObjectBvh::set_bounds`],
+//!    [`ObjectBvh::insert`], [`ObjectBvh::remove`] and [`ObjectBvh::update`] between frames
+//!    (see [Moving objects](#moving-objects)).
+//! 2. **An [`OcclusionBackend`].** For an ash host, `coherent_ash::QueryBackend` (crate
+//!    `coherent-ash`) implements it over the host's command buffers; any other host implements
+//!    it over its own:
+//!    - [`draw_objects`](OcclusionBackend::draw_objects): draw the objects in the main depth
+//!      pass with the opaque pipeline (depth test and write on);
+//!    - [`issue_query_for`](OcclusionBackend::issue_query_for): in the same pass, with depth
+//!      test on and depth and color writes off, begin a precise occlusion query, draw the
+//!      boxes, end it; [`restore_render_state`](OcclusionBackend::restore_render_state)
+//!      rebinds the opaque pipeline;
+//!    - [`flush`](OcclusionBackend::flush): submit what was recorded, so its queries can
+//!      complete (in-frame mode: end the pass, submit, go on in a new pass that loads color
+//!      and depth);
+//!    - [`query_result`](OcclusionBackend::query_result) never blocks;
+//!      [`wait_query`](OcclusionBackend::wait_query) does (that is stall time);
+//!      [`finish`](OcclusionBackend::finish) submits the rest of the frame and waits for it;
+//!    - with `k` frames in flight, [`frames_in_flight`](OcclusionBackend::frames_in_flight)
+//!      returns `k`, query results stay readable for `k` frames (one query pool per
+//!      frame-in-flight slot) and [`submit_frame`](OcclusionBackend::submit_frame) ends a
+//!      frame without waiting.
+//!
+//!    [`testing::MockBackend`] implements it on the CPU from a visibility function, for tests.
+//! 3. **A [`CameraView`] each frame:** the world-to-clip matrix, the eye and the
+//!    [`DepthConvention`], as plain arrays or `mint` types ([`CameraView::new`]); perspective,
+//!    reverse-Z, infinite far, off-axis, jittered and orthographic projections all work. With
+//!    the hierarchy and the frame number it makes the [`FrameInput`] of
+//!    [`Culler::cull_frame`], which records the frame's draws and queries through the backend.
+//! 4. **A [`Latency`] mode** (CHC and CHC++): [`Latency::InFrame`] is exact — a previously
+//!    invisible node whose query says visible is drawn in the same frame — at the price of
+//!    several submissions and waits inside the frame; [`Latency::NextFrame`] submits once per
+//!    frame and never waits, and an object that comes into view appears a frame late;
+//!    [`Latency::NextFrameConservative`] also draws nodes without a recent result (they just
+//!    entered the frustum), popping less for more draws. With `k` frames in flight
+//!    ([`chcpp::Chcpp::with_frames_in_flight`]) results are read `k` frames late.
+//!
+//! Algorithms by name: [`create`], [`create_with`] (NOHC needs a [`CostModel`], PVS a [`Pvs`],
+//! both in a [`CullerSetup`]) and [`create_named`] (`chcpp@next-frame-k2`); [`ALGORITHMS`]
+//! lists the names.
+//!
+//! ```
+//! use coherent_cull::camera::{look_to_rh, perspective_infinite_reverse_rh};
+//! use coherent_cull::chcpp::{Chcpp, ChcppParams};
+//! use coherent_cull::glam::Vec3;
+//! use coherent_cull::testing::MockBackend;
+//! use coherent_cull::{Aabb, CameraView, Culler, DepthConvention, FrameInput, Latency, ObjectBvh};
+//!
+//! // 1. The hierarchy from plain boxes: ten crates down a street, 4 m apart.
+//! let crates = (0..10).map(|i| {
+//!     let z = -4.0 * i as f32 - 5.0;
+//!     [[-1.0, 0.0, z - 1.0], [1.0, 2.0, z]]
+//! });
+//! let mut bvh = ObjectBvh::from_boxes(crates, 1);
+//!
+//! // 2. The backend: here the CPU mock, where a wall 20 m ahead hides whatever is behind it.
+//! let mut backend = MockBackend::new(|b: &Aabb| if b.max.z > -20.0 { 100 } else { 0 });
+//!
+//! // 3. The camera from the host's own matrices (reverse-Z, infinite far plane).
+//! let eye = Vec3::new(0.0, 1.0, 0.0);
+//! let view_proj = perspective_infinite_reverse_rh(1.0, 16.0 / 9.0, 0.1)
+//!     * look_to_rh(eye, Vec3::NEG_Z, Vec3::Y);
+//! let camera = CameraView::new(
+//!     view_proj.to_cols_array_2d(),
+//!     eye.to_array(),
+//!     DepthConvention::REVERSE_Z_INFINITE,
+//! );
+//!
+//! // 4. The mode: in-frame, exact.
+//! let mut culler = Chcpp::new(ChcppParams::default()).with_latency(Latency::InFrame);
+//! let mut frame = 0;
+//! let mut cull = |bvh: &ObjectBvh, backend: &mut MockBackend| {
+//!     frame += 1;
+//!     let input = FrameInput { bvh, view: camera, frame, exact_visible: None };
+//!     culler.cull_frame(&input, backend)
+//! };
+//! for _ in 0..3 {
+//!     let stats = cull(&bvh, &mut backend)?;
+//!     assert_eq!(backend.drawn_last_frame(), [0, 1, 2, 3]); // the crates before the wall
+//!     assert_eq!(stats.objects_drawn, 4);
+//!     backend.end_frame();
+//! }
+//!
+//! // The last crate is carried in front of the wall: drawn in the very next frame.
+//! bvh.set_bounds(9, [[2.0, 0.0, -12.0], [3.0, 1.0, -11.0]])?;
+//! bvh.update();
+//! cull(&bvh, &mut backend)?;
+//! assert_eq!(backend.drawn_last_frame(), [0, 1, 2, 3, 9]);
+//! # Ok::<(), coherent_cull::Error>(())
+//! ```
 //!
 //! # Moving objects
 //!
@@ -33,6 +140,8 @@
 //! [`ObjectBvh::epoch`] of its last test, apply rule 2 with `changed_since` wherever it would
 //! skip a test, and refit its per-node caches when [`ObjectBvh::structure`] changes.
 
+#![deny(missing_docs)]
+
 pub mod aabb;
 pub mod bvh;
 pub mod camera;
@@ -59,6 +168,11 @@ pub use error::{Error, Result};
 pub use glam;
 
 pub use chcpp::ChcppParams;
+
+/// The README's example, compiled and run as a doc test.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+struct ReadmeExample;
 pub use nohc::{CostModel, NohcParams};
 pub use pvs::Pvs;
 
@@ -439,6 +553,7 @@ pub fn eye_inside(bounds: &Aabb, view: &CameraView) -> bool {
 /// Helper shared by the algorithms: the frustum, eye and front-to-back origin of a frame.
 #[doc(hidden)]
 pub struct View {
+    /// The view frustum's planes.
     pub frustum: Frustum,
     /// The point front-to-back order measures from ([`CameraView::order_point`]).
     pub eye: Vec3,
@@ -450,6 +565,7 @@ pub struct View {
 }
 
 impl View {
+    /// The frustum, eye, order point and near-plane box of `view`.
     pub fn new(view: &CameraView) -> View {
         let frustum = view.frustum();
         let c = view.near_corners();

@@ -211,7 +211,7 @@ impl<'a> MockBackend<'a> {
         }
     }
 
-    fn to_render_state(&mut self) {
+    fn enter_render_state(&mut self) {
         if self.in_query_state {
             self.in_query_state = false;
             self.counts.state_changes += 1;
@@ -236,7 +236,7 @@ impl OcclusionBackend for MockBackend<'_> {
         if objects.is_empty() {
             return Ok(());
         }
-        self.to_render_state();
+        self.enter_render_state();
         self.counts.draw_calls += 1;
         self.counts.objects_drawn += objects.len() as u32;
         self.drawn.extend(objects.iter().copied());
@@ -272,7 +272,7 @@ impl OcclusionBackend for MockBackend<'_> {
     }
 
     fn restore_render_state(&mut self) -> Result<()> {
-        self.to_render_state();
+        self.enter_render_state();
         self.events.push(MockEvent::RestoreRenderState);
         Ok(())
     }

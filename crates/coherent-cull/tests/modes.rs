@@ -1,0 +1,533 @@
+//! The rest of the embedding contract on the CPU mock backend: latency modes and frames in
+//! flight, moving, inserted and removed objects, camera cuts and resets, the eye inside a box,
+//! an empty hierarchy, NOHC, PVS, the oracle, and the errors of the factory functions.
+
+mod common;
+
+use std::cell::{Cell, RefCell};
+use std::sync::Arc;
+
+use coherent_cull::camera::{Camera, CameraPose};
+use coherent_cull::chcpp::{Chcpp, ChcppParams};
+use coherent_cull::glam::Vec3;
+use coherent_cull::pvs::{Pvs, ViewCell};
+use coherent_cull::testing::{Completion, MockBackend};
+use coherent_cull::{
+    create, create_latency, create_named, create_with, Aabb, CostModel, Culler, CullerSetup, Error,
+    FrameInput, Latency, NohcParams, ObjectBvh, ALGORITHMS,
+};
+use common::*;
+
+/// Eight unit boxes in a row, all in front of the camera.
+fn row() -> (Vec<Aabb>, Camera) {
+    let boxes = (0..8)
+        .map(|i| {
+            let x = 2.0 * i as f32;
+            Aabb::new(Vec3::new(x, 0.0, -10.0), Vec3::new(x + 1.0, 1.0, -9.0))
+        })
+        .collect();
+    let pose = CameraPose {
+        eye: Vec3::new(7.0, 0.5, 10.0),
+        target: Vec3::new(7.0, 0.5, -10.0),
+    };
+    (boxes, Camera::from_pose(pose, 16.0 / 9.0, 100.0))
+}
+
+/// A visibility function: a box sees pixels when it overlaps an object whose bit is set in
+/// `mask` (read at every query, so the test can change what is visible between frames).
+fn masked<'a>(boxes: &'a [Aabb], mask: &'a Cell<u64>) -> impl FnMut(&Aabb) -> u64 + 'a {
+    move |b| {
+        let hit = boxes
+            .iter()
+            .enumerate()
+            .any(|(i, o)| mask.get() & (1 << i) != 0 && overlaps(o, b));
+        if hit {
+            PIXELS
+        } else {
+            0
+        }
+    }
+}
+
+/// Objects 0..4 are visible; object 6 turns visible in frame 6. Returns the first frame that
+/// draws it, after checking that every frame is one submission without waits when `late`.
+fn frame_object_6_appears(culler: &mut dyn Culler, k: u32, late: bool) -> u64 {
+    let (boxes, cam) = row();
+    let bvh = ObjectBvh::build(&boxes, 1);
+    let mask = Cell::new(0b1111);
+    let mut backend = MockBackend::new(masked(&boxes, &mask)).with_frames_in_flight(k);
+    for f in 1..=12 {
+        if f == 6 {
+            mask.set(mask.get() | 1 << 6);
+        }
+        let fr = run(culler, &bvh, &cam, &mut backend, f);
+        if late {
+            assert_eq!((fr.counts.submits, fr.counts.waits), (1, 0), "frame {f}");
+            assert_eq!(fr.stats.blocking_waits, 0);
+        }
+        // Once the first results are in (frame 2 + k), the hidden object is culled.
+        if (3 + u64::from(k)..6).contains(&f) {
+            assert!(!fr.drawn.contains(&6), "hidden object drawn in frame {f}");
+        }
+        if f >= 6 && fr.drawn.contains(&6) {
+            assert_eq!(backend.early_reads(), 0, "no result read before its time");
+            return f;
+        }
+    }
+    panic!("object 6 never drawn")
+}
+
+#[test]
+fn in_frame_draws_a_newly_visible_object_at_once() {
+    for name in ["chc", "chcpp"] {
+        let mut c = create(name, &ChcppParams::default()).unwrap();
+        assert_eq!(frame_object_6_appears(c.as_mut(), 1, false), 6, "{name}");
+    }
+}
+
+#[test]
+fn next_frame_submits_once_never_waits_and_draws_one_frame_late() {
+    for name in ["chc", "chcpp"] {
+        let mut c = create_latency(name, &ChcppParams::default(), Latency::NextFrame).unwrap();
+        assert_eq!(frame_object_6_appears(c.as_mut(), 1, true), 7, "{name}");
+    }
+}
+
+#[test]
+fn two_frames_in_flight_read_nothing_early_and_draw_two_frames_late() {
+    let mut c = Chcpp::new(ChcppParams::default())
+        .with_latency(Latency::NextFrame)
+        .with_frames_in_flight(2);
+    assert_eq!(c.frames_in_flight(), 2);
+    assert_eq!(frame_object_6_appears(&mut c, 2, true), 8);
+    // The same through the factory.
+    let mut c = create_named("chcpp@next-frame-k2", &CullerSetup::default()).unwrap();
+    assert_eq!(frame_object_6_appears(c.as_mut(), 2, true), 8);
+}
+
+#[test]
+fn frames_in_flight_need_a_backend_that_keeps_results_that_long() {
+    let (boxes, cam) = row();
+    let bvh = ObjectBvh::build(&boxes, 1);
+    let mut c = Chcpp::new(ChcppParams::default())
+        .with_latency(Latency::NextFrame)
+        .with_frames_in_flight(3);
+    let mut backend = MockBackend::new(|_| PIXELS).with_frames_in_flight(2);
+    let input = FrameInput {
+        bvh: &bvh,
+        view: (&cam).into(),
+        frame: 1,
+        exact_visible: None,
+    };
+    let err = c.cull_frame(&input, &mut backend).unwrap_err();
+    assert!(matches!(err, Error::Input(_)), "{err}");
+}
+
+#[test]
+fn conservative_mode_draws_nodes_without_a_recent_result() {
+    let (boxes, cam) = row();
+    let bvh = ObjectBvh::build(&boxes, 1);
+    let params = ChcppParams::default();
+    let mut plain = create_latency("chcpp", &params, Latency::NextFrame).unwrap();
+    let mut conservative =
+        create_latency("chcpp", &params, Latency::NextFrameConservative).unwrap();
+    let mask = Cell::new(0b1111);
+    let mut a = MockBackend::new(masked(&boxes, &mask));
+    let mut b = MockBackend::new(masked(&boxes, &mask));
+    for f in 1..=6 {
+        let p = run(plain.as_mut(), &bvh, &cam, &mut a, f);
+        let c = run(conservative.as_mut(), &bvh, &cam, &mut b, f);
+        for fr in [&p, &c] {
+            assert_eq!((fr.counts.submits, fr.counts.waits), (1, 0));
+        }
+        if f == 1 {
+            // Nothing has a result yet: the plain mode draws nothing (it pops in a frame
+            // later), the conservative one draws everything in view.
+            assert!(p.drawn.is_empty());
+            assert_eq!(c.drawn, (0..8).collect::<Vec<u32>>());
+        }
+        if f >= 4 {
+            // Every node has fresh results: both draw the visible objects only.
+            assert_eq!(c.drawn, vec![0, 1, 2, 3], "frame {f}");
+            assert_eq!(p.drawn, vec![0, 1, 2, 3], "frame {f}");
+        }
+    }
+}
+
+/// The forward point `d` in front of the camera, as a small box.
+fn box_ahead(cam: &Camera, d: f32) -> Aabb {
+    let p = cam.eye + (cam.target - cam.eye).normalize() * d;
+    Aabb::new(p - Vec3::splat(0.5), p + Vec3::splat(0.5))
+}
+
+#[test]
+fn a_hidden_object_moved_into_view_is_drawn_the_same_frame() {
+    for name in ["chc", "chcpp", "stop-and-wait"] {
+        let mut bvh = ObjectBvh::build(&random_boxes(400, 9), 1);
+        let cam = walk(0);
+        let fog = Fog::new(&cam, 30.0);
+        let visible = fog.visible_objects(&bvh);
+        let mut c = create(name, &ChcppParams::default()).unwrap();
+        let f2 = fog.clone();
+        let mut backend = MockBackend::new(move |b| f2.pixels(b));
+        let hidden = *in_frustum(&bvh, &cam)
+            .iter()
+            .find(|o| !visible.contains(o))
+            .unwrap();
+        for f in 1..=4 {
+            let fr = run(c.as_mut(), &bvh, &cam, &mut backend, f);
+            assert!(!fr.drawn.contains(&hidden));
+        }
+        bvh.set_bounds(hidden, box_ahead(&cam, 12.0)).unwrap();
+        bvh.update();
+        let fr = run(c.as_mut(), &bvh, &cam, &mut backend, 5);
+        assert!(fr.drawn.contains(&hidden), "{name}: the mover is drawn");
+        assert!(missing(&fog.visible_objects(&bvh), &fr.drawn).is_empty());
+        // And moved behind the camera, it is frustum-culled at once.
+        let behind = Aabb::new(
+            cam.eye * 2.0 - cam.target,
+            cam.eye * 2.0 - cam.target + Vec3::ONE,
+        );
+        bvh.set_bounds(hidden, behind).unwrap();
+        bvh.update();
+        let fr = run(c.as_mut(), &bvh, &cam, &mut backend, 6);
+        assert!(!fr.drawn.contains(&hidden), "{name}");
+    }
+}
+
+#[test]
+fn inserted_objects_are_drawn_and_removed_ones_never() {
+    let mut bvh = ObjectBvh::build(&random_boxes(300, 10), 1);
+    let cam = walk(0);
+    let fog = Fog::new(&cam, 30.0);
+    let mut c = Chcpp::new(ChcppParams::default());
+    let f2 = fog.clone();
+    let mut backend = MockBackend::new(move |b| f2.pixels(b));
+    for f in 1..=3 {
+        run(&mut c, &bvh, &cam, &mut backend, f);
+    }
+    let new = bvh.insert(box_ahead(&cam, 10.0));
+    let gone = fog.visible_objects(&bvh)[0];
+    bvh.remove(gone).unwrap();
+    assert!(!bvh.update().rebuilt);
+    for f in 4..=6 {
+        let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+        assert!(
+            fr.drawn.contains(&new),
+            "frame {f}: the inserted object is drawn"
+        );
+        assert!(
+            !fr.drawn.contains(&gone),
+            "frame {f}: the removed one is not"
+        );
+        assert!(missing(&fog.visible_objects(&bvh), &fr.drawn).is_empty());
+    }
+    // Many inserts rebuild the tree (new node ids); the culler stays exact through it.
+    let ids: Vec<u32> = (0..120)
+        .map(|i| bvh.insert(box_ahead(&cam, 14.0 + i as f32 * 0.5)))
+        .collect();
+    assert_eq!(ids[0], gone, "the removed id is handed out again");
+    assert!(bvh.update().rebuilt);
+    bvh.validate().unwrap();
+    for f in 7..=9 {
+        let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+        assert!(missing(&fog.visible_objects(&bvh), &fr.drawn).is_empty());
+    }
+}
+
+#[test]
+fn a_camera_cut_stays_exact_and_a_reset_starts_afresh() {
+    let bvh = ObjectBvh::build(&random_boxes(500, 11), 1);
+    let mut c = Chcpp::new(ChcppParams::default());
+    let mut backend = MockBackend::new(|_| 0);
+    for f in 1..=10 {
+        let cam = walk(f);
+        let fog = Fog::new(&cam, 35.0);
+        backend.set_visibility(move |b| fog.pixels(b));
+        run(&mut c, &bvh, &cam, &mut backend, f);
+    }
+    // Cut to the overview: nothing seen there is missing, though nothing is known of it.
+    let cam = overview();
+    let fog = Fog::new(&cam, 330.0);
+    let want = fog.visible_objects(&bvh);
+    assert!(!want.is_empty() && want.len() < in_frustum(&bvh, &cam).len());
+    let f2 = fog.clone();
+    backend.set_visibility(move |b| f2.pixels(b));
+    let cut = run(&mut c, &bvh, &cam, &mut backend, 11);
+    assert!(missing(&want, &cut.drawn).is_empty());
+    // After a reset the culler behaves as a new one (same seed, same decisions).
+    c.reset();
+    let after_reset = run(&mut c, &bvh, &cam, &mut backend, 12);
+    let mut fresh = Chcpp::new(ChcppParams::default());
+    let mut fresh_backend = MockBackend::new(move |b| fog.pixels(b));
+    let first = run(&mut fresh, &bvh, &cam, &mut fresh_backend, 1);
+    assert_eq!(after_reset.stats, first.stats);
+    assert_eq!(after_reset.counts, first.counts);
+    assert_eq!(after_reset.drawn, first.drawn);
+    assert!(missing(&want, &first.drawn).is_empty());
+}
+
+#[test]
+fn the_box_the_eye_is_in_is_drawn_without_a_query() {
+    // A 5 × 5 grid of boxes; the eye is in the middle one, and no query ever sees a pixel.
+    let boxes: Vec<Aabb> = (0..25)
+        .map(|i| {
+            let p = Vec3::new((i % 5) as f32 * 5.0, 0.0, (i / 5) as f32 * 5.0);
+            Aabb::new(p, p + Vec3::splat(2.0))
+        })
+        .collect();
+    let bvh = ObjectBvh::build(&boxes, 1);
+    let eye = boxes[12].center();
+    let cam = Camera::from_pose(
+        CameraPose {
+            eye,
+            target: eye + Vec3::new(1.0, 0.0, 0.3),
+        },
+        1.5,
+        100.0,
+    );
+    for name in ["stop-and-wait", "chc", "chcpp"] {
+        let queried = RefCell::new(Vec::new());
+        let mut backend = MockBackend::new(|b: &Aabb| {
+            queried.borrow_mut().push(*b);
+            0
+        })
+        .with_completion(Completion::OnWait);
+        let mut c = create(name, &ChcppParams::default()).unwrap();
+        for f in 1..=3 {
+            let fr = run(c.as_mut(), &bvh, &cam, &mut backend, f);
+            assert_eq!(fr.drawn, vec![12], "{name} frame {f}");
+        }
+        let queried = queried.borrow();
+        assert!(!queried.is_empty(), "{name}: the other boxes are queried");
+        assert!(
+            queried.iter().all(|b| !b.contains(eye)),
+            "{name}: nothing around the eye is queried"
+        );
+    }
+}
+
+#[test]
+fn an_empty_hierarchy_draws_nothing_then_what_is_inserted() {
+    let (_, cam) = row();
+    let names = [
+        "vfc",
+        "stop-and-wait",
+        "chc",
+        "chcpp",
+        "chcpp@next-frame",
+        "chcpp@next-frame-conservative",
+    ];
+    for name in names {
+        let mut bvh = ObjectBvh::build(&[], 1);
+        let mut c = create_named(name, &CullerSetup::default()).unwrap();
+        let mut backend = MockBackend::new(|_| PIXELS);
+        for f in 1..=3 {
+            let fr = run(c.as_mut(), &bvh, &cam, &mut backend, f);
+            assert!(fr.drawn.is_empty(), "{name}");
+            assert_eq!(fr.stats.objects_drawn, 0);
+        }
+        let id = bvh.insert([[6.0, 0.0, -10.0], [7.0, 1.0, -9.0]]);
+        bvh.update();
+        let drawn_by = (4..=6)
+            .find(|&f| run(c.as_mut(), &bvh, &cam, &mut backend, f).drawn == vec![id])
+            .unwrap_or_else(|| panic!("{name}: the inserted object is never drawn"));
+        if !name.contains('@') {
+            assert_eq!(drawn_by, 4, "{name}: in-frame, at once");
+        }
+    }
+}
+
+fn costs() -> CostModel {
+    CostModel {
+        draw_ms: 0.06,
+        triangle_ms: 2e-5,
+        fragment_ms: 2e-6,
+        query_ms: 0.1,
+        query_fragment_ms: 1e-6,
+        round_trip_ms: 0.3,
+    }
+}
+
+/// NOHC through the factory for objects of `triangles` each.
+fn nohc(objects: usize, triangles: u32) -> Box<dyn Culler> {
+    let setup = CullerSetup {
+        nohc: Some(NohcParams::new(
+            costs(),
+            (640, 360),
+            vec![triangles; objects],
+        )),
+        ..CullerSetup::default()
+    };
+    create_with("nohc", &setup).unwrap()
+}
+
+/// Queries of `culler` along the walk; checks it misses nothing.
+fn walk_queries(culler: &mut dyn Culler, bvh: &ObjectBvh) -> u32 {
+    let mut backend = MockBackend::new(|_| 0);
+    let mut queries = 0;
+    for f in 1..=20 {
+        let cam = walk(f);
+        let fog = Fog::new(&cam, 35.0);
+        let want = fog.visible_objects(bvh);
+        backend.set_visibility(move |b| fog.pixels(b));
+        let fr = run(culler, bvh, &cam, &mut backend, f);
+        assert!(missing(&want, &fr.drawn).is_empty(), "frame {f}");
+        queries += fr.counts.queries;
+    }
+    queries
+}
+
+#[test]
+fn nohc_misses_nothing_and_queries_where_the_cost_model_says_it_pays() {
+    let bvh = ObjectBvh::build(&random_boxes(400, 12), 1);
+    let heavy = walk_queries(nohc(400, 200_000).as_mut(), &bvh);
+    let cheap = walk_queries(nohc(400, 12).as_mut(), &bvh);
+    let chc = walk_queries(
+        create("chc", &ChcppParams::default()).unwrap().as_mut(),
+        &bvh,
+    );
+    assert!(heavy > 0, "heavy objects are worth queries");
+    assert!(cheap < heavy, "cheap objects are drawn rather than queried");
+    assert!(cheap < chc, "NOHC {cheap} queries, CHC {chc}");
+}
+
+#[test]
+fn the_pvs_culler_draws_its_cells_set_in_the_frustum() {
+    let bvh = ObjectBvh::build(&random_boxes(300, 13), 1);
+    let cam_at = |eye: Vec3| {
+        Camera::from_pose(
+            CameraPose {
+                eye,
+                target: Vec3::new(100.0, 0.0, 100.0),
+            },
+            1.0,
+            1000.0,
+        )
+    };
+    // Two cells of 50 at the ground's corner: the first sees objects 0..100, the second none.
+    let cells = vec![
+        ViewCell {
+            coord: [0, 0, 0],
+            objects: (0..100).collect(),
+        },
+        ViewCell {
+            coord: [1, 0, 0],
+            objects: vec![],
+        },
+    ];
+    let pvs = Arc::new(Pvs::new("test".into(), 300, Vec3::ZERO, 50.0, cells));
+    let setup = CullerSetup {
+        pvs: Some(pvs),
+        ..CullerSetup::default()
+    };
+    let mut c = create_with("pvs", &setup).unwrap();
+    let mut backend = MockBackend::new(|_| 0);
+    let in_cell = cam_at(Vec3::new(20.0, 10.0, 20.0));
+    let fr = run(c.as_mut(), &bvh, &in_cell, &mut backend, 1);
+    let want: Vec<u32> = in_frustum(&bvh, &in_cell)
+        .into_iter()
+        .filter(|&o| o < 100)
+        .collect();
+    assert!(!want.is_empty());
+    assert_eq!(fr.drawn, want);
+    assert_eq!(fr.counts.queries, 0);
+    let empty_cell = cam_at(Vec3::new(70.0, 10.0, 20.0));
+    assert!(run(c.as_mut(), &bvh, &empty_cell, &mut backend, 2)
+        .drawn
+        .is_empty());
+    // Outside every cell: frustum culling only.
+    let outside = cam_at(Vec3::new(20.0, 60.0, 20.0));
+    let fr = run(c.as_mut(), &bvh, &outside, &mut backend, 3);
+    assert_eq!(fr.drawn, in_frustum(&bvh, &outside));
+}
+
+#[test]
+fn the_oracle_draws_exactly_the_visible_set() {
+    let bvh = ObjectBvh::build(&random_boxes(100, 14), 1);
+    let mut c = create("oracle", &ChcppParams::default()).unwrap();
+    assert!(c.needs_exact_visibility());
+    let mut backend = MockBackend::new(|_| PIXELS);
+    let cam = walk(0);
+    let exact = [3, 17, 42, 99];
+    let fr = run_with(c.as_mut(), &bvh, &cam, &mut backend, 1, Some(&exact));
+    assert_eq!(fr.drawn, exact);
+    assert_eq!((fr.counts.queries, fr.counts.submits), (0, 1));
+    let input = FrameInput {
+        bvh: &bvh,
+        view: (&cam).into(),
+        frame: 2,
+        exact_visible: None,
+    };
+    assert!(
+        c.cull_frame(&input, &mut backend).is_err(),
+        "no visible set"
+    );
+}
+
+#[test]
+fn latency_names_parse_and_bad_ones_are_refused() {
+    let ok = [
+        ("in-frame", Latency::InFrame, 1),
+        ("next-frame", Latency::NextFrame, 1),
+        ("next-frame-k2", Latency::NextFrame, 2),
+        (
+            "next-frame-conservative-k3",
+            Latency::NextFrameConservative,
+            3,
+        ),
+    ];
+    for (name, latency, k) in ok {
+        assert_eq!(
+            Latency::parse_in_flight(name).unwrap(),
+            (latency, k),
+            "{name}"
+        );
+    }
+    for bad in [
+        "",
+        "bogus",
+        "next-frame-k0",
+        "in-frame-k2",
+        "next-frame-kx",
+        "next-frame-k-1",
+    ] {
+        let err = Latency::parse_in_flight(bad).unwrap_err();
+        assert!(matches!(err, Error::Input(_)), "{bad}: {err}");
+    }
+    assert_eq!(Latency::parse("next-frame-k4").unwrap(), Latency::NextFrame);
+    for l in Latency::ALL {
+        assert_eq!(Latency::parse(l.name()).unwrap(), l);
+    }
+}
+
+#[test]
+fn unknown_names_are_errors_not_panics() {
+    let params = ChcppParams::default();
+    let setup = CullerSetup::default();
+    let unknown = create("bogus", &params).err().expect("unknown algorithm");
+    assert!(
+        unknown.to_string().contains("chcpp"),
+        "lists the known ones"
+    );
+    assert!(create_with("bogus", &setup).is_err());
+    assert!(create_named("bogus@next-frame", &setup).is_err());
+    assert!(create_named("chcpp@bogus", &setup).is_err());
+    assert!(create_latency("vfc", &params, Latency::NextFrame).is_err());
+    assert!(coherent_cull::check_name("bogus").is_err());
+    // nohc and pvs need their data: an error saying so, through either function.
+    for name in ["nohc", "pvs"] {
+        assert!(create(name, &params).is_err(), "{name}");
+        assert!(create_with(name, &setup).is_err(), "{name}");
+    }
+    // Every known name is created with what it needs.
+    let full = CullerSetup {
+        nohc: Some(NohcParams::new(costs(), (64, 64), vec![])),
+        pvs: Some(Arc::new(Pvs::new("k".into(), 0, Vec3::ZERO, 1.0, vec![]))),
+        ..CullerSetup::default()
+    };
+    for name in ALGORITHMS {
+        coherent_cull::check_name(name).unwrap();
+        assert_eq!(create_with(name, &full).unwrap().name(), *name);
+    }
+}
