@@ -200,7 +200,7 @@ impl BoxPipeline {
 
 /// The shipped SPIR-V as words (checked: a whole number of words, the SPIR-V magic).
 fn spirv_words(bytes: &[u8]) -> Result<Vec<u32>> {
-    if bytes.len() % 4 != 0 || bytes.len() < 20 {
+    if !bytes.len().is_multiple_of(4) || bytes.len() < 20 {
         return Err(Error::Input("the shipped box shader is not SPIR-V".into()));
     }
     let words: Vec<u32> = bytes
