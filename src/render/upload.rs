@@ -85,17 +85,10 @@ pub fn upload_scene_with_spare(
 }
 
 /// Indices for `n` boxes of 8 corners each (corner c = x | y << 1 | z << 2), 12 triangles each.
+/// The same box layout as coherent-ash's query boxes ([`coherent_ash::BOX_FACES`]).
 pub fn box_indices(n: u32) -> Vec<u32> {
-    const FACES: [u32; 36] = [
-        0, 2, 1, 1, 2, 3, // -z
-        4, 5, 6, 5, 7, 6, // +z
-        0, 1, 4, 1, 5, 4, // -y
-        2, 6, 3, 3, 6, 7, // +y
-        0, 4, 2, 2, 4, 6, // -x
-        1, 3, 5, 3, 7, 5, // +x
-    ];
     (0..n)
-        .flat_map(|b| FACES.iter().map(move |i| i + 8 * b))
+        .flat_map(|b| coherent_ash::BOX_FACES.iter().map(move |i| i + 8 * b))
         .collect()
 }
 

@@ -199,8 +199,9 @@ pub struct QueryBackend {
     destroyed: bool,
 }
 
-/// Corner indices of one box's 12 triangles (corner `c` = x | y << 1 | z << 2).
-const BOX_FACES: [u32; 36] = [
+/// Corner indices of one box's 12 triangles (corner `c` = x | y << 1 | z << 2), the layout the
+/// built-in renderer of the `coherent` package uses for its query boxes too.
+pub const BOX_FACES: [u32; 36] = [
     0, 2, 1, 1, 2, 3, // -z
     4, 5, 6, 5, 7, 6, // +z
     0, 1, 4, 1, 5, 4, // -y
