@@ -226,24 +226,28 @@ fn randomized_interval_spreads_visible_leaf_queries() {
     common::assert_silent(&log);
 }
 
+/// `poses` with, for each, the pixels an algorithm's image may differ from vfc's (0 but where
+/// depth precision makes nearly coplanar surfaces tie, so that draw order decides).
 fn edge_case(scene: &Scene, poses: &[CameraPose]) {
+    let exact: Vec<(CameraPose, usize)> = poses.iter().map(|&p| (p, 0)).collect();
+    edge_case_within(scene, &exact);
+}
+
+fn edge_case_within(scene: &Scene, poses: &[(CameraPose, usize)]) {
     let (ctx, log) = common::context();
     {
         let bvh = common::bvh_of(scene);
         let mut r = Renderer::new(&ctx, scene, W, H).unwrap();
         let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
         let mut algs = algorithms();
-        for (f, &pose) in poses.iter().enumerate() {
+        for (f, &(pose, tolerance)) in poses.iter().enumerate() {
             for rep in 0..3 {
                 let frame = (f * 3 + rep) as u64;
                 let (_, reference) = common::frame(&mut r, vfc.as_mut(), &bvh, pose, frame);
                 for (name, alg) in algs.iter_mut() {
                     let (res, px) = common::frame(&mut r, alg.as_mut(), &bvh, pose, frame);
-                    assert_eq!(
-                        common::diff_pixels(&reference, &px),
-                        0,
-                        "{name} at {pose:?}"
-                    );
+                    let d = common::diff_pixels(&reference, &px);
+                    assert!(d <= tolerance, "{name} at {pose:?}: {d} pixels differ");
                     assert_eq!(res.counts.queries_begun, res.counts.queries_read);
                 }
             }
@@ -263,24 +267,36 @@ fn edge_cases_render_like_vfc() {
         .max_by(|x, y| x.bounds.extent().y.total_cmp(&y.bounds.extent().y))
         .unwrap();
     let c = building.bounds.center();
-    edge_case(
+    edge_case_within(
         &city,
         &[
             // inside a building's box
-            CameraPose {
-                eye: c,
-                target: c + Vec3::X * 10.0,
-            },
-            // far outside the whole scene, looking at it
-            CameraPose {
-                eye: b.center() + Vec3::new(3.0, 1.0, 2.0) * b.extent().length(),
-                target: b.center(),
-            },
+            (
+                CameraPose {
+                    eye: c,
+                    target: c + Vec3::X * 10.0,
+                },
+                0,
+            ),
+            // far outside the whole scene, looking at it: at almost four scene diagonals,
+            // surfaces flush on each other tie in depth and the draw order (which for chc
+            // depends on when query results arrive) picks the pixel; one such pixel was seen
+            // under a loaded machine
+            (
+                CameraPose {
+                    eye: b.center() + Vec3::new(3.0, 1.0, 2.0) * b.extent().length(),
+                    target: b.center(),
+                },
+                2,
+            ),
             // empty frustum: looking away into the sky
-            CameraPose {
-                eye: b.center() + Vec3::new(0.0, b.extent().y + 50.0, 0.0),
-                target: b.center() + Vec3::new(0.0, b.extent().y + 500.0, 1.0),
-            },
+            (
+                CameraPose {
+                    eye: b.center() + Vec3::new(0.0, b.extent().y + 50.0, 0.0),
+                    target: b.center() + Vec3::new(0.0, b.extent().y + 500.0, 1.0),
+                },
+                0,
+            ),
         ],
     );
 }
