@@ -260,7 +260,10 @@ impl SceneState {
     /// # Safety
     /// `cmd` is recording inside the frame's rendering.
     unsafe fn bind(&self, device: &ash::Device, cmd: vk::CommandBuffer, push: &[f32; 20]) {
-        let bytes: Vec<u8> = push.iter().flat_map(|f| f.to_le_bytes()).collect();
+        let mut bytes = [0u8; 80];
+        for (chunk, f) in bytes.chunks_exact_mut(4).zip(push) {
+            chunk.copy_from_slice(&f.to_le_bytes());
+        }
         // SAFETY: per the caller; every handle is valid.
         unsafe {
             raw_host::bind_state(device, cmd, self.pipeline, self.vertices, self.indices);
@@ -533,14 +536,7 @@ impl Engine {
                 cmd,
                 &vk::DependencyInfo::default().image_memory_barriers(&barriers),
             );
-            raw_host::begin_rendering(
-                &self.device,
-                cmd,
-                &color_att,
-                &depth_att,
-                (self.scene.set.layout, self.scene.set.set),
-                &self.push,
-            );
+            raw_host::begin_rendering(&self.device, cmd, &color_att, &depth_att);
             self.scene.bind(&self.device, cmd, &self.push);
         }
     }

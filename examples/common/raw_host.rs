@@ -479,8 +479,8 @@ pub fn pipeline(
     Ok(pipeline)
 }
 
-/// Begins rendering to the `WIDTH` x `HEIGHT` attachments and sets the state every draw needs:
-/// the viewport (flipped, so clip y is up), the scissor, descriptor set 0 and the push constants.
+/// Begins rendering to the `WIDTH` x `HEIGHT` attachments and sets the viewport (flipped, so
+/// clip y is up) and the scissor; the caller binds its pipeline state.
 ///
 /// # Safety
 /// `cmd` is recording outside rendering; the attachments are in their attachment layouts.
@@ -489,8 +489,6 @@ pub unsafe fn begin_rendering(
     cmd: vk::CommandBuffer,
     color_att: &[vk::RenderingAttachmentInfo<'_>],
     depth_att: &vk::RenderingAttachmentInfo<'_>,
-    (layout, set): (vk::PipelineLayout, vk::DescriptorSet),
-    push: &[f32],
 ) {
     let extent = vk::Extent2D {
         width: WIDTH,
@@ -501,7 +499,6 @@ pub unsafe fn begin_rendering(
         .layer_count(1)
         .color_attachments(color_att)
         .depth_attachment(depth_att);
-    let push: Vec<u8> = push.iter().flat_map(|f| f.to_le_bytes()).collect();
     // SAFETY: the caller guarantees `cmd` is recording outside rendering.
     unsafe {
         device.cmd_begin_rendering(cmd, &rendering);
@@ -515,23 +512,6 @@ pub unsafe fn begin_rendering(
         };
         device.cmd_set_viewport(cmd, 0, &[viewport]);
         device.cmd_set_scissor(cmd, 0, &[extent.into()]);
-        device.cmd_bind_descriptor_sets(
-            cmd,
-            vk::PipelineBindPoint::GRAPHICS,
-            layout,
-            0,
-            &[set],
-            &[],
-        );
-        device.cmd_push_constants(
-            cmd,
-            layout,
-            vk::ShaderStageFlags::VERTEX
-                | vk::ShaderStageFlags::FRAGMENT
-                | vk::ShaderStageFlags::COMPUTE,
-            0,
-            &push,
-        );
     }
 }
 

@@ -3,7 +3,7 @@
 use std::sync::Arc;
 
 use ash::vk;
-use glam::{Mat4, Vec3, Vec4};
+use glam::{Mat4, Vec4};
 
 use crate::error::Result;
 use crate::gpu::memory::Buffer;
@@ -95,14 +95,7 @@ pub fn box_indices(n: u32) -> Vec<u32> {
 /// Appends the world-space corners of `boxes` (8 per box) to `out`.
 pub fn box_corners_into(boxes: &[Aabb], out: &mut Vec<[f32; 3]>) {
     for b in boxes {
-        for c in 0..8 {
-            let p = Vec3::new(
-                if c & 1 == 0 { b.min.x } else { b.max.x },
-                if c & 2 == 0 { b.min.y } else { b.max.y },
-                if c & 4 == 0 { b.min.z } else { b.max.z },
-            );
-            out.push(p.to_array());
-        }
+        out.extend(coherent_ash::box_corners(b));
     }
 }
 

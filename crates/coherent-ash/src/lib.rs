@@ -196,7 +196,17 @@ pub struct QueryBackend {
     /// The slot of the frame being recorded (`None` outside begin/end).
     current: Option<u32>,
     counts: QueryCounts,
-    destroyed: bool,
+}
+
+/// The 8 corners of `b`, corner `c` = x | y << 1 | z << 2 (the layout of [`BOX_FACES`]).
+pub fn box_corners(b: &Aabb) -> [[f32; 3]; 8] {
+    std::array::from_fn(|c| {
+        [
+            if c & 1 == 0 { b.min.x } else { b.max.x },
+            if c & 2 == 0 { b.min.y } else { b.max.y },
+            if c & 4 == 0 { b.min.z } else { b.max.z },
+        ]
+    })
 }
 
 /// Corner indices of one box's 12 triangles (corner `c` = x | y << 1 | z << 2), the layout the
@@ -241,7 +251,6 @@ impl QueryBackend {
             arena: Arena::null(),
             current: None,
             counts: QueryCounts::default(),
-            destroyed: false,
             desc,
         };
         // On an error below, `out` is dropped and destroys what was created so far.
@@ -352,10 +361,6 @@ impl QueryBackend {
     /// # Safety
     /// The device has finished every command buffer that used the backend.
     pub unsafe fn destroy(&mut self) {
-        if self.destroyed {
-            return;
-        }
-        self.destroyed = true;
         for s in &mut self.slots {
             // SAFETY: the caller (or drop) guarantees the device is done with them.
             unsafe { s.destroy(&self.device) };
@@ -400,7 +405,7 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
             .ok_or_else(|| Error::Input("a culler frame outside begin_frame/end_frame".into()))
     }
 
-    fn enter_query_state(&mut self) {
+    fn enter_query_state(&mut self, slot: u32) {
         if self.in_query_state {
             return;
         }
@@ -409,7 +414,7 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
         let c = &mut self.backend.counts;
         c.state_changes += 1;
         c.pipeline_binds += 1;
-        let slot = &self.backend.slots[self.backend.current.unwrap_or(0) as usize];
+        let slot = &self.backend.slots[slot as usize];
         // SAFETY: `cmd` is recording inside the host's rendering (the `frame` contract); the
         // pipeline, layout and buffers live as long as the backend.
         unsafe {
@@ -460,7 +465,7 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
                 max_b - s.boxes_used
             )));
         }
-        self.enter_query_state();
+        self.enter_query_state(slot);
         let s = &mut self.backend.slots[slot as usize];
         let index = s.issued;
         let first_box = s.boxes_used;

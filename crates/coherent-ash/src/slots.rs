@@ -335,15 +335,8 @@ impl Slot {
     /// Writes the corners of `boxes` from box `first` on (8 per box, corner c = x | y << 1 |
     /// z << 2).
     pub fn write_corners(&mut self, first: u32, boxes: &[Aabb]) {
-        let mut corners = [[0f32; 3]; 8];
         for (i, b) in boxes.iter().enumerate() {
-            for (c, corner) in corners.iter_mut().enumerate() {
-                *corner = [
-                    if c & 1 == 0 { b.min.x } else { b.max.x },
-                    if c & 2 == 0 { b.min.y } else { b.max.y },
-                    if c & 4 == 0 { b.min.z } else { b.max.z },
-                ];
-            }
+            let corners = crate::box_corners(b);
             let flat: &[f32] = corners.as_flattened();
             // SAFETY: f32 has no padding; reinterpreting as bytes is sound.
             let bytes = unsafe {
