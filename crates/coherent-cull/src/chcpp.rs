@@ -41,6 +41,16 @@ pub struct ChcppParams {
     pub flush_interval: usize,
     /// Seed of the randomized interval.
     pub seed: u64,
+    /// Predicated mode: when a queried interior node comes back visible, the levels of its
+    /// subtree opened at once (default 2): the nodes that many levels down are queried, and
+    /// drawn under their own predicates, in the next frame (`u32::MAX`: open the whole subtree,
+    /// as the next-frame modes do).
+    pub predicated_levels: u32,
+    /// Predicated mode: frames an interior node whose own query came back visible stays open
+    /// (its children queried one by one) before it is queried as a whole again (default 10). A
+    /// box that shows while its contents are hidden would otherwise draw its whole subtree
+    /// under a true predicate every other frame.
+    pub predicated_hold: u32,
 }
 
 impl Default for ChcppParams {
@@ -57,6 +67,8 @@ impl Default for ChcppParams {
             pixel_threshold: 0,
             flush_interval: 16,
             seed: 0x00C0_FFEE,
+            predicated_levels: 2,
+            predicated_hold: 10,
         }
     }
 }
@@ -128,6 +140,9 @@ struct NodeState {
     /// The hierarchy's epoch when the node was last visited: if its box has grown since, what
     /// was learnt about it then is about other space (see the motion rule in `culling`).
     seen_epoch: u64,
+    /// Predicated mode: an interior node whose own query said visible stays open until this
+    /// frame.
+    open_until: u64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -136,6 +151,9 @@ enum QueryKind {
     Invisible,
     /// For previously visible leaves: the result matters next frame.
     Visible,
+    /// Predicated mode: whether a node held open still shows (it stays open) or not (it
+    /// closes); nothing is drawn under it.
+    Probe,
 }
 
 /// An issued query: its nodes are `query_nodes[first..first + count]`.
@@ -150,6 +168,9 @@ struct Pending {
 // k frames in flight for the latency modes (a child module: it reads the culler's state).
 #[path = "latency_chcpp.rs"]
 mod latency_chcpp;
+// The predicated mode: conditional draws under the i-queue's queries.
+#[path = "predicated.rs"]
+mod predicated;
 
 /// CHC++ (or, configured with [`ChcppParams::chc`], CHC).
 pub struct Chcpp {
@@ -191,6 +212,8 @@ pub struct Chcpp {
     frames_in_flight: u32,
     /// Latency modes with `k > 1`: the queries of the frames still in flight, oldest first.
     in_flight: latency_chcpp::InFlightQueries,
+    /// Predicated mode: scratch for the objects of one conditional draw and a subtree walk.
+    predicated: predicated::Scratch,
 }
 
 impl Chcpp {
@@ -227,6 +250,7 @@ impl Chcpp {
             result_frame: Vec::new(),
             frames_in_flight: 1,
             in_flight: Default::default(),
+            predicated: Default::default(),
         }
     }
 
@@ -415,7 +439,7 @@ impl Chcpp {
         let purpose = match kind {
             QueryKind::Visible => QueryPurpose::VisibleLeaf,
             QueryKind::Invisible if nodes.len() > 1 => QueryPurpose::Multiquery,
-            QueryKind::Invisible => QueryPurpose::Node,
+            QueryKind::Invisible | QueryKind::Probe => QueryPurpose::Node,
         };
         let id = backend.issue_query_for(&boxes, purpose);
         self.boxes = boxes;
@@ -424,6 +448,7 @@ impl Chcpp {
         match kind {
             QueryKind::Invisible => stats.invisible_node_queries += 1,
             QueryKind::Visible => stats.visible_leaf_queries += 1,
+            QueryKind::Probe => {}
         }
         if nodes.len() > 1 {
             stats.multiqueries += 1;
@@ -497,6 +522,7 @@ impl Chcpp {
         self.batch.clear();
         self.batch.append(&mut self.v_queue);
         self.issue_batch_singly(bvh, QueryKind::Visible, backend, stats)?;
+        self.issue_probes(bvh, backend, stats)?;
         self.submit(backend)?;
         self.unsubmitted = 0;
         Ok(())
@@ -580,7 +606,7 @@ impl Chcpp {
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
-        if self.v_queue.is_empty() {
+        if self.v_queue.is_empty() && self.predicated.probes.is_empty() {
             return Ok(());
         }
         self.flush_render_queue(backend)?;
@@ -589,6 +615,7 @@ impl Chcpp {
         self.batch.clear();
         self.batch.extend(self.v_queue.drain(..n));
         self.issue_batch_singly(bvh, QueryKind::Visible, backend, stats)?;
+        self.issue_probes(bvh, backend, stats)?;
         self.submit(backend)?;
         self.unsubmitted = 0;
         Ok(())
@@ -675,11 +702,18 @@ impl Chcpp {
         self.i_queue.clear();
         self.requery.clear();
         self.v_queue.clear();
+        self.predicated.probes.clear();
         self.render_queue.clear();
         self.query_nodes.clear();
         self.unsubmitted = 0;
         self.traversal
             .push(0, bvh.nodes[0].bounds.distance_squared(eye));
+    }
+
+    /// Whether queries wait in the i- and v-queues (batching; always in the predicated mode,
+    /// whose predicates need the queries before the conditional draws).
+    fn queues_queries(&self) -> bool {
+        self.params.batching || self.latency == Latency::Predicated
     }
 
     /// Nodes per i-queue batch (`b`; 1 without batching).
@@ -691,9 +725,11 @@ impl Chcpp {
         }
     }
 
-    /// Whether the i-queue (with the nodes of failed multiqueries) holds a full batch.
+    /// Whether the i-queue (with the nodes of failed multiqueries) holds a full batch. Never
+    /// in the predicated mode: its i-queue goes out once, after the traversal.
     fn i_queue_full(&self) -> bool {
-        self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size()
+        self.latency != Latency::Predicated
+            && self.i_queue.len() + self.requery.len() >= self.i_queue_batch_size()
     }
 
     /// Handles returned queries in order. While the traversal has work, stops at the first
@@ -751,6 +787,8 @@ impl Chcpp {
             self.traverse_unqueryable(bvh, node, view.eye, stats);
         } else if !self.was_visible(node) && self.stale_in_latency_mode(node) {
             self.traverse_conservatively(bvh, node, view.eye, stats);
+        } else if !self.was_visible(node) && self.held_open(bvh, node) {
+            self.traverse_held_open(bvh, node, view.eye, stats);
         } else if !self.was_visible(node) {
             self.query_previously_invisible(bvh, node, backend, stats)?;
         } else {
@@ -820,7 +858,7 @@ impl Chcpp {
         s.last_visited = self.frame;
         s.tested = true;
         stats.invisible_nodes_tested += 1;
-        if self.params.batching {
+        if self.queues_queries() {
             self.i_queue.push(node);
             if self.i_queue_full() {
                 self.issue_i_queue(bvh, backend, stats)?;
@@ -854,7 +892,7 @@ impl Chcpp {
         if due {
             self.state[node as usize].next_query =
                 self.frame + self.params.visible_interval.max(1) as u64;
-            if self.params.batching {
+            if self.queues_queries() {
                 self.v_queue.push(node);
             } else {
                 self.issue_unbatched(bvh, node, QueryKind::Visible, backend, stats)?;
@@ -881,9 +919,13 @@ impl Chcpp {
     fn issue_remaining_queries(
         &mut self,
         bvh: &ObjectBvh,
+        view: &View,
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
+        if self.latency == Latency::Predicated {
+            return self.issue_predicated(bvh, view, backend, stats);
+        }
         self.issue_i_queue(bvh, backend, stats)?;
         if !self.params.batching && self.unsubmitted > 0 {
             self.flush_render_queue(backend)?;
@@ -980,6 +1022,9 @@ impl Culler for Chcpp {
         let view = View::new(&input.view);
         let eye = view.eye;
         let mut stats = CullStats::default();
+        if self.latency == Latency::Predicated && !backend.supports_predicates() {
+            return Err(crate::predicates_unsupported());
+        }
         self.read_frames_in_flight(bvh, backend, &mut stats)?;
         self.begin_frame(bvh, eye);
         self.eye = eye;
@@ -996,7 +1041,7 @@ impl Culler for Chcpp {
                 self.visit_node(input, &view, node, backend, &mut stats)?;
             }
             if self.traversal.is_empty() {
-                self.issue_remaining_queries(bvh, backend, &mut stats)?;
+                self.issue_remaining_queries(bvh, &view, backend, &mut stats)?;
             }
         }
         self.end_frame(bvh, eye, backend, &mut stats)?;
@@ -1082,6 +1127,10 @@ impl Chcpp {
         visible: bool,
         stats: &mut CullStats,
     ) {
+        if self.latency == Latency::Predicated {
+            self.handle_predicated_result(bvh, q, visible, stats);
+            return;
+        }
         if self.result_frame.len() != self.state.len() {
             self.result_frame = vec![0; self.state.len()];
         }

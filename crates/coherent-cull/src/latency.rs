@@ -221,6 +221,25 @@ impl OcclusionBackend for SlotBackend<'_> {
         self.k
     }
 
+    fn supports_predicates(&self) -> bool {
+        self.inner.supports_predicates()
+    }
+
+    fn resolve_predicates(&mut self) -> Result<()> {
+        self.inner.resolve_predicates()
+    }
+
+    fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
+        let (slot, index) = self.decode(query)?;
+        if slot != self.slot || self.slots[slot].frame != self.frame {
+            return Err(Error::Input(format!(
+                "query {query} is not a predicate of this frame"
+            )));
+        }
+        let inner = self.slots[slot].inner[index];
+        self.inner.draw_objects_if(inner, objects)
+    }
+
     fn submit_frame(&mut self) -> Result<()> {
         // The wrapped backend completes each frame; the slot hides the results for k frames.
         self.inner.finish()?;

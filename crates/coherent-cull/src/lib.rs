@@ -232,6 +232,37 @@ pub trait OcclusionBackend {
     fn submit_frame(&mut self) -> Result<()> {
         self.finish()
     }
+    /// Whether the backend can draw under a query's predicate on the device
+    /// ([`OcclusionBackend::resolve_predicates`], [`OcclusionBackend::draw_objects_if`]), which
+    /// [`Latency::Predicated`] needs. Default: no.
+    fn supports_predicates(&self) -> bool {
+        false
+    }
+    /// Makes the pixel counts of every query issued so far in this frame usable as predicates
+    /// of [`OcclusionBackend::draw_objects_if`], on the device and without a CPU wait. On
+    /// Vulkan with `VK_EXT_conditional_rendering`: end rendering, copy the results
+    /// (`vkCmdCopyQueryPoolResults`, 32-bit, `WAIT`) into the predicate buffer, a barrier from
+    /// the copy to `CONDITIONAL_RENDERING_READ`, and resume rendering with LOAD ops: a pass
+    /// break, not a submission. Default: refuses with [`Error::Unsupported`].
+    fn resolve_predicates(&mut self) -> Result<()> {
+        Err(predicates_unsupported())
+    }
+    /// Records draws of `objects` (render state, as [`OcclusionBackend::draw_objects`]) that
+    /// the device executes only if `query` counted at least one sample; `query` was issued in
+    /// this frame before the last [`OcclusionBackend::resolve_predicates`]. Default: refuses
+    /// with [`Error::Unsupported`].
+    fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
+        let _ = (query, objects);
+        Err(predicates_unsupported())
+    }
+}
+
+/// The error of a backend without predicated draws.
+pub fn predicates_unsupported() -> Error {
+    Error::Unsupported {
+        feature: "predicated draws (VK_EXT_conditional_rendering: the predicated latency mode)"
+            .into(),
+    }
 }
 
 /// Per-frame input of a culler.
@@ -263,6 +294,12 @@ pub struct FrameInput<'a> {
 /// - `NextFrameConservative`: as `NextFrame`, but a node whose last known state is older than
 ///   `k` frames (no result read for it in the last frame: it entered the frustum, or its
 ///   parent was just opened) is drawn rather than assumed invisible: fewer pops, more draws.
+/// - `Predicated`: exact with one submission per frame and no waits. Queries are read `k`
+///   frames late as in `NextFrame` to update the hierarchy, but a previously invisible node is
+///   not assumed invisible: its query is issued after the frame's unconditional draws, and its
+///   objects are drawn under the query's predicate on the device
+///   ([`OcclusionBackend::draw_objects_if`]). Needs a backend with predicates
+///   ([`OcclusionBackend::supports_predicates`]); see [`chcpp`] for the argument.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Latency {
     /// Exact, segments within the frame.
@@ -272,21 +309,27 @@ pub enum Latency {
     NextFrame,
     /// Results read one frame late; nodes without a recent result are drawn.
     NextFrameConservative,
+    /// Exact with one submission: previously invisible nodes drawn under their query's
+    /// predicate on the device.
+    Predicated,
 }
 
 impl Latency {
     /// Every mode, in the order reports list them.
-    pub const ALL: [Latency; 3] = [
+    pub const ALL: [Latency; 4] = [
         Latency::InFrame,
         Latency::NextFrame,
         Latency::NextFrameConservative,
+        Latency::Predicated,
     ];
-    /// The command-line name: `in-frame`, `next-frame`, `next-frame-conservative`.
+    /// The command-line name: `in-frame`, `next-frame`, `next-frame-conservative`,
+    /// `predicated`.
     pub fn name(self) -> &'static str {
         match self {
             Latency::InFrame => "in-frame",
             Latency::NextFrame => "next-frame",
             Latency::NextFrameConservative => "next-frame-conservative",
+            Latency::Predicated => "predicated",
         }
     }
     /// Parses a command-line name (a `-kN` suffix, see [`Latency::parse_in_flight`], is
@@ -315,7 +358,7 @@ impl Latency {
             .find(|l| l.name() == name)
             .ok_or_else(|| {
                 Error::Input(format!(
-                    "unknown latency \"{name}\" (known: in-frame, next-frame, next-frame-conservative)"
+                    "unknown latency \"{name}\" (known: in-frame, next-frame, next-frame-conservative, predicated)"
                 ))
             })
     }
@@ -405,7 +448,8 @@ pub fn with_latency_names(algorithms: &[String], modes: &[String]) -> Result<Vec
 pub struct CullStats {
     /// Nodes visited.
     pub nodes_visited: u32,
-    /// Objects sent to the backend for drawing.
+    /// Objects sent to the backend for drawing unconditionally (draws under a predicate are
+    /// `predicated_objects`).
     pub objects_drawn: u32,
     /// Queries issued in all.
     pub queries: u32,
@@ -429,6 +473,12 @@ pub struct CullStats {
     pub full_batches: u32,
     /// Nodes queried one by one because the multiquery that held them came back visible.
     pub requeried: u32,
+    /// Predicate resolves (pass breaks) in the predicated mode.
+    pub predicate_resolves: u32,
+    /// Draw calls recorded under a query's predicate (conditional blocks).
+    pub predicated_draws: u32,
+    /// Objects sent in those draws (the device draws those whose predicate is true).
+    pub predicated_objects: u32,
     /// Times the traversal had nothing left to do and blocked on a query result inside the
     /// frame: each is a round trip to the device (reading the results after the frame is not
     /// counted).

@@ -74,6 +74,17 @@ pub enum MockEvent {
     /// The end of the frame ([`OcclusionBackend::finish`] or
     /// [`OcclusionBackend::submit_frame`]).
     EndOfFrame,
+    /// The queries issued so far became predicates ([`OcclusionBackend::resolve_predicates`]).
+    Resolve,
+    /// Objects drawn under a query's predicate.
+    DrawIf {
+        /// The query whose predicate decides.
+        query: QueryId,
+        /// The objects.
+        objects: Vec<u32>,
+        /// Whether the predicate was true (the objects were drawn).
+        taken: bool,
+    },
 }
 
 /// Counts of one frame, as a recorder on a real device would count them.
@@ -93,6 +104,14 @@ pub struct MockCounts {
     pub submits: u32,
     /// Blocking waits.
     pub waits: u32,
+    /// Predicate resolves (pass breaks on a real device).
+    pub resolves: u32,
+    /// Draw calls under a predicate.
+    pub predicated_draws: u32,
+    /// Objects sent in those draws.
+    pub predicated_objects: u32,
+    /// Of those, objects whose predicate was true (drawn).
+    pub predicated_objects_drawn: u32,
 }
 
 struct Issued {
@@ -100,6 +119,8 @@ struct Issued {
     frame: u64,
     /// Readable through `query_result` (completed on the mock device).
     complete: bool,
+    /// Usable as a predicate (a resolve came after it in its frame).
+    resolved: bool,
 }
 
 /// A CPU occlusion backend answering queries from a visibility function (see the module docs).
@@ -114,6 +135,7 @@ pub struct MockBackend<'a> {
     counts: MockCounts,
     drawn: BTreeSet<u32>,
     early_reads: u64,
+    predicates: bool,
 }
 
 impl<'a> MockBackend<'a> {
@@ -132,7 +154,15 @@ impl<'a> MockBackend<'a> {
             counts: MockCounts::default(),
             drawn: BTreeSet::new(),
             early_reads: 0,
+            predicates: true,
         }
+    }
+
+    /// A backend without predicated draws (a device without conditional rendering): the
+    /// predicated mode must refuse it.
+    pub fn without_predicates(mut self) -> MockBackend<'a> {
+        self.predicates = false;
+        self
     }
 
     /// A backend where a box sees 100 pixels when it overlaps one of `regions` (closed boxes),
@@ -259,6 +289,7 @@ impl OcclusionBackend for MockBackend<'_> {
             pixels,
             frame: self.frame,
             complete: self.completion == Completion::Immediate,
+            resolved: false,
         });
         self.counts.queries += 1;
         self.counts.query_boxes += boxes.len() as u32;
@@ -324,6 +355,53 @@ impl OcclusionBackend for MockBackend<'_> {
         self.counts.submits += 1;
         self.events.push(MockEvent::EndOfFrame);
         self.complete_all();
+        Ok(())
+    }
+
+    fn supports_predicates(&self) -> bool {
+        self.predicates
+    }
+
+    fn resolve_predicates(&mut self) -> Result<()> {
+        if !self.predicates {
+            return Err(crate::predicates_unsupported());
+        }
+        let frame = self.frame;
+        for q in self.queries.iter_mut().filter(|q| q.frame == frame) {
+            q.resolved = true;
+        }
+        self.counts.resolves += 1;
+        self.events.push(MockEvent::Resolve);
+        Ok(())
+    }
+
+    fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
+        if !self.predicates {
+            return Err(crate::predicates_unsupported());
+        }
+        let q = self.issued(query)?;
+        if q.frame != self.frame || !q.resolved {
+            return Err(crate::Error::Input(format!(
+                "query {query} is not a resolved predicate of this frame"
+            )));
+        }
+        if objects.is_empty() {
+            return Ok(());
+        }
+        let taken = q.pixels > 0;
+        self.enter_render_state();
+        self.counts.draw_calls += 1;
+        self.counts.predicated_draws += 1;
+        self.counts.predicated_objects += objects.len() as u32;
+        if taken {
+            self.counts.predicated_objects_drawn += objects.len() as u32;
+            self.drawn.extend(objects.iter().copied());
+        }
+        self.events.push(MockEvent::DrawIf {
+            query,
+            objects: objects.to_vec(),
+            taken,
+        });
         Ok(())
     }
 }

@@ -531,3 +531,120 @@ fn unknown_names_are_errors_not_panics() {
         assert_eq!(create_with(name, &full).unwrap().name(), *name);
     }
 }
+
+/// `name` (chc or chcpp) in the predicated mode with `k` frames in flight.
+fn predicated(name: &str, k: u32) -> Chcpp {
+    let c = match name {
+        "chc" => Chcpp::new(ChcppParams::chc()),
+        _ => Chcpp::new(ChcppParams::default()),
+    };
+    c.with_latency(Latency::Predicated).with_frames_in_flight(k)
+}
+
+#[test]
+fn predicated_draws_a_newly_visible_object_at_once_with_one_submission() {
+    for name in ["chc", "chcpp"] {
+        for k in [1, 2] {
+            let mut c = predicated(name, k);
+            assert_eq!(frame_object_6_appears(&mut c, k, true), 6, "{name} k={k}");
+        }
+    }
+    // The factory names it too.
+    let c = create_named("chcpp@predicated-k2", &CullerSetup::default()).unwrap();
+    assert_eq!(c.name(), "chcpp");
+}
+
+#[test]
+fn predicated_misses_nothing_along_a_walk_and_converges_to_the_visible_set() {
+    let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
+    for name in ["chc", "chcpp"] {
+        for k in [1, 2] {
+            let mut c = predicated(name, k);
+            let mut backend = MockBackend::new(|_| 0).with_frames_in_flight(k);
+            let (mut drawn, mut in_view, mut sent) = (0, 0, 0);
+            let (mut extra, mut steady) = (0, 0);
+            for f in 1..=50 {
+                // A walk, then the camera stands still for twenty frames.
+                let cam = walk(f.min(30));
+                let fog = Fog::new(&cam, 35.0);
+                let want = fog.visible_objects(&bvh);
+                backend.set_visibility(move |b| fog.pixels(b));
+                let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+                let lost = missing(&want, &fr.drawn);
+                assert!(lost.is_empty(), "{name} k={k} frame {f}: {lost:?} missed");
+                assert_eq!((fr.counts.submits, fr.counts.waits), (1, 0), "frame {f}");
+                assert!(fr.counts.resolves <= 1);
+                assert_eq!(fr.stats.blocking_waits, 0);
+                assert_eq!(fr.stats.predicated_objects, fr.counts.predicated_objects);
+                assert_eq!(fr.stats.objects_drawn, fr.counts.objects_drawn);
+                drawn += fr.drawn.len();
+                in_view += in_frustum(&bvh, &cam).len();
+                sent += fr.stats.predicated_objects as usize;
+                if f > 40 {
+                    // Standing still, the extra draws die out: nodes whose boxes show while
+                    // their contents are hidden are held open and queried child by child.
+                    extra += fr.drawn.len() - want.len();
+                    steady += want.len();
+                }
+            }
+            eprintln!("{name} k={k}: {extra} extra objects drawn while standing, {steady} visible");
+            assert!(extra * 10 < steady, "{name} k={k}: {extra} extra of {steady}");
+            assert_eq!(backend.early_reads(), 0);
+            assert!(drawn * 2 < in_view, "{name} k={k}: it culls");
+            assert!(sent > 0, "{name} k={k}: draws under predicates");
+        }
+    }
+}
+
+#[test]
+fn predicated_stays_exact_with_movers_and_a_camera_cut() {
+    let mut bvh = ObjectBvh::build(&random_boxes(400, 9), 1);
+    let cam = walk(0);
+    let fog = Fog::new(&cam, 30.0);
+    let visible = fog.visible_objects(&bvh);
+    let mut c = predicated("chcpp", 2);
+    let f2 = fog.clone();
+    let mut backend = MockBackend::new(move |b| f2.pixels(b)).with_frames_in_flight(2);
+    let hidden = *in_frustum(&bvh, &cam)
+        .iter()
+        .find(|o| !visible.contains(o))
+        .unwrap();
+    for f in 1..=6 {
+        let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+        assert!(missing(&visible, &fr.drawn).is_empty());
+    }
+    bvh.set_bounds(hidden, box_ahead(&cam, 12.0)).unwrap();
+    bvh.update();
+    let fr = run(&mut c, &bvh, &cam, &mut backend, 7);
+    assert!(fr.drawn.contains(&hidden), "the mover is drawn the same frame");
+    assert!(missing(&fog.visible_objects(&bvh), &fr.drawn).is_empty());
+    // A cut to the overview, whose view shares nothing with the walk's.
+    let cam = overview();
+    let fog = Fog::new(&cam, 330.0);
+    let want = fog.visible_objects(&bvh);
+    backend.set_visibility(move |b| fog.pixels(b));
+    for f in 8..=12 {
+        let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+        assert!(missing(&want, &fr.drawn).is_empty(), "frame {f}");
+        assert_eq!((fr.counts.submits, fr.counts.waits), (1, 0));
+    }
+}
+
+#[test]
+fn predicated_refuses_a_backend_without_predicates() {
+    let (boxes, cam) = row();
+    let bvh = ObjectBvh::build(&boxes, 1);
+    let mut c = predicated("chcpp", 1);
+    let mut backend = MockBackend::new(|_| PIXELS).without_predicates();
+    let input = FrameInput {
+        bvh: &bvh,
+        view: (&cam).into(),
+        frame: 1,
+        exact_visible: None,
+    };
+    let err = c.cull_frame(&input, &mut backend).unwrap_err();
+    assert!(matches!(err, Error::Unsupported { .. }), "{err}");
+    assert!(err.to_string().contains("VK_EXT_conditional_rendering"), "{err}");
+    // Only chc and chcpp have the mode.
+    assert!(create_latency("vfc", &ChcppParams::default(), Latency::Predicated).is_err());
+}
