@@ -64,6 +64,16 @@ pub struct CommandCounts {
     /// [`Recorder::count_mover_draws`]'s range, plus the movers among indirect draws as read
     /// back after the frame ([`Recorder::note_indirect_movers`]).
     pub mover_draws: u32,
+    /// Predicate resolves: query results copied into the predicate buffer for conditional
+    /// rendering (each a pass break: end rendering, copy, barrier, resume).
+    pub predicate_resolves: u32,
+    /// Conditional-rendering blocks (`vkCmdBeginConditionalRenderingEXT`).
+    pub conditional_blocks: u32,
+    /// Object draws recorded inside a conditional block (also in `object_draws`).
+    pub predicated_draws: u32,
+    /// Of those, draws whose predicate was true, read back from the predicate buffer after
+    /// the frame ([`Recorder::note_predicates_taken`]); for reports only.
+    pub predicated_draws_taken: u32,
 }
 
 /// How a buffer (or any memory) is accessed, for [`Recorder::memory_barrier`].
@@ -79,6 +89,8 @@ pub enum Access {
     IndirectRead,
     /// Read by the host after the submission completed.
     HostRead,
+    /// Read as a conditional-rendering predicate.
+    ConditionalRead,
 }
 
 impl Access {
@@ -94,6 +106,10 @@ impl Access {
             ),
             Access::IndirectRead => (S::DRAW_INDIRECT, A::INDIRECT_COMMAND_READ),
             Access::HostRead => (S::HOST, A::HOST_READ),
+            Access::ConditionalRead => (
+                S::CONDITIONAL_RENDERING_EXT,
+                A::CONDITIONAL_RENDERING_READ_EXT,
+            ),
         }
     }
 }
@@ -269,6 +285,17 @@ pub struct Recorder {
     movers: std::ops::Range<u32>,
     /// The device's `maxComputeWorkGroupCount`, checked by every dispatch.
     max_work_group_count: [u32; 3],
+    /// `VK_EXT_conditional_rendering`'s commands, when enabled.
+    conditional: Option<ash::ext::conditional_rendering::DeviceFn>,
+    /// The predicate (query id) of the open conditional block.
+    in_conditional: Option<u32>,
+    /// Query results were copied into a predicate buffer and no barrier has made them
+    /// visible to conditional-rendering reads yet (the validation layers do not track
+    /// predicate reads, so the recorder does).
+    predicates_unguarded: bool,
+    /// With the drawn-object log: objects drawn inside a conditional block, with the query
+    /// whose predicate decides.
+    predicated_objects: Vec<(u32, u32)>,
 }
 
 impl Recorder {
@@ -287,7 +314,122 @@ impl Recorder {
             drawn_objects: Vec::new(),
             movers: 0..0,
             max_work_group_count: ctx.info.max_compute_work_group_count,
+            conditional: ctx.conditional_rendering.clone(),
+            in_conditional: None,
+            predicates_unguarded: false,
+            predicated_objects: Vec::new(),
         }
+    }
+
+    /// Copies the 32-bit results of queries `first..first + count` of `pools` into
+    /// `predicates` (one buffer per pool of `pools`, 4 bytes a query at the query's slot;
+    /// `CONDITIONAL_RENDERING_EXT` and `TRANSFER_DST` usage), each waited for on the device,
+    /// then, when `barrier`, makes the copies visible to conditional-rendering reads. Outside
+    /// rendering.
+    pub fn copy_predicates(
+        &mut self,
+        pools: &QueryPools,
+        first: u32,
+        count: u32,
+        predicates: &[Buffer],
+        barrier: bool,
+    ) -> Result<()> {
+        let end = first.saturating_add(count).min(pools.used());
+        let mut id = first;
+        while id < end {
+            let (pool, slot) = pools.location(id);
+            let n = (pools.chunk() - slot).min(end - id);
+            let buffer = predicates
+                .get((id / pools.chunk()) as usize)
+                .ok_or_else(|| Error::Input(format!("no predicate buffer for query {id}")))?;
+            // SAFETY: recording outside rendering; the queries were reset this frame and ended
+            // earlier in this queue's order; at 4 bytes a slot the range lies inside the
+            // buffer, which has TRANSFER_DST usage.
+            unsafe {
+                self.device.cmd_copy_query_pool_results(
+                    self.cmd,
+                    pool,
+                    slot,
+                    n,
+                    buffer.handle,
+                    u64::from(slot) * 4,
+                    4,
+                    vk::QueryResultFlags::WAIT,
+                )
+            };
+            id += n;
+        }
+        self.counts.predicate_resolves += 1;
+        self.predicates_unguarded = true;
+        if barrier {
+            self.memory_barrier(Access::TransferWrite, Access::ConditionalRead);
+            self.predicates_unguarded = false;
+        }
+        Ok(())
+    }
+
+    /// Opens a conditional block: the draws until [`Recorder::end_conditional`] run only if
+    /// the 32-bit value at `offset` of `buffer` (the predicate of query `query`) is non-zero.
+    /// Refuses when the predicates were copied without the barrier that makes them visible.
+    pub fn begin_conditional(&mut self, buffer: &Buffer, offset: u64, query: u32) -> Result<()> {
+        let Some(fp) = self.conditional.as_ref() else {
+            return Err(Error::Unsupported {
+                feature: "VK_EXT_conditional_rendering".into(),
+            });
+        };
+        if self.predicates_unguarded {
+            return Err(Error::Input(
+                "a conditional block reads predicates that no barrier made visible after \
+                 their copy"
+                    .into(),
+            ));
+        }
+        if self.in_conditional.is_some() {
+            return Err(Error::Input("conditional blocks cannot nest".into()));
+        }
+        let info = vk::ConditionalRenderingBeginInfoEXT::default()
+            .buffer(buffer.handle)
+            .offset(offset);
+        // SAFETY: recording; the buffer has CONDITIONAL_RENDERING_EXT usage, the offset is a
+        // multiple of 4 inside it, and no conditional block is open.
+        unsafe { (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info) };
+        self.counts.conditional_blocks += 1;
+        self.in_conditional = Some(query);
+        Ok(())
+    }
+
+    /// Closes the open conditional block.
+    pub fn end_conditional(&mut self) {
+        if let (Some(fp), Some(_)) = (self.conditional.as_ref(), self.in_conditional.take()) {
+            // SAFETY: recording; a block begun in this command buffer (and rendering
+            // instance) is open.
+            unsafe { (fp.cmd_end_conditional_rendering_ext)(self.cmd) };
+        }
+    }
+
+    /// Objects drawn under predicates since the last clear, each with the query whose
+    /// predicate decides (with the drawn-object log on).
+    pub fn predicated_objects(&self) -> &[(u32, u32)] {
+        &self.predicated_objects
+    }
+
+    /// After the frame: the objects of [`Recorder::predicated_objects`] whose predicate
+    /// `taken(query)` says was true join the drawn-object log and count in
+    /// [`CommandCounts::predicated_draws_taken`] (of `counts`, the frame's counts).
+    pub fn note_predicates_taken(
+        &mut self,
+        counts: &mut CommandCounts,
+        taken: impl Fn(u32) -> bool,
+    ) {
+        for &(object, query) in &self.predicated_objects {
+            if taken(query) {
+                counts.predicated_draws_taken += 1;
+                if self.log_objects {
+                    self.drawn_objects.push(object);
+                }
+            }
+        }
+        self.predicated_objects.clear();
     }
 
     /// Counts render-state draws of the objects in `objects` (the moving ones; their
@@ -317,12 +459,15 @@ impl Recorder {
     /// Forgets the drawn-object log (keeps its capacity).
     pub fn clear_drawn_objects(&mut self) {
         self.drawn_objects.clear();
+        self.predicated_objects.clear();
     }
 
     /// Starts recording into a new command buffer (already begun): bound state is forgotten.
     pub fn set_command_buffer(&mut self, cmd: CommandBuffer) {
         self.cmd = cmd.0;
         self.bound = None;
+        self.in_conditional = None;
+        self.predicates_unguarded = false;
     }
 
     /// The current command buffer.
@@ -457,7 +602,11 @@ impl Recorder {
         let tris = (index_count / 3) as u64 * instances as u64;
         self.count_draw(tris);
         if !self.in_query && self.last_kind == Some(PipelineKind::Render) {
-            if self.log_objects {
+            if let Some(query) = self.in_conditional {
+                // Drawn only if the predicate holds: logged once it is read back.
+                self.counts.predicated_draws += 1;
+                self.predicated_objects.push((first_instance, query));
+            } else if self.log_objects {
                 self.drawn_objects.push(first_instance);
             }
             if self.movers.contains(&first_instance) {

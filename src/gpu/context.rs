@@ -184,6 +184,9 @@ pub struct ContextOptions {
     /// Device limits to lower below what the device reports, so that lavapipe runs the code
     /// paths of devices with smaller limits (tests); see [`LimitOverrides`].
     pub lower_limits: LimitOverrides,
+    /// Leave `VK_EXT_conditional_rendering` off even where the device has it, to run what a
+    /// device without it does (tests).
+    pub without_conditional_rendering: bool,
 }
 
 /// Limits a context uses below the device's (each `None` keeps the device's; a value above the
@@ -403,6 +406,9 @@ pub struct OptionalFeatures {
     /// `gl_ClipDistance` in shaders (`shaderClipDistance`): the GI shadow maps clip at the
     /// hemisphere's base plane in fixed function (else in the vertex shader, slower).
     pub shader_clip_distance: bool,
+    /// `VK_EXT_conditional_rendering` with its `conditionalRendering` feature: draws under a
+    /// query's predicate (the predicated latency mode).
+    pub conditional_rendering: bool,
 }
 
 /// The features `coherent` relies on, for `coherent info`.
@@ -440,6 +446,8 @@ pub struct GpuContext {
     debug: Option<(ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     log: Arc<ValidationLog>,
     log_raw: *const ValidationLog,
+    /// `VK_EXT_conditional_rendering`'s commands, when the device has it enabled.
+    pub(crate) conditional_rendering: Option<ash::ext::conditional_rendering::DeviceFn>,
 }
 
 // SAFETY: the raw log pointer is only read by the validation callback (it points at data behind an
@@ -513,6 +521,7 @@ impl GpuContext {
         info.lower_limits(&options.lower_limits);
         check_features(&instance, physical_device)?;
         info.optional = optional_features(&instance, physical_device);
+        info.optional.conditional_rendering &= !options.without_conditional_rendering;
         let device = create_device(
             &instance,
             physical_device,
@@ -532,6 +541,11 @@ impl GpuContext {
             allocation_sizes: Default::default(),
         })
         .map_err(|e| Error::from_alloc("the allocator", e))?;
+        let conditional_rendering = info.optional.conditional_rendering.then(|| {
+            ash::ext::conditional_rendering::Device::new(&instance, &device)
+                .fp()
+                .clone()
+        });
         let debug = partial.debug.take();
         partial.instance = None;
         partial.device = None;
@@ -548,6 +562,7 @@ impl GpuContext {
             debug,
             log,
             log_raw,
+            conditional_rendering,
         })
     }
 
@@ -782,17 +797,23 @@ fn create_device(
         .dynamic_rendering(true)
         .synchronization2(true)
         .maintenance4(true);
-    let dev_ext: Vec<*const i8> = options
+    let mut dev_ext: Vec<*const i8> = options
         .device_extensions
         .iter()
         .map(|e| e.as_ptr())
         .collect();
-    let device_info = vk::DeviceCreateInfo::default()
+    let mut conditional =
+        vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default().conditional_rendering(true);
+    let mut device_info = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queue_info)
         .enabled_features(&features10)
-        .enabled_extension_names(&dev_ext)
         .push_next(&mut features12)
         .push_next(&mut features13);
+    if optional.conditional_rendering {
+        dev_ext.push(ext::conditional_rendering::NAME.as_ptr());
+        device_info = device_info.push_next(&mut conditional);
+    }
+    let device_info = device_info.enabled_extension_names(&dev_ext);
     // SAFETY: physical device from this instance; pointers outlive the call.
     unsafe { instance.create_device(physical_device, &device_info, None) }.vk("vkCreateDevice")
 }
@@ -932,8 +953,17 @@ fn no_device(filter: Option<&str>, candidates: &[String]) -> Error {
 
 /// Which of the [`OptionalFeatures`] the device has.
 fn optional_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> OptionalFeatures {
+    // SAFETY: valid physical device; a plain query.
+    let has_conditional = unsafe { instance.enumerate_device_extension_properties(pd) }
+        .unwrap_or_default()
+        .iter()
+        .any(|e| e.extension_name_as_c_str() == Ok(ext::conditional_rendering::NAME));
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut cr = vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default();
     let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
+    if has_conditional {
+        f2 = f2.push_next(&mut cr);
+    }
     // SAFETY: valid physical device; the chain outlives the call.
     unsafe { instance.get_physical_device_features2(pd, &mut f2) };
     let f10 = f2.features;
@@ -957,6 +987,7 @@ fn optional_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Option
         draw_indirect_first_instance: f10.draw_indirect_first_instance != 0,
         sampler_filter_minmax: f12.sampler_filter_minmax != 0,
         shader_clip_distance: f10.shader_clip_distance != 0,
+        conditional_rendering: has_conditional && cr.conditional_rendering != 0,
     }
 }
 

@@ -52,11 +52,17 @@ impl FrameResult {
             object_draws: self.counts.object_draws + self.counts.indirect_objects,
             query_draws: self.counts.query_draws,
             triangles: self.counts.render_triangles + self.counts.indirect_triangles,
-            objects: self.counts.object_draws + self.counts.indirect_objects,
+            // Objects really drawn: a draw under a false predicate drew nothing.
+            objects: self.counts.object_draws - self.counts.predicated_draws
+                + self.counts.predicated_draws_taken
+                + self.counts.indirect_objects,
             submits: self.counts.submits,
             missed_objects: self.check.map(|c| c.missed_objects),
             missed_pixels: self.check.map(|c| c.missed_pixels),
             mover_draws: None,
+            predicated_draws: self.counts.predicated_draws,
+            predicated_taken: self.counts.predicated_draws_taken,
+            predicate_resolves: self.counts.predicate_resolves,
         }
     }
 }

@@ -113,6 +113,14 @@ pub struct Renderer {
     prepass_counts: CommandCounts,
     /// Pixel count above which a query result means visible (for counting wasted queries).
     pub visibility_threshold: u64,
+    /// Predicates for conditional rendering: 4 bytes per occlusion query, one host-visible
+    /// buffer per query pool (read back after the frame to count what was really drawn).
+    predicates: Vec<Buffer>,
+    /// Occlusion queries of this frame whose results are predicates already.
+    predicates_resolved: u32,
+    /// Leave out the barrier between the predicate copy and the conditional blocks (tests:
+    /// the recorder must refuse).
+    skip_predicate_barrier: bool,
 }
 
 impl Renderer {
@@ -201,6 +209,9 @@ impl Renderer {
             prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
             bounds_version: 0,
+            predicates: Vec::new(),
+            predicates_resolved: 0,
+            skip_predicate_barrier: false,
         })
     }
 
@@ -335,7 +346,8 @@ impl Renderer {
         let cull: CullStats = cull?;
         finished?;
         let gpu_ms = self.gpu_time_ms()?;
-        let counts: CommandCounts = self.recorder.take_counts();
+        let mut counts: CommandCounts = self.recorder.take_counts();
+        self.read_predicates(&mut counts)?;
         let unread = self.query_read.iter().filter(|r| !**r).count();
         if unread > 0 {
             return Err(Error::Input(format!(
@@ -385,6 +397,7 @@ impl Renderer {
         self.stall = Duration::ZERO;
         self.recorder.take_counts();
         self.recorder.clear_drawn_objects();
+        self.predicates_resolved = 0;
         let vp = raster_matrix(view);
         self.push[..64].copy_from_slice(bytes_of(&vp.to_cols_array()));
         Ok(())
@@ -825,12 +838,10 @@ fn box_chunk(ctx: &Arc<GpuContext>) -> Result<Buffer> {
     )
 }
 
-impl OcclusionBackend for Renderer {
-    fn draw_objects(&mut self, objects: &[u32]) -> coherent_cull::Result<()> {
-        if objects.is_empty() {
-            return Ok(());
-        }
-        self.ensure_recording()?;
+impl Renderer {
+    /// Records draws of `objects` in render state (inside a conditional block when one is
+    /// open).
+    fn record_objects(&mut self, objects: &[u32]) -> Result<()> {
         self.use_pipeline(PipelineKind::Render);
         if self.bound != Some(Bound::Scene) {
             self.recorder
@@ -855,6 +866,95 @@ impl OcclusionBackend for Renderer {
         Ok(())
     }
 
+    /// After the frame: reads the predicates back, so objects drawn under a false predicate
+    /// do not count as drawn (`walk --check`) and `counts.predicated_draws_taken` says how
+    /// many were.
+    fn read_predicates(&mut self, counts: &mut CommandCounts) -> Result<()> {
+        if counts.predicated_draws == 0 {
+            return Ok(());
+        }
+        let chunk = self.occlusion.chunk();
+        let buffers = &self.predicates;
+        let value = |q: u32| -> Option<u32> {
+            let bytes = buffers.get((q / chunk) as usize)?.mapped()?;
+            let at = (q % chunk) as usize * 4;
+            Some(u32::from_ne_bytes(bytes.get(at..at + 4)?.try_into().ok()?))
+        };
+        self.recorder
+            .note_predicates_taken(counts, |q| value(q).is_some_and(|v| v != 0));
+        Ok(())
+    }
+
+    /// Leaves out the barrier between the predicate copy and the conditional blocks (for the
+    /// test that shows the recorder refuses such a frame).
+    #[doc(hidden)]
+    pub fn skip_predicate_barrier(&mut self, skip: bool) {
+        self.skip_predicate_barrier = skip;
+    }
+}
+
+impl OcclusionBackend for Renderer {
+    fn draw_objects(&mut self, objects: &[u32]) -> coherent_cull::Result<()> {
+        if objects.is_empty() {
+            return Ok(());
+        }
+        self.ensure_recording()?;
+        Ok(self.record_objects(objects)?)
+    }
+
+    fn supports_predicates(&self) -> bool {
+        self.ctx.info.optional.conditional_rendering
+    }
+
+    fn resolve_predicates(&mut self) -> coherent_cull::Result<()> {
+        if !self.supports_predicates() {
+            return Err(coherent_cull::predicates_unsupported());
+        }
+        self.ensure_recording()?;
+        let (first, used) = (self.predicates_resolved, self.occlusion.used());
+        while self.predicates.len() < used.div_ceil(self.occlusion.chunk()) as usize {
+            self.predicates.push(Buffer::new(
+                &self.ctx,
+                "predicates",
+                u64::from(self.occlusion.chunk()) * 4,
+                vk::BufferUsageFlags::CONDITIONAL_RENDERING_EXT
+                    | vk::BufferUsageFlags::TRANSFER_DST,
+                MemoryLocation::GpuToCpu,
+            )?);
+        }
+        // A pass break: the copy runs outside rendering, which resumes with LOAD ops.
+        self.recorder.end_rendering();
+        self.recorder.copy_predicates(
+            &self.occlusion,
+            first,
+            used - first,
+            &self.predicates,
+            !self.skip_predicate_barrier,
+        )?;
+        self.begin_target_rendering(false)?;
+        self.predicates_resolved = used;
+        Ok(())
+    }
+
+    fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
+        if query >= self.predicates_resolved {
+            return Err(Error::Input(format!(
+                "query {query} is not a resolved predicate of this frame"
+            ))
+            .into());
+        }
+        if objects.is_empty() {
+            return Ok(());
+        }
+        self.ensure_recording()?;
+        let chunk = self.occlusion.chunk();
+        let buffer = &self.predicates[(query / chunk) as usize];
+        let offset = u64::from(query % chunk) * 4;
+        self.recorder.begin_conditional(buffer, offset, query)?;
+        let drawn = self.record_objects(objects);
+        self.recorder.end_conditional();
+        Ok(drawn?)
+    }
     fn issue_query(&mut self, boxes: &[Aabb]) -> coherent_cull::Result<QueryId> {
         self.ensure_recording()?;
         self.use_pipeline(PipelineKind::Query);

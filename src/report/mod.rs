@@ -56,10 +56,18 @@ pub struct FrameRecord {
     /// With movers (`walk --movers N`): object draws of moving objects (the recorder's count;
     /// part of `object_draws`).
     pub mover_draws: Option<u32>,
+    /// Object draws recorded under a query's predicate (conditional rendering; part of
+    /// `object_draws`).
+    pub predicated_draws: u32,
+    /// Of those, draws whose predicate was true (read back after the frame; part of
+    /// `objects`).
+    pub predicated_taken: u32,
+    /// Predicate resolves: pass breaks that turn query results into predicates.
+    pub predicate_resolves: u32,
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 19] = [
+pub const CSV_HEADER: [&str; 22] = [
     "algorithm",
     "frame",
     "repeat",
@@ -79,6 +87,9 @@ pub const CSV_HEADER: [&str; 19] = [
     "missed_objects",
     "missed_pixels",
     "mover_draws",
+    "predicated_draws",
+    "predicated_taken",
+    "predicate_resolves",
 ];
 
 /// Quotes a CSV field if it contains a separator, quote or line break.
@@ -102,7 +113,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.repeat,
@@ -121,7 +132,10 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             r.submits,
             optional(r.missed_objects),
             optional(r.missed_pixels),
-            optional(r.mover_draws)
+            optional(r.mover_draws),
+            r.predicated_draws,
+            r.predicated_taken,
+            r.predicate_resolves
         )?;
     }
     w.flush()?;
@@ -188,10 +202,14 @@ mod tests {
             lines[0],
             "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
              pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,\
-             missed_objects,missed_pixels,mover_draws"
+             missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,\
+             predicate_resolves"
         );
         assert_eq!(lines.len(), 1 + records.len());
-        assert_eq!(lines[1], "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,");
+        assert_eq!(
+            lines[1],
+            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,0,0,0"
+        );
         assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -50,6 +50,16 @@ pub struct AlgorithmSummary {
     /// With movers (`walk --movers N`): median object draws of moving objects per frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mover_draws_median: Option<f64>,
+    /// Median objects drawn (object draws, less those under a false predicate).
+    pub objects_median: f64,
+    /// Median object draws under predicates per frame (predicated modes).
+    pub predicated_draws_median: f64,
+    /// Median of those whose predicate was true.
+    pub predicated_taken_median: f64,
+    /// Most draws under a true predicate in any frame.
+    pub predicated_taken_max: u32,
+    /// Median predicate resolves (pass breaks) per frame.
+    pub predicate_resolves_median: f64,
     /// Preprocessing figures of a precomputed algorithm (pvs).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub preprocess: Option<PreprocessSummary>,
@@ -104,6 +114,15 @@ impl AlgorithmSummary {
                     .collect();
                 (!v.is_empty()).then(|| median(&mut v))
             },
+            objects_median: med(&|r| f64::from(r.objects)),
+            predicated_draws_median: med(&|r| f64::from(r.predicated_draws)),
+            predicated_taken_median: med(&|r| f64::from(r.predicated_taken)),
+            predicated_taken_max: records
+                .iter()
+                .map(|r| r.predicated_taken)
+                .max()
+                .unwrap_or(0),
+            predicate_resolves_median: med(&|r| f64::from(r.predicate_resolves)),
             preprocess: None,
         }
     }
@@ -423,7 +442,7 @@ impl WalkSummary {
                 fmt_count(s.state_changes_median),
                 fmt_count(s.pipeline_binds_median),
                 fmt_count(s.draw_calls_median),
-                fmt_count(s.object_draws_median),
+                fmt_count(s.objects_median),
                 fmt_count(s.triangles_median),
                 fmt_count(s.submits_median),
                 ratio,
@@ -438,6 +457,24 @@ impl WalkSummary {
     /// precomputed algorithms; empty when neither applies.
     fn check_table(&self) -> String {
         let mut out = String::new();
+        for (name, s) in &self.algorithms {
+            if s.predicated_draws_median > 0.0 || s.predicate_resolves_median > 0.0 {
+                if out.is_empty() {
+                    out.push_str(
+                        "\npredicated draws per frame (median): sent under predicates, drawn \
+                         (predicate true; most in a frame), pass breaks\n",
+                    );
+                }
+                let _ = writeln!(
+                    out,
+                    "  {name:<16} {} sent, {} drawn (max {}), {} pass breaks",
+                    fmt_count(s.predicated_draws_median),
+                    fmt_count(s.predicated_taken_median),
+                    s.predicated_taken_max,
+                    fmt_count(s.predicate_resolves_median)
+                );
+            }
+        }
         for (name, s) in &self.algorithms {
             if let (Some(o), Some(p)) = (s.missed_objects_max, s.missed_pixels_max) {
                 if out.is_empty() {
@@ -630,6 +667,11 @@ mod tests {
             "query_draws_median",
             "triangles_median",
             "submits_median",
+            "objects_median",
+            "predicated_draws_median",
+            "predicated_taken_median",
+            "predicated_taken_max",
+            "predicate_resolves_median",
         ]
         .map(String::from)
         .into();

@@ -19,6 +19,7 @@ mod hiz;
 mod materials;
 mod materials_gi;
 mod nohc_pvs;
+mod predicated;
 mod query_backend;
 mod reliability;
 mod scenes;

@@ -51,6 +51,11 @@ pub struct ChcppParams {
     /// box that shows while its contents are hidden would otherwise draw its whole subtree
     /// under a true predicate every other frame.
     pub predicated_hold: u32,
+    /// Predicated mode: the most objects a previously invisible node may put under one
+    /// predicate in expectation, `(1 - p) · objects` with `p` its probability of staying
+    /// invisible (default 8). A node above it is opened and its children are queried, each
+    /// under its own predicate: more queries, fewer extra draws when a node turns visible.
+    pub predicated_budget: f32,
 }
 
 impl Default for ChcppParams {
@@ -69,6 +74,7 @@ impl Default for ChcppParams {
             seed: 0x00C0_FFEE,
             predicated_levels: 2,
             predicated_hold: 10,
+            predicated_budget: 8.0,
         }
     }
 }
@@ -315,6 +321,9 @@ impl Chcpp {
         self.structure = bvh.structure();
         self.rebuilds = bvh.rebuilds();
         self.reserve(bvh);
+        if self.latency == Latency::Predicated {
+            self.predicated.count_objects(bvh);
+        }
     }
 
     /// After a rebuild: leaves with an object drawn last frame were visible last frame.
@@ -561,10 +570,19 @@ impl Chcpp {
     fn multiquery_group_end(&self, nodes: &[u32], i: usize) -> usize {
         let mut prod = 1.0f32;
         let mut best_value = 0.0f32;
+        let mut objects = 0.0f32;
         let mut j = i;
         while j < nodes.len() {
             let pj = self.stays_invisible(nodes[j]).max(0.0);
             let size = (j - i + 1) as f32;
+            if self.latency == Latency::Predicated {
+                // A failed multiquery draws every node's objects under its predicate: the
+                // group stays within the expected extra draws a predicate may cost.
+                objects += self.predicated.objects_below(nodes[j]) as f32;
+                if j > i && (1.0 - prod * pj) * objects > self.params.predicated_budget {
+                    break;
+                }
+            }
             let cost = if j == i {
                 1.0
             } else {
@@ -857,6 +875,13 @@ impl Chcpp {
         }
         s.last_visited = self.frame;
         s.tested = true;
+        if self.over_predicate_budget(bvh, node) {
+            // Predicated: too many objects would wait on one predicate; its children are
+            // queried instead.
+            let eye = self.eye;
+            self.traverse_node(bvh, node, eye, stats);
+            return Ok(());
+        }
         stats.invisible_nodes_tested += 1;
         if self.queues_queries() {
             self.i_queue.push(node);

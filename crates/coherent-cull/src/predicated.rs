@@ -60,9 +60,34 @@ pub(super) struct Scratch {
     stack: Vec<(u32, u32)>,
     /// Nodes held open whose hold runs out: probed in this frame's query batch.
     pub(super) probes: Vec<u32>,
+    /// Objects below each node.
+    objects_below: Vec<u32>,
 }
 
 impl Scratch {
+    /// The objects below `node` (0 before [`Scratch::count_objects`]).
+    pub(super) fn objects_below(&self, node: u32) -> u32 {
+        self.objects_below.get(node as usize).copied().unwrap_or(0)
+    }
+
+    /// Counts the objects below each node of `bvh` (after a change of its structure).
+    pub(super) fn count_objects(&mut self, bvh: &ObjectBvh) {
+        let mut order: Vec<u32> = (0..bvh.nodes.len() as u32).collect();
+        order.sort_unstable_by_key(|&n| std::cmp::Reverse(bvh.nodes[n as usize].depth));
+        self.objects_below = vec![0; bvh.nodes.len()];
+        for n in order {
+            let b = &bvh.nodes[n as usize];
+            self.objects_below[n as usize] = if b.is_leaf() {
+                b.object_count
+            } else {
+                b.children
+                    .iter()
+                    .map(|&c| self.objects_below.get(c as usize).copied().unwrap_or(0))
+                    .sum()
+            };
+        }
+    }
+
     /// Appends the objects of `node`'s subtree whose leaves lie in the frustum.
     fn collect(&mut self, bvh: &ObjectBvh, node: u32, view: &View) {
         self.stack.clear();
@@ -180,6 +205,18 @@ impl Chcpp {
                 }
             }
         }
+    }
+
+    /// Whether a previously invisible interior node would put more objects under its predicate
+    /// than the budget allows in expectation, `(1 - p) · objects > predicated_budget`: it is
+    /// opened instead (predicated mode).
+    pub(super) fn over_predicate_budget(&self, bvh: &ObjectBvh, node: u32) -> bool {
+        if self.latency != crate::Latency::Predicated || bvh.nodes[node as usize].is_leaf() {
+            return false;
+        }
+        let objects = self.predicated.objects_below(node) as f32;
+        let expected = (1.0 - self.stays_invisible(node)) * objects;
+        expected > self.params.predicated_budget
     }
 
     /// Whether `node` is an interior node held open in the predicated mode: its own query said

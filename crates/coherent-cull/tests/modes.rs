@@ -588,7 +588,10 @@ fn predicated_misses_nothing_along_a_walk_and_converges_to_the_visible_set() {
                 }
             }
             eprintln!("{name} k={k}: {extra} extra objects drawn while standing, {steady} visible");
-            assert!(extra * 10 < steady, "{name} k={k}: {extra} extra of {steady}");
+            assert!(
+                extra * 10 < steady,
+                "{name} k={k}: {extra} extra of {steady}"
+            );
             assert_eq!(backend.early_reads(), 0);
             assert!(drawn * 2 < in_view, "{name} k={k}: it culls");
             assert!(sent > 0, "{name} k={k}: draws under predicates");
@@ -616,7 +619,10 @@ fn predicated_stays_exact_with_movers_and_a_camera_cut() {
     bvh.set_bounds(hidden, box_ahead(&cam, 12.0)).unwrap();
     bvh.update();
     let fr = run(&mut c, &bvh, &cam, &mut backend, 7);
-    assert!(fr.drawn.contains(&hidden), "the mover is drawn the same frame");
+    assert!(
+        fr.drawn.contains(&hidden),
+        "the mover is drawn the same frame"
+    );
     assert!(missing(&fog.visible_objects(&bvh), &fr.drawn).is_empty());
     // A cut to the overview, whose view shares nothing with the walk's.
     let cam = overview();
@@ -644,7 +650,10 @@ fn predicated_refuses_a_backend_without_predicates() {
     };
     let err = c.cull_frame(&input, &mut backend).unwrap_err();
     assert!(matches!(err, Error::Unsupported { .. }), "{err}");
-    assert!(err.to_string().contains("VK_EXT_conditional_rendering"), "{err}");
+    assert!(
+        err.to_string().contains("VK_EXT_conditional_rendering"),
+        "{err}"
+    );
     // Only chc and chcpp have the mode.
     assert!(create_latency("vfc", &ChcppParams::default(), Latency::Predicated).is_err());
 }
