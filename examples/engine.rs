@@ -1,16 +1,21 @@
 //! An engine that owns its Vulkan instance, device, frame loop, pipelines and command buffers,
 //! written with raw ash, with two frames in flight, reverse-Z with an infinite far plane, its own
 //! camera matrices as plain arrays (no glam), and one submission per frame. It culls with
-//! `coherent-cull`'s CHC++ in `next-frame` mode reading each frame's queries two frames later,
-//! and records the culler's occlusion queries with `coherent-ash`'s `QueryBackend`: the engine
-//! creates no query pool and records no query, reset or result copy itself.
+//! `coherent-cull`'s CHC++ in the `predicated` mode (exact: what was invisible is drawn under its
+//! query's predicate on the device, `VK_EXT_conditional_rendering`) reading each frame's queries
+//! two frames later to steer the next frames, and records the culler's occlusion queries with
+//! `coherent-ash`'s `QueryBackend`: the engine creates no query pool and records no query,
+//! reset, result copy or predicate itself. On a device without the extension it says so and
+//! runs `next-frame` (objects coming into view appear two frames late).
 //!
 //! Frame N in slot s = N mod 2: wait for slot s's fence (frame N-2: the engine's frame pacing,
 //! timed as `pace ms`); begin the command buffer; `QueryBackend::begin_frame` (reads frame N-2's
 //! results from host memory, records the reset of the slot's queries); begin rendering;
 //! `cull_frame` (draws come back through the engine's draw callback, queries go through the
-//! backend); end rendering; `QueryBackend::end_frame` (records the copy of this frame's
-//! results); one `vkQueueSubmit`, no wait.
+//! backend; once per frame the backend ends rendering to turn the results into predicates and
+//! the engine's resume callback begins it again with LOAD ops); end rendering;
+//! `QueryBackend::end_frame` (records the copy of this frame's results); one `vkQueueSubmit`,
+//! no wait.
 //!
 //! Run: `cargo run --release --example engine -- [--frames N]` (validation on; exits non-zero
 //! on any validation message, or if a frame submitted more than once or waited).
@@ -79,6 +84,7 @@ fn query_backend(engine: &Engine) -> Result<QueryBackend> {
         depth_format: DEPTH_FORMAT,
         color_formats: vec![COLOR_FORMAT],
         depth: DepthConvention::REVERSE_Z_INFINITE,
+        predicates: engine.predicated,
         ..QueryBackendDesc::default()
     };
     // SAFETY: the device was created from this physical device with dynamic rendering and
@@ -133,7 +139,14 @@ fn frame(
         push: &engine.push,
         draws: &mut report.draws,
     };
-    let stats = culler.cull_frame(&input, &mut queries.frame(cmd, view_proj, draws))?;
+    let resume = |_cmd| {
+        // SAFETY: the backend ended the rendering begun above and recorded its copy.
+        unsafe { engine.resume_rendering(slot) };
+        Ok(())
+    };
+    let mut backend = queries.frame(cmd, view_proj, draws).with_resume(resume);
+    let stats = culler.cull_frame(&input, &mut backend)?;
+    drop(backend);
     report.cull_ms = start.elapsed().as_secs_f64() * 1e3;
     report.visible_results = stats.visible_results;
     // SAFETY: recording inside the rendering begun above.
@@ -306,6 +319,22 @@ struct Engine {
     push: [f32; 20],
     /// `vkQueueSubmit` calls so far.
     submits: u32,
+    /// The device has `VK_EXT_conditional_rendering` (enabled): the culler runs predicated.
+    predicated: bool,
+}
+
+/// Whether the device has `VK_EXT_conditional_rendering` with `conditionalRendering`.
+fn has_conditional_rendering(instance: &ash::Instance, physical: vk::PhysicalDevice) -> bool {
+    // SAFETY: valid physical device; plain queries.
+    let listed = unsafe { instance.enumerate_device_extension_properties(physical) }
+        .unwrap_or_default()
+        .iter()
+        .any(|e| e.extension_name_as_c_str() == Ok(ext::conditional_rendering::NAME));
+    let mut cr = vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default();
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut cr);
+    // SAFETY: as above; the chain outlives the call.
+    unsafe { instance.get_physical_device_features2(physical, &mut f2) };
+    listed && cr.conditional_rendering != 0
 }
 
 fn pick_device(instance: &ash::Instance) -> Result<vk::PhysicalDevice> {
@@ -340,10 +369,20 @@ impl Engine {
             .dynamic_rendering(true)
             .synchronization2(true)
             .maintenance4(true);
-        let info = vk::DeviceCreateInfo::default()
+        // Conditional rendering for the predicated mode, when the device has it.
+        let predicated = has_conditional_rendering(&instance, physical);
+        let mut conditional = vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default()
+            .conditional_rendering(true);
+        let extensions = [ext::conditional_rendering::NAME.as_ptr()];
+        let mut info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
             .enabled_features(&f10)
             .push_next(&mut f13);
+        if predicated {
+            info = info
+                .enabled_extension_names(&extensions)
+                .push_next(&mut conditional);
+        }
         // SAFETY: valid physical device and create info.
         let device = unsafe { instance.create_device(physical, &info, None) }?;
         // SAFETY: family 0 was created with one queue.
@@ -373,6 +412,7 @@ impl Engine {
             slots: Vec::new(),
             push: [0.0; 20],
             submits: 0,
+            predicated,
         };
         let sun = scene.sun_dir;
         engine.push[16..19].copy_from_slice(&[sun.x, sun.y, sun.z]);
@@ -523,7 +563,8 @@ impl Engine {
             .image_view(slot.depth.1)
             .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
             .load_op(vk::AttachmentLoadOp::CLEAR)
-            .store_op(vk::AttachmentStoreOp::DONT_CARE)
+            // Stored: a predicated frame resumes the pass with LOAD ops.
+            .store_op(vk::AttachmentStoreOp::STORE)
             .clear_value(vk::ClearValue {
                 depth_stencil: vk::ClearDepthStencilValue {
                     depth: 0.0,
@@ -538,6 +579,70 @@ impl Engine {
             );
             raw_host::begin_rendering(&self.device, cmd, &color_att, &depth_att);
             self.scene.bind(&self.device, cmd, &self.push);
+        }
+    }
+
+    /// Begins the slot's depth pass again after the query backend ended it to resolve its
+    /// predicates: the attachment writes before it happen before the LOAD of the new pass.
+    ///
+    /// # Safety
+    /// The slot's command buffer is recording, outside rendering, after its first pass.
+    unsafe fn resume_rendering(&self, slot_index: usize) {
+        let slot = &self.slots[slot_index];
+        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
+            | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
+        let keep = |image, aspect, layout, stage, write, read| {
+            vk::ImageMemoryBarrier2::default()
+                .image(image)
+                .subresource_range(
+                    vk::ImageSubresourceRange::default()
+                        .aspect_mask(aspect)
+                        .level_count(1)
+                        .layer_count(1),
+                )
+                .old_layout(layout)
+                .new_layout(layout)
+                .src_stage_mask(stage)
+                .src_access_mask(write)
+                .dst_stage_mask(stage)
+                .dst_access_mask(write | read)
+        };
+        let barriers = [
+            keep(
+                slot.color.0,
+                vk::ImageAspectFlags::COLOR,
+                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT,
+                vk::AccessFlags2::COLOR_ATTACHMENT_WRITE,
+                vk::AccessFlags2::COLOR_ATTACHMENT_READ,
+            ),
+            keep(
+                slot.depth.0,
+                vk::ImageAspectFlags::DEPTH,
+                vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
+                depth_stages,
+                vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE,
+                vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
+            ),
+        ];
+        let color_att = [vk::RenderingAttachmentInfo::default()
+            .image_view(slot.color.1)
+            .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+            .load_op(vk::AttachmentLoadOp::LOAD)
+            .store_op(vk::AttachmentStoreOp::STORE)];
+        let depth_att = vk::RenderingAttachmentInfo::default()
+            .image_view(slot.depth.1)
+            .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+            .load_op(vk::AttachmentLoadOp::LOAD)
+            .store_op(vk::AttachmentStoreOp::STORE);
+        // SAFETY: per the caller.
+        unsafe {
+            self.device.cmd_pipeline_barrier2(
+                slot.cmd,
+                &vk::DependencyInfo::default().image_memory_barriers(&barriers),
+            );
+            raw_host::begin_rendering(&self.device, slot.cmd, &color_att, &depth_att);
+            self.scene.bind(&self.device, slot.cmd, &self.push);
         }
     }
 
@@ -615,8 +720,14 @@ fn main() -> Result<()> {
     let path = scene.path("street")?.clone();
     let mut engine = Engine::new(&scene)?;
     let mut queries = query_backend(&engine)?;
+    let latency = if engine.predicated {
+        Latency::Predicated
+    } else {
+        println!("engine: the device lacks VK_EXT_conditional_rendering: next-frame instead of predicated");
+        Latency::NextFrame
+    };
     let mut culler = Chcpp::new(ChcppParams::default())
-        .with_latency(Latency::NextFrame)
+        .with_latency(latency)
         .with_frames_in_flight(FRAMES_IN_FLIGHT);
     println!(
         "engine: {} objects, {} triangles; {FRAMES_IN_FLIGHT} frames in flight; {} in {} mode \
@@ -628,7 +739,7 @@ fn main() -> Result<()> {
         culler.frames_in_flight()
     );
     println!(
-        "frame  cull ms  pace ms  draws  queries  multi  binds  switches  visible  submits  waits"
+        "frame  cull ms  pace ms  draws  predicated  breaks  queries  multi  binds  switches  visible  submits  waits"
     );
     let proj = reverse_z_infinite(1.0, WIDTH as f32 / HEIGHT as f32, 0.1);
     let mut bad_frames = 0;
@@ -646,10 +757,12 @@ fn main() -> Result<()> {
         )?;
         let q = queries.counts();
         println!(
-            "{f:5}  {:7.1}  {:7.1}  {:5}  {:7}  {:5}  {:5}  {:8}  {:7}  {:7}  {:5}",
+            "{f:5}  {:7.1}  {:7.1}  {:5}  {:10}  {:6}  {:7}  {:5}  {:5}  {:8}  {:7}  {:7}  {:5}",
             r.cull_ms,
             r.pace_ms,
             r.draws,
+            q.predicated_objects,
+            q.resolves,
             q.queries,
             q.multiqueries,
             q.pipeline_binds,
@@ -672,6 +785,9 @@ fn main() -> Result<()> {
     if bad_frames > 0 {
         bail!("{bad_frames} frames did not submit exactly once without waiting");
     }
-    println!("validation: no messages; one submission per frame, no waits inside a frame");
+    println!(
+        "validation: no messages; {} mode: one submission per frame, no waits inside a frame",
+        culler.latency().name()
+    );
     Ok(())
 }

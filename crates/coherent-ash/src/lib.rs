@@ -62,12 +62,27 @@
 //! ## What the culler may ask
 //!
 //! A [`QueryBackend`] frame supports the latency modes of `coherent-cull` with `k` frames in
-//! flight (`Latency::NextFrame` or `Latency::NextFrameConservative`,
+//! flight (`Latency::NextFrame`, `Latency::NextFrameConservative` or, see below,
+//! `Latency::Predicated`,
 //! `Chcpp::with_frames_in_flight(k)` with `k` at least 2 and at most the backend's
 //! `frames_in_flight`): one submission per frame and no waits. It refuses, with
 //! [`coherent_cull::Error::Unsupported`], what would need the host to submit or wait inside
 //! its frame: `flush` and `wait_query` (the in-frame mode and stop-and-wait), and `finish`
 //! (a culler reading its results in the same frame, `k = 1`).
+//!
+//! ## Predicated frames
+//!
+//! `Latency::Predicated` (exact, one submission per frame, no wait) draws the nodes that were
+//! invisible under their queries' predicates on the device. It needs `VK_EXT_conditional_rendering`
+//! with `conditionalRendering` enabled on the host's device, [`QueryBackendDesc::predicates`]
+//! set, and the frame made with [`FrameBackend::with_resume`]: once per frame the backend ends
+//! the host's rendering, copies the results issued so far (32-bit, `WAIT`) into a predicate
+//! buffer with a barrier to `CONDITIONAL_RENDERING_READ`, and calls the host's resume, which
+//! begins the depth pass again with LOAD ops (so the first pass must STORE depth). The draws
+//! that follow come back through the same draw callback, inside
+//! `vkCmdBeginConditionalRenderingEXT` / `vkCmdEndConditionalRenderingEXT`. Without the
+//! extension [`QueryBackend::new`] refuses `predicates` with an error that names it; a frame
+//! without a resume makes the culler refuse the mode.
 //!
 //! ## Requirements
 //!
@@ -119,6 +134,9 @@ pub struct QueryBackendDesc {
     pub view_mask: u32,
     /// The host's depth convention: which depth compare and bias face the eye.
     pub depth: DepthConvention,
+    /// Predicated draws for `Latency::Predicated` (see [Predicated frames](crate#predicated-frames)):
+    /// the device needs `VK_EXT_conditional_rendering` with `conditionalRendering` enabled.
+    pub predicates: bool,
 }
 
 impl Default for QueryBackendDesc {
@@ -132,6 +150,7 @@ impl Default for QueryBackendDesc {
             samples: vk::SampleCountFlags::TYPE_1,
             view_mask: 0,
             depth: DepthConvention::REVERSE_Z_INFINITE,
+            predicates: false,
         }
     }
 }
@@ -163,6 +182,13 @@ pub struct QueryCounts {
     pub result_copies: u32,
     /// Query results read from the host-visible copy at the start of the frame.
     pub results_read: u32,
+    /// Predicate resolves (pass breaks: end rendering, copy, barrier, the host's resume).
+    pub resolves: u32,
+    /// Conditional blocks recorded (`vkCmdBeginConditionalRenderingEXT`).
+    pub conditional_blocks: u32,
+    /// Objects handed to the host's draw callback inside conditional blocks (also in
+    /// `objects_drawn`; the device draws those whose predicate is true).
+    pub predicated_objects: u32,
 }
 
 /// The host's draw callback: record draws of `objects` into the command buffer; `rebind` is
@@ -196,6 +222,8 @@ pub struct QueryBackend {
     /// The slot of the frame being recorded (`None` outside begin/end).
     current: Option<u32>,
     counts: QueryCounts,
+    /// `VK_EXT_conditional_rendering`'s commands, with predicates on.
+    conditional: Option<ash::ext::conditional_rendering::DeviceFn>,
 }
 
 /// The 8 corners of `b`, corner `c` = x | y << 1 | z << 2 (the layout of [`BOX_FACES`]).
@@ -242,6 +270,14 @@ impl QueryBackend {
             });
         }
         // SAFETY: as above.
+        if desc.predicates && !unsafe { has_conditional_rendering(instance, physical_device) } {
+            return Err(Error::Unsupported {
+                feature: "VK_EXT_conditional_rendering (conditionalRendering), which \
+                          QueryBackendDesc::predicates needs"
+                    .into(),
+            });
+        }
+        // SAFETY: as above.
         let memory = unsafe { instance.get_physical_device_memory_properties(physical_device) };
         let mut out = QueryBackend {
             device: device.clone(),
@@ -251,6 +287,11 @@ impl QueryBackend {
             arena: Arena::null(),
             current: None,
             counts: QueryCounts::default(),
+            conditional: desc.predicates.then(|| {
+                ash::ext::conditional_rendering::Device::new(instance, device)
+                    .fp()
+                    .clone()
+            }),
             desc,
         };
         // On an error below, `out` is dropped and destroys what was created so far.
@@ -328,6 +369,7 @@ impl QueryBackend {
             draw,
             in_query_state: false,
             box_bound_since_draw: false,
+            resume: None,
         }
     }
 
@@ -396,6 +438,22 @@ pub struct FrameBackend<'a, D: DrawObjects> {
     draw: D,
     in_query_state: bool,
     box_bound_since_draw: bool,
+    /// The host's resume of its depth pass after a predicate resolve.
+    resume: Option<Resume<'a>>,
+}
+
+/// The host's "resume rendering" callback of a predicated frame.
+type Resume<'a> = Box<dyn FnMut(vk::CommandBuffer) -> Result<()> + 'a>;
+
+impl<'a, D: DrawObjects> FrameBackend<'a, D> {
+    /// Predicated frames: `resume(cmd)` begins the host's depth pass again after a predicate
+    /// resolve ended it (`vkCmdBeginRendering` with LOAD ops on the same attachments, after
+    /// a barrier from the attachment writes before; viewport and scissor as before). With
+    /// it, and [`QueryBackendDesc::predicates`], the frame supports `Latency::Predicated`.
+    pub fn with_resume(mut self, resume: impl FnMut(vk::CommandBuffer) -> Result<()> + 'a) -> Self {
+        self.resume = Some(Box::new(resume));
+        self
+    }
 }
 
 impl<D: DrawObjects> FrameBackend<'_, D> {
@@ -551,6 +609,94 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         // The host ends rendering, calls end_frame and submits.
         Ok(())
     }
+
+    fn supports_predicates(&self) -> bool {
+        self.backend.conditional.is_some() && self.resume.is_some()
+    }
+
+    fn resolve_predicates(&mut self) -> Result<()> {
+        let slot = self.slot()?;
+        let (Some(_), Some(resume)) = (self.backend.conditional.as_ref(), self.resume.as_mut())
+        else {
+            return Err(Error::Unsupported {
+                feature: "predicated draws (QueryBackendDesc::predicates with \
+                          VK_EXT_conditional_rendering, and FrameBackend::with_resume)"
+                    .into(),
+            });
+        };
+        let d = &self.backend.device;
+        // SAFETY: `cmd` is recording inside the host's rendering (the `frame` contract): it is
+        // ended here, the copy and barrier recorded outside it, and the host resumes it.
+        unsafe {
+            d.cmd_end_rendering(self.cmd);
+            self.backend.slots[slot as usize].record_resolve(d, self.cmd);
+        }
+        resume(self.cmd)?;
+        self.backend.counts.resolves += 1;
+        // The host binds its own state while resuming: back in render state.
+        if std::mem::take(&mut self.in_query_state) {
+            self.backend.counts.state_changes += 1;
+        }
+        self.box_bound_since_draw = false;
+        Ok(())
+    }
+
+    fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
+        let current = self.slot()?;
+        let (slot, index) = self.backend.slot_of(query);
+        let s = &self.backend.slots[slot as usize];
+        if slot != current || index >= s.resolved {
+            return Err(Error::Input(format!(
+                "query {query} is not a resolved predicate of this frame"
+            )));
+        }
+        let Some(fp) = self.backend.conditional.as_ref() else {
+            return Err(coherent_cull::predicates_unsupported());
+        };
+        if objects.is_empty() {
+            return Ok(());
+        }
+        let info = vk::ConditionalRenderingBeginInfoEXT::default()
+            .buffer(s.predicates.buffer)
+            .offset(u64::from(index) * 4);
+        let end = fp.cmd_end_conditional_rendering_ext;
+        // SAFETY: recording inside the host's rendering; the predicate buffer has
+        // CONDITIONAL_RENDERING_EXT usage, the offset is a multiple of 4 inside it, and its
+        // value was copied before the resolve's barrier; no block is open.
+        unsafe { (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info) };
+        let drawn = self.draw_objects(objects);
+        // SAFETY: the block begun above is open in this rendering instance.
+        unsafe { end(self.cmd) };
+        drawn?;
+        let c = &mut self.backend.counts;
+        c.conditional_blocks += 1;
+        c.predicated_objects += objects.len() as u32;
+        Ok(())
+    }
+}
+
+/// Whether the physical device has `VK_EXT_conditional_rendering` with `conditionalRendering`.
+///
+/// # Safety
+/// `physical_device` belongs to `instance`.
+unsafe fn has_conditional_rendering(
+    instance: &ash::Instance,
+    physical_device: vk::PhysicalDevice,
+) -> bool {
+    let name = ash::ext::conditional_rendering::NAME;
+    // SAFETY: per the caller.
+    let listed = unsafe { instance.enumerate_device_extension_properties(physical_device) }
+        .unwrap_or_default()
+        .iter()
+        .any(|e| e.extension_name_as_c_str() == Ok(name));
+    if !listed {
+        return false;
+    }
+    let mut cr = vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default();
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut cr);
+    // SAFETY: per the caller; the chain outlives the call.
+    unsafe { instance.get_physical_device_features2(physical_device, &mut f2) };
+    cr.conditional_rendering != 0
 }
 
 fn check_desc(desc: &QueryBackendDesc) -> Result<()> {

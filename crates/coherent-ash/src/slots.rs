@@ -203,6 +203,11 @@ pub(crate) struct Slot {
     copied: u32,
     /// The results of the slot's previous frame, read at `begin_frame`.
     read: Vec<Option<u64>>,
+    /// Predicated mode: the frame's results as 32-bit predicates for conditional rendering
+    /// (null without predicates).
+    pub predicates: HostBuffer,
+    /// Queries of the current frame whose results are predicates already.
+    pub resolved: u32,
 }
 
 impl Slot {
@@ -220,6 +225,8 @@ impl Slot {
             dirty: desc.max_queries,
             copied: 0,
             read: Vec::with_capacity(desc.max_queries as usize),
+            predicates: HostBuffer::null(),
+            resolved: 0,
         };
         let info = vk::QueryPoolCreateInfo::default()
             .query_type(vk::QueryType::OCCLUSION)
@@ -241,6 +248,14 @@ impl Slot {
                         u64::from(desc.max_queries) * 8,
                         vk::BufferUsageFlags::TRANSFER_DST,
                     )?;
+                    if desc.predicates {
+                        slot.predicates = HostBuffer::create(
+                            device,
+                            u64::from(desc.max_queries) * 4,
+                            vk::BufferUsageFlags::TRANSFER_DST
+                                | vk::BufferUsageFlags::CONDITIONAL_RENDERING_EXT,
+                        )?;
+                    }
                     Ok(())
                 })
         };
@@ -269,6 +284,7 @@ impl Slot {
         let n = self.copied;
         self.copied = 0;
         self.issued = 0;
+        self.resolved = 0;
         self.boxes_used = 0;
         n
     }
@@ -347,9 +363,53 @@ impl Slot {
         }
     }
 
-    /// The slot's buffers, to bind into the arena.
-    pub fn buffers(&mut self) -> [&mut HostBuffer; 2] {
-        [&mut self.vertices, &mut self.results]
+    /// Records the copy of the queries issued since the last resolve as 32-bit predicates
+    /// (waited for on the device) and the barrier that makes them visible to
+    /// conditional-rendering reads; returns how many.
+    ///
+    /// # Safety
+    /// `cmd` is recording, outside a render pass instance, after those queries ended.
+    pub unsafe fn record_resolve(&mut self, device: &ash::Device, cmd: vk::CommandBuffer) -> u32 {
+        let (first, n) = (self.resolved, self.issued - self.resolved);
+        if n > 0 {
+            // SAFETY: per the caller; queries first..issued were reset and ended in this
+            // command buffer; the buffer holds 4 bytes per query.
+            unsafe {
+                device.cmd_copy_query_pool_results(
+                    cmd,
+                    self.pool,
+                    first,
+                    n,
+                    self.predicates.buffer,
+                    u64::from(first) * 4,
+                    4,
+                    vk::QueryResultFlags::WAIT,
+                );
+            }
+        }
+        let barrier = vk::MemoryBarrier2::default()
+            .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+            .dst_stage_mask(vk::PipelineStageFlags2::CONDITIONAL_RENDERING_EXT)
+            .dst_access_mask(vk::AccessFlags2::CONDITIONAL_RENDERING_READ_EXT);
+        // SAFETY: per the caller.
+        unsafe {
+            device.cmd_pipeline_barrier2(
+                cmd,
+                &vk::DependencyInfo::default().memory_barriers(&[barrier]),
+            )
+        };
+        self.resolved = self.issued;
+        n
+    }
+
+    /// The slot's buffers, to bind into the arena (the predicate buffer when there is one).
+    pub fn buffers(&mut self) -> Vec<&mut HostBuffer> {
+        let mut out = vec![&mut self.vertices, &mut self.results];
+        if self.predicates.buffer != vk::Buffer::null() {
+            out.push(&mut self.predicates);
+        }
+        out
     }
 
     /// Destroys the pool and buffers.
@@ -365,6 +425,7 @@ impl Slot {
             }
             self.vertices.destroy(device);
             self.results.destroy(device);
+            self.predicates.destroy(device);
         }
     }
 }
