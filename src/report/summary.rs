@@ -475,9 +475,10 @@ impl WalkSummary {
                 );
             }
         }
+        let mut checked = false;
         for (name, s) in &self.algorithms {
             if let (Some(o), Some(p)) = (s.missed_objects_max, s.missed_pixels_max) {
-                if out.is_empty() {
+                if !std::mem::replace(&mut checked, true) {
                     out.push_str("\nexactness (walk --check): most missed in any frame\n");
                 }
                 let _ = writeln!(out, "  {name:<16} {o} objects, {p} pixels");
