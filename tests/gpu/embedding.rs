@@ -350,17 +350,27 @@ fn engine_example_runs_with_two_frames_in_flight() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "engine failed:\n{text}\n{err}");
     assert!(text.contains("validation: no messages"), "{text}");
-    // frame, cull ms, pace ms, draws, queries, multi, binds, switches, visible, submits, waits
+    assert!(text.contains("predicated mode"), "runs predicated: {text}");
+    // frame, cull ms, pace ms, draws, predicated, breaks, queries, multi, binds, switches,
+    // visible, submits, waits: the predicated columns are checked, then dropped.
     let rows: Vec<Vec<f64>> = text
         .lines()
         .filter_map(|l| l.split_whitespace().map(|w| w.parse().ok()).collect())
-        .filter(|r: &Vec<f64>| r.len() == 11)
+        .filter(|r: &Vec<f64>| r.len() == 13)
+        .map(|mut r: Vec<f64>| {
+            assert!(
+                r[5] <= 1.0 && r[4] <= r[3],
+                "one pass break, predicated ⊆ draws: {text}"
+            );
+            r.drain(4..6);
+            r
+        })
         .collect();
     assert_eq!(rows.len(), 8, "{text}");
     for r in &rows {
         assert_eq!((r[9], r[10]), (1.0, 0.0), "submits, waits: {text}");
         // coherent-ash binds its box pipeline once per query batch: a switch into the query
-        // state and one back per batch at most.
+        // state and one back (or a resume of the pass) per batch at most.
         assert!(r[7] <= 2.0 * r[6], "switches vs binds: {text}");
     }
     // Nothing is known before the first results come back, two frames after frame 0.

@@ -92,6 +92,11 @@ fn walk_writes_csv_json_and_plots() {
         "query_draws_median",
         "triangles_median",
         "submits_median",
+        "objects_median",
+        "predicated_draws_median",
+        "predicated_taken_median",
+        "predicated_taken_max",
+        "predicate_resolves_median",
     ];
     for (name, a) in algs {
         let mut got: Vec<&str> = a.as_object().unwrap().keys().map(|k| k.as_str()).collect();
@@ -107,7 +112,7 @@ fn walk_writes_csv_json_and_plots() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels,mover_draws"
+        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves"
     );
     assert_eq!(lines.count(), 6 * 5);
     for png in ["frametime.png", "counts.png"] {
