@@ -629,7 +629,9 @@ pub fn run_with(
         ));
     }
     let mut world = World::new(scene, setup.movers);
-    let path = match &setup.light_keys {
+    // The user's keys, else the light path found with the interior walk, else the default.
+    let found = scene.path(crate::scene::interior::LIGHT_PATH_NAME).ok();
+    let path = match setup.light_keys.as_ref().or(found) {
         Some(keys) => LightPath::from_keys(keys.clone(), &world.geometry, &world.rays),
         None => LightPath::for_scene(&scene.name, &world.geometry, &world.rays),
     };

@@ -76,6 +76,7 @@ pub mod interior;
 pub mod material;
 pub mod mesh;
 pub mod movers;
+pub mod path_check;
 pub mod paths;
 pub mod procedural;
 

@@ -327,15 +327,19 @@ impl super::Scene {
     /// The camera path a `--path` value names: `None` is the scene's default path; a `.json`
     /// value is a path file; `interior` is the automatic interior walk (computed unless the
     /// scene already has it); anything else is one of the scene's named paths.
+    /// Every path is checked first ([`super::path_check`]): bad frames are reported in one
+    /// line on stderr.
     pub fn resolve_path(&self, spec: Option<&str>) -> crate::Result<CameraPath> {
-        match spec {
+        let path = match spec {
             None => self.default_path().cloned(),
             Some(s) if is_path_file(s) => read_camera_path(Path::new(s)),
             Some(s) if s == super::interior::PATH_NAME && self.path(s).is_err() => {
                 super::interior::interior_path(self, &super::interior::InteriorParams::default())
             }
             Some(s) => self.path(s).cloned(),
-        }
+        }?;
+        super::path_check::warn_if_bad(self, &path);
+        Ok(path)
     }
 }
 

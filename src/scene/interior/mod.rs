@@ -1,0 +1,183 @@
+//! The automatic interior walk (`--path interior`): floors are surfaces whose front looks up
+//! (either side for double-sided materials); a place at eye height over one is inside when the
+//! rays from it hit front faces (few escape to the sky, few hit back faces); places of
+//! neighbouring cells join into a walkable graph (a step height, clearance at the eye and the
+//! knees), and the walk tours waypoints spread over its largest connected part. Also the light
+//! path that goes with it. Deterministic for a given scene.
+
+use glam::Vec3;
+
+use super::{CameraPath, CameraPose, Scene};
+use crate::Error;
+
+pub mod places;
+pub mod rays;
+pub mod walk;
+
+#[cfg(test)]
+mod tests;
+
+pub use places::{Place, Rejections, Scale};
+pub use rays::{distance_to_triangle, Hit, Probe, TriangleScene};
+
+/// Name of the interior walk among a scene's paths.
+pub const PATH_NAME: &str = "interior";
+
+/// Name of the light path found with the interior walk (see [`light_path`]).
+pub const LIGHT_PATH_NAME: &str = "interior-light";
+
+/// Fewest places of the walk's connected part for a model to count as having an inside.
+const MIN_PLACES: usize = 4;
+
+/// Settings of the interior walk; lengths in scene units, `None` = derived from the scene.
+#[derive(Clone, Debug)]
+pub struct InteriorParams {
+    /// Eye height over the floor (default 1.7 where the floor-to-ceiling heights look like
+    /// meters, capped at 40% of their median; else 40% of it).
+    pub eye_height: Option<f32>,
+    /// Least distance from the eye to any geometry (default 15% of the eye height).
+    pub margin: Option<f32>,
+    /// Most grid cells along the longer horizontal side (cells are at least a fifth of the eye
+    /// height).
+    pub grid: usize,
+    /// Most waypoints of the tour.
+    pub waypoints: usize,
+}
+
+impl Default for InteriorParams {
+    fn default() -> Self {
+        InteriorParams {
+            eye_height: None,
+            margin: None,
+            grid: 256,
+            waypoints: 6,
+        }
+    }
+}
+
+/// A found walk: the path and what it was found from.
+#[derive(Clone, Debug)]
+pub struct InteriorWalk {
+    /// The camera path.
+    pub path: CameraPath,
+    /// The lengths used.
+    pub scale: Scale,
+    /// Places found inside.
+    pub places: usize,
+    /// Places of the largest connected part (the one walked).
+    pub part: usize,
+    /// The waypoints' eyes, in tour order.
+    pub waypoints: Vec<Vec3>,
+}
+
+/// Finds the interior walk over `rays`; `Err` says in one line why there is none.
+pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWalk, String> {
+    let scale = places::scale(rays, params.eye_height, params.margin, params.grid);
+    let floors = places::floors(rays, scale.cell);
+    if floors.is_empty() {
+        return Err("no surface faces up".into());
+    }
+    let (found, why) = places::places(rays, &floors, &scale);
+    if found.is_empty() {
+        return Err(format!("no place is inside: {why}"));
+    }
+    let adj = walk::neighbours(rays, &found, &scale);
+    let part = walk::largest_component(&adj);
+    if part.len() < MIN_PLACES {
+        return Err(format!(
+            "the largest walkable part has {} places (of {} inside; {why})",
+            part.len(),
+            found.len()
+        ));
+    }
+    let chosen = walk::waypoints(&found, &adj, &part, params.waypoints, scale.eye_height);
+    let route = walk::tour(&found, &adj, &chosen, scale.eye_height);
+    let eyes: Vec<Vec3> = route.iter().map(|&i| found[i].eye).collect();
+    let spacing = (2.5 * scale.cell).max(0.8 * scale.eye_height);
+    let keys = walk::keys_through(rays, &eyes, scale.margin, spacing);
+    let waypoints = route
+        .iter()
+        .filter(|i| chosen.contains(i))
+        .map(|&i| found[i].eye)
+        .collect();
+    Ok(InteriorWalk {
+        path: CameraPath {
+            name: PATH_NAME.to_string(),
+            keys,
+        },
+        scale,
+        places: found.len(),
+        part: part.len(),
+        waypoints,
+    })
+}
+
+/// Computes the interior walk of `scene`; an error saying why when it has no inside.
+pub fn interior_path(scene: &Scene, params: &InteriorParams) -> Result<CameraPath, Error> {
+    let why = match TriangleScene::new(scene) {
+        None => "it has no triangles".to_string(),
+        Some(rays) => match find(&rays, params) {
+            Ok(w) => return Ok(w.path),
+            Err(why) => why,
+        },
+    };
+    Err(Error::Input(format!(
+        "scene \"{}\": no inside for an interior walk ({why})",
+        scene.name
+    )))
+}
+
+/// A spot light's path inside, going with the interior walk `path`: it follows the walk a key
+/// ahead of the camera, halfway between the eye and the ceiling (at least a third of the eye
+/// height above the eye, below the ceiling by the margin) and looks down at the floor ahead.
+pub fn light_path(rays: &TriangleScene, path: &CameraPath, scale: &Scale) -> CameraPath {
+    let far = rays.bounds.extent().length() * 2.0 + 1.0;
+    let n = path.keys.len();
+    let keys = (0..n)
+        .map(|i| {
+            let k = path.keys[(i + 1).min(n.saturating_sub(1))];
+            let up = rays
+                .hit(k.eye, Vec3::Y, far)
+                .map_or(scale.eye_height, |h| h.t);
+            let lift = (0.5 * up)
+                .max(scale.eye_height / 3.0)
+                .min(up - scale.margin)
+                .max(0.0);
+            let eye = k.eye + Vec3::Y * lift;
+            let ahead = (k.target - k.eye)
+                .with_y(0.0)
+                .try_normalize()
+                .unwrap_or(Vec3::NEG_Z);
+            let floor = k.eye - Vec3::Y * scale.eye_height;
+            CameraPose {
+                eye,
+                target: floor + ahead * scale.eye_height,
+            }
+        })
+        .collect();
+    CameraPath {
+        name: LIGHT_PATH_NAME.to_string(),
+        keys,
+    }
+}
+
+/// Makes the interior walk a glTF scene's first (default) path when it has an inside, with
+/// the light path that goes with it (unless the file has its own light); the orbit stays
+/// available as `default`. Without an inside, one line on stderr says why.
+pub fn default_if_enclosed(scene: &mut Scene) {
+    let Some(rays) = TriangleScene::new(scene) else {
+        return;
+    };
+    match find(&rays, &InteriorParams::default()) {
+        Ok(w) => {
+            if scene.path(super::gltf_ext::LIGHT_PATH).is_err() {
+                scene.paths.push(light_path(&rays, &w.path, &w.scale));
+            }
+            scene.paths.insert(0, w.path);
+        }
+        Err(why) => eprintln!(
+            "note: scene \"{}\": no inside found ({why}); the default path is the orbit",
+            scene.name
+        ),
+    }
+}

@@ -1,0 +1,246 @@
+//! Where a camera may stand: floors (surfaces whose front looks up) under a grid of columns,
+//! the scene's scale from the headroom over them, and eye-height places that are inside (rays
+//! from them hit front faces: few escape, few hit back faces) and clear of geometry.
+
+use glam::Vec3;
+
+use super::rays::{sphere_dirs, Hit, Probe, TriangleScene};
+
+/// Least `normal.y` of a floor (about 45°: ramps and stairs' treads count, walls do not).
+pub const FLOOR_MIN_UP: f32 = 0.7;
+/// Most share of a place's rays that may escape the model (sky): more is outside.
+pub const MAX_ESCAPED: f32 = 0.25;
+/// Most share of a place's rays that may hit back faces: more is inside a solid or outside a
+/// shell that is only meant to be seen from within.
+pub const MAX_BACK: f32 = 0.125;
+/// Directions of the full probe of a candidate place.
+const PROBE_RAYS: usize = 48;
+/// Most surfaces followed down one column.
+const MAX_LAYERS: usize = 64;
+
+/// Lengths of the walk in scene units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scale {
+    /// Eye height over the floor.
+    pub eye_height: f32,
+    /// Least distance from the eye (and the knees) to geometry.
+    pub margin: f32,
+    /// Side of a grid cell.
+    pub cell: f32,
+    /// Most height between the floors of neighbouring cells (stairs, ramps).
+    pub step: f32,
+}
+
+/// A floor under a grid column: its cell, height and the free height above it.
+#[derive(Clone, Copy, Debug)]
+pub struct Floor {
+    /// Grid cell (x, z).
+    pub cell: (i32, i32),
+    /// The floor point.
+    pub point: Vec3,
+    /// Free height above the floor (infinite when nothing is above).
+    pub headroom: f32,
+    /// Whether what is above is a ceiling: a side meant to be seen from below.
+    pub ceiling: bool,
+}
+
+/// Whether a downward ray's hit is a floor: a side that is meant to be seen, looking up.
+pub fn is_floor(h: &Hit) -> bool {
+    h.front && h.normal.y >= FLOOR_MIN_UP
+}
+
+/// Whether a probe says its point is inside: rays hit front faces, few escape, few hit backs.
+pub fn is_inside(p: &Probe) -> bool {
+    p.escaped_share() <= MAX_ESCAPED && p.back_share() <= MAX_BACK
+}
+
+/// The grid over the bounds' horizontal extent with cells of side `cell`: (columns along x,
+/// along z).
+fn grid_size(rays: &TriangleScene, cell: f32) -> (i32, i32) {
+    let e = rays.bounds.extent();
+    (
+        (e.x / cell).ceil().clamp(1.0, 4096.0) as i32,
+        (e.z / cell).ceil().clamp(1.0, 4096.0) as i32,
+    )
+}
+
+/// Every floor under the centers of a grid of `cell`-sized columns, top to bottom per column.
+pub fn floors(rays: &TriangleScene, cell: f32) -> Vec<Floor> {
+    let b = rays.bounds;
+    let (nx, nz) = grid_size(rays, cell);
+    let far = b.extent().length() + 1.0;
+    let eps = 1e-5 * far;
+    let mut out = Vec::new();
+    for iz in 0..nz {
+        for ix in 0..nx {
+            let x = b.min.x + (ix as f32 + 0.5) * cell;
+            let z = b.min.z + (iz as f32 + 0.5) * cell;
+            let mut origin = Vec3::new(x, b.max.y + 1.0, z);
+            for _ in 0..MAX_LAYERS {
+                let Some(h) = rays.hit(origin, Vec3::NEG_Y, far) else {
+                    break;
+                };
+                let point = origin - Vec3::Y * h.t;
+                origin = point - Vec3::Y * eps;
+                if !is_floor(&h) {
+                    continue;
+                }
+                let up = rays.hit(point + Vec3::Y * eps, Vec3::Y, far);
+                out.push(Floor {
+                    cell: (ix, iz),
+                    point,
+                    headroom: up.map_or(f32::INFINITY, |u| u.t),
+                    ceiling: up.is_some_and(|u| u.front),
+                });
+            }
+        }
+    }
+    out
+}
+
+/// The scene's scale: the eye height is 1.7 where the median floor-to-ceiling height (under
+/// front faces) says the
+/// units are meters (at most 30), capped at 40% of that height; in other units 40% of it.
+/// `eye_height` and `margin` override; `grid` is the most cells along the longer side.
+pub fn scale(
+    rays: &TriangleScene,
+    eye_height: Option<f32>,
+    margin: Option<f32>,
+    grid: usize,
+) -> Scale {
+    let e = rays.bounds.extent();
+    let side = e.x.max(e.z).max(1e-3);
+    let eye = eye_height
+        .filter(|h| h.is_finite() && *h > 0.0)
+        .unwrap_or_else(|| {
+            let mut heights: Vec<f32> = floors(rays, side / 64.0)
+                .iter()
+                .filter(|f| f.ceiling)
+                .map(|f| f.headroom)
+                .filter(|h| h.is_finite() && *h > 0.0)
+                .collect();
+            heights.sort_by(f32::total_cmp);
+            let median = heights
+                .get(heights.len() / 2)
+                .copied()
+                .unwrap_or(e.y.max(1e-3));
+            if median <= 30.0 {
+                (0.4 * median).min(1.7)
+            } else {
+                0.4 * median
+            }
+        });
+    let margin = margin
+        .filter(|m| m.is_finite() && *m > 0.0)
+        .unwrap_or(0.15 * eye)
+        .min(0.45 * eye);
+    let cell = (side / grid.max(4) as f32).max(0.2 * eye);
+    Scale {
+        eye_height: eye,
+        margin,
+        cell,
+        step: 0.35 * eye,
+    }
+}
+
+/// One walkable place: a grid cell, its floor, the eye over it and how open it is.
+#[derive(Clone, Copy, Debug)]
+pub struct Place {
+    /// Grid cell (x, z).
+    pub cell: (i32, i32),
+    /// The floor point under the eye.
+    pub floor: Vec3,
+    /// The eye.
+    pub eye: Vec3,
+    /// Mean distance of the probe rays that hit a front face (escaping rays do not count).
+    pub openness: f32,
+}
+
+/// Why floors were not places, for the line that says why a model has no inside.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Rejections {
+    /// Floors seen (front faces looking up).
+    pub floors: usize,
+    /// Too little headroom for the eye.
+    pub low: usize,
+    /// Eye too close to geometry.
+    pub cramped: usize,
+    /// Too many rays escaped.
+    pub sky: usize,
+    /// Too many rays hit back faces.
+    pub back: usize,
+}
+
+impl std::fmt::Display for Rejections {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} floor places: {} see sky (over {:.0}% of their rays), {} see back faces (over \
+             {:.1}%), {} lack headroom, {} are too close to geometry",
+            self.floors,
+            self.sky,
+            100.0 * MAX_ESCAPED,
+            self.back,
+            100.0 * MAX_BACK,
+            self.low,
+            self.cramped
+        )
+    }
+}
+
+/// The places over `floors`, and why the others were rejected.
+pub fn places(rays: &TriangleScene, floors: &[Floor], s: &Scale) -> (Vec<Place>, Rejections) {
+    let far = rays.bounds.extent().length() * 2.0 + 1.0;
+    let dirs = sphere_dirs(PROBE_RAYS);
+    let axes = [
+        Vec3::Y,
+        Vec3::X,
+        Vec3::NEG_X,
+        Vec3::Z,
+        Vec3::NEG_Z,
+        Vec3::NEG_Y,
+    ];
+    let mut why = Rejections {
+        floors: floors.len(),
+        ..Rejections::default()
+    };
+    let mut out = Vec::new();
+    for f in floors {
+        if f.headroom < s.eye_height + s.margin {
+            why.low += 1;
+            continue;
+        }
+        let eye = f.point + Vec3::Y * s.eye_height;
+        if rays.within(eye, s.margin) {
+            why.cramped += 1;
+            continue;
+        }
+        // Six axis rays first: most outside places are told apart by them alone.
+        let quick = rays.probe(eye, &axes, far);
+        let probe = if is_inside(&Probe {
+            // The six rays decide only when half or more say outside.
+            escaped: quick.escaped.saturating_sub(2),
+            back: quick.back.saturating_sub(2),
+            ..quick
+        }) {
+            rays.probe(eye, &dirs, far)
+        } else {
+            quick
+        };
+        if !is_inside(&probe) {
+            if probe.escaped_share() > MAX_ESCAPED {
+                why.sky += 1;
+            } else {
+                why.back += 1;
+            }
+            continue;
+        }
+        out.push(Place {
+            cell: f.cell,
+            floor: f.point,
+            eye,
+            openness: probe.mean_front_distance,
+        });
+    }
+    (out, why)
+}

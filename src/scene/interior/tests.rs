@@ -1,0 +1,434 @@
+//! Procedural levels with the failure modes of real ones: a leak to the outside, a level
+//! floating above a ground plane, rooms joined by doorways and a staircase with thick walls and
+//! closed voids, ceilings whose tops are flat and reachable by rays inside a sky box, and a
+//! level whose materials are all double-sided with the winding reversed.
+
+use glam::{Mat4, Vec3, Vec4};
+
+use super::rays::TriangleScene;
+use super::*;
+use crate::scene::mesh::{Mesh, SceneBuilder};
+use crate::scene::path_check;
+use crate::scene::{Material, Vertex};
+
+/// Triangles of a level under construction (counter-clockwise fronts).
+#[derive(Default)]
+struct Level {
+    tris: Vec<[Vec3; 3]>,
+}
+
+/// A room: its horizontal extent and its floor and ceiling heights.
+#[derive(Clone, Copy, Debug)]
+struct Room {
+    min: Vec3,
+    max: Vec3,
+}
+
+impl Room {
+    fn new(x0: f32, z0: f32, x1: f32, z1: f32, y0: f32, y1: f32) -> Room {
+        Room {
+            min: Vec3::new(x0, y0, z0),
+            max: Vec3::new(x1, y1, z1),
+        }
+    }
+    fn contains(&self, p: Vec3) -> bool {
+        p.cmpge(self.min).all() && p.cmple(self.max).all()
+    }
+}
+
+impl Level {
+    /// A quad through `c` (in order around it) facing `n`.
+    fn quad(&mut self, c: [Vec3; 4], n: Vec3) {
+        let flip = (c[1] - c[0]).cross(c[2] - c[0]).dot(n) < 0.0;
+        for t in [[c[0], c[1], c[2]], [c[0], c[2], c[3]]] {
+            self.tris.push(if flip { [t[0], t[2], t[1]] } else { t });
+        }
+    }
+    /// Horizontal quad at height `y`, facing up (`up`) or down.
+    fn flat(&mut self, (x0, z0, x1, z1): (f32, f32, f32, f32), y: f32, up: bool) {
+        let c = [
+            Vec3::new(x0, y, z0),
+            Vec3::new(x1, y, z0),
+            Vec3::new(x1, y, z1),
+            Vec3::new(x0, y, z1),
+        ];
+        self.quad(c, if up { Vec3::Y } else { Vec3::NEG_Y });
+    }
+    /// Wall in the plane `x` from `z0` to `z1`, `y0` to `y1`, facing `facing` (±1 along x).
+    fn wall_x(&mut self, x: f32, (z0, z1): (f32, f32), (y0, y1): (f32, f32), facing: f32) {
+        let c = [
+            Vec3::new(x, y0, z0),
+            Vec3::new(x, y0, z1),
+            Vec3::new(x, y1, z1),
+            Vec3::new(x, y1, z0),
+        ];
+        self.quad(c, Vec3::X * facing);
+    }
+    /// Wall in the plane `z` from `x0` to `x1`, facing `facing` (±1 along z).
+    fn wall_z(&mut self, z: f32, (x0, x1): (f32, f32), (y0, y1): (f32, f32), facing: f32) {
+        let c = [
+            Vec3::new(x0, y0, z),
+            Vec3::new(x1, y0, z),
+            Vec3::new(x1, y1, z),
+            Vec3::new(x0, y1, z),
+        ];
+        self.quad(c, Vec3::Z * facing);
+    }
+    /// A wall in the plane `x` with a door from `d0` to `d1` up to `top`.
+    fn wall_x_door(
+        &mut self,
+        x: f32,
+        (z0, z1): (f32, f32),
+        (y0, y1): (f32, f32),
+        facing: f32,
+        (d0, d1, top): (f32, f32, f32),
+    ) {
+        self.wall_x(x, (z0, d0), (y0, y1), facing);
+        self.wall_x(x, (d1, z1), (y0, y1), facing);
+        self.wall_x(x, (d0, d1), (top, y1), facing);
+    }
+    /// A solid box (faces outward, a closed void inside).
+    fn brush(&mut self, min: Vec3, max: Vec3) {
+        let mut m = Mesh::default();
+        m.append(
+            &Mesh::cube(),
+            Mat4::from_translation((min + max) * 0.5) * Mat4::from_scale(max - min),
+        );
+        for t in m.indices.chunks_exact(3) {
+            self.tris
+                .push([t[0], t[1], t[2]].map(|i| Vec3::from(m.vertices[i as usize].position)));
+        }
+    }
+    /// A room's inward faces: floor, ceiling and the walls not in `skip` (−x, +x, −z, +z).
+    fn room_shell(&mut self, r: Room, skip: [bool; 4]) {
+        let (a, b) = (r.min, r.max);
+        self.flat((a.x, a.z, b.x, b.z), a.y, true);
+        self.flat((a.x, a.z, b.x, b.z), b.y, false);
+        if !skip[0] {
+            self.wall_x(a.x, (a.z, b.z), (a.y, b.y), 1.0);
+        }
+        if !skip[1] {
+            self.wall_x(b.x, (a.z, b.z), (a.y, b.y), -1.0);
+        }
+        if !skip[2] {
+            self.wall_z(a.z, (a.x, b.x), (a.y, b.y), 1.0);
+        }
+        if !skip[3] {
+            self.wall_z(b.z, (a.x, b.x), (a.y, b.y), -1.0);
+        }
+    }
+    fn rays(&self) -> TriangleScene {
+        TriangleScene::from_triangles(&self.tris, &[]).expect("triangles")
+    }
+    /// The level as a scene of one object, all double-sided when `two_sided`.
+    fn scene(&self, two_sided: bool) -> Scene {
+        let mut m = Mesh::default();
+        for t in &self.tris {
+            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or(Vec3::Y);
+            for p in t {
+                m.indices.push(m.vertices.len() as u32);
+                m.vertices.push(Vertex {
+                    position: p.to_array(),
+                    normal: n.to_array(),
+                });
+            }
+        }
+        let mut b = SceneBuilder::new("level");
+        b.add(&m, Vec3::ONE);
+        b.path("default", &[(Vec3::new(0.0, 50.0, 50.0), Vec3::ZERO); 2]);
+        let mut s = b.finish();
+        if two_sided {
+            s.materials.push(Material {
+                double_sided: true,
+                ..Material::default()
+            });
+            s.objects[0].material = Some(0);
+            s.objects[0].color = Vec4::ONE;
+        }
+        s
+    }
+}
+
+/// Three rooms in a row along x (6 x 6, 3.5 high, floor at `y`) joined by thin walls with
+/// doors; `leak`: a door in the last room's outer wall. Returns the rooms.
+fn row_of_rooms(l: &mut Level, y: f32, leak: bool) -> Vec<Room> {
+    let rooms: Vec<Room> = (0..3)
+        .map(|i| {
+            let x = i as f32 * 6.0;
+            Room::new(x, 0.0, x + 6.0, 6.0, y, y + 3.5)
+        })
+        .collect();
+    for (i, r) in rooms.iter().enumerate() {
+        // Partitions are 0.1 thick: each room's wall stands 0.05 inside the shared line.
+        let mut inner = *r;
+        if i > 0 {
+            inner.min.x += 0.05;
+        }
+        if i < 2 {
+            inner.max.x -= 0.05;
+        }
+        // Floors and ceilings run under the partitions (door thresholds).
+        l.flat((r.min.x, 0.0, r.max.x, 6.0), y, true);
+        l.flat((r.min.x, 0.0, r.max.x, 6.0), y + 3.5, false);
+        l.wall_z(0.0, (inner.min.x, inner.max.x), (y, y + 3.5), 1.0);
+        l.wall_z(6.0, (inner.min.x, inner.max.x), (y, y + 3.5), -1.0);
+        if i == 0 {
+            l.wall_x(0.0, (0.0, 6.0), (y, y + 3.5), 1.0);
+        }
+        if i == 2 && !leak {
+            l.wall_x(18.0, (0.0, 6.0), (y, y + 3.5), -1.0);
+        }
+        let door = (2.0, 4.0, y + 2.5);
+        if i > 0 {
+            l.wall_x_door(inner.min.x, (0.0, 6.0), (y, y + 3.5), 1.0, door);
+        }
+        if i < 2 || leak {
+            l.wall_x_door(inner.max.x, (0.0, 6.0), (y, y + 3.5), -1.0, door);
+        }
+    }
+    rooms
+}
+
+/// Checks a walk over `rays`: every frame in one of `rooms` (or `passages`), at least `min_rooms` visited, no
+/// checked frame mostly sky (over 40%) or back faces (over 10%) or inside geometry.
+fn assert_walks_rooms(
+    rays: &TriangleScene,
+    rooms: &[Room],
+    passages: &[Room],
+    min_rooms: usize,
+) -> InteriorWalk {
+    let walk = find(rays, &InteriorParams::default()).expect("an interior walk");
+    let path = &walk.path;
+    let mut visited = vec![false; rooms.len()];
+    for f in 0..=path.natural_frames() {
+        let eye = path.pose_at(f as f32).eye;
+        match rooms.iter().position(|r| r.contains(eye)) {
+            Some(k) => visited[k] = true,
+            None if passages.iter().any(|r| r.contains(eye)) => {}
+            None => panic!(
+                "frame {f}: {eye} is in no room (waypoints {:?})",
+                walk.waypoints
+            ),
+        }
+    }
+    let count = visited.iter().filter(|v| **v).count();
+    assert!(
+        count >= min_rooms,
+        "visits {count} rooms: {visited:?} (waypoints {:?}, {} of {} places)",
+        walk.waypoints,
+        walk.part,
+        walk.places
+    );
+    for v in path_check::views(rays, path) {
+        assert!(
+            v.sky <= 0.4 && v.back <= 0.1 && v.back_around <= 0.1 && !v.clips,
+            "{v:?}"
+        );
+        assert_eq!(v.problem(true), None);
+    }
+    walk
+}
+
+#[test]
+fn a_leak_to_the_outside_is_not_the_inside() {
+    let mut l = Level::default();
+    let rooms = row_of_rooms(&mut l, 0.0, true);
+    // Open ground outside the leak, far larger than the rooms.
+    l.flat((18.0, -20.0, 60.0, 26.0), 0.0, true);
+    assert_walks_rooms(&l.rays(), &rooms, &[], 3);
+}
+
+#[test]
+fn a_level_floating_above_a_ground_plane_is_walked_inside() {
+    let mut l = Level::default();
+    let rooms = row_of_rooms(&mut l, 20.0, false);
+    l.flat((-20.0, -20.0, 40.0, 26.0), 0.0, true);
+    let walk = assert_walks_rooms(&l.rays(), &rooms, &[], 3);
+    assert!(
+        (walk.scale.eye_height - 1.4).abs() < 1e-3,
+        "{:?}",
+        walk.scale
+    );
+}
+
+#[test]
+fn ceiling_tops_inside_a_sky_box_are_not_floors() {
+    let mut l = Level::default();
+    let rooms = row_of_rooms(&mut l, 0.0, false);
+    // A sky box around the level, seen from within: the space between it and the rooms is
+    // the level's void, over ceilings (back faces from above) and under floors.
+    let (a, b) = (Vec3::new(-1.0, -0.5, -1.0), Vec3::new(19.0, 9.0, 7.0));
+    l.room_shell(Room { min: a, max: b }, [false; 4]);
+    let walk = assert_walks_rooms(&l.rays(), &rooms, &[], 3);
+    assert!(
+        walk.waypoints.iter().all(|w| w.y < 3.5),
+        "{:?}",
+        walk.waypoints
+    );
+}
+
+/// Rooms of solid brushes: thick walls (1 m, closed voids inside), doorways, a room raised
+/// 1.2 m on a solid plinth reached by a staircase, a large solid block, single-sided
+/// ceilings open to the sky above. Returns the rooms and the doorways.
+fn house(l: &mut Level) -> (Vec<Room>, Vec<Room>) {
+    let h = 4.5;
+    let rooms = vec![
+        Room::new(0.0, 0.0, 6.0, 6.0, 0.0, h),
+        Room::new(7.0, 0.0, 13.0, 6.0, 0.0, h),
+        Room::new(14.0, 0.0, 20.0, 6.0, 1.2, h),
+        Room::new(0.0, 7.0, 6.0, 13.0, 0.0, h),
+    ];
+    let v = Vec3::new;
+    for r in &rooms {
+        l.flat((r.min.x, r.min.z, r.max.x, r.max.z), r.min.y, true);
+        l.flat((r.min.x, r.min.z, r.max.x, r.max.z), h, false);
+    }
+    let doors = vec![
+        Room::new(6.0, 2.0, 7.0, 4.0, 0.0, h),
+        Room::new(13.0, 2.0, 14.0, 4.0, 1.2, h),
+        Room::new(2.0, 6.0, 4.0, 7.0, 0.0, h),
+    ];
+    l.flat((6.0, 2.0, 7.0, 4.0), 0.0, true);
+    l.flat((2.0, 6.0, 4.0, 7.0), 0.0, true);
+    // The plinth under the raised room and the solid block beside the last room.
+    l.brush(v(14.0, -0.01, 0.0), v(20.0, 1.2, 6.0));
+    l.brush(v(6.0, 0.0, 6.0), v(21.0, h, 14.0));
+    // Outer walls.
+    l.brush(v(-1.0, 0.0, -1.0), v(21.0, h, 0.0));
+    l.brush(v(-1.0, 0.0, 0.0), v(0.0, h, 14.0));
+    l.brush(v(0.0, 0.0, 13.0), v(6.0, h, 14.0));
+    l.brush(v(20.0, 0.0, 0.0), v(21.0, h, 6.0));
+    // Thick walls with doors 2 m wide: x = 6..7 and x = 13..14 (the latter's door starts
+    // at the raised floor), z = 6..7 between the first room and the fourth.
+    for (x, sill) in [(6.0, 0.0), (13.0, 1.2)] {
+        l.brush(v(x, 0.0, 0.0), v(x + 1.0, h, 2.0));
+        l.brush(v(x, 0.0, 4.0), v(x + 1.0, h, 6.0));
+        l.brush(v(x, sill + 2.4, 2.0), v(x + 1.0, h, 4.0));
+        if sill > 0.0 {
+            l.brush(v(x, 0.0, 2.0), v(x + 1.0, sill, 4.0));
+        }
+    }
+    l.brush(v(0.0, 0.0, 6.0), v(2.0, h, 7.0));
+    l.brush(v(4.0, 0.0, 6.0), v(6.0, h, 7.0));
+    l.brush(v(2.0, 2.4, 6.0), v(4.0, h, 7.0));
+    // Stairs up to the raised room's door: six steps of 0.2 m, 0.3 m deep.
+    for k in 1..=6 {
+        let x0 = 13.0 - 0.3 * (7 - k) as f32;
+        l.brush(v(x0, 0.0, 2.0), v(13.0, 0.2 * k as f32, 4.0));
+    }
+    (rooms, doors)
+}
+
+#[test]
+fn rooms_doorways_stairs_and_thick_walls() {
+    let mut l = Level::default();
+    let (rooms, doors) = house(&mut l);
+    let walk = assert_walks_rooms(&l.rays(), &rooms, &doors, 3);
+    // Only doorways join the rooms: the walk crosses the thick walls through them.
+    // The raised room is reached over the stairs.
+    assert!(
+        walk.waypoints.iter().any(|w| rooms[2].contains(*w)),
+        "{:?}",
+        walk.waypoints
+    );
+}
+
+#[test]
+fn double_sided_materials_count_from_either_side() {
+    let mut l = Level::default();
+    let rooms = row_of_rooms(&mut l, 0.0, false);
+    // Every face turned the wrong way: single-sided, the rooms show only back faces.
+    for t in &mut l.tris {
+        t.swap(1, 2);
+    }
+    let mut scene = l.scene(true);
+    let path = interior_path(&scene, &InteriorParams::default()).expect("walk");
+    let eye = path.pose_at(0.0).eye;
+    assert!(rooms.iter().any(|r| r.contains(eye)), "{eye}");
+    default_if_enclosed(&mut scene);
+    assert_eq!(scene.paths[0].name, PATH_NAME);
+    assert!(scene.path(LIGHT_PATH_NAME).is_ok());
+    // The same level single-sided has no inside: the orbit stays the default.
+    let mut scene = l.scene(false);
+    let err = interior_path(&scene, &InteriorParams::default()).expect_err("no inside");
+    assert!(err.to_string().contains("back faces"), "{err}");
+    default_if_enclosed(&mut scene);
+    assert_eq!(scene.paths[0].name, "default");
+}
+
+#[test]
+fn the_light_path_is_inside_above_the_eye_and_lights_the_floor() {
+    let mut l = Level::default();
+    let (rooms, doors) = house(&mut l);
+    let rays = l.rays();
+    let walk = find(&rays, &InteriorParams::default()).expect("walk");
+    let light = light_path(&rays, &walk.path, &walk.scale);
+    assert_eq!(light.keys.len(), walk.path.keys.len());
+    let mut floors = 0;
+    for (i, (k, c)) in light.keys.iter().zip(&walk.path.keys).enumerate() {
+        let inside = rooms.iter().chain(&doors).any(|r| r.contains(k.eye));
+        assert!(inside, "key {i}: {k:?}");
+        assert!(
+            k.eye.y > c.eye.y - 1e-3,
+            "key {i}: {k:?} under the eye {c:?}"
+        );
+        let dir = (k.target - k.eye).normalize();
+        let hit = rays.hit(k.eye, dir, 100.0).expect("lights something");
+        assert!(hit.front, "key {i}: lights a back face {hit:?}");
+        floors += usize::from(hit.normal.y > 0.7);
+    }
+    // Mostly the floor ahead (near a wall the axis may meet the wall first).
+    assert!(
+        floors * 5 >= light.keys.len() * 4,
+        "{floors} of {}",
+        light.keys.len()
+    );
+}
+
+#[test]
+fn bad_paths_are_reported_with_frame_and_position() {
+    let mut l = Level::default();
+    row_of_rooms(&mut l, 0.0, false);
+    let rays = l.rays();
+    let pose = |eye: Vec3, target: Vec3| crate::scene::CameraPose { eye, target };
+    // Above the roof looking at it: back faces (ceilings seen from above) and sky.
+    let over = CameraPath {
+        name: PATH_NAME.into(),
+        keys: vec![
+            pose(Vec3::new(3.0, 8.0, 3.0), Vec3::new(3.0, 0.0, 3.5)),
+            pose(Vec3::new(9.0, 8.0, 3.0), Vec3::new(9.0, 0.0, 3.5)),
+        ],
+    };
+    let views = path_check::views(&rays, &over);
+    let line = path_check::report(&over, &views, true).expect("reported");
+    assert!(
+        line.contains("frame") && line.contains("back faces"),
+        "{line}"
+    );
+    assert!(!line.contains('\n'));
+    // Looking up from over the roof: sky, reported only for an interior.
+    let up = CameraPath {
+        name: PATH_NAME.into(),
+        keys: vec![pose(Vec3::new(9.0, 8.0, 3.0), Vec3::new(9.0, 20.0, 3.2))],
+    };
+    let v = path_check::views(&rays, &up);
+    assert!(path_check::report(&up, &v, true).is_some_and(|l| l.contains("sky")));
+    assert_eq!(path_check::report(&up, &v, false), None);
+    // Inside a solid brush.
+    let mut solid = Level::default();
+    solid.brush(Vec3::ZERO, Vec3::splat(10.0));
+    let inside = CameraPath {
+        name: "file".into(),
+        keys: vec![pose(Vec3::splat(5.0), Vec3::new(6.0, 5.0, 5.0))],
+    };
+    let v = path_check::views(&solid.rays(), &inside);
+    let line = path_check::report(&inside, &v, false).expect("reported");
+    assert!(
+        line.contains("inside geometry") && line.contains("(5.00, 5.00, 5.00)"),
+        "{line}"
+    );
+    // A good path is not reported.
+    let walk = find(&rays, &InteriorParams::default()).expect("walk");
+    let v = path_check::views(&rays, &walk.path);
+    assert_eq!(path_check::report(&walk.path, &v, true), None);
+}

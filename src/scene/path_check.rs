@@ -1,0 +1,144 @@
+//! Checks a camera path before it is used (built-in, found or read from a file): rays cast
+//! through a grid over the view of sampled frames say how much of the image is sky and how much
+//! is back faces, and rays in all directions whether the camera stands inside geometry. A bad
+//! path is reported in one line with its first bad frame and position, not silently rendered.
+
+use glam::Vec3;
+
+use super::interior::rays::{sphere_dirs, TriangleScene};
+use super::{CameraPath, CameraPose, Scene};
+
+/// Vertical field of view the check assumes (the built-in camera's).
+const FOV_Y_DEG: f32 = 60.0;
+/// Aspect ratio the check assumes.
+const ASPECT: f32 = 16.0 / 9.0;
+/// Rays across and down the view.
+const VIEW_RAYS: (usize, usize) = (32, 18);
+/// Most frames checked along one path.
+const MAX_SAMPLES: u32 = 120;
+/// Share of the view above which a frame is "mostly" sky or back faces.
+pub const MOSTLY: f32 = 0.5;
+/// Share of back faces in all directions above which the camera is inside a solid.
+const INSIDE_SOLID: f32 = 0.5;
+
+/// What the camera of one frame sees.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameView {
+    /// Frame along the path (30 per key).
+    pub frame: u32,
+    /// The eye.
+    pub eye: Vec3,
+    /// Share of the view's rays that escape (sky).
+    pub sky: f32,
+    /// Share of the view's rays that hit back faces.
+    pub back: f32,
+    /// Share of rays in all directions that hit back faces.
+    pub back_around: f32,
+    /// Whether geometry is closer to the eye than the near plane (0.1).
+    pub clips: bool,
+}
+
+impl FrameView {
+    /// The problem of this frame, if any: inside geometry, mostly back faces, or mostly sky
+    /// (sky counts only for an interior, where it means the camera is outside).
+    pub fn problem(&self, interior: bool) -> Option<String> {
+        if self.back_around > INSIDE_SOLID || self.clips {
+            Some(if self.clips {
+                "stands inside geometry (closer than the near plane)".to_string()
+            } else {
+                format!(
+                    "stands inside geometry ({:.0}% of rays around it hit back faces)",
+                    100.0 * self.back_around
+                )
+            })
+        } else if self.back > MOSTLY {
+            Some(format!("sees {:.0}% back faces", 100.0 * self.back))
+        } else if interior && self.sky > MOSTLY {
+            Some(format!("sees {:.0}% sky from inside", 100.0 * self.sky))
+        } else {
+            None
+        }
+    }
+}
+
+/// Unit view directions of a pose through a grid over its image.
+fn view_dirs(pose: &CameraPose) -> Vec<Vec3> {
+    let fwd = (pose.target - pose.eye).normalize_or(Vec3::NEG_Z);
+    let right = fwd.cross(Vec3::Y).try_normalize().unwrap_or(Vec3::X);
+    let up = right.cross(fwd);
+    let h = (0.5 * FOV_Y_DEG.to_radians()).tan();
+    let (nx, ny) = VIEW_RAYS;
+    let mut out = Vec::with_capacity(nx * ny);
+    for j in 0..ny {
+        for i in 0..nx {
+            let u = ((i as f32 + 0.5) / nx as f32 * 2.0 - 1.0) * h * ASPECT;
+            let v = (1.0 - (j as f32 + 0.5) / ny as f32 * 2.0) * h;
+            out.push((fwd + right * u + up * v).normalize());
+        }
+    }
+    out
+}
+
+/// What the camera at `pose` (frame `frame`) sees.
+pub fn view_at(rays: &TriangleScene, pose: &CameraPose, frame: u32) -> FrameView {
+    let far = rays.bounds.extent().length() * 2.0 + (pose.eye - rays.bounds.center()).length();
+    let seen = rays.probe(pose.eye, &view_dirs(pose), far);
+    let around = rays.probe(pose.eye, &sphere_dirs(48), far);
+    FrameView {
+        frame,
+        eye: pose.eye,
+        sky: seen.escaped_share(),
+        back: seen.back_share(),
+        back_around: around.back_share(),
+        clips: rays.within(pose.eye, 0.1),
+    }
+}
+
+/// The views of frames spread over `path` (every frame up to [`MAX_SAMPLES`] of them).
+pub fn views(rays: &TriangleScene, path: &CameraPath) -> Vec<FrameView> {
+    let frames = path.natural_frames();
+    let samples = (frames + 1).min(MAX_SAMPLES);
+    (0..samples)
+        .map(|i| {
+            let f = if samples <= 1 {
+                0
+            } else {
+                (i as u64 * frames as u64 / (samples - 1) as u64) as u32
+            };
+            view_at(rays, &path.pose_at(f as f32), f)
+        })
+        .collect()
+}
+
+/// The one-line report of `path`'s bad frames, `None` when none is bad. `interior`: the camera
+/// is meant to be inside (sky then counts as a problem).
+pub fn report(path: &CameraPath, views: &[FrameView], interior: bool) -> Option<String> {
+    let bad: Vec<(&FrameView, String)> = views
+        .iter()
+        .filter_map(|v| v.problem(interior).map(|p| (v, p)))
+        .collect();
+    let (first, what) = bad.first()?;
+    Some(format!(
+        "path \"{}\": {} of {} checked frames look wrong; frame {} at ({:.2}, {:.2}, {:.2}) {}",
+        path.name,
+        bad.len(),
+        views.len(),
+        first.frame,
+        first.eye.x,
+        first.eye.y,
+        first.eye.z,
+        what
+    ))
+}
+
+/// Checks `path` on `scene` and prints the one-line report as a warning when frames are bad.
+/// Sky counts as a problem on the interior walk only.
+pub fn warn_if_bad(scene: &Scene, path: &CameraPath) {
+    let Some(rays) = TriangleScene::new(scene) else {
+        return;
+    };
+    let interior = path.name == super::interior::PATH_NAME;
+    if let Some(line) = report(path, &views(&rays, path), interior) {
+        eprintln!("warning: {line}");
+    }
+}
