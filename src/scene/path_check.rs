@@ -94,7 +94,7 @@ pub fn view_at(rays: &TriangleScene, pose: &CameraPose, frame: u32) -> FrameView
     }
 }
 
-/// The views of frames spread over `path` (every frame up to [`MAX_SAMPLES`] of them).
+/// The views of frames spread over `path` (every frame up to `MAX_SAMPLES` of them).
 pub fn views(rays: &TriangleScene, path: &CameraPath) -> Vec<FrameView> {
     let frames = path.natural_frames();
     let samples = (frames + 1).min(MAX_SAMPLES);

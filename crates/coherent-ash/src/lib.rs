@@ -53,6 +53,7 @@
 //!     Ok(())
 //! });
 //! culler.cull_frame(&input, &mut backend)?;
+//! drop(backend);
 //! // ... vkCmdEndRendering ...
 //! unsafe { queries.end_frame(cmd)? };
 //! // ... end the command buffer, one vkQueueSubmit with the slot's fence ...
