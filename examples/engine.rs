@@ -323,6 +323,41 @@ struct Engine {
     predicated: bool,
 }
 
+const COLOR_WRITE: vk::AccessFlags2 = vk::AccessFlags2::COLOR_ATTACHMENT_WRITE;
+const DEPTH_READ_WRITE: vk::AccessFlags2 = vk::AccessFlags2::from_raw(
+    vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE.as_raw()
+        | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ.as_raw(),
+);
+const DEPTH_STAGES: vk::PipelineStageFlags2 = vk::PipelineStageFlags2::from_raw(
+    vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS.as_raw()
+        | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS.as_raw(),
+);
+
+/// A barrier on a whole single-level attachment image: layouts `(old, new)`, within `stage`,
+/// accesses `(before, after)`.
+fn attachment_barrier(
+    image: vk::Image,
+    aspect: vk::ImageAspectFlags,
+    (old, new): (vk::ImageLayout, vk::ImageLayout),
+    stage: vk::PipelineStageFlags2,
+    (before, after): (vk::AccessFlags2, vk::AccessFlags2),
+) -> vk::ImageMemoryBarrier2<'static> {
+    vk::ImageMemoryBarrier2::default()
+        .image(image)
+        .subresource_range(
+            vk::ImageSubresourceRange::default()
+                .aspect_mask(aspect)
+                .level_count(1)
+                .layer_count(1),
+        )
+        .old_layout(old)
+        .new_layout(new)
+        .src_stage_mask(stage)
+        .src_access_mask(before)
+        .dst_stage_mask(stage)
+        .dst_access_mask(after)
+}
+
 /// Whether the device has `VK_EXT_conditional_rendering` with `conditionalRendering`.
 fn has_conditional_rendering(instance: &ash::Instance, physical: vk::PhysicalDevice) -> bool {
     // SAFETY: valid physical device; plain queries.
@@ -513,39 +548,21 @@ impl Engine {
     unsafe fn begin_rendering(&mut self, slot_index: usize) {
         let slot = &self.slots[slot_index];
         let cmd = slot.cmd;
-        let barrier = |image, aspect, layout, stage, access| {
-            vk::ImageMemoryBarrier2::default()
-                .image(image)
-                .subresource_range(
-                    vk::ImageSubresourceRange::default()
-                        .aspect_mask(aspect)
-                        .level_count(1)
-                        .layer_count(1),
-                )
-                .old_layout(vk::ImageLayout::UNDEFINED)
-                .new_layout(layout)
-                .src_stage_mask(stage)
-                .src_access_mask(access)
-                .dst_stage_mask(stage)
-                .dst_access_mask(access)
-        };
-        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
-            | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
+        let undefined = vk::ImageLayout::UNDEFINED;
         let barriers = [
-            barrier(
+            attachment_barrier(
                 slot.color.0,
                 vk::ImageAspectFlags::COLOR,
-                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                (undefined, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL),
                 vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT,
-                vk::AccessFlags2::COLOR_ATTACHMENT_WRITE,
+                (COLOR_WRITE, COLOR_WRITE),
             ),
-            barrier(
+            attachment_barrier(
                 slot.depth.0,
                 vk::ImageAspectFlags::DEPTH,
-                vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
-                depth_stages,
-                vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE
-                    | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
+                (undefined, vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL),
+                DEPTH_STAGES,
+                (DEPTH_READ_WRITE, DEPTH_READ_WRITE),
             ),
         ];
         let color_att = [vk::RenderingAttachmentInfo::default()
@@ -589,40 +606,30 @@ impl Engine {
     /// The slot's command buffer is recording, outside rendering, after its first pass.
     unsafe fn resume_rendering(&self, slot_index: usize) {
         let slot = &self.slots[slot_index];
-        let depth_stages = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
-            | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
-        let keep = |image, aspect, layout, stage, write, read| {
-            vk::ImageMemoryBarrier2::default()
-                .image(image)
-                .subresource_range(
-                    vk::ImageSubresourceRange::default()
-                        .aspect_mask(aspect)
-                        .level_count(1)
-                        .layer_count(1),
-                )
-                .old_layout(layout)
-                .new_layout(layout)
-                .src_stage_mask(stage)
-                .src_access_mask(write)
-                .dst_stage_mask(stage)
-                .dst_access_mask(write | read)
-        };
+        let (color, depth) = (
+            vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+            vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
+        );
         let barriers = [
-            keep(
+            attachment_barrier(
                 slot.color.0,
                 vk::ImageAspectFlags::COLOR,
-                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                (color, color),
                 vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT,
-                vk::AccessFlags2::COLOR_ATTACHMENT_WRITE,
-                vk::AccessFlags2::COLOR_ATTACHMENT_READ,
+                (
+                    COLOR_WRITE,
+                    COLOR_WRITE | vk::AccessFlags2::COLOR_ATTACHMENT_READ,
+                ),
             ),
-            keep(
+            attachment_barrier(
                 slot.depth.0,
                 vk::ImageAspectFlags::DEPTH,
-                vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL,
-                depth_stages,
-                vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE,
-                vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ,
+                (depth, depth),
+                DEPTH_STAGES,
+                (
+                    vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE,
+                    DEPTH_READ_WRITE,
+                ),
             ),
         ];
         let color_att = [vk::RenderingAttachmentInfo::default()

@@ -334,11 +334,7 @@ impl Recorder {
         predicates: &[Buffer],
         barrier: bool,
     ) -> Result<()> {
-        let end = first.saturating_add(count).min(pools.used());
-        let mut id = first;
-        while id < end {
-            let (pool, slot) = pools.location(id);
-            let n = (pools.chunk() - slot).min(end - id);
+        for (id, pool, slot, n) in pools.pool_ranges(first, count) {
             let buffer = predicates
                 .get((id / pools.chunk()) as usize)
                 .ok_or_else(|| Error::Input(format!("no predicate buffer for query {id}")))?;
@@ -357,7 +353,6 @@ impl Recorder {
                     vk::QueryResultFlags::WAIT,
                 )
             };
-            id += n;
         }
         self.counts.predicate_resolves += 1;
         self.predicates_unguarded = true;
@@ -832,11 +827,7 @@ impl Recorder {
     /// the copies visible to host reads once this command buffer completes. Outside rendering;
     /// does nothing for pools without readback.
     pub fn copy_query_results(&mut self, pools: &QueryPools, first: u32, count: u32) {
-        let end = first.saturating_add(count).min(pools.used());
-        let mut id = first;
-        while id < end {
-            let (pool, slot) = pools.location(id);
-            let n = (pools.chunk() - slot).min(end - id);
+        for (id, pool, slot, n) in pools.pool_ranges(first, count) {
             let Some(buffer) = pools.result_buffer(id) else {
                 return;
             };
@@ -859,7 +850,6 @@ impl Recorder {
                 )
             };
             self.host_read_barrier(buffer);
-            id += n;
         }
     }
 

@@ -142,6 +142,26 @@ impl QueryPools {
         Ok(self.used - 1)
     }
 
+    /// Queries `first..first + count` (clamped to those handed out) split at pool
+    /// boundaries: `(first id, pool, first slot in the pool, queries)` per pool.
+    pub(crate) fn pool_ranges(
+        &self,
+        first: u32,
+        count: u32,
+    ) -> impl Iterator<Item = (u32, vk::QueryPool, u32, u32)> + '_ {
+        let end = first.saturating_add(count).min(self.used);
+        let mut id = first;
+        std::iter::from_fn(move || {
+            (id < end).then(|| {
+                let (pool, slot) = self.location(id);
+                let n = (self.chunk - slot).min(end - id);
+                let range = (id, pool, slot, n);
+                id += n;
+                range
+            })
+        })
+    }
+
     /// Pool and slot of a query id.
     pub fn location(&self, id: u32) -> (vk::QueryPool, u32) {
         (self.pools[(id / self.chunk) as usize], id % self.chunk)
