@@ -44,6 +44,10 @@ pub struct RenderArgs {
     /// Culling algorithm (vfc, stop-and-wait, chc, chcpp, oracle, hiz).
     #[arg(long, default_value = "vfc")]
     pub algorithm: String,
+    /// Latency mode of chc and chcpp: in-frame, predicated, next-frame,
+    /// next-frame-conservative, with an optional `-kN` suffix (N frames in flight).
+    #[arg(long, default_value = "in-frame")]
+    pub latency: String,
     /// Frame of the scene's default path (temporal algorithms render frames 0..=N).
     #[arg(long, default_value_t = 0)]
     pub frame: u32,
@@ -106,9 +110,11 @@ pub struct WalkArgs {
     /// algorithm's missed objects and pixels (visible but not drawn).
     #[arg(long)]
     pub check: bool,
-    /// Latency modes of chc and chcpp, comma separated: in-frame (exact), next-frame (queries
-    /// read one frame late), next-frame-conservative; a `-kN` suffix reads them N frames late
-    /// (N frames in flight, e.g. next-frame-k2). Reported as `ALGORITHM@MODE`.
+    /// Latency modes of chc and chcpp, comma separated: in-frame (exact, waits inside the
+    /// frame), predicated (exact, one submission: hidden nodes drawn under their queries'
+    /// predicates), next-frame (queries read one frame late), next-frame-conservative; a
+    /// `-kN` suffix reads them N frames late (N frames in flight, e.g. predicated-k2).
+    /// Reported as `ALGORITHM@MODE`.
     #[arg(long, default_value = "in-frame", value_delimiter = ',')]
     pub latency: Vec<String>,
     #[command(flatten)]
@@ -303,6 +309,15 @@ pub fn info() -> Result<()> {
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
     check_algorithm(&a.algorithm, &ChcppParams::default())?;
+    let name = match a.algorithm.as_str() {
+        "chc" | "chcpp" => culling::with_latency_names(
+            std::slice::from_ref(&a.algorithm),
+            std::slice::from_ref(&a.latency),
+        )?
+        .remove(0),
+        _ if a.latency == "in-frame" => a.algorithm.clone(),
+        other => bail!("--latency is for chc and chcpp, not \"{other}\""),
+    };
     let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     let movers = Movers::add(&mut scene, a.movers);
     let path = scene.resolve_path(a.path.as_deref())?;
@@ -328,7 +343,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         }
         let renderer_scene = Renderer::new(&ctx, &scene, w, h)?;
         let mut renderer = renderer_scene;
-        let mut culler = FrameAlgorithm::create(&a.algorithm, &setup, &renderer)?;
+        let mut culler = FrameAlgorithm::create(&name, &setup, &renderer)?;
         let first = if culler.needs_exact_visibility() || a.algorithm == "vfc" {
             a.frame
         } else {
@@ -344,17 +359,27 @@ pub fn render(a: &RenderArgs) -> Result<()> {
             .save_png(&a.out)
             .with_context(|| format!("writing {}", a.out.display()))?;
         if let Some(r) = last {
+            let c = &r.counts;
+            let predicated = if c.predicate_resolves > 0 {
+                format!(
+                    ", {} objects under predicates ({} drawn)",
+                    c.predicated_objects, c.predicated_objects_taken
+                )
+            } else {
+                String::new()
+            };
             println!(
-                "{}: {} frame {} with {}: {:.1} ms, {} draws, {} triangles, {} queries, {} state changes -> {}",
+                "{}: {} frame {} with {}: {:.1} ms, {} draws, {} triangles, {} queries, {} state changes, {} submits{predicated} -> {}",
                 scene.name,
                 path.name,
                 a.frame,
-                culler.name(),
+                name,
                 r.frame_ms,
-                r.counts.draw_calls,
-                r.counts.render_triangles,
-                r.counts.queries_begun,
-                r.counts.state_changes,
+                c.draw_calls,
+                c.render_triangles,
+                c.queries_begun,
+                c.state_changes,
+                c.submits,
                 a.out.display()
             );
         }

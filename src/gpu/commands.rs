@@ -53,7 +53,8 @@ pub struct CommandCounts {
     pub buffer_binds: u32,
     /// Compute dispatches.
     pub dispatches: u32,
-    /// Indirect draw calls (`vkCmdDrawIndexedIndirectCount`; also in `draw_calls`).
+    /// Indirect draw calls (`vkCmdDrawIndexedIndirectCount`, and `vkCmdDrawIndexedIndirect`
+    /// multi-draws of objects; also in `draw_calls`).
     pub indirect_draws: u32,
     /// Objects drawn by the GPU through indirect draws, read back from the draw counts after
     /// the frame ([`Recorder::note_indirect_result`]); for reports only.
@@ -69,11 +70,16 @@ pub struct CommandCounts {
     pub predicate_resolves: u32,
     /// Conditional-rendering blocks (`vkCmdBeginConditionalRenderingEXT`).
     pub conditional_blocks: u32,
-    /// Object draws recorded inside a conditional block (also in `object_draws`).
-    pub predicated_draws: u32,
-    /// Of those, draws whose predicate was true, read back from the predicate buffer after
+    /// Render-state draw calls recorded inside a conditional block: one per object, or one
+    /// indirect multi-draw of several objects ([`Recorder::draw_objects_indirect`]); also in
+    /// `object_draws`.
+    pub predicated_calls: u32,
+    /// Objects those draw calls draw when their predicate is true (an object drawn by its own
+    /// draw, or by one command of a multi-draw).
+    pub predicated_objects: u32,
+    /// Of those, objects whose predicate was true, read back from the predicate buffer after
     /// the frame ([`Recorder::note_predicates_taken`]); for reports only.
-    pub predicated_draws_taken: u32,
+    pub predicated_objects_taken: u32,
 }
 
 /// How a buffer (or any memory) is accessed, for [`Recorder::memory_barrier`].
@@ -410,7 +416,7 @@ impl Recorder {
 
     /// After the frame: the objects of [`Recorder::predicated_objects`] whose predicate
     /// `taken(query)` says was true join the drawn-object log and count in
-    /// [`CommandCounts::predicated_draws_taken`] (of `counts`, the frame's counts).
+    /// [`CommandCounts::predicated_objects_taken`] (of `counts`, the frame's counts).
     pub fn note_predicates_taken(
         &mut self,
         counts: &mut CommandCounts,
@@ -418,7 +424,7 @@ impl Recorder {
     ) {
         for &(object, query) in &self.predicated_objects {
             if taken(query) {
-                counts.predicated_draws_taken += 1;
+                counts.predicated_objects_taken += 1;
                 if self.log_objects {
                     self.drawn_objects.push(object);
                 }
@@ -599,7 +605,8 @@ impl Recorder {
         if !self.in_query && self.last_kind == Some(PipelineKind::Render) {
             if let Some(query) = self.in_conditional {
                 // Drawn only if the predicate holds: logged once it is read back.
-                self.counts.predicated_draws += 1;
+                self.counts.predicated_calls += 1;
+                self.counts.predicated_objects += 1;
                 self.predicated_objects.push((first_instance, query));
             } else if self.log_objects {
                 self.drawn_objects.push(first_instance);
@@ -1016,6 +1023,56 @@ impl Recorder {
         };
         self.counts.draw_calls += 1;
         self.counts.indirect_draws += 1;
+    }
+
+    /// `vkCmdDrawIndexedIndirect` of `objects.len()` commands of 20 bytes from `commands` at
+    /// `offset`, which the caller wrote as the draws of `objects` (object index as
+    /// `first_instance`, one instance) with their triangle counts. One draw call and one
+    /// indirect draw; in render state it is one object draw whose objects count like
+    /// [`Recorder::draw_indexed`]'s (drawn-object log, movers, triangles, and inside a
+    /// conditional block the predicated objects). More than one command needs the device's
+    /// `multiDrawIndirect` and at most `maxDrawIndirectCount` of them, and an object index other
+    /// than 0 needs `drawIndirectFirstInstance` (checked by the caller).
+    pub fn draw_objects_indirect(
+        &mut self,
+        commands: &Buffer,
+        offset: u64,
+        objects: &[(u32, u64)],
+    ) {
+        if objects.is_empty() {
+            return;
+        }
+        // SAFETY: recording inside rendering with a bound pipeline and index buffer; the
+        // buffer has INDIRECT_BUFFER usage and holds the commands at `offset`; the caller
+        // checked the features and the count limit.
+        unsafe {
+            self.device.cmd_draw_indexed_indirect(
+                self.cmd,
+                commands.handle,
+                offset,
+                objects.len() as u32,
+                std::mem::size_of::<vk::DrawIndexedIndirectCommand>() as u32,
+            )
+        };
+        let tris = objects.iter().map(|&(_, t)| t).sum();
+        self.count_draw(tris);
+        self.counts.indirect_draws += 1;
+        if self.in_query || self.last_kind != Some(PipelineKind::Render) {
+            return;
+        }
+        if let Some(query) = self.in_conditional {
+            self.counts.predicated_calls += 1;
+            self.counts.predicated_objects += objects.len() as u32;
+            self.predicated_objects
+                .extend(objects.iter().map(|&(o, _)| (o, query)));
+        } else if self.log_objects {
+            self.drawn_objects.extend(objects.iter().map(|&(o, _)| o));
+        }
+        let movers = objects
+            .iter()
+            .filter(|(o, _)| self.movers.contains(o))
+            .count();
+        self.counts.mover_draws += movers as u32;
     }
 
     /// Adds what the frame's indirect draws drew, read back after the frame completed.

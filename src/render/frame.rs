@@ -53,15 +53,15 @@ impl FrameResult {
             query_draws: self.counts.query_draws,
             triangles: self.counts.render_triangles + self.counts.indirect_triangles,
             // Objects really drawn: a draw under a false predicate drew nothing.
-            objects: self.counts.object_draws - self.counts.predicated_draws
-                + self.counts.predicated_draws_taken
+            objects: self.counts.object_draws - self.counts.predicated_calls
+                + self.counts.predicated_objects_taken
                 + self.counts.indirect_objects,
             submits: self.counts.submits,
             missed_objects: self.check.map(|c| c.missed_objects),
             missed_pixels: self.check.map(|c| c.missed_pixels),
             mover_draws: None,
-            predicated_draws: self.counts.predicated_draws,
-            predicated_taken: self.counts.predicated_draws_taken,
+            predicated_draws: self.counts.predicated_objects,
+            predicated_taken: self.counts.predicated_objects_taken,
             predicate_resolves: self.counts.predicate_resolves,
         }
     }

@@ -37,6 +37,10 @@ pub use frame::{Check, FrameResult};
 const BOX_CHUNK: u32 = 16384;
 /// Bytes of one box's corners in a chunk.
 const BOX_BYTES: usize = 8 * 12;
+/// Indexed indirect draw commands per command chunk (predicated multi-draws).
+const DRAW_CHUNK: u32 = 4096;
+/// Bytes of one `VkDrawIndexedIndirectCommand`.
+const DRAW_BYTES: usize = 20;
 /// Sky color the first segment of a frame clears to.
 const SKY: [f32; 4] = [0.62, 0.74, 0.86, 1.0];
 
@@ -121,6 +125,16 @@ pub struct Renderer {
     /// Leave out the barrier between the predicate copy and the conditional blocks (tests:
     /// the recorder must refuse).
     skip_predicate_barrier: bool,
+    /// Host-visible chunks of indexed indirect draw commands: the objects of one predicate are
+    /// drawn by one multi-draw (scenes without materials, on devices with `multiDrawIndirect`
+    /// and `drawIndirectFirstInstance`).
+    draw_chunks: Vec<Buffer>,
+    /// The chunk being filled and the commands in it (this frame).
+    draw_chunk: usize,
+    draw_used: u32,
+    /// Scratch for one multi-draw: its command bytes and its objects with their triangles.
+    draw_bytes: Vec<u8>,
+    draw_objects: Vec<(u32, u64)>,
 }
 
 impl Renderer {
@@ -212,6 +226,11 @@ impl Renderer {
             predicates: Vec::new(),
             predicates_resolved: 0,
             skip_predicate_barrier: false,
+            draw_chunks: Vec::new(),
+            draw_chunk: 0,
+            draw_used: 0,
+            draw_bytes: Vec::new(),
+            draw_objects: Vec::new(),
         })
     }
 
@@ -398,6 +417,8 @@ impl Renderer {
         self.recorder.take_counts();
         self.recorder.clear_drawn_objects();
         self.predicates_resolved = 0;
+        self.draw_chunk = 0;
+        self.draw_used = 0;
         let vp = raster_matrix(view);
         self.push[..64].copy_from_slice(bytes_of(&vp.to_cols_array()));
         Ok(())
@@ -843,11 +864,7 @@ impl Renderer {
     /// open).
     fn record_objects(&mut self, objects: &[u32]) -> Result<()> {
         self.use_pipeline(PipelineKind::Render);
-        if self.bound != Some(Bound::Scene) {
-            self.recorder
-                .bind_buffers(&self.vertex_buffer, 0, Some(&self.index_buffer));
-            self.bound = Some(Bound::Scene);
-        }
+        self.bind_scene_buffers();
         for &o in objects {
             let d = *self.objects.get(o as usize).ok_or_else(|| {
                 Error::Input(format!(
@@ -866,11 +883,93 @@ impl Renderer {
         Ok(())
     }
 
+    /// Binds the scene's vertex and index buffers unless they are bound.
+    fn bind_scene_buffers(&mut self) {
+        if self.bound != Some(Bound::Scene) {
+            self.recorder
+                .bind_buffers(&self.vertex_buffer, 0, Some(&self.index_buffer));
+            self.bound = Some(Bound::Scene);
+        }
+    }
+
+    /// Whether the objects of one predicate are drawn by one indexed indirect multi-draw
+    /// (one command for lavapipe to skip on a false predicate instead of one per object): the
+    /// device has `multiDrawIndirect` and `drawIndirectFirstInstance`, and the scene has no
+    /// materials (whose objects bind their own textures and pipelines).
+    fn multi_draws(&self) -> bool {
+        let optional = &self.ctx.info.optional;
+        optional.multi_draw_indirect
+            && optional.draw_indirect_first_instance
+            && self.ctx.info.max_draw_indirect_count > 1
+            && !self.pipelines.materials
+    }
+
+    /// Records `objects` in render state as indexed indirect multi-draws, each command drawing
+    /// one object (its index as `first_instance`, as [`Renderer::record_objects`] does), from
+    /// this frame's command chunks.
+    fn record_objects_indirect(&mut self, objects: &[u32]) -> Result<()> {
+        self.use_pipeline(PipelineKind::Render);
+        self.bind_scene_buffers();
+        let per_chunk = DRAW_CHUNK.min(self.ctx.info.max_draw_indirect_count);
+        let mut rest = objects;
+        while !rest.is_empty() {
+            if self.draw_used == per_chunk || self.draw_chunks.is_empty() {
+                if !self.draw_chunks.is_empty() {
+                    self.draw_chunk += 1;
+                }
+                self.draw_used = 0;
+                if self.draw_chunk == self.draw_chunks.len() {
+                    self.draw_chunks.push(Buffer::new(
+                        &self.ctx,
+                        "predicated draws",
+                        u64::from(per_chunk) * DRAW_BYTES as u64,
+                        vk::BufferUsageFlags::INDIRECT_BUFFER,
+                        MemoryLocation::CpuToGpu,
+                    )?);
+                }
+            }
+            let room = (per_chunk - self.draw_used) as usize;
+            self.draw_bytes.clear();
+            self.draw_objects.clear();
+            let mut used = 0;
+            for &o in rest {
+                if self.draw_objects.len() == room {
+                    break;
+                }
+                used += 1;
+                let d = self.objects.get(o as usize).ok_or_else(|| {
+                    Error::Input(format!(
+                        "object {o} does not exist (scene has {})",
+                        self.objects.len()
+                    ))
+                })?;
+                if d.index_count == 0 {
+                    continue;
+                }
+                for word in [d.index_count, 1, d.first_index, d.vertex_offset as u32, o] {
+                    self.draw_bytes.extend_from_slice(&word.to_ne_bytes());
+                }
+                self.draw_objects.push((o, u64::from(d.index_count / 3)));
+            }
+            rest = &rest[used..];
+            if self.draw_objects.is_empty() {
+                continue;
+            }
+            let offset = self.draw_used as usize * DRAW_BYTES;
+            let chunk = &mut self.draw_chunks[self.draw_chunk];
+            chunk.write(offset, &self.draw_bytes)?;
+            self.recorder
+                .draw_objects_indirect(chunk, offset as u64, &self.draw_objects);
+            self.draw_used += self.draw_objects.len() as u32;
+        }
+        Ok(())
+    }
+
     /// After the frame: reads the predicates back, so objects drawn under a false predicate
-    /// do not count as drawn (`walk --check`) and `counts.predicated_draws_taken` says how
+    /// do not count as drawn (`walk --check`) and `counts.predicated_objects_taken` says how
     /// many were.
     fn read_predicates(&mut self, counts: &mut CommandCounts) -> Result<()> {
-        if counts.predicated_draws == 0 {
+        if counts.predicated_objects == 0 {
             return Ok(());
         }
         let chunk = self.occlusion.chunk();
@@ -951,7 +1050,11 @@ impl OcclusionBackend for Renderer {
         let buffer = &self.predicates[(query / chunk) as usize];
         let offset = u64::from(query % chunk) * 4;
         self.recorder.begin_conditional(buffer, offset, query)?;
-        let drawn = self.record_objects(objects);
+        let drawn = if self.multi_draws() {
+            self.record_objects_indirect(objects)
+        } else {
+            self.record_objects(objects)
+        };
         self.recorder.end_conditional();
         Ok(drawn?)
     }

@@ -122,6 +122,8 @@ struct Running {
     /// The GPU-driven culler, when the algorithm is `hiz` (then `culler` is unused).
     hiz: Option<Box<HizCuller>>,
     algorithm: String,
+    /// Latency mode of chc and chcpp (key L cycles [`LATENCIES`]).
+    latency: &'static str,
     params: ChcppParams,
     stats: Option<std::io::BufWriter<std::fs::File>>,
     pending: CommandCounts,
@@ -272,10 +274,11 @@ impl App {
         let swapchain = Swapchain::new(&ctx, display, handle, size.width, size.height, cfg.vsync)?;
         let mut renderer = Renderer::new(&ctx, &cfg.scene, cfg.width, cfg.height)?;
         renderer.visibility_threshold = cfg.params.pixel_threshold;
-        let hiz = hiz_for(&cfg.algorithm, &renderer)?;
+        let (algorithm, latency) = split_latency(&cfg.algorithm)?;
+        let hiz = hiz_for(&algorithm, &renderer)?;
         let culler = match hiz {
             Some(_) => culling::create("vfc", &cfg.params)?,
-            None => culling::create(&cfg.algorithm, &cfg.params)?,
+            None => viewer_culler(&algorithm, latency, &cfg.params)?,
         };
         let stats = match &cfg.stats {
             Some(p) => {
@@ -296,7 +299,8 @@ impl App {
             recorder: Recorder::new(&ctx),
             culler,
             hiz,
-            algorithm: cfg.algorithm.clone(),
+            algorithm,
+            latency,
             params: cfg.params.clone(),
             stats,
             pending: CommandCounts::default(),
@@ -348,6 +352,15 @@ fn on_off(b: bool) -> &'static str {
 }
 
 impl Running {
+    /// The running culler's name: `chcpp@predicated` in a latency mode other than in-frame.
+    fn culler_name(&self) -> String {
+        if has_latency(&self.algorithm) && self.latency != LATENCIES[0] {
+            format!("{}@{}", self.algorithm, self.latency)
+        } else {
+            self.algorithm.clone()
+        }
+    }
+
     fn key(&mut self, code: KeyCode, cfg: &ViewerConfig) -> Result<()> {
         let algorithm = match code {
             KeyCode::Digit1 => Some("vfc"),
@@ -381,19 +394,28 @@ impl Running {
             KeyCode::F12 | KeyCode::KeyK => self.screenshot_requested = true,
             KeyCode::KeyO => self.movers_on = !self.movers_on,
             KeyCode::KeyR => self.toggle_recording(),
+            KeyCode::KeyL => {
+                let at = LATENCIES.iter().position(|&l| l == self.latency);
+                self.latency = LATENCIES[at.map_or(0, |i| (i + 1) % LATENCIES.len())];
+                if !self.renderer.supports_predicates() && self.latency == "predicated" {
+                    self.latency = LATENCIES[2];
+                }
+                eprintln!("view: latency {}", self.latency);
+            }
             _ => {}
         }
         if matches!(
             code,
             KeyCode::KeyB | KeyCode::KeyI | KeyCode::KeyM | KeyCode::KeyT
         ) && self.algorithm == "chcpp"
+            || code == KeyCode::KeyL && has_latency(&self.algorithm)
         {
             rebuild = true;
         }
         if rebuild {
             self.hiz = hiz_for(&self.algorithm, &self.renderer)?;
             if self.hiz.is_none() {
-                self.culler = culling::create(&self.algorithm, &self.params)?;
+                self.culler = viewer_culler(&self.algorithm, self.latency, &self.params)?;
             }
         }
         Ok(())
@@ -597,7 +619,9 @@ impl Running {
         let mut lines = vec![
             format!(
                 "{}  {:.1} MS  FRAME {}",
-                self.algorithm, result.frame_ms, presented
+                self.culler_name(),
+                result.frame_ms,
+                presented
             ),
             format!("QUERIES {}  WASTED {}", c.queries_begun, c.queries_visible),
             format!(
@@ -627,19 +651,20 @@ impl Running {
             ));
         }
         if cfg.frames.is_none() {
-            lines.push("1-5 ALG  BIMT PARTS  V VIS  P PATH".into());
+            lines.push("1-6 ALG  L LATENCY  BIMT PARTS  V VIS  P PATH".into());
         }
         lines
     }
 
     /// One `--stats` row: every command buffer of the presented frame.
     fn write_stats(&mut self, presented: u32, frame_ms: f64, total: &CommandCounts) -> Result<()> {
+        let name = self.culler_name();
         if let Some(w) = self.stats.as_mut() {
             writeln!(
                 w,
                 "{},{},{:.3},{},{},{},{},{},{},{}",
                 presented,
-                self.algorithm,
+                name,
                 frame_ms,
                 total.pipeline_binds,
                 total.draw_calls,
@@ -680,6 +705,49 @@ struct FrameLog {
 }
 
 /// A culler wrapped so that the backend it talks to is logged.
+/// Latency modes the key L cycles through (for chc and chcpp).
+const LATENCIES: [&str; 3] = ["in-frame", "predicated", "next-frame"];
+
+/// Whether `algorithm` has latency modes.
+fn has_latency(algorithm: &str) -> bool {
+    algorithm == "chc" || algorithm == "chcpp"
+}
+
+/// Splits `chcpp@predicated` into the algorithm and one of [`LATENCIES`] (`in-frame` when
+/// there is no `@`).
+fn split_latency(name: &str) -> Result<(String, &'static str)> {
+    let Some((algorithm, mode)) = name.split_once('@') else {
+        return Ok((name.to_string(), LATENCIES[0]));
+    };
+    let latency = LATENCIES.iter().find(|&&l| l == mode).ok_or_else(|| {
+        Error::Input(format!(
+            "the viewer's latency modes are {} (not \"{mode}\")",
+            LATENCIES.join(", ")
+        ))
+    })?;
+    if !has_latency(algorithm) {
+        return Err(Error::Input(format!(
+            "latency modes are for chc and chcpp, not \"{algorithm}\""
+        )));
+    }
+    Ok((algorithm.to_string(), latency))
+}
+
+/// The culler for `algorithm` in latency mode `latency` (chc and chcpp; others ignore it).
+fn viewer_culler(algorithm: &str, latency: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
+    if !has_latency(algorithm) || latency == LATENCIES[0] {
+        return Ok(culling::create(algorithm, params)?);
+    }
+    let setup = culling::CullerSetup {
+        params: params.clone(),
+        ..Default::default()
+    };
+    Ok(culling::create_named(
+        &format!("{algorithm}@{latency}"),
+        &setup,
+    )?)
+}
+
 /// The Hi-Z culler for `renderer` when `algorithm` is `hiz`.
 fn hiz_for(algorithm: &str, renderer: &Renderer) -> Result<Option<Box<HizCuller>>> {
     if algorithm != "hiz" {
@@ -747,6 +815,17 @@ impl OcclusionBackend for Probe<'_> {
     }
     fn flush(&mut self) -> coherent_cull::Result<()> {
         self.inner.flush()
+    }
+    fn supports_predicates(&self) -> bool {
+        self.inner.supports_predicates()
+    }
+    fn resolve_predicates(&mut self) -> coherent_cull::Result<()> {
+        self.inner.resolve_predicates()
+    }
+    fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
+        // Drawn only if the predicate holds: the visualization shows them as drawn.
+        self.log.drawn.extend_from_slice(objects);
+        self.inner.draw_objects_if(query, objects)
     }
     fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
         let r = self.inner.query_result(query)?;

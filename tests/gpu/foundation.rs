@@ -216,6 +216,26 @@ fn cli_rejects_bad_flags_cleanly() {
             "--out",
             "/tmp/x.png",
         ],
+        vec![
+            "render",
+            "--scene",
+            "cornell",
+            "--latency",
+            "predicated",
+            "--out",
+            "/tmp/x.png",
+        ],
+        vec![
+            "render",
+            "--scene",
+            "cornell",
+            "--algorithm",
+            "chcpp",
+            "--latency",
+            "sideways",
+            "--out",
+            "/tmp/x.png",
+        ],
     ] {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
             .args(&args)

@@ -81,7 +81,11 @@ fn matches_vfc(
                 res.counts.conditional_blocks, res.cull.predicated_draws,
                 "{tag}"
             );
-            taken += res.counts.predicated_draws_taken;
+            assert_eq!(
+                res.counts.predicated_objects, res.cull.predicated_objects,
+                "{tag}: objects under predicates"
+            );
+            taken += res.counts.predicated_objects_taken;
             let px = r.read_color().unwrap();
             r.object_pixels(bvh, &cam, &mut pixels).unwrap();
             let check = r.check_drawn(&pixels);
@@ -180,4 +184,48 @@ fn without_conditional_rendering_the_predicated_mode_names_the_extension() {
         r.render_frame(next.as_mut(), &bvh, &cam, 1).unwrap();
     }
     common::assert_silent(&log);
+}
+
+/// `render --latency predicated` renders the frame with one submission and says how many objects
+/// went under predicates; its image equals vfc's.
+#[test]
+fn render_takes_the_predicated_latency() {
+    let dir = std::env::temp_dir().join(format!("coherent-render-pred-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let render = |algorithm: &str, latency: &str, png: &str| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
+            .args([
+                "render", "--scene", "city", "--scale", "0.1", "--size", "320x180",
+            ])
+            .args([
+                "--frame",
+                "12",
+                "--algorithm",
+                algorithm,
+                "--latency",
+                latency,
+            ])
+            .arg("--out")
+            .arg(dir.join(png))
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            out.status.success(),
+            "{text}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        text
+    };
+    let text = render("chcpp", "predicated", "p.png");
+    assert!(
+        text.contains("chcpp@predicated")
+            && text.contains(" 1 submits")
+            && text.contains("under predicates"),
+        "{text}"
+    );
+    render("vfc", "in-frame", "v.png");
+    let read = |png: &str| image::open(dir.join(png)).unwrap().to_rgba8().into_raw();
+    assert_eq!(common::diff_pixels(&read("v.png"), &read("p.png")), 0);
+    let _ = std::fs::remove_dir_all(&dir);
 }

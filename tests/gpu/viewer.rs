@@ -167,10 +167,19 @@ fn non_interactive_view_under_xvfb_with_validation() {
 /// Mesa's overlay layer counts, per sampling period, the frames presented and the pipeline binds
 /// and draws of every command buffer submitted between presents. It does not flush its last
 /// period, so compare the sums over the periods it wrote with our first rows. Its `draw` counts
-/// `vkCmdDraw` and `draw_indexed` counts `vkCmdDrawIndexed`; our `draws` counts both.
+/// `vkCmdDraw`, `draw_indexed` `vkCmdDrawIndexed` and `draw_indexed_indirect`
+/// `vkCmdDrawIndexedIndirect` (predicated CHC++ draws the objects of one predicate with one);
+/// our `draws` counts them all.
 #[test]
 fn stats_match_mesa_overlay_layer() {
-    for algorithm in ["vfc", "stop-and-wait", "chc", "chcpp", "oracle"] {
+    for algorithm in [
+        "vfc",
+        "stop-and-wait",
+        "chc",
+        "chcpp",
+        "oracle",
+        "chcpp@predicated",
+    ] {
         overlay_cross_check(algorithm);
     }
 }
@@ -180,7 +189,7 @@ fn overlay_cross_check(algorithm: &str) {
     let overlay = dir.join("overlay.csv");
     let stats = dir.join("stats.csv");
     let config = format!(
-        "output_file={},fps_sampling_period=50,pipeline_graphics,draw,draw_indexed,frame,no_display",
+        "output_file={},fps_sampling_period=50,pipeline_graphics,draw,draw_indexed,draw_indexed_indirect,frame,no_display",
         overlay.display()
     );
     let out = run_viewer(
@@ -217,7 +226,7 @@ fn overlay_cross_check(algorithm: &str) {
     for p in &periods {
         frames += num(p, "frame");
         binds += num(p, "pipeline_graphics");
-        draws += num(p, "draw") + num(p, "draw_indexed");
+        draws += num(p, "draw") + num(p, "draw_indexed") + num(p, "draw_indexed_indirect");
     }
     let rows = read_csv(&stats, ',');
     assert_eq!(rows.len(), 30);
