@@ -8,10 +8,10 @@
 //! handed to it as two policies, which it consults at its decision points:
 //! - the *query rule* (`rules.rs`) says which nodes get a query: CHC++'s rules (every node on
 //!   the invisible cut; a visible leaf when its query interval is due), or NOHC's cost model;
-//! - the *latency mode* (`latency.rs`, one policy per [`Latency`](crate::Latency)) says when results are read
-//!   and how they are applied: in the frame as they return (the paper), after the frame
-//!   (next-frame, conservative, with `k` frames in flight: `in_flight.rs`), or by the device
-//!   under predicates (`predicated.rs`, with the argument why nothing visible is culled).
+//! - the *latency mode* (`latency.rs`, one policy per [`Latency`](crate::Latency)) says when
+//!   results are read and how they are applied: in the frame as they return (the paper), after
+//!   the frame (next-frame, conservative, with `k` frames in flight: `in_flight.rs`), or by the
+//!   device under predicates (`predicated.rs`, with the argument why nothing visible is culled).
 //!
 //! The parts of CHC++: `queues.rs` (i-queue, v-queue, render queue, batches), `multiquery.rs`,
 //! `tight.rs`, and `state.rs` (per-node state that follows the hierarchy through refits and
@@ -58,6 +58,7 @@ impl Culler for Chcpp {
         let eye = view.eye;
         let mut stats = CullStats::default();
         self.mode.check_backend(backend)?;
+        // With k frames in flight, a latency mode reads the queries of frame N-k first.
         self.read_frames_in_flight(bvh, backend, &mut stats)?;
         self.begin_frame(bvh, eye);
         self.eye = eye;
@@ -232,8 +233,8 @@ impl Chcpp {
         s.last_visited = self.frame;
         s.tested = true;
         if self.mode.opens_instead_of_query(self, bvh, node) {
-            // Predicated: too many objects would wait on one predicate; its children are
-            // queried instead.
+            // The latency mode opens it (predicated: too many objects would wait on one
+            // predicate); its children are queried instead.
             let eye = self.eye;
             self.traverse_node(bvh, node, eye, stats);
             return Ok(());
