@@ -98,7 +98,7 @@ impl NohcParams {
 }
 
 /// The per-node state and the decisions of NOHC's cost rule. The traversal that uses it lives
-/// in `chcpp.rs` (NOHC is the CHC traversal with this rule deciding every query).
+/// in `chcpp/` (NOHC is the CHC traversal with this rule as its query rule, `chcpp/rules.rs`).
 pub struct NohcRule {
     params: NohcParams,
     /// Per node: objects and triangles of the subtree.

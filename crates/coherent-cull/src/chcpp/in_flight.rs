@@ -9,7 +9,7 @@ use std::collections::VecDeque;
 use super::{Chcpp, Pending};
 use crate::bvh::ObjectBvh;
 use crate::error::{Error, Result};
-use crate::{CullStats, Latency, OcclusionBackend};
+use crate::{CullStats, OcclusionBackend};
 
 /// One frame's queries, kept until they are read.
 #[derive(Default)]
@@ -48,7 +48,7 @@ impl Chcpp {
 
     /// Whether this frame's queries are kept for a later frame rather than read after it.
     pub(super) fn reads_frames_later(&self) -> bool {
-        self.frames_in_flight > 1 && self.latency != Latency::InFrame
+        self.frames_in_flight > 1 && !self.mode.reads_in_frame()
     }
 
     /// Start of a frame (`k > 1`): reads the queries of frame N-k and older. A frame issued

@@ -46,10 +46,86 @@
 //! predicates; the built-in renderer reads the predicates back after the frame to count those
 //! the device really drew.
 
-use super::{Chcpp, Pending, QueryKind};
+use super::latency::LatencyMode;
+use super::{Chcpp, ChcppParams, Pending, QueryKind};
 use crate::bvh::ObjectBvh;
 use crate::error::Result;
-use crate::{CullStats, OcclusionBackend, View};
+use crate::{CullStats, Latency, OcclusionBackend, View};
+
+/// The predicated mode's policy: the traversal's decision points as the steps above say.
+pub(super) struct Predicated;
+
+impl LatencyMode for Predicated {
+    fn latency(&self) -> Latency {
+        Latency::Predicated
+    }
+
+    fn check_backend(&self, backend: &dyn OcclusionBackend) -> Result<()> {
+        if backend.supports_predicates() {
+            Ok(())
+        } else {
+            Err(crate::predicates_unsupported())
+        }
+    }
+
+    fn fit(&self, c: &mut Chcpp, bvh: &ObjectBvh) {
+        c.predicated.count_objects(bvh);
+    }
+
+    /// A node held open: its children are visited.
+    fn opens_previously_invisible(
+        &self,
+        c: &mut Chcpp,
+        bvh: &ObjectBvh,
+        node: u32,
+        eye: glam::Vec3,
+        stats: &mut CullStats,
+    ) -> bool {
+        let held = c.held_open(bvh, node);
+        if held {
+            c.traverse_held_open(bvh, node, eye, stats);
+        }
+        held
+    }
+
+    fn opens_instead_of_query(&self, c: &Chcpp, bvh: &ObjectBvh, node: u32) -> bool {
+        c.over_predicate_budget(bvh, node)
+    }
+
+    /// Step 2: the i-queue goes out in one batch after the traversal.
+    fn issues_after_traversal(&self) -> bool {
+        true
+    }
+
+    fn multiquery_objects(&self, params: &ChcppParams) -> Option<f32> {
+        Some(params.predicated_budget)
+    }
+
+    fn issue_remaining_queries(
+        &self,
+        c: &mut Chcpp,
+        bvh: &ObjectBvh,
+        view: &View,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        c.issue_predicated(bvh, view, backend, stats)
+    }
+
+    fn apply_result(
+        &self,
+        c: &mut Chcpp,
+        bvh: &ObjectBvh,
+        q: Pending,
+        visible: bool,
+        _eye: glam::Vec3,
+        _backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        c.handle_predicated_result(bvh, q, visible, stats);
+        Ok(())
+    }
+}
 
 /// Scratch of the predicated mode, kept so that steady frames do not allocate.
 #[derive(Default)]
@@ -110,7 +186,7 @@ impl Chcpp {
     /// The traversal is done: draws the render queue, queries the i-queue (with the v-queue)
     /// in one batch, resolves the predicates and draws each queried node's objects under its
     /// query's predicate.
-    pub(super) fn issue_predicated(
+    fn issue_predicated(
         &mut self,
         bvh: &ObjectBvh,
         view: &View,
@@ -152,7 +228,7 @@ impl Chcpp {
 
     /// A result of the predicated mode, read `k` frames after its frame: it only steers the
     /// traversal of the frames to come (see the module docs, step 4).
-    pub(super) fn handle_predicated_result(
+    fn handle_predicated_result(
         &mut self,
         bvh: &ObjectBvh,
         q: Pending,
@@ -210,8 +286,8 @@ impl Chcpp {
     /// Whether a previously invisible interior node would put more objects under its predicate
     /// than the budget allows in expectation, `(1 - p) · objects > predicated_budget`: it is
     /// opened instead (predicated mode).
-    pub(super) fn over_predicate_budget(&self, bvh: &ObjectBvh, node: u32) -> bool {
-        if self.latency != crate::Latency::Predicated || bvh.nodes[node as usize].is_leaf() {
+    fn over_predicate_budget(&self, bvh: &ObjectBvh, node: u32) -> bool {
+        if bvh.nodes[node as usize].is_leaf() {
             return false;
         }
         let objects = self.predicated.objects_below(node) as f32;
@@ -222,16 +298,14 @@ impl Chcpp {
     /// Whether `node` is an interior node held open in the predicated mode: its own query said
     /// visible less than `predicated_hold` frames ago, so its children are queried rather
     /// than its box (which shows) with its whole subtree under the predicate.
-    pub(super) fn held_open(&self, bvh: &ObjectBvh, node: u32) -> bool {
-        self.latency == crate::Latency::Predicated
-            && self.frame < self.state[node as usize].open_until
-            && !bvh.nodes[node as usize].is_leaf()
+    fn held_open(&self, bvh: &ObjectBvh, node: u32) -> bool {
+        self.frame < self.state[node as usize].open_until && !bvh.nodes[node as usize].is_leaf()
     }
 
     /// Opens a node held open (its children are visited). When its hold runs out it is
     /// probed: its box is queried with the frame's batch, nothing drawn under it, and it stays
     /// open until the result is read (and longer if its box still shows).
-    pub(super) fn traverse_held_open(
+    fn traverse_held_open(
         &mut self,
         bvh: &ObjectBvh,
         node: u32,

@@ -1,0 +1,112 @@
+//! CHC++'s parameters: every switch and constant of the paper, defaulted to the paper's values,
+//! and the configurations that make the same traversal CHC or one part of CHC++ alone.
+
+/// The parameters of CHC++ (defaults from the paper).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChcppParams {
+    /// Batch previously invisible nodes in an i-queue and visible leaves in a v-queue.
+    pub batching: bool,
+    /// Nodes per i-queue batch (`b`, default 50).
+    pub batch_size: usize,
+    /// Test visible leaves every `n_av` frames, first after a random delay in `[1, n_av]`.
+    pub randomized_interval: bool,
+    /// The assumed-visible interval `n_av` (default 5).
+    pub visible_interval: u32,
+    /// Group previously invisible nodes into multiqueries by the cost/benefit rule.
+    pub multiqueries: bool,
+    /// Query nodes with the boxes of their descendants instead of their own box.
+    pub tight_bounds: bool,
+    /// Descendant depth for tight bounding volumes (default 3).
+    pub tight_depth: u32,
+    /// Use the tight boxes only if their total surface area is at most this times the node's
+    /// (default 1.4).
+    pub tight_area_factor: f32,
+    /// A query counting more than this many pixels means visible (default 0).
+    pub pixel_threshold: u64,
+    /// Submit after this many queries have been recorded without a submit (for the
+    /// unbatched CHC; batches are always submitted as a whole).
+    pub flush_interval: usize,
+    /// Seed of the randomized interval.
+    pub seed: u64,
+    /// Predicated mode: when a queried interior node comes back visible, the levels of its
+    /// subtree opened at once (default 2): the nodes that many levels down are queried, and
+    /// drawn under their own predicates, in the next frame (`u32::MAX`: open the whole subtree,
+    /// as the next-frame modes do).
+    pub predicated_levels: u32,
+    /// Predicated mode: frames an interior node whose own query came back visible stays open
+    /// (its children queried one by one) before it is queried as a whole again (default 10). A
+    /// box that shows while its contents are hidden would otherwise draw its whole subtree
+    /// under a true predicate every other frame.
+    pub predicated_hold: u32,
+    /// Predicated mode: the most objects a previously invisible node may put under one
+    /// predicate in expectation, `(1 - p) · objects` with `p` its probability of staying
+    /// invisible (default 8). A node above it is opened and its children are queried, each
+    /// under its own predicate: more queries, fewer extra draws when a node turns visible.
+    pub predicated_budget: f32,
+}
+
+impl Default for ChcppParams {
+    fn default() -> Self {
+        ChcppParams {
+            batching: true,
+            batch_size: 50,
+            randomized_interval: true,
+            visible_interval: 5,
+            multiqueries: true,
+            tight_bounds: true,
+            tight_depth: 3,
+            tight_area_factor: 1.4,
+            pixel_threshold: 0,
+            flush_interval: 16,
+            seed: 0x00C0_FFEE,
+            predicated_levels: 2,
+            predicated_hold: 10,
+            predicated_budget: 8.0,
+        }
+    }
+}
+
+impl ChcppParams {
+    /// The original CHC as a configuration of the same traversal: no batching (each query is
+    /// issued at once, so one state change per query), every visible leaf queried every frame,
+    /// single queries with the node's own box.
+    pub fn chc() -> ChcppParams {
+        ChcppParams {
+            batching: false,
+            batch_size: 1,
+            randomized_interval: false,
+            visible_interval: 1,
+            multiqueries: false,
+            tight_bounds: false,
+            ..ChcppParams::default()
+        }
+    }
+
+    /// CHC++ with only the named parts on (for measuring each part alone): any of `batching`,
+    /// `interval`, `multiqueries`, `tight`. Multiqueries group the i-queue, so `multiqueries`
+    /// turns batching on too.
+    pub fn only(parts: &[&str]) -> ChcppParams {
+        let mut p = ChcppParams::chc();
+        for part in parts {
+            match *part {
+                "batching" => {
+                    p.batching = true;
+                    p.batch_size = 50;
+                }
+                "interval" => {
+                    p.randomized_interval = true;
+                    p.visible_interval = 5;
+                }
+                // Multiqueries group the i-queue, so they need it.
+                "multiqueries" => {
+                    p.multiqueries = true;
+                    p.batching = true;
+                    p.batch_size = 50;
+                }
+                "tight" => p.tight_bounds = true,
+                _ => {}
+            }
+        }
+        p
+    }
+}
