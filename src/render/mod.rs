@@ -1058,6 +1058,53 @@ impl OcclusionBackend for Renderer {
         self.recorder.end_conditional();
         Ok(drawn?)
     }
+    fn supports_predicated_queries(&self) -> bool {
+        self.supports_predicates()
+    }
+
+    fn issue_query_if(
+        &mut self,
+        predicate: QueryId,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> coherent_cull::Result<QueryId> {
+        if predicate >= self.predicates_resolved {
+            return Err(Error::Input(format!(
+                "query {predicate} is not a resolved predicate of this frame"
+            ))
+            .into());
+        }
+        self.ensure_recording()?;
+        self.use_pipeline(PipelineKind::Query);
+        let id = self.occlusion.allocate()?;
+        self.query_segment.push(self.current_segment() as u32);
+        self.query_read.push(false);
+        // The query begins and ends unconditionally (a predicate does not affect them); its
+        // boxes are drawn only if the predicate holds, else it counts no sample.
+        self.recorder.begin_occlusion_query(&self.occlusion, id);
+        let chunk = self.occlusion.chunk();
+        let buffer = &self.predicates[(predicate / chunk) as usize];
+        let offset = u64::from(predicate % chunk) * 4;
+        let drawn = self
+            .recorder
+            .begin_conditional(buffer, offset, predicate)
+            .and_then(|()| {
+                let mut rest = boxes;
+                while !rest.is_empty() {
+                    rest = self.draw_boxes(rest)?;
+                }
+                Ok(())
+            });
+        self.recorder.end_conditional();
+        self.recorder.end_query(&self.occlusion, id);
+        drawn?;
+        self.recorder.tag_query(
+            purpose == QueryPurpose::Multiquery,
+            purpose == QueryPurpose::VisibleLeaf,
+        );
+        Ok(id)
+    }
+
     fn issue_query(&mut self, boxes: &[Aabb]) -> coherent_cull::Result<QueryId> {
         self.ensure_recording()?;
         self.use_pipeline(PipelineKind::Query);

@@ -822,6 +822,19 @@ impl OcclusionBackend for Probe<'_> {
     fn resolve_predicates(&mut self) -> coherent_cull::Result<()> {
         self.inner.resolve_predicates()
     }
+    fn supports_predicated_queries(&self) -> bool {
+        self.inner.supports_predicated_queries()
+    }
+    fn issue_query_if(
+        &mut self,
+        predicate: QueryId,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> coherent_cull::Result<QueryId> {
+        let id = self.inner.issue_query_if(predicate, boxes, purpose)?;
+        self.log.queries.push((id, boxes.to_vec(), false));
+        Ok(id)
+    }
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
         // Drawn only if the predicate holds: the visualization shows them as drawn.
         self.log.drawn.extend_from_slice(objects);

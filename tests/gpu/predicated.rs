@@ -41,7 +41,8 @@ fn poses(scene: &Scene, path: &str) -> Vec<CameraPose> {
 }
 
 /// Walks `poses` with vfc and both predicated modes: every frame of a predicated mode is one
-/// submission with no wait and one pass break at most, draws every object that owns a pixel
+/// submission with no wait and two pass breaks at most (the second tests the parts of split
+/// nodes under their predicates), draws every object that owns a pixel
 /// of the exact ID pass (predicates read back: a draw under a false predicate did not draw),
 /// and its image equals vfc's but for at most `tie_pixels` pixels where surfaces tie in depth
 /// and draw order decides. Returns the objects drawn under true predicates in all.
@@ -59,7 +60,7 @@ fn matches_vfc(
         .map(|m| culling::create_named(m, &setup).expect(m))
         .collect();
     r.log_drawn_objects(true);
-    let (mut pixels, mut taken) = (Vec::new(), 0);
+    let (mut pixels, mut taken, mut split_queries) = (Vec::new(), 0, 0);
     for (f, &pose) in poses.iter().enumerate() {
         let f = f as u64;
         if let Some(m) = movers {
@@ -76,11 +77,13 @@ fn matches_vfc(
             assert_eq!(res.stall_ms, 0.0, "{tag}: waited");
             assert_eq!(res.cull.blocking_waits, 0, "{tag}");
 
-            assert!(res.counts.predicate_resolves <= 1, "{tag}: pass breaks");
+            assert!(res.counts.predicate_resolves <= 2, "{tag}: pass breaks");
             assert_eq!(
-                res.counts.conditional_blocks, res.cull.predicated_draws,
+                res.counts.conditional_blocks,
+                res.cull.predicated_draws + res.cull.predicated_queries,
                 "{tag}"
             );
+            split_queries += res.cull.predicated_queries;
             assert_eq!(
                 res.counts.predicated_objects, res.cull.predicated_objects,
                 "{tag}: objects under predicates"
@@ -94,6 +97,10 @@ fn matches_vfc(
             assert!(d <= tie_pixels, "{tag}: differs from vfc in {d} pixels");
         }
     }
+    assert!(
+        split_queries > 0,
+        "no node was split into parts under its predicate"
+    );
     taken
 }
 

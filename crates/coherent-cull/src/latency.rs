@@ -120,6 +120,32 @@ impl SlotBackend<'_> {
         }
     }
 
+    /// Files the wrapped backend's query `inner` in this frame's slot and returns its id.
+    fn slot_query(&mut self, inner: QueryId) -> QueryId {
+        let s = &mut self.slots[self.slot];
+        if !self.started {
+            // The slot is reused: frame N-k's queries are gone (the host would reset them).
+            self.started = true;
+            s.inner.clear();
+            s.results.clear();
+            s.complete = false;
+            s.frame = self.frame;
+        }
+        s.inner.push(inner);
+        self.slot as u32 + self.k * (s.inner.len() as u32 - 1)
+    }
+
+    /// The wrapped backend's id of `query`, a query of this frame (a predicate).
+    fn this_frames_query(&self, query: QueryId) -> Result<QueryId> {
+        let (slot, index) = self.decode(query)?;
+        if slot != self.slot || self.slots[slot].frame != self.frame {
+            return Err(Error::Input(format!(
+                "query {query} is not a predicate of this frame"
+            )));
+        }
+        Ok(self.slots[slot].inner[index])
+    }
+
     /// Collects this frame's results once it has completed.
     fn collect(&mut self) -> Result<()> {
         let inner_ids = std::mem::take(&mut self.slots[self.slot].inner);
@@ -160,17 +186,22 @@ impl OcclusionBackend for SlotBackend<'_> {
 
     fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
         let inner = self.inner.issue_query_for(boxes, purpose)?;
-        let s = &mut self.slots[self.slot];
-        if !self.started {
-            // The slot is reused: frame N-k's queries are gone (the host would reset them).
-            self.started = true;
-            s.inner.clear();
-            s.results.clear();
-            s.complete = false;
-            s.frame = self.frame;
-        }
-        s.inner.push(inner);
-        Ok(self.slot as u32 + self.k * (s.inner.len() as u32 - 1))
+        Ok(self.slot_query(inner))
+    }
+
+    fn supports_predicated_queries(&self) -> bool {
+        self.inner.supports_predicated_queries()
+    }
+
+    fn issue_query_if(
+        &mut self,
+        predicate: QueryId,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> Result<QueryId> {
+        let predicate = self.this_frames_query(predicate)?;
+        let inner = self.inner.issue_query_if(predicate, boxes, purpose)?;
+        Ok(self.slot_query(inner))
     }
 
     fn restore_render_state(&mut self) -> Result<()> {
@@ -230,13 +261,7 @@ impl OcclusionBackend for SlotBackend<'_> {
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
-        let (slot, index) = self.decode(query)?;
-        if slot != self.slot || self.slots[slot].frame != self.frame {
-            return Err(Error::Input(format!(
-                "query {query} is not a predicate of this frame"
-            )));
-        }
-        let inner = self.slots[slot].inner[index];
+        let inner = self.this_frames_query(query)?;
         self.inner.draw_objects_if(inner, objects)
     }
 

@@ -255,6 +255,28 @@ pub trait OcclusionBackend {
         let _ = (query, objects);
         Err(predicates_unsupported())
     }
+    /// Whether the backend can issue a query under another query's predicate
+    /// ([`OcclusionBackend::issue_query_if`]): the predicated mode then tests the parts of a
+    /// queried node in the same frame, behind a second predicate resolve, instead of drawing
+    /// the whole node under one predicate. Default: no (one predicate level).
+    fn supports_predicated_queries(&self) -> bool {
+        false
+    }
+    /// Issues an occlusion query for `boxes` (as [`OcclusionBackend::issue_query_for`]) whose
+    /// boxes the device draws only if `predicate` counted at least one sample: when it did not,
+    /// the new query counts 0. `predicate` was issued in this frame before the last
+    /// [`OcclusionBackend::resolve_predicates`]. On Vulkan: the box draws inside a conditional
+    /// block on the predicate (begin and end of a query are not affected by a predicate, the
+    /// draws are). Default: refuses with [`Error::Unsupported`].
+    fn issue_query_if(
+        &mut self,
+        predicate: QueryId,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> Result<QueryId> {
+        let _ = (predicate, boxes, purpose);
+        Err(predicates_unsupported())
+    }
 }
 
 /// The error of a backend without predicated draws.
@@ -479,6 +501,9 @@ pub struct CullStats {
     pub predicated_draws: u32,
     /// Objects sent in those draws (the device draws those whose predicate is true).
     pub predicated_objects: u32,
+    /// Queries issued under another query's predicate (the predicated mode's second level:
+    /// the parts of a node whose own query decides whether their boxes are drawn).
+    pub predicated_queries: u32,
     /// Times the traversal had nothing left to do and blocked on a query result inside the
     /// frame: each is a round trip to the device (reading the results after the frame is not
     /// counted).

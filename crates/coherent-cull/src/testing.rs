@@ -76,6 +76,18 @@ pub enum MockEvent {
     EndOfFrame,
     /// The queries issued so far became predicates ([`OcclusionBackend::resolve_predicates`]).
     Resolve,
+    /// A query whose boxes count only if a predicate of this frame is true
+    /// ([`OcclusionBackend::issue_query_if`]).
+    QueryIf {
+        /// The id handed out.
+        id: QueryId,
+        /// The query whose predicate decides.
+        predicate: QueryId,
+        /// Boxes drawn inside the query (when the predicate holds).
+        boxes: usize,
+        /// Whether it saw pixels (false when the predicate was false).
+        visible: bool,
+    },
     /// Objects drawn under a query's predicate.
     DrawIf {
         /// The query whose predicate decides.
@@ -112,6 +124,8 @@ pub struct MockCounts {
     pub predicated_objects: u32,
     /// Of those, objects whose predicate was true (drawn).
     pub predicated_objects_drawn: u32,
+    /// Queries issued under a predicate ([`OcclusionBackend::issue_query_if`]).
+    pub predicated_queries: u32,
 }
 
 struct Issued {
@@ -136,6 +150,7 @@ pub struct MockBackend<'a> {
     drawn: BTreeSet<u32>,
     early_reads: u64,
     predicates: bool,
+    predicated_queries: bool,
 }
 
 impl<'a> MockBackend<'a> {
@@ -155,6 +170,7 @@ impl<'a> MockBackend<'a> {
             drawn: BTreeSet::new(),
             early_reads: 0,
             predicates: true,
+            predicated_queries: true,
         }
     }
 
@@ -162,6 +178,13 @@ impl<'a> MockBackend<'a> {
     /// predicated mode must refuse it.
     pub fn without_predicates(mut self) -> MockBackend<'a> {
         self.predicates = false;
+        self
+    }
+
+    /// A backend with predicated draws but without queries under a predicate: the predicated
+    /// mode keeps to one predicate level.
+    pub fn without_predicated_queries(mut self) -> MockBackend<'a> {
+        self.predicated_queries = false;
         self
     }
 
@@ -233,6 +256,17 @@ impl<'a> MockBackend<'a> {
     /// culler that keeps the contract never makes one).
     pub fn early_reads(&self) -> u64 {
         self.early_reads
+    }
+
+    /// Query `query` as a predicate: issued in this frame and resolved since.
+    fn predicate(&self, query: QueryId) -> Result<&Issued> {
+        let q = self.issued(query)?;
+        if q.frame != self.frame || !q.resolved {
+            return Err(crate::Error::Input(format!(
+                "query {query} is not a resolved predicate of this frame"
+            )));
+        }
+        Ok(q)
     }
 
     fn complete_all(&mut self) {
@@ -375,16 +409,42 @@ impl OcclusionBackend for MockBackend<'_> {
         Ok(())
     }
 
+    fn supports_predicated_queries(&self) -> bool {
+        self.predicates && self.predicated_queries
+    }
+
+    fn issue_query_if(
+        &mut self,
+        predicate: QueryId,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> Result<QueryId> {
+        if !self.supports_predicated_queries() {
+            return Err(crate::predicates_unsupported());
+        }
+        let taken = self.predicate(predicate)?.pixels > 0;
+        let id = self.issue_query_for(boxes, purpose)?;
+        self.events.pop();
+        let q = &mut self.queries[id as usize];
+        if !taken {
+            q.pixels = 0;
+        }
+        let visible = q.pixels > 0;
+        self.counts.predicated_queries += 1;
+        self.events.push(MockEvent::QueryIf {
+            id,
+            predicate,
+            boxes: boxes.len(),
+            visible,
+        });
+        Ok(id)
+    }
+
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
         if !self.predicates {
             return Err(crate::predicates_unsupported());
         }
-        let q = self.issued(query)?;
-        if q.frame != self.frame || !q.resolved {
-            return Err(crate::Error::Input(format!(
-                "query {query} is not a resolved predicate of this frame"
-            )));
-        }
+        let q = self.predicate(query)?;
         if objects.is_empty() {
             return Ok(());
         }

@@ -172,6 +172,8 @@ struct Config {
     culler: Box<dyn Culler>,
     completion: Completion,
     frames_in_flight: u32,
+    /// The backend issues queries under predicates (the predicated mode splits nodes).
+    predicated_queries: bool,
 }
 
 fn latency(name: &'static str, params: ChcppParams, latency: Latency, k: u32) -> Config {
@@ -184,6 +186,15 @@ fn latency(name: &'static str, params: ChcppParams, latency: Latency, k: u32) ->
         ),
         completion: Completion::AfterSubmit,
         frames_in_flight: k,
+        predicated_queries: false,
+    }
+}
+
+/// A predicated configuration on a backend that queries under predicates.
+fn split(name: &'static str, params: ChcppParams, k: u32) -> Config {
+    Config {
+        predicated_queries: true,
+        ..latency(name, params, Latency::Predicated, k)
     }
 }
 
@@ -193,6 +204,7 @@ fn plain(name: &'static str, culler: Box<dyn Culler>, completion: Completion) ->
         culler,
         completion,
         frames_in_flight: 1,
+        predicated_queries: false,
     }
 }
 
@@ -267,6 +279,9 @@ fn configs(city: &City) -> Vec<Config> {
             1,
         ),
         latency("chc@predicated", ChcppParams::chc(), Latency::Predicated, 1),
+        split("chcpp@predicated-split", chcpp(), 1),
+        split("chcpp@predicated-split-k2", chcpp(), 2),
+        split("chc@predicated-split", ChcppParams::chc(), 1),
     ]
 }
 
@@ -335,6 +350,18 @@ fn digest_event(h: &mut Fnv, e: &MockEvent) {
             h.objects(objects);
             h.u32(u32::from(*taken));
         }
+        MockEvent::QueryIf {
+            id,
+            predicate,
+            boxes,
+            visible,
+        } => {
+            h.u32(9);
+            h.u32(*id);
+            h.u32(*predicate);
+            h.u64(*boxes as u64);
+            h.u32(u32::from(*visible));
+        }
     }
 }
 
@@ -393,6 +420,9 @@ fn walk(city: &City, mut config: Config) -> Trace {
     let mut backend = MockBackend::new(|b: &Aabb| sight.borrow().pixels(b))
         .with_completion(config.completion)
         .with_frames_in_flight(config.frames_in_flight);
+    if !config.predicated_queries {
+        backend = backend.without_predicated_queries();
+    }
     let mover = city.objects.len() as u32 - 1;
     let mut added = None;
     let mut trace = Trace {

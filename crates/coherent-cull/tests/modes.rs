@@ -557,11 +557,15 @@ fn predicated_draws_a_newly_visible_object_at_once_with_one_submission() {
 #[test]
 fn predicated_misses_nothing_along_a_walk_and_converges_to_the_visible_set() {
     let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
-    for name in ["chc", "chcpp"] {
-        for k in [1, 2] {
-            let mut c = predicated(name, k);
+    for (name, k, split) in modes_with_split() {
+        {
+            let name = format!("{name}{}", if split { " split" } else { "" });
+            let mut c = predicated(name.split(' ').next().unwrap(), k);
             let mut backend = MockBackend::new(|_| 0).with_frames_in_flight(k);
-            let (mut drawn, mut in_view, mut sent) = (0, 0, 0);
+            if !split {
+                backend = backend.without_predicated_queries();
+            }
+            let (mut drawn, mut in_view, mut sent, mut parts) = (0, 0, 0, 0);
             let (mut extra, mut steady) = (0, 0);
             for f in 1..=50 {
                 // A walk, then the camera stands still for twenty frames.
@@ -573,13 +577,15 @@ fn predicated_misses_nothing_along_a_walk_and_converges_to_the_visible_set() {
                 let lost = missing(&want, &fr.drawn);
                 assert!(lost.is_empty(), "{name} k={k} frame {f}: {lost:?} missed");
                 assert_eq!((fr.counts.submits, fr.counts.waits), (1, 0), "frame {f}");
-                assert!(fr.counts.resolves <= 1);
+                assert!(fr.counts.resolves <= 2);
                 assert_eq!(fr.stats.blocking_waits, 0);
                 assert_eq!(fr.stats.predicated_objects, fr.counts.predicated_objects);
                 assert_eq!(fr.stats.objects_drawn, fr.counts.objects_drawn);
                 drawn += fr.drawn.len();
                 in_view += in_frustum(&bvh, &cam).len();
                 sent += fr.stats.predicated_objects as usize;
+                parts += fr.counts.predicated_queries;
+                assert_eq!(fr.stats.predicated_queries, fr.counts.predicated_queries);
                 if f > 40 {
                     // Standing still, the extra draws die out: nodes whose boxes show while
                     // their contents are hidden are held open and queried child by child.
@@ -595,8 +601,27 @@ fn predicated_misses_nothing_along_a_walk_and_converges_to_the_visible_set() {
             assert_eq!(backend.early_reads(), 0);
             assert!(drawn * 2 < in_view, "{name} k={k}: it culls");
             assert!(sent > 0, "{name} k={k}: draws under predicates");
+            assert_eq!(
+                parts > 0,
+                split,
+                "{name} k={k}: parts queried under predicates"
+            );
         }
     }
+}
+
+/// chc and chcpp, one and two frames in flight, on a backend with and without queries under
+/// predicates (nodes split into parts, or one predicate level).
+fn modes_with_split() -> Vec<(&'static str, u32, bool)> {
+    let mut out = Vec::new();
+    for name in ["chc", "chcpp"] {
+        for k in [1, 2] {
+            for split in [false, true] {
+                out.push((name, k, split));
+            }
+        }
+    }
+    out
 }
 
 #[test]

@@ -508,6 +508,9 @@ enum QueryKind {
     /// Predicated mode: whether a node held open still shows (it stays open) or not (it
     /// closes); nothing is drawn under it.
     Probe,
+    /// Predicated mode: a part of a queried node, queried under the node's predicate; its
+    /// objects are drawn under its own.
+    Part,
 }
 
 /// An issued query: its nodes are `query_nodes[first..first + count]`.
@@ -517,6 +520,9 @@ struct Pending {
     first: u32,
     count: u32,
     kind: QueryKind,
+    /// Predicated mode: the query's nodes were split into parts queried under its predicate
+    /// (their results, not this one's, say which parts are visible).
+    split: bool,
 }
 
 #[cfg(test)]

@@ -43,6 +43,15 @@ pub struct ChcppParams {
     /// invisible (default 8). A node above it is opened and its children are queried, each
     /// under its own predicate: more queries, fewer extra draws when a node turns visible.
     pub predicated_budget: f32,
+    /// Predicated mode, on a backend that issues queries under predicates: how many levels
+    /// below a queried node its parts are queried in the same frame, each under the node's
+    /// predicate, so that only the parts that show are drawn (default 2; 0: one predicate
+    /// level, the node's objects all drawn under its own predicate).
+    pub predicated_refine_levels: u32,
+    /// Predicated mode: a queried node is split into parts (see `predicated_refine_levels`)
+    /// only while it holds more than this many objects in the frustum (default 4); a
+    /// multiquery's nodes are always queried one by one under its predicate.
+    pub predicated_refine_objects: u32,
 }
 
 impl Default for ChcppParams {
@@ -62,6 +71,8 @@ impl Default for ChcppParams {
             predicated_levels: 2,
             predicated_hold: 10,
             predicated_budget: 8.0,
+            predicated_refine_levels: 2,
+            predicated_refine_objects: 4,
         }
     }
 }

@@ -16,7 +16,18 @@
 //!    one pass break, a copy and a barrier), and the objects under each i-queue query's nodes
 //!    that lie in the frustum are drawn under that query's predicate
 //!    ([`OcclusionBackend::draw_objects_if`]).
-//! 4. The results are read `k` frames later only to update the hierarchy: a queried node that
+//! 4. On a backend that can issue queries under a predicate
+//!    ([`OcclusionBackend::supports_predicated_queries`]), a queried node with more than
+//!    `predicated_refine_objects` objects in the frustum, and every node of a multiquery, is
+//!    split instead: its parts (descendants down to `predicated_refine_levels` levels, fewer
+//!    where a part is a leaf or small) are queried under the node's predicate
+//!    ([`OcclusionBackend::issue_query_if`]: when the node's query counted nothing, the parts'
+//!    boxes are not drawn and their queries count nothing), against the depth of everything
+//!    drawn so far. A second resolve follows, and each part's objects are drawn under the
+//!    part's own predicate: a node that turns visible draws the parts that show, not its
+//!    whole subtree. Blocks do not nest, and none has to: a part's query lies in its node's
+//!    block, its draws in its own.
+//! 5. The results are read `k` frames later only to update the hierarchy: a queried node that
 //!    came back visible is opened `predicated_levels` levels deep (the nodes below are queried,
 //!    and drawn under their own predicates, from then on), a failed multiquery's nodes lose their
 //!    invisibility history (queried one by one next time), a visible leaf that came back hidden
@@ -35,14 +46,18 @@
 //! predicate covers all its nodes: they are drawn when any of them is visible. Nodes that enter
 //! the frustum or the hierarchy have no visible history and are case (c). The boxes must be
 //! rasterized conservatively (a depth bias towards the eye and a compare that passes on equal
-//! depth): that is the backend's part. The CPU's results only steer which nodes land in which
+//! depth): that is the backend's part. A split node's objects lie under its parts (the parts
+//! cover the subtree's objects in the frustum); a part's query draws its boxes when the node's
+//! predicate is true, against depth that is still only real geometry of this frame, so the
+//! same argument holds for the part; when the node's predicate is false, the node's boxes,
+//! which cover every object of its parts, were hidden already. The CPU's results only steer which nodes land in which
 //! case, so however old they are, the image is exact; they decide the cost.
 //!
 //! # What it costs
 //!
-//! One pass break per frame, and extra draws: an object under a true predicate is drawn even
-//! when only another part of its node is visible, until the results come back and the node is
-//! opened (`k` frames). [`CullStats::predicated_objects`] counts the objects sent under
+//! One pass break per frame (two when nodes are split), and extra draws: an object under a
+//! true predicate is drawn even when only another object of its node or part is visible, until
+//! the results come back and the node is opened (`k` frames). [`CullStats::predicated_objects`] counts the objects sent under
 //! predicates; the built-in renderer reads the predicates back after the frame to count those
 //! the device really drew.
 
@@ -136,6 +151,10 @@ pub(super) struct Scratch {
     stack: Vec<(u32, u32)>,
     /// Nodes held open whose hold runs out: probed in this frame's query batch.
     pub(super) probes: Vec<u32>,
+    /// Split nodes of this frame, with the query whose predicate decides their parts.
+    split: Vec<(crate::QueryId, u32)>,
+    /// The parts of one split node.
+    parts: Vec<u32>,
     /// Objects below each node.
     objects_below: Vec<u32>,
 }
@@ -185,7 +204,9 @@ impl Scratch {
 impl Chcpp {
     /// The traversal is done: draws the render queue, queries the i-queue (with the v-queue)
     /// in one batch, resolves the predicates and draws each queried node's objects under its
-    /// query's predicate.
+    /// query's predicate. On a backend that queries under predicates, large nodes and the
+    /// nodes of multiqueries are split instead: their parts are queried under the node's
+    /// predicate, a second resolve follows, and each part's objects are drawn under its own.
     fn issue_predicated(
         &mut self,
         bvh: &ObjectBvh,
@@ -201,33 +222,158 @@ impl Chcpp {
         self.issue_i_queue(bvh, backend, stats)?;
         backend.resolve_predicates()?;
         stats.predicate_resolves += 1;
+        let split =
+            backend.supports_predicated_queries() && self.params.predicated_refine_levels > 0;
         let mut scratch = std::mem::take(&mut self.predicated);
-        let mut result = Ok(());
-        for i in first..self.query_queue.len() {
+        let result =
+            self.draw_under_predicates(bvh, view, first, split, &mut scratch, backend, stats);
+        self.predicated = scratch;
+        result
+    }
+
+    /// Draws the objects of the i-queue queries from `first` on under their predicates; with
+    /// `split`, queries the parts of the nodes that [`Chcpp::split_node`] picks under their
+    /// query's predicate and, after a second resolve, draws each part's objects under its own.
+    #[allow(clippy::too_many_arguments)]
+    fn draw_under_predicates(
+        &mut self,
+        bvh: &ObjectBvh,
+        view: &View,
+        first: usize,
+        split: bool,
+        scratch: &mut Scratch,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        let last = self.query_queue.len();
+        scratch.split.clear();
+        for i in first..last {
             let q: Pending = self.query_queue[i];
             if q.kind != QueryKind::Invisible {
                 continue;
             }
             scratch.objects.clear();
             for &n in &self.query_nodes[q.first as usize..(q.first + q.count) as usize] {
-                scratch.collect(bvh, n, view);
+                if split && (q.count > 1 || self.split_node(bvh, n, view, scratch)) {
+                    scratch.split.push((q.id, n));
+                    self.query_queue[i].split = true;
+                } else {
+                    scratch.collect(bvh, n, view);
+                }
             }
-            if scratch.objects.is_empty() {
-                continue;
-            }
-            stats.predicated_draws += 1;
-            stats.predicated_objects += scratch.objects.len() as u32;
-            result = backend.draw_objects_if(q.id, &scratch.objects);
-            if result.is_err() {
-                break;
+            self.draw_if(q.id, scratch, backend, stats)?;
+        }
+        if scratch.split.is_empty() {
+            return Ok(());
+        }
+        // The parts, queried against the depth drawn so far (the unconditional draws and the
+        // objects drawn under the first predicates).
+        let parts = self.query_queue.len();
+        for s in 0..scratch.split.len() {
+            let (predicate, node) = scratch.split[s];
+            scratch.parts.clear();
+            self.parts_of(bvh, node, view, scratch);
+            for p in 0..scratch.parts.len() {
+                let part = scratch.parts[p];
+                self.issue_part(bvh, predicate, part, backend, stats)?;
             }
         }
-        self.predicated = scratch;
-        result
+        backend.resolve_predicates()?;
+        stats.predicate_resolves += 1;
+        for i in parts..self.query_queue.len() {
+            let q: Pending = self.query_queue[i];
+            scratch.objects.clear();
+            scratch.collect(bvh, self.query_nodes[q.first as usize], view);
+            self.draw_if(q.id, scratch, backend, stats)?;
+        }
+        Ok(())
+    }
+
+    /// Draws `scratch.objects` under `query`'s predicate (nothing when there are none).
+    fn draw_if(
+        &self,
+        query: crate::QueryId,
+        scratch: &Scratch,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        if scratch.objects.is_empty() {
+            return Ok(());
+        }
+        stats.predicated_draws += 1;
+        stats.predicated_objects += scratch.objects.len() as u32;
+        backend.draw_objects_if(query, &scratch.objects)
+    }
+
+    /// Whether a queried node is split into parts: an interior node with more than
+    /// `predicated_refine_objects` objects in the frustum.
+    fn split_node(&self, bvh: &ObjectBvh, node: u32, view: &View, scratch: &mut Scratch) -> bool {
+        if bvh.nodes[node as usize].is_leaf()
+            || scratch.objects_below(node) <= self.params.predicated_refine_objects
+        {
+            return false;
+        }
+        let before = scratch.objects.len();
+        scratch.collect(bvh, node, view);
+        let in_frustum = scratch.objects.len() - before;
+        scratch.objects.truncate(before);
+        in_frustum > self.params.predicated_refine_objects as usize
+    }
+
+    /// The parts of a split node in the frustum, into `scratch.parts`: its descendants down to
+    /// `predicated_refine_levels` levels, stopping early at leaves and at nodes with at most
+    /// `predicated_refine_objects` objects (a node of a multiquery that is small is its own
+    /// part).
+    fn parts_of(&self, bvh: &ObjectBvh, node: u32, view: &View, scratch: &mut Scratch) {
+        scratch.stack.clear();
+        scratch.stack.push((node, 0));
+        while let Some((n, depth)) = scratch.stack.pop() {
+            let b = &bvh.nodes[n as usize];
+            if !b.bounds.is_valid() || !view.frustum.intersects(&b.bounds) {
+                continue;
+            }
+            let small = scratch.objects_below(n) <= self.params.predicated_refine_objects;
+            if b.is_leaf() || small || depth == self.params.predicated_refine_levels {
+                scratch.parts.push(n);
+            } else {
+                scratch
+                    .stack
+                    .extend(b.children.iter().map(|&c| (c, depth + 1)));
+            }
+        }
+    }
+
+    /// Queries `part` under `predicate`'s predicate.
+    fn issue_part(
+        &mut self,
+        bvh: &ObjectBvh,
+        predicate: crate::QueryId,
+        part: u32,
+        backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
+    ) -> Result<()> {
+        let mut boxes = std::mem::take(&mut self.boxes);
+        boxes.clear();
+        self.query_boxes(bvh, part, &mut boxes);
+        let id = backend.issue_query_if(predicate, &boxes, crate::QueryPurpose::Node);
+        self.boxes = boxes;
+        let id = id?;
+        stats.queries += 1;
+        stats.predicated_queries += 1;
+        let first = self.query_nodes.len() as u32;
+        self.query_nodes.push(part);
+        self.query_queue.push_back(Pending {
+            id,
+            first,
+            count: 1,
+            kind: QueryKind::Part,
+            split: false,
+        });
+        Ok(())
     }
 
     /// A result of the predicated mode, read `k` frames after its frame: it only steers the
-    /// traversal of the frames to come (see the module docs, step 4).
+    /// traversal of the frames to come (see the module docs, step 5).
     fn handle_predicated_result(
         &mut self,
         bvh: &ObjectBvh,
@@ -236,6 +382,23 @@ impl Chcpp {
         stats: &mut CullStats,
     ) {
         let nodes = q.first as usize..(q.first + q.count) as usize;
+        if q.kind == QueryKind::Part {
+            // A part of a split node: visible parts open as a queried node would (their
+            // ancestors, the split node among them, turn visible by the pull-up); hidden ones
+            // are queried as previously invisible nodes.
+            let node = self.query_nodes[q.first as usize];
+            if !visible {
+                self.state[node as usize].visible = false;
+            } else {
+                self.pull_up_visibility(bvh, node);
+                if bvh.nodes[node as usize].is_leaf() {
+                    self.start_interval(node);
+                } else {
+                    self.open_levels(bvh, node, self.params.predicated_levels);
+                }
+            }
+            return;
+        }
         if !visible && q.kind == QueryKind::Probe {
             // Its box is hidden now: it closes and is queried as a whole again.
             self.state[self.query_nodes[q.first as usize] as usize].open_until = 0;
@@ -262,6 +425,21 @@ impl Chcpp {
                 self.state[node as usize].open_until =
                     self.frame + 1 + u64::from(self.params.predicated_hold);
             }
+            QueryKind::Invisible if q.split => {
+                // Its parts' results say what shows; its interior nodes are held open, so the
+                // traversal reaches the parts rather than querying (and splitting) a box that
+                // shows while its contents may be hidden.
+                if q.count > 1 {
+                    stats.failed_multiqueries += 1;
+                }
+                let hold = self.frame + 1 + u64::from(self.params.predicated_hold);
+                for i in nodes {
+                    let node = self.query_nodes[i];
+                    if !bvh.nodes[node as usize].is_leaf() {
+                        self.state[node as usize].open_until = hold;
+                    }
+                }
+            }
             QueryKind::Invisible if q.count > 1 => {
                 // A failed multiquery: its nodes are queried one by one next time (no
                 // invisibility history, p = 0.29), each under its own predicate.
@@ -271,7 +449,7 @@ impl Chcpp {
                     self.state[node as usize].last_visible = self.frame;
                 }
             }
-            QueryKind::Invisible => {
+            QueryKind::Invisible | QueryKind::Part => {
                 let node = self.query_nodes[q.first as usize];
                 self.pull_up_visibility(bvh, node);
                 if bvh.nodes[node as usize].is_leaf() {

@@ -151,7 +151,7 @@ impl Chcpp {
         let purpose = match kind {
             QueryKind::Visible => QueryPurpose::VisibleLeaf,
             QueryKind::Invisible if nodes.len() > 1 => QueryPurpose::Multiquery,
-            QueryKind::Invisible | QueryKind::Probe => QueryPurpose::Node,
+            QueryKind::Invisible | QueryKind::Probe | QueryKind::Part => QueryPurpose::Node,
         };
         let id = backend.issue_query_for(&boxes, purpose);
         self.boxes = boxes;
@@ -160,7 +160,7 @@ impl Chcpp {
         match kind {
             QueryKind::Invisible => stats.invisible_node_queries += 1,
             QueryKind::Visible => stats.visible_leaf_queries += 1,
-            QueryKind::Probe => {}
+            QueryKind::Probe | QueryKind::Part => {}
         }
         if nodes.len() > 1 {
             stats.multiqueries += 1;
@@ -172,6 +172,7 @@ impl Chcpp {
             first,
             count: nodes.len() as u32,
             kind,
+            split: false,
         });
         self.unsubmitted += 1;
         if !self.params.batching {
