@@ -76,12 +76,14 @@
 //! `Latency::Predicated` (exact, one submission per frame, no wait) draws the nodes that were
 //! invisible under their queries' predicates on the device. It needs `VK_EXT_conditional_rendering`
 //! with `conditionalRendering` enabled on the host's device, [`QueryBackendDesc::predicates`]
-//! set, and the frame made with [`FrameBackend::with_resume`]: once per frame the backend ends
-//! the host's rendering, copies the results issued so far (32-bit, `WAIT`) into a predicate
-//! buffer with a barrier to `CONDITIONAL_RENDERING_READ`, and calls the host's resume, which
-//! begins the depth pass again with LOAD ops (so the first pass must STORE depth). The draws
-//! that follow come back through the same draw callback, inside
-//! `vkCmdBeginConditionalRenderingEXT` / `vkCmdEndConditionalRenderingEXT`. Without the
+//! set, and the frame made with [`FrameBackend::with_resume`]: once or twice per frame the
+//! backend ends the host's rendering, copies the results issued so far (32-bit, `WAIT`) into
+//! a predicate buffer with a barrier to `CONDITIONAL_RENDERING_READ`, and calls the host's
+//! resume, which begins the depth pass again with LOAD ops (so the first pass must STORE
+//! depth). The draws that follow come back through the same draw callback, inside
+//! `vkCmdBeginConditionalRenderingEXT` / `vkCmdEndConditionalRenderingEXT`. The second resolve
+//! follows the queries of the parts of split nodes, whose boxes the backend draws inside a
+//! conditional block on their node's predicate (`OcclusionBackend::issue_query_if`). Without the
 //! extension [`QueryBackend::new`] refuses `predicates` with an error that names it; a frame
 //! without a resume makes the culler refuse the mode.
 //!
@@ -190,6 +192,9 @@ pub struct QueryCounts {
     /// Objects handed to the host's draw callback inside conditional blocks (also in
     /// `objects_drawn`; the device draws those whose predicate is true).
     pub predicated_objects: u32,
+    /// Queries whose boxes were drawn inside a conditional block on another query's
+    /// predicate (the predicated mode's parts of a split node; also in `queries`).
+    pub predicated_queries: u32,
 }
 
 /// The host's draw callback: record draws of `objects` into the command buffer; `rebind` is
@@ -488,27 +493,15 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
     }
 }
 
-impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
-    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
-        if objects.is_empty() {
-            return Ok(());
-        }
-        if self.in_query_state {
-            self.in_query_state = false;
-            self.backend.counts.state_changes += 1;
-        }
-        let rebind = std::mem::take(&mut self.box_bound_since_draw);
-        self.draw.draw(self.cmd, objects, rebind)?;
-        self.backend.counts.object_draw_calls += 1;
-        self.backend.counts.objects_drawn += objects.len() as u32;
-        Ok(())
-    }
-
-    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
-        self.issue_query_for(boxes, QueryPurpose::Node)
-    }
-
-    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+impl<D: DrawObjects> FrameBackend<'_, D> {
+    /// Records an occlusion query of `boxes`; with `predicate` (the index of a resolved
+    /// query of this slot), its box draw lies inside a conditional block on that predicate.
+    fn record_query(
+        &mut self,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+        predicate: Option<u32>,
+    ) -> Result<QueryId> {
         let slot = self.slot()?;
         let (max_q, max_b) = (self.backend.desc.max_queries, self.backend.desc.max_boxes);
         let s = &self.backend.slots[slot as usize];
@@ -530,10 +523,18 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         let first_box = s.boxes_used;
         s.write_corners(first_box, boxes);
         // SAFETY: recording inside rendering with the box pipeline bound; the query was reset
-        // in this frame's begin_frame and is used once.
+        // in this frame's begin_frame and is used once. With a predicate: the predicate
+        // buffer has CONDITIONAL_RENDERING_EXT usage, the offset is a multiple of 4 inside it,
+        // its value was copied before the resolve's barrier, and no block is open.
         unsafe {
             let d = &self.backend.device;
             d.cmd_begin_query(self.cmd, s.pool, index, vk::QueryControlFlags::PRECISE);
+            if let (Some(p), Some(fp)) = (predicate, self.backend.conditional.as_ref()) {
+                let info = vk::ConditionalRenderingBeginInfoEXT::default()
+                    .buffer(s.predicates.buffer)
+                    .offset(u64::from(p) * 4);
+                (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info);
+            }
             d.cmd_draw_indexed(
                 self.cmd,
                 36 * boxes.len() as u32,
@@ -542,6 +543,9 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
                 (first_box * 8) as i32,
                 0,
             );
+            if let (Some(_), Some(fp)) = (predicate, self.backend.conditional.as_ref()) {
+                (fp.cmd_end_conditional_rendering_ext)(self.cmd);
+            }
             d.cmd_end_query(self.cmd, s.pool, index);
         }
         s.issued += 1;
@@ -550,12 +554,71 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         c.queries += 1;
         c.query_boxes += boxes.len() as u32;
         c.box_draws += 1;
+        if predicate.is_some() {
+            c.conditional_blocks += 1;
+            c.predicated_queries += 1;
+        }
         match purpose {
             QueryPurpose::Multiquery => c.multiqueries += 1,
             QueryPurpose::VisibleLeaf => c.visible_leaf_queries += 1,
             QueryPurpose::Node => {}
         }
         Ok(slot + self.backend.desc.frames_in_flight * index)
+    }
+
+    /// The index in this frame's slot of `query`, a resolved predicate of this frame.
+    fn resolved_predicate(&self, query: QueryId) -> Result<u32> {
+        let current = self.slot()?;
+        let (slot, index) = self.backend.slot_of(query);
+        let s = &self.backend.slots[slot as usize];
+        if slot != current || index >= s.resolved {
+            return Err(Error::Input(format!(
+                "query {query} is not a resolved predicate of this frame"
+            )));
+        }
+        if self.backend.conditional.is_none() {
+            return Err(coherent_cull::predicates_unsupported());
+        }
+        Ok(index)
+    }
+}
+
+impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
+    fn draw_objects(&mut self, objects: &[u32]) -> Result<()> {
+        if objects.is_empty() {
+            return Ok(());
+        }
+        if self.in_query_state {
+            self.in_query_state = false;
+            self.backend.counts.state_changes += 1;
+        }
+        let rebind = std::mem::take(&mut self.box_bound_since_draw);
+        self.draw.draw(self.cmd, objects, rebind)?;
+        self.backend.counts.object_draw_calls += 1;
+        self.backend.counts.objects_drawn += objects.len() as u32;
+        Ok(())
+    }
+
+    fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
+        self.issue_query_for(boxes, QueryPurpose::Node)
+    }
+
+    fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
+        self.record_query(boxes, purpose, None)
+    }
+
+    fn supports_predicated_queries(&self) -> bool {
+        self.supports_predicates()
+    }
+
+    fn issue_query_if(
+        &mut self,
+        predicate: QueryId,
+        boxes: &[Aabb],
+        purpose: QueryPurpose,
+    ) -> Result<QueryId> {
+        let index = self.resolved_predicate(predicate)?;
+        self.record_query(boxes, purpose, Some(index))
     }
 
     fn restore_render_state(&mut self) -> Result<()> {
@@ -643,14 +706,8 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
-        let current = self.slot()?;
-        let (slot, index) = self.backend.slot_of(query);
-        let s = &self.backend.slots[slot as usize];
-        if slot != current || index >= s.resolved {
-            return Err(Error::Input(format!(
-                "query {query} is not a resolved predicate of this frame"
-            )));
-        }
+        let index = self.resolved_predicate(query)?;
+        let s = &self.backend.slots[self.slot()? as usize];
         let Some(fp) = self.backend.conditional.as_ref() else {
             return Err(coherent_cull::predicates_unsupported());
         };
