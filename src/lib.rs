@@ -56,6 +56,7 @@ pub use coherent_cull::bvh;
 pub mod error;
 pub mod gi;
 pub mod gpu;
+pub mod image_io;
 pub mod render;
 pub mod report;
 pub mod scene;

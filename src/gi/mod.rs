@@ -1,10 +1,9 @@
-//! Incremental instant radiosity (Laine et al. 2007): a spotlight, CPU ray casting, the VPL set in
+//! Incremental instant radiosity (Laine et al. 2007): a spotlight, CPU ray casting (through
+//! [`crate::scene::raycast`]), the VPL set in
 //! the unit-disk domain, and (in the renderer) layered paraboloid shadow maps or imperfect shadow
 //! maps, and deferred shading.
 
 pub mod light;
-pub mod mask;
-pub mod raycast;
 pub mod vpl;
 
 pub mod deferred;

@@ -13,13 +13,13 @@ use super::geometry::WorldGeometry;
 use super::ism::IsmOptions;
 use super::light::Spotlight;
 use super::movers::{self, GiMovers, Move};
-use super::raycast::RayScene;
 use super::renderer::{GiFrame, GiOptions, GiRenderer, MAX_EDGE_FRACTION};
 use super::vpl::VplSet;
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::scene::camera::Camera;
 use crate::scene::movers::Movers;
+use crate::scene::raycast::RayScene;
 use crate::scene::{CameraPath, CameraPose, Scene};
 
 /// How VPLs are maintained from frame to frame.
@@ -753,7 +753,7 @@ fn plot_rmse(path: &Path, summary: &GiSummary) -> Result<()> {
 
 /// Writes a mode's last frame (`<mode>.png`) and its sampled frames (`<mode>_strip.png`).
 fn save_mode_images(dir: &Path, opts: &GiRunOptions, r: &ModeRun) -> Result<()> {
-    crate::render::save_rgba_png(
+    crate::image_io::save_rgba_png(
         &dir.join(format!("{}.png", r.mode.name())),
         opts.width,
         opts.height,

@@ -398,7 +398,7 @@ impl Renderer {
     pub fn save_png(&mut self, path: &std::path::Path) -> Result<()> {
         let (w, h) = self.size();
         let pixels = self.read_color()?;
-        save_rgba_png(path, w, h, pixels)
+        crate::image_io::save_rgba_png(path, w, h, pixels)
     }
 
     fn begin_frame(&mut self, view: &CameraView) -> Result<()> {
@@ -1192,13 +1192,4 @@ impl Drop for Renderer {
         // Nothing may be in flight when the fields (pools, sets, buffers) are destroyed.
         let _ = self.ctx.wait_idle();
     }
-}
-
-/// Writes RGBA8 pixels (rows bottom-up as rendered with a flipped viewport are already top-down
-/// in memory) to a PNG.
-pub fn save_rgba_png(path: &std::path::Path, w: u32, h: u32, pixels: Vec<u8>) -> Result<()> {
-    let img = image::RgbaImage::from_raw(w, h, pixels)
-        .ok_or_else(|| Error::Input("pixel buffer does not match the image size".into()))?;
-    img.save(path)
-        .map_err(|e| Error::Input(format!("{}: cannot write PNG: {e}", path.display())))
 }

@@ -259,7 +259,7 @@ impl IdBuffers {
 
 /// The scene's triangles in a ray-casting BVH, with the object of each triangle.
 struct ObjectRays {
-    rays: crate::gi::raycast::RayScene,
+    rays: crate::scene::raycast::RayScene,
     /// First triangle of each object (object `o` owns `first[o]..first[o + 1]`).
     first: Vec<u32>,
 }
@@ -281,7 +281,7 @@ impl ObjectRays {
         }
         first.push(triangles.len() as u32);
         ObjectRays {
-            rays: crate::gi::raycast::RayScene::new(triangles, Vec::new()),
+            rays: crate::scene::raycast::RayScene::new(triangles, Vec::new()),
             first,
         }
     }

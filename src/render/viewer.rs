@@ -688,7 +688,7 @@ impl Running {
                 PathBuf::from(format!("coherent-{}.png", self.screenshots))
             }
         };
-        super::save_rgba_png(&path, w, h, px)?;
+        crate::image_io::save_rgba_png(&path, w, h, px)?;
         if cfg.frames.is_none() {
             eprintln!("view: saved {}", path.display());
         }
