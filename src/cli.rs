@@ -8,30 +8,18 @@ use clap::Args;
 
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{self, ChcppParams};
-use coherent::gpu::{ContextOptions, GpuContext};
+use coherent::gpu::GpuContext;
 use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
+use coherent::render::pvs_build::PvsBuild;
 use coherent::render::walk::{self, WalkConfig};
 use coherent::render::Renderer;
 use coherent::scene::movers::Movers;
-use coherent::scene::Scene;
+use coherent::scene::{CameraPath, Scene};
 
-/// Flags shared by commands that load a scene.
-#[derive(Args, Clone, Debug)]
-pub struct SceneArgs {
-    /// Built-in scene (city, parking, powerplant, cornell, hall) or a .gltf/.glb path.
-    #[arg(long)]
-    pub scene: String,
-    /// Size multiplier of a built-in scene (1 = default). `walk` takes a list (e.g. 1,4,16) and
-    /// adds a scaling table.
-    #[arg(long, default_value = "1", value_delimiter = ',')]
-    pub scale: Vec<f32>,
-    /// Split glTF meshes into chunks of at most this many triangles (0: don't split).
-    #[arg(long, default_value_t = 4096)]
-    pub chunk_triangles: u32,
-    /// Objects per BVH leaf.
-    #[arg(long, default_value_t = 1)]
-    pub leaf_size: u32,
-}
+use crate::cli_common::{
+    check_validation, context, load_scene, progress_bar, single_scale, SceneArgs,
+};
+use crate::cli_setup::{self, CacheArgs, PvsArgs};
 
 /// `coherent render`.
 #[derive(Args, Debug)]
@@ -62,9 +50,9 @@ pub struct RenderArgs {
     #[arg(long)]
     pub no_validation: bool,
     #[command(flatten)]
-    pub pvs: crate::cli_setup::PvsArgs,
+    pub pvs: PvsArgs,
     #[command(flatten)]
-    pub cache: crate::cli_setup::CacheArgs,
+    pub cache: CacheArgs,
     /// Built-in moving objects (cars in city and parking, fans elsewhere), drawn where they are
     /// at the rendered frame.
     #[arg(long, default_value_t = 0)]
@@ -120,9 +108,9 @@ pub struct WalkArgs {
     #[command(flatten)]
     pub chcpp: ChcppArgs,
     #[command(flatten)]
-    pub pvs: crate::cli_setup::PvsArgs,
+    pub pvs: PvsArgs,
     #[command(flatten)]
-    pub cache: crate::cli_setup::CacheArgs,
+    pub cache: CacheArgs,
     /// Built-in moving objects (cars in city and parking, fans elsewhere); the report adds
     /// refit_ms_median, rebuilds and movers, and chcpp also runs on the scene without movers
     /// (as chcpp-static) for comparison.
@@ -243,33 +231,6 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     Ok((w, h))
 }
 
-pub(crate) fn context(validation: bool) -> Result<Arc<GpuContext>> {
-    Ok(GpuContext::new(&ContextOptions {
-        validation,
-        echo_validation: true,
-        ..Default::default()
-    })?)
-}
-
-pub(crate) fn load_scene(a: &SceneArgs, scale: f32) -> Result<Scene> {
-    Ok(Scene::load(&a.scene, scale, a.chunk_triangles)?)
-}
-
-pub(crate) fn single_scale(a: &SceneArgs) -> Result<f32> {
-    match a.scale.as_slice() {
-        [s] => Ok(*s),
-        _ => bail!("this command takes one --scale value"),
-    }
-}
-
-fn check_validation(ctx: &GpuContext) -> Result<()> {
-    let n = ctx.validation_log().count();
-    if n > 0 {
-        bail!("the validation layer reported {n} messages (printed above)");
-    }
-    Ok(())
-}
-
 /// `coherent info`.
 pub fn info() -> Result<()> {
     let ctx = context(false)?;
@@ -328,17 +289,10 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         let scale = single_scale(&a.scene)?;
         let mut setup = coherent::culling::CullerSetup::default();
         if a.algorithm == "nohc" {
-            setup.nohc = Some(crate::cli_setup::nohc_params(
-                &ctx,
-                &a.cache,
-                &scene,
-                (w, h),
-            )?);
+            setup.nohc = Some(cli_setup::nohc_params(&ctx, &a.cache, &scene, (w, h))?);
         }
         if a.algorithm == "pvs" {
-            let b = crate::cli_setup::pvs(
-                &ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache,
-            )?;
+            let b = cli_setup::pvs(&ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache)?;
             setup.pvs = Some(b.pvs);
         }
         let renderer_scene = Renderer::new(&ctx, &scene, w, h)?;
@@ -446,7 +400,7 @@ fn walk_scale(
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let mut cfg = cfg.clone();
-    let pvs = crate::cli_setup::prepare_walk(
+    let pvs = prepare_walk(
         a,
         ctx,
         &mut cfg,
@@ -487,8 +441,8 @@ fn walk_scale(
         &cfg.algorithms,
     )?;
     if let Some(b) = &pvs {
-        let outside = crate::cli_setup::frames_outside(&b.pvs, &path, a.frames, a.warmup);
-        let pre = crate::cli_setup::preprocess_summary(b, outside);
+        let outside = cli_setup::frames_outside(&b.pvs, &path, a.frames, a.warmup);
+        let pre = cli_setup::preprocess_summary(b, outside);
         if let Some((_, s)) = summary.algorithms.iter_mut().find(|(n, _)| n == "pvs") {
             s.preprocess = Some(pre);
         }
@@ -530,7 +484,7 @@ fn walk_scale_movers(
     let mut cfg = cfg.clone();
     // pvs is built on the scene without movers: it cannot know where they go, so it draws
     // them frustum-culled only (their ids lie past the PVS's objects).
-    crate::cli_setup::prepare_walk(
+    prepare_walk(
         a,
         ctx,
         &mut cfg,
@@ -612,6 +566,41 @@ fn run_movers_walk(
     })?;
     bar.finish();
     Ok(out)
+}
+
+/// Adds to `cfg` what the walk's `nohc` and `pvs` need: NOHC's parameters for `scene` at
+/// `size`, and the PVS of `static_scene` (the scene without movers, with its hierarchy) along
+/// `path`. Returns the PVS build for the report.
+#[allow(clippy::too_many_arguments)]
+fn prepare_walk(
+    a: &WalkArgs,
+    ctx: &Arc<GpuContext>,
+    cfg: &mut WalkConfig,
+    scale: f32,
+    scene: &Scene,
+    (static_scene, static_bvh): (&Scene, &ObjectBvh),
+    path: &CameraPath,
+    size: (u32, u32),
+) -> Result<Option<PvsBuild>> {
+    let uses = |name: &str| a.algorithms.iter().any(|x| x == name);
+    if uses("nohc") {
+        cfg.nohc = Some(cli_setup::nohc_params(ctx, &a.cache, scene, size)?);
+    }
+    if !uses("pvs") {
+        return Ok(None);
+    }
+    let b = cli_setup::pvs(
+        ctx,
+        &a.scene,
+        scale,
+        static_scene,
+        static_bvh,
+        path,
+        &a.pvs,
+        &a.cache,
+    )?;
+    cfg.pvs = Some(b.pvs.clone());
+    Ok(Some(b))
 }
 
 /// The algorithms of a movers walk that also run on the scene without movers (as
@@ -731,59 +720,6 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// A progress bar on a terminal, plain lines otherwise.
-pub(crate) struct Progress {
-    bar: Option<indicatif::ProgressBar>,
-    last: std::cell::Cell<u64>,
-    unit: &'static str,
-}
-
-fn progress_bar() -> Progress {
-    progress_bar_named("frames")
-}
-
-/// A progress bar counting `unit`s.
-pub(crate) fn progress_bar_named(unit: &'static str) -> Progress {
-    use std::io::IsTerminal;
-    let bar = std::io::stderr().is_terminal().then(|| {
-        let b = indicatif::ProgressBar::new(1);
-        if let Ok(style) = indicatif::ProgressStyle::with_template(&format!(
-            "{{bar:40}} {{pos}}/{{len}} {unit} {{elapsed}} (eta {{eta}})"
-        )) {
-            b.set_style(style);
-        }
-        b
-    });
-    Progress {
-        bar,
-        last: std::cell::Cell::new(0),
-        unit,
-    }
-}
-
-impl Progress {
-    pub(crate) fn tick(&self, done: u64, total: u64) {
-        match &self.bar {
-            Some(b) => {
-                b.set_length(total);
-                b.set_position(done);
-            }
-            None => {
-                let pct = done * 10 / total.max(1);
-                if pct > self.last.get() {
-                    self.last.set(pct);
-                    eprintln!("{done}/{total} {}", self.unit);
-                }
-            }
-        }
-    }
-    pub(crate) fn finish(&self) {
-        if let Some(b) = &self.bar {
-            b.finish_and_clear();
-        }
-    }
 }
 
 /// `coherent gi`.
