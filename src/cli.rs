@@ -6,12 +6,12 @@ use std::sync::Arc;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 
+use coherent::app::pvs_build::PvsBuild;
+use coherent::app::walk::{self, WalkConfig};
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{self, ChcppParams};
 use coherent::gpu::GpuContext;
 use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
-use coherent::render::pvs_build::PvsBuild;
-use coherent::render::walk::{self, WalkConfig};
 use coherent::render::Renderer;
 use coherent::scene::movers::Movers;
 use coherent::scene::{CameraPath, Scene};
@@ -391,7 +391,7 @@ fn walk_scale(
     scale: f32,
     dir: &std::path::Path,
     (w, h): (u32, u32),
-) -> Result<coherent::report::WalkSummary> {
+) -> Result<coherent::app::report::WalkSummary> {
     if a.movers > 0 {
         return walk_scale_movers(a, ctx, cfg, scale, dir, (w, h));
     }
@@ -470,7 +470,7 @@ fn walk_scale_movers(
     scale: f32,
     dir: &std::path::Path,
     (w, h): (u32, u32),
-) -> Result<coherent::report::WalkSummary> {
+) -> Result<coherent::app::report::WalkSummary> {
     let fixed = load_scene(&a.scene, scale)?;
     let mut scene = fixed.clone();
     let movers = Movers::add(&mut scene, a.movers);
@@ -527,7 +527,7 @@ fn walk_scale_movers(
         &records,
         &names,
     )?;
-    let ms = coherent::report::summary::mover_summary(
+    let ms = coherent::app::report::summary::mover_summary(
         stats.movers,
         &stats.refit_ms,
         stats.rebuilds,
@@ -552,7 +552,7 @@ fn run_movers_walk(
     path: &coherent::scene::CameraPath,
     cfg: &WalkConfig,
     (w, h): (u32, u32),
-) -> Result<(Vec<coherent::report::FrameRecord>, walk::MoverStats)> {
+) -> Result<(Vec<coherent::app::report::FrameRecord>, walk::MoverStats)> {
     let mut renderer = Renderer::new(ctx, scene, w, h)?;
     let mut fixed_renderer = Renderer::new(ctx, fixed, w, h)?;
     let mut mw = walk::MoverWalk {
@@ -621,7 +621,7 @@ fn bvh_of(scene: &Scene, leaf_size: u32) -> ObjectBvh {
 
 /// Prints each algorithm's median object draws of movers (pvs draws them frustum-culled only)
 /// and the files written to `dir`.
-fn print_mover_draws(summary: &coherent::report::WalkSummary, dir: &std::path::Path) {
+fn print_mover_draws(summary: &coherent::app::report::WalkSummary, dir: &std::path::Path) {
     let draws: Vec<String> = summary
         .algorithms
         .iter()
@@ -635,7 +635,7 @@ fn print_mover_draws(summary: &coherent::report::WalkSummary, dir: &std::path::P
 }
 
 /// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.
-fn print_movers(ms: &coherent::report::summary::MoverSummary) {
+fn print_movers(ms: &coherent::app::report::summary::MoverSummary) {
     println!(
         "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}",
         ms.movers, ms.refit_ms_median, ms.refit_ms_max, ms.rebuilds
@@ -651,11 +651,11 @@ fn print_movers(ms: &coherent::report::summary::MoverSummary) {
 /// Prints the table comparing the scales of a walk and writes it to `out/scaling.txt`.
 fn write_scaling_table(
     out: &std::path::Path,
-    summaries: &[(f32, coherent::report::WalkSummary)],
+    summaries: &[(f32, coherent::app::report::WalkSummary)],
 ) -> Result<()> {
-    let rows: Vec<(f32, &coherent::report::WalkSummary)> =
+    let rows: Vec<(f32, &coherent::app::report::WalkSummary)> =
         summaries.iter().map(|(s, m)| (*s, m)).collect();
-    let table = coherent::report::scaling_table(&rows);
+    let table = coherent::app::report::scaling_table(&rows);
     println!("{table}");
     std::fs::create_dir_all(out)?;
     std::fs::write(out.join("scaling.txt"), &table)?;
@@ -687,7 +687,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         }
         None => None,
     };
-    let config = coherent::render::viewer::ViewerConfig {
+    let config = coherent::app::viewer::ViewerConfig {
         scene,
         bvh,
         path,
@@ -703,7 +703,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         visualize: a.visualize,
         resize_at,
     };
-    let outcome = coherent::render::viewer::run_with_movers(config, movers)?;
+    let outcome = coherent::app::viewer::run_with_movers(config, movers)?;
     if outcome.validation_messages > 0 {
         bail!(
             "the validation layer reported {} messages (printed above)",
@@ -776,7 +776,7 @@ pub struct GiArgs {
 
 /// `coherent gi`.
 pub fn gi(a: &GiArgs) -> Result<()> {
-    use coherent::gi::session::{self, GiMode, GiRunOptions};
+    use coherent::app::gi_run::{self, GiMode, GiRunOptions};
     let (width, height) = parse_size(&a.size)?;
     let modes = GiMode::parse_list(&a.mode)?;
     if a.vpls == 0 || a.budget == 0 || a.frames == 0 || a.shadow_size == 0 {
@@ -799,7 +799,7 @@ pub fn gi(a: &GiArgs) -> Result<()> {
         },
     };
     let setup = gi_setup(a, &scene)?;
-    let summary = session::run_with(&ctx, &scene, &opts, a.out.as_deref(), &setup)?;
+    let summary = gi_run::run_with(&ctx, &scene, &opts, a.out.as_deref(), &setup)?;
     print!("{}", summary.table());
     if let Some(dir) = &a.out {
         println!("wrote {}", dir.display());
@@ -808,7 +808,7 @@ pub fn gi(a: &GiArgs) -> Result<()> {
 }
 
 /// The camera and light path of `coherent gi` from its flags.
-fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::gi::session::GiSetup> {
+fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::app::gi_run::GiSetup> {
     use coherent::scene::paths;
     let camera = match &a.path {
         Some(p) => Some(scene.resolve_path(Some(p))?.pose_at(0.0)),
@@ -825,7 +825,7 @@ fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::gi::session::GiSetup>
             .ok()
             .cloned(),
     };
-    Ok(coherent::gi::session::GiSetup {
+    Ok(coherent::app::gi_run::GiSetup {
         camera,
         light_keys,
         movers: a.movers,

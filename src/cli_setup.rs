@@ -8,12 +8,12 @@ use std::sync::Arc;
 use anyhow::{bail, Result};
 use clap::Args;
 
+use coherent::app::calibrate::{self, Calibration, Source};
+use coherent::app::pvs_build::{self, PvsBuild, PvsSettings};
+use coherent::app::report::PreprocessSummary;
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{NohcParams, Pvs};
 use coherent::gpu::GpuContext;
-use coherent::render::calibrate::{self, Calibration, Source};
-use coherent::render::pvs_build::{self, PvsBuild, PvsSettings};
-use coherent::report::PreprocessSummary;
 use coherent::scene::{CameraPath, Scene};
 
 use crate::cli_common::{self, SceneArgs};

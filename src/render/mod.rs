@@ -2,15 +2,10 @@
 //! chain of segments (command buffers): when a culler needs query results the current segment is
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
-pub mod calibrate;
 pub mod frame;
 pub mod hiz;
-pub mod overlay;
 pub mod passes;
-pub mod pvs_build;
 pub mod upload;
-pub mod viewer;
-pub mod walk;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};

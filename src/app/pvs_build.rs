@@ -23,11 +23,11 @@ use std::time::Instant;
 
 use glam::Vec3;
 
-use super::Renderer;
 use crate::bvh::ObjectBvh;
 use crate::culling::pvs::{fnv1a, Pvs, ViewCell};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
+use crate::render::Renderer;
 use crate::scene::camera::Camera;
 use crate::scene::{CameraPath, Scene};
 
