@@ -3,9 +3,9 @@
 //! look, P path playback, 1-5 algorithms, B/I/M/T CHC++ parts, V query map, F12 screenshot.
 
 use anyhow::Result;
+use coherent::app::viewer::{self, ViewerConfig};
 use coherent::bvh::ObjectBvh;
 use coherent::culling::ChcppParams;
-use coherent::render::viewer::{self, ViewerConfig};
 use coherent::scene::Scene;
 
 fn main() -> Result<()> {

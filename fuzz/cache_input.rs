@@ -10,12 +10,12 @@
 use std::path::Path;
 use std::sync::Arc;
 
+use coherent::app::calibrate;
+use coherent::app::pvs_build::PvsFile;
 use coherent::bvh::ObjectBvh;
 use coherent::culling::nohc::NohcParams;
 use coherent::culling::pvs::{fnv1a, Pvs};
 use coherent::culling::{create_with, CullerSetup, FrameInput, OcclusionBackend, QueryId};
-use coherent::render::calibrate;
-use coherent::render::pvs_build::PvsFile;
 use coherent::scene::camera::Camera;
 use coherent::scene::{paths, Aabb, CameraPose};
 

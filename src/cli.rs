@@ -6,32 +6,20 @@ use std::sync::Arc;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 
+use coherent::app::pvs_build::PvsBuild;
+use coherent::app::walk::{self, WalkConfig};
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{self, ChcppParams};
-use coherent::gpu::{ContextOptions, GpuContext};
+use coherent::gpu::GpuContext;
 use coherent::render::hiz::{check_algorithm, FrameAlgorithm};
-use coherent::render::walk::{self, WalkConfig};
 use coherent::render::Renderer;
 use coherent::scene::movers::Movers;
-use coherent::scene::Scene;
+use coherent::scene::{CameraPath, Scene};
 
-/// Flags shared by commands that load a scene.
-#[derive(Args, Clone, Debug)]
-pub struct SceneArgs {
-    /// Built-in scene (city, parking, powerplant, cornell, hall) or a .gltf/.glb path.
-    #[arg(long)]
-    pub scene: String,
-    /// Size multiplier of a built-in scene (1 = default). `walk` takes a list (e.g. 1,4,16) and
-    /// adds a scaling table.
-    #[arg(long, default_value = "1", value_delimiter = ',')]
-    pub scale: Vec<f32>,
-    /// Split glTF meshes into chunks of at most this many triangles (0: don't split).
-    #[arg(long, default_value_t = 4096)]
-    pub chunk_triangles: u32,
-    /// Objects per BVH leaf.
-    #[arg(long, default_value_t = 1)]
-    pub leaf_size: u32,
-}
+use crate::cli_common::{
+    check_validation, context, load_scene, progress_bar, single_scale, SceneArgs,
+};
+use crate::cli_setup::{self, CacheArgs, PvsArgs};
 
 /// `coherent render`.
 #[derive(Args, Debug)]
@@ -62,9 +50,9 @@ pub struct RenderArgs {
     #[arg(long)]
     pub no_validation: bool,
     #[command(flatten)]
-    pub pvs: crate::cli_setup::PvsArgs,
+    pub pvs: PvsArgs,
     #[command(flatten)]
-    pub cache: crate::cli_setup::CacheArgs,
+    pub cache: CacheArgs,
     /// Built-in moving objects (cars in city and parking, fans elsewhere), drawn where they are
     /// at the rendered frame.
     #[arg(long, default_value_t = 0)]
@@ -120,9 +108,9 @@ pub struct WalkArgs {
     #[command(flatten)]
     pub chcpp: ChcppArgs,
     #[command(flatten)]
-    pub pvs: crate::cli_setup::PvsArgs,
+    pub pvs: PvsArgs,
     #[command(flatten)]
-    pub cache: crate::cli_setup::CacheArgs,
+    pub cache: CacheArgs,
     /// Built-in moving objects (cars in city and parking, fans elsewhere); the report adds
     /// refit_ms_median, rebuilds and movers, and chcpp also runs on the scene without movers
     /// (as chcpp-static) for comparison.
@@ -243,33 +231,6 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     Ok((w, h))
 }
 
-pub(crate) fn context(validation: bool) -> Result<Arc<GpuContext>> {
-    Ok(GpuContext::new(&ContextOptions {
-        validation,
-        echo_validation: true,
-        ..Default::default()
-    })?)
-}
-
-pub(crate) fn load_scene(a: &SceneArgs, scale: f32) -> Result<Scene> {
-    Ok(Scene::load(&a.scene, scale, a.chunk_triangles)?)
-}
-
-pub(crate) fn single_scale(a: &SceneArgs) -> Result<f32> {
-    match a.scale.as_slice() {
-        [s] => Ok(*s),
-        _ => bail!("this command takes one --scale value"),
-    }
-}
-
-fn check_validation(ctx: &GpuContext) -> Result<()> {
-    let n = ctx.validation_log().count();
-    if n > 0 {
-        bail!("the validation layer reported {n} messages (printed above)");
-    }
-    Ok(())
-}
-
 /// `coherent info`.
 pub fn info() -> Result<()> {
     let ctx = context(false)?;
@@ -328,17 +289,10 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         let scale = single_scale(&a.scene)?;
         let mut setup = coherent::culling::CullerSetup::default();
         if a.algorithm == "nohc" {
-            setup.nohc = Some(crate::cli_setup::nohc_params(
-                &ctx,
-                &a.cache,
-                &scene,
-                (w, h),
-            )?);
+            setup.nohc = Some(cli_setup::nohc_params(&ctx, &a.cache, &scene, (w, h))?);
         }
         if a.algorithm == "pvs" {
-            let b = crate::cli_setup::pvs(
-                &ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache,
-            )?;
+            let b = cli_setup::pvs(&ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache)?;
             setup.pvs = Some(b.pvs);
         }
         let renderer_scene = Renderer::new(&ctx, &scene, w, h)?;
@@ -437,7 +391,7 @@ fn walk_scale(
     scale: f32,
     dir: &std::path::Path,
     (w, h): (u32, u32),
-) -> Result<coherent::report::WalkSummary> {
+) -> Result<coherent::app::report::WalkSummary> {
     if a.movers > 0 {
         return walk_scale_movers(a, ctx, cfg, scale, dir, (w, h));
     }
@@ -446,7 +400,7 @@ fn walk_scale(
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let mut cfg = cfg.clone();
-    let pvs = crate::cli_setup::prepare_walk(
+    let pvs = prepare_walk(
         a,
         ctx,
         &mut cfg,
@@ -487,8 +441,8 @@ fn walk_scale(
         &cfg.algorithms,
     )?;
     if let Some(b) = &pvs {
-        let outside = crate::cli_setup::frames_outside(&b.pvs, &path, a.frames, a.warmup);
-        let pre = crate::cli_setup::preprocess_summary(b, outside);
+        let outside = cli_setup::frames_outside(&b.pvs, &path, a.frames, a.warmup);
+        let pre = cli_setup::preprocess_summary(b, outside);
         if let Some((_, s)) = summary.algorithms.iter_mut().find(|(n, _)| n == "pvs") {
             s.preprocess = Some(pre);
         }
@@ -516,7 +470,7 @@ fn walk_scale_movers(
     scale: f32,
     dir: &std::path::Path,
     (w, h): (u32, u32),
-) -> Result<coherent::report::WalkSummary> {
+) -> Result<coherent::app::report::WalkSummary> {
     let fixed = load_scene(&a.scene, scale)?;
     let mut scene = fixed.clone();
     let movers = Movers::add(&mut scene, a.movers);
@@ -530,7 +484,7 @@ fn walk_scale_movers(
     let mut cfg = cfg.clone();
     // pvs is built on the scene without movers: it cannot know where they go, so it draws
     // them frustum-culled only (their ids lie past the PVS's objects).
-    crate::cli_setup::prepare_walk(
+    prepare_walk(
         a,
         ctx,
         &mut cfg,
@@ -573,7 +527,7 @@ fn walk_scale_movers(
         &records,
         &names,
     )?;
-    let ms = coherent::report::summary::mover_summary(
+    let ms = coherent::app::report::summary::mover_summary(
         stats.movers,
         &stats.refit_ms,
         stats.rebuilds,
@@ -598,7 +552,7 @@ fn run_movers_walk(
     path: &coherent::scene::CameraPath,
     cfg: &WalkConfig,
     (w, h): (u32, u32),
-) -> Result<(Vec<coherent::report::FrameRecord>, walk::MoverStats)> {
+) -> Result<(Vec<coherent::app::report::FrameRecord>, walk::MoverStats)> {
     let mut renderer = Renderer::new(ctx, scene, w, h)?;
     let mut fixed_renderer = Renderer::new(ctx, fixed, w, h)?;
     let mut mw = walk::MoverWalk {
@@ -612,6 +566,41 @@ fn run_movers_walk(
     })?;
     bar.finish();
     Ok(out)
+}
+
+/// Adds to `cfg` what the walk's `nohc` and `pvs` need: NOHC's parameters for `scene` at
+/// `size`, and the PVS of `static_scene` (the scene without movers, with its hierarchy) along
+/// `path`. Returns the PVS build for the report.
+#[allow(clippy::too_many_arguments)]
+fn prepare_walk(
+    a: &WalkArgs,
+    ctx: &Arc<GpuContext>,
+    cfg: &mut WalkConfig,
+    scale: f32,
+    scene: &Scene,
+    (static_scene, static_bvh): (&Scene, &ObjectBvh),
+    path: &CameraPath,
+    size: (u32, u32),
+) -> Result<Option<PvsBuild>> {
+    let uses = |name: &str| a.algorithms.iter().any(|x| x == name);
+    if uses("nohc") {
+        cfg.nohc = Some(cli_setup::nohc_params(ctx, &a.cache, scene, size)?);
+    }
+    if !uses("pvs") {
+        return Ok(None);
+    }
+    let b = cli_setup::pvs(
+        ctx,
+        &a.scene,
+        scale,
+        static_scene,
+        static_bvh,
+        path,
+        &a.pvs,
+        &a.cache,
+    )?;
+    cfg.pvs = Some(b.pvs.clone());
+    Ok(Some(b))
 }
 
 /// The algorithms of a movers walk that also run on the scene without movers (as
@@ -632,7 +621,7 @@ fn bvh_of(scene: &Scene, leaf_size: u32) -> ObjectBvh {
 
 /// Prints each algorithm's median object draws of movers (pvs draws them frustum-culled only)
 /// and the files written to `dir`.
-fn print_mover_draws(summary: &coherent::report::WalkSummary, dir: &std::path::Path) {
+fn print_mover_draws(summary: &coherent::app::report::WalkSummary, dir: &std::path::Path) {
     let draws: Vec<String> = summary
         .algorithms
         .iter()
@@ -646,7 +635,7 @@ fn print_mover_draws(summary: &coherent::report::WalkSummary, dir: &std::path::P
 }
 
 /// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.
-fn print_movers(ms: &coherent::report::summary::MoverSummary) {
+fn print_movers(ms: &coherent::app::report::summary::MoverSummary) {
     println!(
         "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}",
         ms.movers, ms.refit_ms_median, ms.refit_ms_max, ms.rebuilds
@@ -662,11 +651,11 @@ fn print_movers(ms: &coherent::report::summary::MoverSummary) {
 /// Prints the table comparing the scales of a walk and writes it to `out/scaling.txt`.
 fn write_scaling_table(
     out: &std::path::Path,
-    summaries: &[(f32, coherent::report::WalkSummary)],
+    summaries: &[(f32, coherent::app::report::WalkSummary)],
 ) -> Result<()> {
-    let rows: Vec<(f32, &coherent::report::WalkSummary)> =
+    let rows: Vec<(f32, &coherent::app::report::WalkSummary)> =
         summaries.iter().map(|(s, m)| (*s, m)).collect();
-    let table = coherent::report::scaling_table(&rows);
+    let table = coherent::app::report::scaling_table(&rows);
     println!("{table}");
     std::fs::create_dir_all(out)?;
     std::fs::write(out.join("scaling.txt"), &table)?;
@@ -698,7 +687,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         }
         None => None,
     };
-    let config = coherent::render::viewer::ViewerConfig {
+    let config = coherent::app::viewer::ViewerConfig {
         scene,
         bvh,
         path,
@@ -714,7 +703,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         visualize: a.visualize,
         resize_at,
     };
-    let outcome = coherent::render::viewer::run_with_movers(config, movers)?;
+    let outcome = coherent::app::viewer::run_with_movers(config, movers)?;
     if outcome.validation_messages > 0 {
         bail!(
             "the validation layer reported {} messages (printed above)",
@@ -731,59 +720,6 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// A progress bar on a terminal, plain lines otherwise.
-pub(crate) struct Progress {
-    bar: Option<indicatif::ProgressBar>,
-    last: std::cell::Cell<u64>,
-    unit: &'static str,
-}
-
-fn progress_bar() -> Progress {
-    progress_bar_named("frames")
-}
-
-/// A progress bar counting `unit`s.
-pub(crate) fn progress_bar_named(unit: &'static str) -> Progress {
-    use std::io::IsTerminal;
-    let bar = std::io::stderr().is_terminal().then(|| {
-        let b = indicatif::ProgressBar::new(1);
-        if let Ok(style) = indicatif::ProgressStyle::with_template(&format!(
-            "{{bar:40}} {{pos}}/{{len}} {unit} {{elapsed}} (eta {{eta}})"
-        )) {
-            b.set_style(style);
-        }
-        b
-    });
-    Progress {
-        bar,
-        last: std::cell::Cell::new(0),
-        unit,
-    }
-}
-
-impl Progress {
-    pub(crate) fn tick(&self, done: u64, total: u64) {
-        match &self.bar {
-            Some(b) => {
-                b.set_length(total);
-                b.set_position(done);
-            }
-            None => {
-                let pct = done * 10 / total.max(1);
-                if pct > self.last.get() {
-                    self.last.set(pct);
-                    eprintln!("{done}/{total} {}", self.unit);
-                }
-            }
-        }
-    }
-    pub(crate) fn finish(&self) {
-        if let Some(b) = &self.bar {
-            b.finish_and_clear();
-        }
-    }
 }
 
 /// `coherent gi`.
@@ -840,7 +776,7 @@ pub struct GiArgs {
 
 /// `coherent gi`.
 pub fn gi(a: &GiArgs) -> Result<()> {
-    use coherent::gi::session::{self, GiMode, GiRunOptions};
+    use coherent::app::gi_run::{self, GiMode, GiRunOptions};
     let (width, height) = parse_size(&a.size)?;
     let modes = GiMode::parse_list(&a.mode)?;
     if a.vpls == 0 || a.budget == 0 || a.frames == 0 || a.shadow_size == 0 {
@@ -863,7 +799,7 @@ pub fn gi(a: &GiArgs) -> Result<()> {
         },
     };
     let setup = gi_setup(a, &scene)?;
-    let summary = session::run_with(&ctx, &scene, &opts, a.out.as_deref(), &setup)?;
+    let summary = gi_run::run_with(&ctx, &scene, &opts, a.out.as_deref(), &setup)?;
     print!("{}", summary.table());
     if let Some(dir) = &a.out {
         println!("wrote {}", dir.display());
@@ -872,7 +808,7 @@ pub fn gi(a: &GiArgs) -> Result<()> {
 }
 
 /// The camera and light path of `coherent gi` from its flags.
-fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::gi::session::GiSetup> {
+fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::app::gi_run::GiSetup> {
     use coherent::scene::paths;
     let camera = match &a.path {
         Some(p) => Some(scene.resolve_path(Some(p))?.pose_at(0.0)),
@@ -889,7 +825,7 @@ fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::gi::session::GiSetup>
             .ok()
             .cloned(),
     };
-    Ok(coherent::gi::session::GiSetup {
+    Ok(coherent::app::gi_run::GiSetup {
         camera,
         light_keys,
         movers: a.movers,

@@ -8,15 +8,15 @@ use std::sync::Arc;
 use anyhow::{bail, Result};
 use clap::Args;
 
+use coherent::app::calibrate::{self, Calibration, Source};
+use coherent::app::pvs_build::{self, PvsBuild, PvsSettings};
+use coherent::app::report::PreprocessSummary;
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{NohcParams, Pvs};
 use coherent::gpu::GpuContext;
-use coherent::render::calibrate::{self, Calibration, Source};
-use coherent::render::pvs_build::{self, PvsBuild, PvsSettings};
-use coherent::report::PreprocessSummary;
 use coherent::scene::{CameraPath, Scene};
 
-use crate::cli::{self, SceneArgs};
+use crate::cli_common::{self, SceneArgs};
 
 /// Where calibration and PVS files live, and NOHC's parameters (its costs come from the
 /// calibration).
@@ -121,7 +121,7 @@ pub struct PvsCommandArgs {
 
 /// `coherent calibrate`: measures (or reads) the device's costs and prints them.
 pub fn calibrate_command(a: &CalibrateArgs) -> Result<()> {
-    let ctx = cli::context(false)?;
+    let ctx = cli_common::context(false)?;
     let cal = calibration(&ctx, &a.cache)?;
     print!("{}", cal.table());
     Ok(())
@@ -179,12 +179,12 @@ pub fn nohc_params(
 
 /// `coherent pvs`: builds (or loads) the PVS of a scene's path and reports it.
 pub fn pvs_command(a: &PvsCommandArgs) -> Result<()> {
-    let scale = cli::single_scale(&a.scene)?;
-    let scene = cli::load_scene(&a.scene, scale)?;
+    let scale = cli_common::single_scale(&a.scene)?;
+    let scene = cli_common::load_scene(&a.scene, scale)?;
     let path = scene.resolve_path(a.path.as_deref())?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
-    let ctx = cli::context(false)?;
+    let ctx = cli_common::context(false)?;
     let built = pvs(&ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache)?;
     let s = preprocess_summary(&built, 0);
     println!(
@@ -230,7 +230,7 @@ pub fn pvs(
         "pvs: preprocessing view cells along path {} (cached after the first run)",
         path.name
     );
-    let bar = cli::progress_bar_named("samples");
+    let bar = cli_common::progress_bar_named("samples");
     let built = pvs_build::load_or_build(
         ctx,
         &dir,
@@ -290,39 +290,4 @@ pub fn frames_outside(pvs: &Pvs, path: &CameraPath, frames: u32, warmup: u32) ->
     (warmup..total)
         .filter(|&i| pvs.cell_at(path.sample(i, total).eye).is_none())
         .count()
-}
-
-/// Adds to `cfg` what the walk's `nohc` and `pvs` need: NOHC's parameters for `scene` at
-/// `size`, and the PVS of `static_scene` (the scene without movers, with its hierarchy) along
-/// `path`. Returns the PVS build for the report.
-#[allow(clippy::too_many_arguments)]
-pub fn prepare_walk(
-    a: &crate::cli::WalkArgs,
-    ctx: &Arc<GpuContext>,
-    cfg: &mut coherent::render::walk::WalkConfig,
-    scale: f32,
-    scene: &Scene,
-    (static_scene, static_bvh): (&Scene, &ObjectBvh),
-    path: &CameraPath,
-    size: (u32, u32),
-) -> Result<Option<PvsBuild>> {
-    let uses = |name: &str| a.algorithms.iter().any(|x| x == name);
-    if uses("nohc") {
-        cfg.nohc = Some(nohc_params(ctx, &a.cache, scene, size)?);
-    }
-    if !uses("pvs") {
-        return Ok(None);
-    }
-    let b = pvs(
-        ctx,
-        &a.scene,
-        scale,
-        static_scene,
-        static_bvh,
-        path,
-        &a.pvs,
-        &a.cache,
-    )?;
-    cfg.pvs = Some(b.pvs.clone());
-    Ok(Some(b))
 }

@@ -6,10 +6,12 @@
 //! and incremental instant radiosity (Laine et al. 2007).
 //!
 //! The data flows one way: [`scene`] → [`bvh`] → [`culling`] decides → [`render`] records through
-//! [`gpu`] → [`report`]. Culling algorithms never call Vulkan: they talk to the
-//! [`culling::OcclusionBackend`] trait ("draw these objects", "draw these boxes inside a query",
-//! "submit", "is query N ready"), which [`render::Renderer`] implements and which a host engine
-//! can implement over its own device and command buffers (see `examples/embed.rs`).
+//! [`gpu`] → [`app::report`]. The library is [`gpu`], [`scene`], [`render`] and [`gi`]; [`app`] is
+//! the application on top of it (walks and their reports, the viewer, NOHC's calibration, the PVS
+//! build, GI runs), which the library never imports. Culling algorithms never call Vulkan: they
+//! talk to the [`culling::OcclusionBackend`] trait ("draw these objects", "draw these boxes inside
+//! a query", "submit", "is query N ready"), which [`render::Renderer`] implements and which a host
+//! engine can implement over its own device and command buffers (see `examples/embed.rs`).
 //!
 //! ```
 //! use coherent::bvh::ObjectBvh;
@@ -53,11 +55,12 @@
 pub use coherent_cull as culling;
 /// The object hierarchy (from `coherent-cull`).
 pub use coherent_cull::bvh;
+pub mod app;
 pub mod error;
 pub mod gi;
 pub mod gpu;
+pub mod image_io;
 pub mod render;
-pub mod report;
 pub mod scene;
 
 pub use error::{Error, Result};

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod cli;
+mod cli_common;
 mod cli_setup;
 
 #[derive(Parser)]

@@ -1,7 +1,7 @@
 // Alpha masks in the GI raster passes (gi_shadow_masked.frag, gi_gbuffer_masked.frag): the
 // material's alpha at a fragment is its corners' alpha over the cutoff (interpolated) times the
 // texture's alpha, read from level 0 with its sampler's wrap modes and magnification filter
-// (nearest or bilinear), as the CPU does (MaskImage::sample in src/gi/mask.rs), so the ray
+// (nearest or bilinear), as the CPU does (MaskImage::sample in src/scene/mask.rs), so the ray
 // caster, the ISM points and the raster passes agree on the holes.
 
 // Four words per image (first texel word, width, height, flags: wrap u bits 0-1, wrap v bits
@@ -69,6 +69,6 @@ bool mask_keeps(vec3 m, int image) {
     if (image >= 0) {
         alpha *= mask_alpha(image, m.xy);
     }
-    // KEEP in src/gi/mask.rs: interpolating three equal corner values may lose an ulp.
+    // KEEP in src/scene/mask.rs: interpolating three equal corner values may lose an ulp.
     return alpha >= 1.0 - 1e-4;
 }

@@ -5,9 +5,9 @@ use std::collections::HashMap;
 
 use glam::{Mat3, Mat4, Vec3};
 
-use super::mask::{TriangleMask, TriangleMasks};
-use super::raycast::RayScene;
+use crate::scene::mask::{TriangleMask, TriangleMasks};
 use crate::scene::material::surface_color;
+use crate::scene::raycast::RayScene;
 use crate::scene::{Aabb, SamplerDesc, Scene, TextureImage, VertexAttributes};
 
 /// One albedo for a triangle of a scene with materials: base color factor x vertex color x

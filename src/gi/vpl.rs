@@ -8,7 +8,8 @@ use std::collections::HashMap;
 use glam::{DVec2, Vec2, Vec3};
 use spade::{DelaunayTriangulation, HasPosition, Point2, Triangulation};
 
-use super::{light::Spotlight, raycast::RayScene};
+use super::light::Spotlight;
+use crate::scene::raycast::RayScene;
 
 /// Default number of VPLs (the paper's N).
 pub const DEFAULT_TARGET: usize = 256;

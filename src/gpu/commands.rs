@@ -57,13 +57,13 @@ pub struct CommandCounts {
     /// multi-draws of objects; also in `draw_calls`).
     pub indirect_draws: u32,
     /// Objects drawn by the GPU through indirect draws, read back from the draw counts after
-    /// the frame ([`Recorder::note_indirect_result`]); for reports only.
+    /// the frame and added by the caller that issued them (`hiz`); for reports only.
     pub indirect_objects: u32,
     /// Triangles of those objects, read back likewise.
     pub indirect_triangles: u64,
     /// Object draws of moving objects: render-state draws whose object lies in
-    /// [`Recorder::count_mover_draws`]'s range, plus the movers among indirect draws as read
-    /// back after the frame ([`Recorder::note_indirect_movers`]).
+    /// [`Recorder::count_mover_draws`]'s range, plus the movers among GPU-generated indirect
+    /// draws as read back after the frame (added by `hiz`).
     pub mover_draws: u32,
     /// Predicate resolves: query results copied into the predicate buffer for conditional
     /// rendering (each a pass break: end rendering, copy, barrier, resume).
@@ -998,7 +998,7 @@ impl Recorder {
     /// `vkCmdDrawIndexedIndirectCount`: up to `max_draws` indexed draw commands of 20 bytes
     /// each from `commands` at `offset`, as many as the u32 in `count` at `count_offset` says.
     /// Counts one draw call and one indirect draw (the objects it draws are only known after
-    /// the frame: [`Recorder::note_indirect_result`]). The device must have `drawIndirectCount`
+    /// the frame, when the caller reads them back). The device must have `drawIndirectCount`
     /// (checked by the caller through [`super::DeviceInfo::optional`]).
     pub fn draw_indexed_indirect_count(
         &mut self,
@@ -1073,17 +1073,6 @@ impl Recorder {
             .filter(|(o, _)| self.movers.contains(o))
             .count();
         self.counts.mover_draws += movers as u32;
-    }
-
-    /// Adds what the frame's indirect draws drew, read back after the frame completed.
-    pub fn note_indirect_result(&mut self, objects: u32, triangles: u64) {
-        self.counts.indirect_objects += objects;
-        self.counts.indirect_triangles += triangles;
-    }
-
-    /// Adds the movers among the frame's indirect draws, read back after the frame completed.
-    pub fn note_indirect_movers(&mut self, objects: u32) {
-        self.counts.mover_draws += objects;
     }
 
     /// Fills `size` bytes of `buffer` at `offset` with the u32 `value` (outside rendering).

@@ -33,36 +33,3 @@ pub struct Check {
     /// Pixels owned by missed objects.
     pub missed_pixels: u64,
 }
-
-impl FrameResult {
-    /// Converts to a report row (`repeat`: which run of a repeated walk).
-    pub fn record(&self, algorithm: &str, frame: u32, repeat: u32) -> crate::report::FrameRecord {
-        crate::report::FrameRecord {
-            algorithm: algorithm.to_string(),
-            frame,
-            repeat,
-            frame_ms: self.frame_ms,
-            gpu_ms: self.gpu_ms,
-            stall_ms: self.stall_ms,
-            queries: self.counts.queries_begun,
-            wasted_queries: self.counts.queries_visible,
-            state_changes: self.counts.state_changes,
-            pipeline_binds: self.counts.pipeline_binds,
-            draw_calls: self.counts.draw_calls,
-            object_draws: self.counts.object_draws + self.counts.indirect_objects,
-            query_draws: self.counts.query_draws,
-            triangles: self.counts.render_triangles + self.counts.indirect_triangles,
-            // Objects really drawn: a draw under a false predicate drew nothing.
-            objects: self.counts.object_draws - self.counts.predicated_calls
-                + self.counts.predicated_objects_taken
-                + self.counts.indirect_objects,
-            submits: self.counts.submits,
-            missed_objects: self.check.map(|c| c.missed_objects),
-            missed_pixels: self.check.map(|c| c.missed_pixels),
-            mover_draws: None,
-            predicated_draws: self.counts.predicated_objects,
-            predicated_taken: self.counts.predicated_objects_taken,
-            predicate_resolves: self.counts.predicate_resolves,
-        }
-    }
-}

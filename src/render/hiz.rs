@@ -38,7 +38,7 @@ use crate::bvh::ObjectBvh;
 use crate::culling::{self, ChcppParams, CullStats, Culler};
 use crate::error::{Error, Result};
 use crate::gpu::{
-    as_bytes, bytes_of, shaders, targets, Access, Binding, Buffer, ComputePipeline, DescriptorSets,
+    as_bytes, bytes_of, shaders, Access, Binding, Buffer, ComputePipeline, DescriptorSets,
     GpuContext, PipelineLayout,
 };
 use crate::scene::camera::Camera;
@@ -114,10 +114,10 @@ impl HizCuller {
     /// with [`Error::Unsupported`] when the device lacks a feature or limit it needs.
     pub fn new(renderer: &Renderer, params: HizParams) -> Result<HizCuller> {
         let ctx = renderer.context().clone();
-        let n = renderer.objects.len() as u32;
+        let n = renderer.draw_ranges().len() as u32;
         check_device(&ctx, n)?;
         let mut records: Vec<u32> = Vec::with_capacity(n as usize * 12);
-        for o in &renderer.objects {
+        for o in renderer.draw_ranges() {
             let (lo, hi) = (o.bounds.min, o.bounds.max);
             let corners = [lo.x, lo.y, lo.z, 0.0, hi.x, hi.y, hi.z, 0.0];
             records.extend(corners.map(f32::to_bits));
@@ -142,7 +142,7 @@ impl HizCuller {
             indirect | vk::BufferUsageFlags::TRANSFER_DST,
             MemoryLocation::GpuToCpu,
         )?;
-        let pyramid = DepthPyramid::new(&ctx, &renderer.target.depth)?;
+        let pyramid = DepthPyramid::new(&ctx, renderer.depth_target())?;
         let cull_layout = PipelineLayout::new(
             &ctx,
             &[
@@ -181,26 +181,21 @@ impl HizCuller {
             counters,
             readback: None,
             drawn: Vec::new(),
-            bounds_version: renderer.bounds_version,
+            bounds_version: renderer.bounds_version(),
         })
     }
 
     /// Re-uploads every object's bounds when the renderer's changed (moving objects).
     fn sync_bounds(&mut self, r: &Renderer) -> Result<()> {
-        if r.bounds_version == self.bounds_version {
+        if r.bounds_version() == self.bounds_version {
             return Ok(());
         }
-        for (i, o) in r
-            .objects
-            .iter()
-            .take(self.object_count as usize)
-            .enumerate()
-        {
+        for (i, o) in r.draw_ranges().take(self.object_count as usize).enumerate() {
             let (lo, hi) = (o.bounds.min, o.bounds.max);
             let corners = [lo.x, lo.y, lo.z, 0.0, hi.x, hi.y, hi.z, 0.0];
             self.bounds.write(i * 48, bytes_of(&corners))?;
         }
-        self.bounds_version = r.bounds_version;
+        self.bounds_version = r.bounds_version();
         Ok(())
     }
 
@@ -271,52 +266,49 @@ impl HizCuller {
         self.sync_bounds(r)?;
         r.begin_frame(&camera.into())?;
         let start = Instant::now();
-        let cmd = r.segments.begin_next()?;
-        r.recorder.set_command_buffer(cmd);
-        r.bound = None;
-        pass_timestamp(r)?;
+        r.begin_segment()?;
+        r.write_timestamp()?;
         let vp = camera.view_proj().to_cols_array();
         // Moves a new pyramid to GENERAL before phase 1's set refers to it; later frames keep
         // its contents (the previous frame's pyramid).
-        r.recorder.mip_barrier(
+        r.recorder_mut().mip_barrier(
             &mut self.pyramid.image,
             Access::ComputeReadWrite,
             Access::ComputeReadWrite,
         );
         self.record_phase(r, 1, &vp)?;
-        self.pyramid
-            .record_build(&mut r.recorder, &r.target.depth)?;
-        pass_timestamp(r)?;
+        let (rec, depth) = r.recorder_and_depth();
+        self.pyramid.record_build(rec, depth)?;
+        r.write_timestamp()?;
         self.record_phase(r, 2, &vp)?;
+        let rec = r.recorder_mut();
         if let Some(readback) = &self.readback {
-            r.recorder
-                .memory_barrier(Access::ComputeReadWrite, Access::TransferRead);
+            rec.memory_barrier(Access::ComputeReadWrite, Access::TransferRead);
             let bytes = 2 * u64::from(self.object_count.max(1)) * COMMAND_BYTES;
-            r.recorder.copy_buffer(&self.draws, readback, bytes);
-            r.recorder
-                .memory_barrier(Access::TransferWrite, Access::HostRead);
+            rec.copy_buffer(&self.draws, readback, bytes);
+            rec.memory_barrier(Access::TransferWrite, Access::HostRead);
         }
-        r.recorder
-            .memory_barrier(Access::ComputeReadWrite, Access::HostRead);
-        let value = r.timeline.submit(&mut r.recorder)?;
-        r.segment_values.push(value);
-        r.timeline.wait_all()?;
+        rec.memory_barrier(Access::ComputeReadWrite, Access::HostRead);
+        r.submit_and_wait()?;
         let frame_ms = start.elapsed().as_secs_f64() * 1e3;
         self.pyramid_valid = true;
         let (phases, triangles) = self.read_counters()?;
         self.last_phases = phases;
         self.read_drawn(phases)?;
         let objects = phases[0] + phases[1];
-        r.recorder.note_indirect_result(objects, triangles);
-        let movers = r.recorder.mover_objects();
+        let movers = r.mover_objects();
         let moving = self.drawn.iter().filter(|o| movers.contains(o)).count();
-        r.recorder.note_indirect_movers(moving as u32);
         let gpu_ms = self.read_pass_times(r)?;
+        // What the indirect draws drew is known only now, read back from the GPU.
+        let mut counts = r.recorder_mut().take_counts();
+        counts.indirect_objects += objects;
+        counts.indirect_triangles += triangles;
+        counts.mover_draws += moving as u32;
         Ok(FrameResult {
             frame_ms,
             gpu_ms,
             stall_ms: 0.0,
-            counts: r.recorder.take_counts(),
+            counts,
             cull: CullStats {
                 objects_drawn: objects,
                 ..Default::default()
@@ -329,7 +321,7 @@ impl HizCuller {
 
     /// Records one phase: the culling dispatch that writes indirect draws, then the draw.
     fn record_phase(&mut self, r: &mut Renderer, phase: u32, view_proj: &[f32; 16]) -> Result<()> {
-        let rec = &mut r.recorder;
+        let rec = r.recorder_mut();
         if phase == 1 {
             rec.fill_buffer(&self.counters, 0, 16, 0);
             rec.memory_barrier(Access::TransferWrite, Access::ComputeReadWrite);
@@ -363,11 +355,10 @@ impl HizCuller {
             1,
         )?;
         rec.memory_barrier(Access::ComputeReadWrite, Access::IndirectRead);
-        pass_timestamp(r)?;
+        r.write_timestamp()?;
         r.begin_target_rendering(phase == 1)?;
-        let rec = &mut r.recorder;
-        rec.bind_pipeline(&r.pipelines.render);
-        rec.bind_buffers(&r.vertex_buffer, 0, Some(&r.index_buffer));
+        r.bind_scene_geometry();
+        let rec = r.recorder_mut();
         let first = (phase as u64 - 1) * self.object_count as u64 * COMMAND_BYTES;
         let count_offset = (phase as u64 - 1) * 4;
         rec.draw_indexed_indirect_count(
@@ -378,16 +369,16 @@ impl HizCuller {
             self.object_count,
         );
         rec.end_rendering();
-        pass_timestamp(r)
+        r.write_timestamp()
     }
 
     /// Reads the frame's timestamps (it has completed): each pass's time, and the total.
     fn read_pass_times(&mut self, r: &Renderer) -> Result<f64> {
-        let tick = r.ctx.info.timestamp_period_ns as f64 * 1e-6;
+        let tick = r.context().info.timestamp_period_ns as f64 * 1e-6;
         // Written at the start and after each pass.
         let mut t = [0u64; 6];
         for (i, v) in t.iter_mut().enumerate() {
-            *v = r.timestamps.poll(i as u32)?.unwrap_or(0);
+            *v = r.timestamp(i as u32)?.unwrap_or(0);
         }
         for k in 0..5 {
             self.last_pass_ms[k] = t[k + 1].saturating_sub(t[k]) as f64 * tick;
@@ -427,9 +418,8 @@ impl HizCuller {
     /// Builds the pyramid from `r`'s depth buffer as it is now (one submission, waited for).
     /// For tests and inspection; frames build their own.
     pub fn build_pyramid(&mut self, r: &mut Renderer) -> Result<()> {
-        let (pyramid, depth) = (&mut self.pyramid, &r.target.depth);
-        r.oneshot
-            .run(&mut r.recorder, |rec| pyramid.record_build(rec, depth))
+        let pyramid = &mut self.pyramid;
+        r.run_one_shot(|rec, depth| pyramid.record_build(rec, depth))
     }
 
     /// Number of pyramid levels.
@@ -446,10 +436,8 @@ impl HizCuller {
     pub fn read_pyramid_level(&mut self, r: &mut Renderer, level: u32) -> Result<Vec<f32>> {
         let (w, h) = self.pyramid_level_size(level);
         let stride = self.pyramid.image.level_size(level).0;
-        let texels = self
-            .pyramid
-            .image
-            .read_level(&mut r.oneshot, &mut r.recorder, level)?;
+        let (oneshot, rec) = r.one_shot_parts();
+        let texels = self.pyramid.image.read_level(oneshot, rec, level)?;
         Ok((0..h)
             .flat_map(|y| (0..w).map(move |x| (y * stride + x) as usize))
             .map(|i| texels[i])
@@ -472,13 +460,6 @@ pub const PASSES: [&str; 5] = [
     "phase-2 cull",
     "phase-2 draw",
 ];
-
-/// Writes a timestamp after everything recorded so far (between passes).
-fn pass_timestamp(r: &mut Renderer) -> Result<()> {
-    let ts = r.timestamps.allocate()?;
-    r.recorder.write_timestamp(&r.timestamps, ts);
-    Ok(())
-}
 
 /// Checks the features and limits the culler relies on for `objects` objects.
 fn check_device(ctx: &GpuContext, objects: u32) -> Result<()> {
@@ -528,22 +509,6 @@ fn check_device(ctx: &GpuContext, objects: u32) -> Result<()> {
         Err(Error::Unsupported {
             feature: format!("hiz: {}", missing.join(", ")),
         })
-    }
-}
-
-impl Renderer {
-    /// Reads the depth target back (one f32 per pixel, row by row).
-    pub fn read_depth(&mut self) -> Result<Vec<f32>> {
-        let bytes = targets::read_image(
-            &self.ctx,
-            &mut self.oneshot,
-            &mut self.recorder,
-            &self.target.depth,
-        )?;
-        Ok(bytes
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect())
     }
 }
 

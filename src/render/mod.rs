@@ -2,15 +2,10 @@
 //! chain of segments (command buffers): when a culler needs query results the current segment is
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
-pub mod calibrate;
 pub mod frame;
 pub mod hiz;
-pub mod overlay;
 pub mod passes;
-pub mod pvs_build;
 pub mod upload;
-pub mod viewer;
-pub mod walk;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -394,14 +389,30 @@ impl Renderer {
         )
     }
 
+    /// Reads the depth target back (one f32 per pixel, row by row).
+    pub fn read_depth(&mut self) -> Result<Vec<f32>> {
+        let bytes = targets::read_image(
+            &self.ctx,
+            &mut self.oneshot,
+            &mut self.recorder,
+            &self.target.depth,
+        )?;
+        Ok(bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect())
+    }
+
     /// Saves the color target as a PNG.
     pub fn save_png(&mut self, path: &std::path::Path) -> Result<()> {
         let (w, h) = self.size();
         let pixels = self.read_color()?;
-        save_rgba_png(path, w, h, pixels)
+        crate::image_io::save_rgba_png(path, w, h, pixels)
     }
 
-    fn begin_frame(&mut self, view: &CameraView) -> Result<()> {
+    /// Starts a frame: forgets the last frame's segments, queries, timestamps and counts, and
+    /// pushes `view`'s matrix.
+    pub(crate) fn begin_frame(&mut self, view: &CameraView) -> Result<()> {
         // Every segment of the previous frame has completed: finish() waited for them.
         self.segments.reset(&self.timeline)?;
         self.segment_values.clear();
@@ -436,12 +447,9 @@ impl Renderer {
             return Ok(());
         }
         let first = self.segments.used() == 0;
-        let cmd = self.segments.begin_next()?;
-        self.recorder.set_command_buffer(cmd);
-        self.bound = None;
+        self.begin_segment()?;
         self.segment_first_query = self.occlusion.used();
-        let ts = self.timestamps.allocate()?;
-        self.recorder.write_timestamp(&self.timestamps, ts);
+        self.write_timestamp()?;
         self.begin_target_rendering(first)?;
         self.recording = true;
         Ok(())
@@ -1234,18 +1242,105 @@ impl Renderer {
     }
 }
 
+/// One object as GPU-driven culling uploads it: its world bounds and its indexed draw range.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct DrawRange {
+    pub bounds: Aabb,
+    pub first_index: u32,
+    pub index_count: u32,
+    pub vertex_offset: i32,
+}
+
+/// What a GPU-driven frame (`hiz`) records with: the scene's draw ranges, one command buffer
+/// per frame on the renderer's timeline, its recorder, timestamps and target. The frame
+/// orchestration (culling dispatches, indirect draws) stays with the caller.
+impl Renderer {
+    /// Every object's bounds and draw range, by object index.
+    pub(crate) fn draw_ranges(&self) -> impl ExactSizeIterator<Item = DrawRange> + '_ {
+        self.objects.iter().map(|o| DrawRange {
+            bounds: o.bounds,
+            first_index: o.first_index,
+            index_count: o.index_count,
+            vertex_offset: o.vertex_offset,
+        })
+    }
+
+    /// Bumped whenever an object's bounds change (uploaded bounds are stale when it differs).
+    pub(crate) fn bounds_version(&self) -> u64 {
+        self.bounds_version
+    }
+
+    /// The target's depth image.
+    pub(crate) fn depth_target(&self) -> &Image {
+        &self.target.depth
+    }
+
+    /// Begins the frame's next command buffer (after [`Renderer::begin_frame`]): bound state is
+    /// forgotten, nothing is recorded yet.
+    pub(crate) fn begin_segment(&mut self) -> Result<()> {
+        let cmd = self.segments.begin_next()?;
+        self.recorder.set_command_buffer(cmd);
+        self.bound = None;
+        Ok(())
+    }
+
+    /// The recorder of the command buffer being recorded.
+    pub(crate) fn recorder_mut(&mut self) -> &mut Recorder {
+        &mut self.recorder
+    }
+
+    /// The recorder with the target's depth image (a pass that reads the depth just drawn).
+    pub(crate) fn recorder_and_depth(&mut self) -> (&mut Recorder, &Image) {
+        (&mut self.recorder, &self.target.depth)
+    }
+
+    /// Writes the frame's next timestamp after everything recorded so far.
+    pub(crate) fn write_timestamp(&mut self) -> Result<()> {
+        let ts = self.timestamps.allocate()?;
+        self.recorder.write_timestamp(&self.timestamps, ts);
+        Ok(())
+    }
+
+    /// Timestamp `i` of the frame (in ticks), once its command buffer has completed.
+    pub(crate) fn timestamp(&self, i: u32) -> Result<Option<u64>> {
+        self.timestamps.poll(i)
+    }
+
+    /// Binds the forward pipeline and the scene's vertex and index buffers, for draws whose
+    /// commands the GPU wrote (always recorded: the bound state of other passes is not known).
+    pub(crate) fn bind_scene_geometry(&mut self) {
+        self.recorder.bind_pipeline(&self.pipelines.render);
+        self.recorder
+            .bind_buffers(&self.vertex_buffer, 0, Some(&self.index_buffer));
+    }
+
+    /// Submits the command buffer being recorded on the timeline and waits until everything
+    /// submitted has completed.
+    pub(crate) fn submit_and_wait(&mut self) -> Result<()> {
+        let value = self.timeline.submit(&mut self.recorder)?;
+        self.segment_values.push(value);
+        self.timeline.wait_all()
+    }
+
+    /// Records `f` (given the target's depth image) into a one-shot command buffer, submits
+    /// it and waits (outside frames: tests and inspection).
+    pub(crate) fn run_one_shot(
+        &mut self,
+        f: impl FnOnce(&mut Recorder, &Image) -> Result<()>,
+    ) -> Result<()> {
+        let depth = &self.target.depth;
+        self.oneshot.run(&mut self.recorder, |rec| f(rec, depth))
+    }
+
+    /// The one-shot submitter with the recorder (reads back outside frames).
+    pub(crate) fn one_shot_parts(&mut self) -> (&mut OneShot, &mut Recorder) {
+        (&mut self.oneshot, &mut self.recorder)
+    }
+}
+
 impl Drop for Renderer {
     fn drop(&mut self) {
         // Nothing may be in flight when the fields (pools, sets, buffers) are destroyed.
         let _ = self.ctx.wait_idle();
     }
-}
-
-/// Writes RGBA8 pixels (rows bottom-up as rendered with a flipped viewport are already top-down
-/// in memory) to a PNG.
-pub fn save_rgba_png(path: &std::path::Path, w: u32, h: u32, pixels: Vec<u8>) -> Result<()> {
-    let img = image::RgbaImage::from_raw(w, h, pixels)
-        .ok_or_else(|| Error::Input("pixel buffer does not match the image size".into()))?;
-    img.save(path)
-        .map_err(|e| Error::Input(format!("{}: cannot write PNG: {e}", path.display())))
 }

@@ -73,12 +73,14 @@ pub mod gltf;
 pub mod gltf_ext;
 mod gltf_material;
 pub mod interior;
+pub mod mask;
 pub mod material;
 pub mod mesh;
 pub mod movers;
 pub mod path_check;
 pub mod paths;
 pub mod procedural;
+pub mod raycast;
 
 impl Scene {
     /// Whether the scene has per-vertex material attributes (textures, vertex colors or

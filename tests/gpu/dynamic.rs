@@ -4,11 +4,12 @@
 
 use crate::common;
 
+use coherent::app::walk;
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{
     self, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose,
 };
-use coherent::render::{walk, Renderer};
+use coherent::render::Renderer;
 use coherent::scene::movers::Movers;
 use coherent::scene::{Aabb, CameraPose, Scene};
 use glam::{Mat4, Vec3};

@@ -191,9 +191,9 @@ use cache_input::Kind;
 
 /// Valid inputs of each kind (the `cache_files` fuzzer's seeds); each must be accepted.
 fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
+    use coherent::app::calibrate::Calibration;
     use coherent::culling::nohc::CostModel;
     use coherent::culling::pvs::{Pvs, ViewCell};
-    use coherent::render::calibrate::Calibration;
     use coherent::scene::paths::{keys_to_json, PathKey};
     use glam::Vec3;
     let key = |t: f32, x: f32| PathKey {

@@ -1,9 +1,9 @@
 //! GI on the GPU under the validation layer: color bleeding in the indirect-only image, and
 //! shadow-map counts of incremental vs full recompute taken from the command recorder.
 
+use coherent::app::gi_run::{default_camera, LightPath};
 use coherent::gi::geometry::WorldGeometry;
 use coherent::gi::light::Spotlight;
-use coherent::gi::session::{default_camera, LightPath};
 use coherent::gi::vpl::VplSet;
 use coherent::gi::{GiOptions, GiRenderer, OutputMode};
 use coherent::gpu::GpuContext;

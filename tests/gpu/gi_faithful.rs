@@ -5,9 +5,9 @@
 
 use crate::common;
 
+use coherent::app::gi_run::{default_camera, rmse, LightPath};
 use coherent::gi::geometry::WorldGeometry;
 use coherent::gi::light::Spotlight;
-use coherent::gi::session::{default_camera, rmse, LightPath};
 use coherent::gi::vpl::VplSet;
 use coherent::gi::{GiOptions, GiRenderer, OutputMode};
 use coherent::scene::camera::Camera;

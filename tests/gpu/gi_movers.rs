@@ -5,10 +5,10 @@
 
 use crate::common;
 
+use coherent::app::gi_run::{self, GiMode, GiRunOptions, GiSetup};
 use coherent::gi::geometry::WorldGeometry;
 use coherent::gi::light::Spotlight;
 use coherent::gi::movers::{stale_layers, Move};
-use coherent::gi::session::{self, GiMode, GiRunOptions, GiSetup};
 use coherent::gi::vpl::Vpl;
 use coherent::gi::{GiOptions, GiRenderer, IsmOptions, OutputMode};
 use coherent::scene::camera::Camera;
@@ -236,11 +236,11 @@ fn gi_with_movers_runs_all_modes_and_incremental_renders_the_touched_maps() {
                 movers,
                 ..GiSetup::default()
             };
-            session::run_with(&ctx, &scene, &opts, None, &setup).expect("gi run")
+            gi_run::run_with(&ctx, &scene, &opts, None, &setup).expect("gi run")
         };
         let still = run(0);
         let moving = run(3);
-        let maps = |s: &session::GiSummary, mode: &str| {
+        let maps = |s: &gi_run::GiSummary, mode: &str| {
             s.algorithms
                 .iter()
                 .find(|(name, _)| name == mode)

@@ -4,9 +4,9 @@
 
 use crate::common;
 
+use coherent::app::walk::{self, WalkConfig};
 use coherent::culling::{self, ChcppParams};
 use coherent::render::hiz::{FrameAlgorithm, HizCuller, HizParams};
-use coherent::render::walk::{self, WalkConfig};
 use coherent::render::{FrameResult, Renderer};
 
 /// Frames of `path` in `scene` (scaled) at `size`, rendered with VFC and Hi-Z in turn: the

@@ -7,11 +7,11 @@ use crate::common;
 
 use std::path::PathBuf;
 
+use coherent::app::calibrate::{self, Source};
+use coherent::app::pvs_build::PvsFile;
+use coherent::app::pvs_build::{self, PvsSettings};
 use coherent::culling::chcpp::{Chcpp, ChcppParams};
 use coherent::culling::{self, Culler, CullerSetup};
-use coherent::render::calibrate::{self, Source};
-use coherent::render::pvs_build::PvsFile;
-use coherent::render::pvs_build::{self, PvsSettings};
 use coherent::render::Renderer;
 use coherent::scene::mesh::{Mesh, SceneBuilder};
 use coherent::scene::Scene;

@@ -5,10 +5,11 @@
 //! recorder refuses predicates read without their barrier; a device without the extension gets
 //! a clear error.
 
+use coherent::app::walk;
 use coherent::bvh::ObjectBvh;
 use coherent::culling::{self, ChcppParams, Culler, CullerSetup};
 use coherent::gpu::{ContextOptions, GpuContext};
-use coherent::render::{walk, Renderer};
+use coherent::render::Renderer;
 use coherent::scene::movers::Movers;
 use coherent::scene::{CameraPose, Scene};
 

@@ -237,8 +237,8 @@ fn gi_frames_with(
     ctx: &Arc<GpuContext>,
     ism: Option<coherent::gi::ism::IsmOptions>,
 ) -> coherent::Result<(Vec<Vec<u8>>, Vec<coherent::gi::GiFrame>)> {
+    use coherent::app::gi_run::{default_camera, LightPath};
     use coherent::gi::geometry::WorldGeometry;
-    use coherent::gi::session::{default_camera, LightPath};
     use coherent::gi::vpl::VplSet;
     use coherent::gi::{GiOptions, GiRenderer};
     let scene = coherent::scene::Scene::load("cornell", 1.0, 0)?;
@@ -460,8 +460,7 @@ fn soak(frames: u32) -> Soak {
                 rss.push(((p - warmup) * SOAKED.len() as u32, rss_kb()));
             }
             let (period, k) = (2 * 600, p % 1200);
-            coherent::render::walk::place_movers(&movers, p.into(), &mut bvh, &mut r)
-                .expect("movers");
+            coherent::app::walk::place_movers(&movers, p.into(), &mut bvh, &mut r).expect("movers");
             let cam = r.camera(path.sample(k.min(period - k), 601), &bvh);
             for alg in algs.iter_mut() {
                 r.render_frame(alg.as_mut(), &bvh, &cam, p as u64)

@@ -202,7 +202,7 @@ pub fn mover_summary(
             .filter(|r| r.algorithm == name && r.repeat == repeat)
             .map(|r| r.frame_ms)
             .collect();
-        (!v.is_empty()).then(|| crate::report::median(&mut v))
+        (!v.is_empty()).then(|| crate::app::report::median(&mut v))
     };
     let vs_static = names
         .iter()
@@ -219,7 +219,7 @@ pub fn mover_summary(
         .collect();
     MoverSummary {
         movers,
-        refit_ms_median: crate::report::median(&mut refit),
+        refit_ms_median: crate::app::report::median(&mut refit),
         refit_ms_max,
         rebuilds,
         vs_static,

@@ -8,6 +8,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::Path;
 
+use crate::render::FrameResult;
 use crate::Error;
 
 pub use plot::plot_missed_pixels;
@@ -64,6 +65,39 @@ pub struct FrameRecord {
     pub predicated_taken: u32,
     /// Predicate resolves: pass breaks that turn query results into predicates.
     pub predicate_resolves: u32,
+}
+
+impl FrameRecord {
+    /// The report row of frame `frame` of `algorithm` (`repeat`: which run of a repeated walk).
+    pub fn from_frame(r: &FrameResult, algorithm: &str, frame: u32, repeat: u32) -> FrameRecord {
+        FrameRecord {
+            algorithm: algorithm.to_string(),
+            frame,
+            repeat,
+            frame_ms: r.frame_ms,
+            gpu_ms: r.gpu_ms,
+            stall_ms: r.stall_ms,
+            queries: r.counts.queries_begun,
+            wasted_queries: r.counts.queries_visible,
+            state_changes: r.counts.state_changes,
+            pipeline_binds: r.counts.pipeline_binds,
+            draw_calls: r.counts.draw_calls,
+            object_draws: r.counts.object_draws + r.counts.indirect_objects,
+            query_draws: r.counts.query_draws,
+            triangles: r.counts.render_triangles + r.counts.indirect_triangles,
+            // Objects really drawn: a draw under a false predicate drew nothing.
+            objects: r.counts.object_draws - r.counts.predicated_calls
+                + r.counts.predicated_objects_taken
+                + r.counts.indirect_objects,
+            submits: r.counts.submits,
+            missed_objects: r.check.map(|c| c.missed_objects),
+            missed_pixels: r.check.map(|c| c.missed_pixels),
+            mover_draws: None,
+            predicated_draws: r.counts.predicated_objects,
+            predicated_taken: r.counts.predicated_objects_taken,
+            predicate_resolves: r.counts.predicate_resolves,
+        }
+    }
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.

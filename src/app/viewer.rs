@@ -18,9 +18,7 @@ use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
 use winit::keyboard::{KeyCode, PhysicalKey};
 use winit::window::{Window, WindowId};
 
-use super::hiz::{HizCuller, HizParams};
 use super::overlay::{self, Class};
-use super::{FrameResult, Renderer};
 use crate::bvh::ObjectBvh;
 use crate::culling::{
     self, ChcppParams, CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose,
@@ -28,6 +26,8 @@ use crate::culling::{
 use crate::error::{Error, Result};
 use crate::gpu::swapchain::{self, Panel, Presented, Swapchain};
 use crate::gpu::{CommandCounts, ContextOptions, GpuContext, Recorder, ValidationLog};
+use crate::render::hiz::{HizCuller, HizParams};
+use crate::render::{FrameResult, Renderer};
 use crate::scene::camera::Camera;
 use crate::scene::movers::Movers;
 use crate::scene::{Aabb, CameraPath, CameraPose, Scene};
@@ -688,7 +688,7 @@ impl Running {
                 PathBuf::from(format!("coherent-{}.png", self.screenshots))
             }
         };
-        super::save_rgba_png(&path, w, h, px)?;
+        crate::image_io::save_rgba_png(&path, w, h, px)?;
         if cfg.frames.is_none() {
             eprintln!("view: saved {}", path.display());
         }

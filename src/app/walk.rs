@@ -3,15 +3,15 @@
 
 use std::path::Path;
 
+use super::report::{self, FrameRecord, WalkSummary};
 use crate::bvh::ObjectBvh;
 use crate::culling;
 use crate::culling::ChcppParams;
 use crate::error::Result;
-use crate::report::{self, FrameRecord, WalkSummary};
 use crate::scene::{CameraPath, Scene};
 
-use super::hiz::FrameAlgorithm;
-use super::Renderer;
+use crate::render::hiz::FrameAlgorithm;
+use crate::render::Renderer;
 
 /// What to walk.
 #[derive(Clone, Debug, Default)]
@@ -79,7 +79,7 @@ pub fn run(
                     r.check = Some(culler.check(renderer, &owned));
                 }
                 if i >= cfg.warmup {
-                    records.push(r.record(name, i - cfg.warmup, repeat));
+                    records.push(FrameRecord::from_frame(&r, name, i - cfg.warmup, repeat));
                 }
                 let done = repeat as u64 * per_repeat + i as u64 * cfg.algorithms.len() as u64;
                 progress(done + k as u64 + 1, per_repeat * repeats as u64);
@@ -299,8 +299,13 @@ pub fn run_with_movers(
 
 /// A frame's record in a walk with movers: with the recorder's count of mover draws (0 on the
 /// scene without movers).
-fn mover_record(r: &super::FrameResult, name: &str, frame: u32, repeat: u32) -> FrameRecord {
-    let mut record = r.record(name, frame, repeat);
+fn mover_record(
+    r: &crate::render::FrameResult,
+    name: &str,
+    frame: u32,
+    repeat: u32,
+) -> FrameRecord {
+    let mut record = FrameRecord::from_frame(r, name, frame, repeat);
     record.mover_draws = Some(r.counts.mover_draws);
     record
 }

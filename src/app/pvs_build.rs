@@ -23,11 +23,11 @@ use std::time::Instant;
 
 use glam::Vec3;
 
-use super::Renderer;
 use crate::bvh::ObjectBvh;
 use crate::culling::pvs::{fnv1a, Pvs, ViewCell};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
+use crate::render::Renderer;
 use crate::scene::camera::Camera;
 use crate::scene::{CameraPath, Scene};
 
@@ -259,7 +259,7 @@ impl IdBuffers {
 
 /// The scene's triangles in a ray-casting BVH, with the object of each triangle.
 struct ObjectRays {
-    rays: crate::gi::raycast::RayScene,
+    rays: crate::scene::raycast::RayScene,
     /// First triangle of each object (object `o` owns `first[o]..first[o + 1]`).
     first: Vec<u32>,
 }
@@ -281,7 +281,7 @@ impl ObjectRays {
         }
         first.push(triangles.len() as u32);
         ObjectRays {
-            rays: crate::gi::raycast::RayScene::new(triangles, Vec::new()),
+            rays: crate::scene::raycast::RayScene::new(triangles, Vec::new()),
             first,
         }
     }

@@ -1,16 +1,16 @@
-//! Alpha masks (glTF `MASK`) as the GI sees them: per triangle, the texture coordinates and the
-//! alpha of its corners, and the alpha channels of the masked materials' textures. The shadow
-//! maps discard masked-out texels on the GPU, the ray caster lets rays through them and the
-//! imperfect shadow maps place no points on them. All three sample level 0 of the texture with
-//! the sampler's wrap modes and magnification filter (the render pass's mip chain does not
-//! matter for a cutoff test at shadow-map resolution). A scene without masks has none of this.
+//! Alpha masks (glTF `MASK`) as the GI and the ray caster see them: per triangle, the texture
+//! coordinates and the alpha of its corners, and the alpha channels of the masked materials'
+//! textures. The shadow maps discard masked-out texels on the GPU, the ray caster lets rays through
+//! them and the imperfect shadow maps place no points on them. All three sample level 0 of the
+//! texture with the sampler's wrap modes and magnification filter (the render pass's mip chain does
+//! not matter for a cutoff test at shadow-map resolution). A scene without masks has none of this.
 
 use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
 
-use crate::scene::material::sample_texels;
-use crate::scene::{AlphaMode, SamplerDesc, Scene, TextureImage, Wrap};
+use super::material::sample_texels;
+use super::{AlphaMode, SamplerDesc, Scene, TextureImage, Wrap};
 
 /// No texture: the triangle's alpha is its corners' (base color factor x vertex color).
 pub const NO_IMAGE: u32 = u32::MAX;
@@ -96,7 +96,7 @@ impl MaskImage {
     }
 }
 
-/// The masks of a [`super::geometry::WorldGeometry`]'s triangles: `triangles` is parallel to
+/// The masks of a [`crate::gi::geometry::WorldGeometry`]'s triangles: `triangles` is parallel to
 /// its triangles, or empty when none is masked (then nothing costs anything).
 #[derive(Clone, Debug, Default)]
 pub struct TriangleMasks {

@@ -1,6 +1,6 @@
-//! CPU ray casting against the static scene, used to place VPLs and to test
-//! light-to-VPL visibility. Wraps an obvhs `Bvh2` built over world-space
-//! triangles, each carrying one diffuse albedo.
+//! CPU ray casting against the static scene: the GI places VPLs and tests light-to-VPL
+//! visibility with it, the PVS build samples visibility with it. Wraps an obvhs `Bvh2` built over
+//! world-space triangles, each carrying one diffuse albedo.
 
 use std::time::Duration;
 

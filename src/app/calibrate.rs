@@ -14,11 +14,11 @@ use std::sync::Arc;
 
 use glam::{Mat4, Vec3};
 
-use super::Renderer;
 use crate::bvh::ObjectBvh;
 use crate::culling::{CostModel, CullStats, Culler, FrameInput, OcclusionBackend, QueryId};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
+use crate::render::Renderer;
 use crate::scene::camera::Camera;
 use crate::scene::mesh::{Mesh, SceneBuilder};
 use crate::scene::{Aabb, CameraPose, Scene};
@@ -335,7 +335,7 @@ impl Bench {
                 times.push(r.frame_ms);
             }
         }
-        Ok(crate::report::median(&mut times))
+        Ok(super::report::median(&mut times))
     }
 
     /// `(time(with) − time(base)) / units`, measured again with more runs while it is not

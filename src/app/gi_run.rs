@@ -9,17 +9,17 @@ use std::time::Instant;
 use glam::Vec3;
 use serde::Serialize;
 
-use super::geometry::WorldGeometry;
-use super::ism::IsmOptions;
-use super::light::Spotlight;
-use super::movers::{self, GiMovers, Move};
-use super::raycast::RayScene;
-use super::renderer::{GiFrame, GiOptions, GiRenderer, MAX_EDGE_FRACTION};
-use super::vpl::VplSet;
 use crate::error::{Error, Result};
+use crate::gi::geometry::WorldGeometry;
+use crate::gi::ism::IsmOptions;
+use crate::gi::light::Spotlight;
+use crate::gi::movers::{self, GiMovers, Move};
+use crate::gi::renderer::{GiFrame, GiOptions, GiRenderer, MAX_EDGE_FRACTION};
+use crate::gi::vpl::VplSet;
 use crate::gpu::GpuContext;
 use crate::scene::camera::Camera;
 use crate::scene::movers::Movers;
+use crate::scene::raycast::RayScene;
 use crate::scene::{CameraPath, CameraPose, Scene};
 
 /// How VPLs are maintained from frame to frame.
@@ -748,12 +748,12 @@ fn plot_rmse(path: &Path, summary: &GiSummary) -> Result<()> {
         "{}: RMSE against the 4N reference along the light path",
         summary.scene
     );
-    crate::report::plot::plot_lines(path, &title, "RMSE (tone-mapped RGB)", &series)
+    super::report::plot::plot_lines(path, &title, "RMSE (tone-mapped RGB)", &series)
 }
 
 /// Writes a mode's last frame (`<mode>.png`) and its sampled frames (`<mode>_strip.png`).
 fn save_mode_images(dir: &Path, opts: &GiRunOptions, r: &ModeRun) -> Result<()> {
-    crate::render::save_rgba_png(
+    crate::image_io::save_rgba_png(
         &dir.join(format!("{}.png", r.mode.name())),
         opts.width,
         opts.height,

@@ -1,0 +1,113 @@
+//! What the commands share: the scene flags, the device context, loading a scene, the
+//! validation check at the end of a command, progress bars.
+
+use std::sync::Arc;
+
+use anyhow::{bail, Result};
+use clap::Args;
+
+use coherent::gpu::{ContextOptions, GpuContext};
+use coherent::scene::Scene;
+
+/// Flags shared by commands that load a scene.
+#[derive(Args, Clone, Debug)]
+pub struct SceneArgs {
+    /// Built-in scene (city, parking, powerplant, cornell, hall) or a .gltf/.glb path.
+    #[arg(long)]
+    pub scene: String,
+    /// Size multiplier of a built-in scene (1 = default). `walk` takes a list (e.g. 1,4,16) and
+    /// adds a scaling table.
+    #[arg(long, default_value = "1", value_delimiter = ',')]
+    pub scale: Vec<f32>,
+    /// Split glTF meshes into chunks of at most this many triangles (0: don't split).
+    #[arg(long, default_value_t = 4096)]
+    pub chunk_triangles: u32,
+    /// Objects per BVH leaf.
+    #[arg(long, default_value_t = 1)]
+    pub leaf_size: u32,
+}
+
+/// The Vulkan context, echoing validation messages as they come.
+pub fn context(validation: bool) -> Result<Arc<GpuContext>> {
+    Ok(GpuContext::new(&ContextOptions {
+        validation,
+        echo_validation: true,
+        ..Default::default()
+    })?)
+}
+
+/// The scene of the flags at `scale`.
+pub fn load_scene(a: &SceneArgs, scale: f32) -> Result<Scene> {
+    Ok(Scene::load(&a.scene, scale, a.chunk_triangles)?)
+}
+
+/// The one `--scale` of a command that takes no list.
+pub fn single_scale(a: &SceneArgs) -> Result<f32> {
+    match a.scale.as_slice() {
+        [s] => Ok(*s),
+        _ => bail!("this command takes one --scale value"),
+    }
+}
+
+/// Fails when the validation layer reported anything (the messages were printed).
+pub fn check_validation(ctx: &GpuContext) -> Result<()> {
+    let n = ctx.validation_log().count();
+    if n > 0 {
+        bail!("the validation layer reported {n} messages (printed above)");
+    }
+    Ok(())
+}
+
+/// A progress bar on a terminal, plain lines otherwise.
+pub struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+    last: std::cell::Cell<u64>,
+    unit: &'static str,
+}
+
+/// A progress bar counting frames.
+pub fn progress_bar() -> Progress {
+    progress_bar_named("frames")
+}
+
+/// A progress bar counting `unit`s.
+pub fn progress_bar_named(unit: &'static str) -> Progress {
+    use std::io::IsTerminal;
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let b = indicatif::ProgressBar::new(1);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(&format!(
+            "{{bar:40}} {{pos}}/{{len}} {unit} {{elapsed}} (eta {{eta}})"
+        )) {
+            b.set_style(style);
+        }
+        b
+    });
+    Progress {
+        bar,
+        last: std::cell::Cell::new(0),
+        unit,
+    }
+}
+
+impl Progress {
+    pub fn tick(&self, done: u64, total: u64) {
+        match &self.bar {
+            Some(b) => {
+                b.set_length(total);
+                b.set_position(done);
+            }
+            None => {
+                let pct = done * 10 / total.max(1);
+                if pct > self.last.get() {
+                    self.last.set(pct);
+                    eprintln!("{done}/{total} {}", self.unit);
+                }
+            }
+        }
+    }
+    pub fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
