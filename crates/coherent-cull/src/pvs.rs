@@ -1,6 +1,6 @@
 //! Potentially visible sets (preprocessing): the space the camera can occupy is cut into view
 //! cells (cubes of a grid); each cell stores the objects seen from sample points inside it
-//! (built by `render::pvs_build`, which renders ID buffers in six directions). At run time
+//! (built by `app::pvs_build`, which renders ID buffers in six directions). At run time
 //! the camera's cell's set is drawn, frustum-culled, with no queries. Sampled, so it can miss
 //! objects (`walk --check` measures it); outside every cell it falls back to frustum culling.
 //! Moving objects are unknown to it.
