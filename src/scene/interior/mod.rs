@@ -1,9 +1,10 @@
 //! The automatic interior walk (`--path interior`): floors are surfaces whose front looks up
 //! (either side for double-sided materials); a place at eye height over one is inside when the
-//! rays from it hit front faces (few escape to the sky, few hit back faces); places of
-//! neighbouring cells join into a walkable graph (a step height, clearance at the eye and the
-//! knees), and the walk tours waypoints spread over its largest connected part. Also the light
-//! path that goes with it. Deterministic for a given scene.
+//! rays from it hit front faces (few level rays escape to the sky, few rays hit back faces);
+//! places of neighbouring cells join into a walkable graph (a step height, clearance at the eye
+//! and the knees), and the walk tours waypoints spread over its largest connected part, looking
+//! down the most open way ahead. Also the light path that goes with it. Deterministic for a
+//! given scene.
 
 use glam::Vec3;
 
@@ -33,7 +34,7 @@ const MIN_PLACES: usize = 4;
 #[derive(Clone, Debug)]
 pub struct InteriorParams {
     /// Eye height over the floor (default 1.7 where the floor-to-ceiling heights look like
-    /// meters, capped at 40% of their median; else 40% of it).
+    /// meters, capped at 60% of their 90th percentile; else 40% of it).
     pub eye_height: Option<f32>,
     /// Least distance from the eye to any geometry (default 15% of the eye height).
     pub margin: Option<f32>,
@@ -93,8 +94,7 @@ pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWal
     let chosen = walk::waypoints(&found, &adj, &part, params.waypoints, scale.eye_height);
     let route = walk::tour(&found, &adj, &chosen, scale.eye_height);
     let eyes: Vec<Vec3> = route.iter().map(|&i| found[i].eye).collect();
-    let spacing = (2.5 * scale.cell).max(0.8 * scale.eye_height);
-    let keys = walk::keys_through(rays, &eyes, scale.margin, spacing);
+    let keys = walk::keys_through(rays, &eyes, &scale);
     let waypoints = route
         .iter()
         .filter(|i| chosen.contains(i))
