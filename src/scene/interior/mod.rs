@@ -29,6 +29,9 @@ pub const LIGHT_PATH_NAME: &str = "interior-light";
 
 /// Fewest places of the walk's connected part for a model to count as having an inside.
 const MIN_PLACES: usize = 4;
+/// Least floor area of the walk's connected part, in square eye heights (about 12 m² for a
+/// person): less is a pocket inside a prop (a hollow statue, the gap under a table), not a room.
+const MIN_AREA: f32 = 4.0;
 
 /// Settings of the interior walk; lengths in scene units, `None` = derived from the scene.
 #[derive(Clone, Debug)]
@@ -84,9 +87,11 @@ pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWal
     }
     let adj = walk::neighbours(rays, &found, &scale);
     let part = walk::largest_component(&adj);
-    if part.len() < MIN_PLACES {
+    let area = part.len() as f32 * (scale.cell / scale.eye_height).powi(2);
+    if part.len() < MIN_PLACES || area < MIN_AREA {
         return Err(format!(
-            "the largest walkable part has {} places (of {} inside; {why})",
+            "the largest walkable part has {} places, {area:.1} square eye heights (of {} \
+             inside; {why})",
             part.len(),
             found.len()
         ));
