@@ -289,14 +289,20 @@ pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32) -> Vec<Ve
         .collect()
 }
 
-/// Poses through `eyes`, each looking along [`look_dirs`] at a target `reach` away.
+/// How far below level the walk looks: a person walking looks a little down, and the view
+/// then shows the floor ahead rather than a wall above it (or sky over a roofless level).
+const LOOK_DOWN_DEG: f32 = 10.0;
+
+/// Poses through `eyes`, each looking along [`look_dirs`], `LOOK_DOWN_DEG` down, at a target
+/// `reach` away.
 fn poses_of(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32, reach: f32) -> Vec<CameraPose> {
+    let down = Vec3::NEG_Y * LOOK_DOWN_DEG.to_radians().tan();
     look_dirs(rays, eyes, eye_height)
         .into_iter()
         .zip(eyes)
         .map(|(dir, &eye)| CameraPose {
             eye,
-            target: eye + dir * reach,
+            target: eye + (dir + down).normalize() * reach,
         })
         .collect()
 }
