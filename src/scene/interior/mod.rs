@@ -1,9 +1,10 @@
 //! The automatic interior walk (`--path interior`): floors are surfaces whose front looks up
 //! (either side for double-sided materials); a place at eye height over one is inside when the
-//! rays from it hit front faces (few escape to the sky, few hit back faces); places of
-//! neighbouring cells join into a walkable graph (a step height, clearance at the eye and the
-//! knees), and the walk tours waypoints spread over its largest connected part. Also the light
-//! path that goes with it. Deterministic for a given scene.
+//! rays from it hit front faces (few level rays escape to the sky, few rays hit back faces);
+//! places of neighbouring cells join into a walkable graph (a step height, clearance at the eye
+//! and the knees), and the walk tours waypoints spread over its largest connected part, looking
+//! down the most open way ahead. Also the light path that goes with it. Deterministic for a
+//! given scene.
 
 use glam::Vec3;
 
@@ -28,12 +29,15 @@ pub const LIGHT_PATH_NAME: &str = "interior-light";
 
 /// Fewest places of the walk's connected part for a model to count as having an inside.
 const MIN_PLACES: usize = 4;
+/// Least floor area of the walk's connected part, in square eye heights (about 12 m² for a
+/// person): less is a pocket inside a prop (a hollow statue, the gap under a table), not a room.
+const MIN_AREA: f32 = 4.0;
 
 /// Settings of the interior walk; lengths in scene units, `None` = derived from the scene.
 #[derive(Clone, Debug)]
 pub struct InteriorParams {
     /// Eye height over the floor (default 1.7 where the floor-to-ceiling heights look like
-    /// meters, capped at 40% of their median; else 40% of it).
+    /// meters, capped at 60% of their 90th percentile; else 40% of it).
     pub eye_height: Option<f32>,
     /// Least distance from the eye to any geometry (default 15% of the eye height).
     pub margin: Option<f32>,
@@ -83,9 +87,11 @@ pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWal
     }
     let adj = walk::neighbours(rays, &found, &scale);
     let part = walk::largest_component(&adj);
-    if part.len() < MIN_PLACES {
+    let area = part.len() as f32 * (scale.cell / scale.eye_height).powi(2);
+    if part.len() < MIN_PLACES || area < MIN_AREA {
         return Err(format!(
-            "the largest walkable part has {} places (of {} inside; {why})",
+            "the largest walkable part has {} places, {area:.1} square eye heights (of {} \
+             inside; {why})",
             part.len(),
             found.len()
         ));
@@ -93,8 +99,7 @@ pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWal
     let chosen = walk::waypoints(&found, &adj, &part, params.waypoints, scale.eye_height);
     let route = walk::tour(&found, &adj, &chosen, scale.eye_height);
     let eyes: Vec<Vec3> = route.iter().map(|&i| found[i].eye).collect();
-    let spacing = (2.5 * scale.cell).max(0.8 * scale.eye_height);
-    let keys = walk::keys_through(rays, &eyes, scale.margin, spacing);
+    let keys = walk::keys_through(rays, &eyes, &scale);
     let waypoints = route
         .iter()
         .filter(|i| chosen.contains(i))

@@ -1,20 +1,30 @@
 //! Where a camera may stand: floors (surfaces whose front looks up) under a grid of columns,
 //! the scene's scale from the headroom over them, and eye-height places that are inside (rays
-//! from them hit front faces: few escape, few hit back faces) and clear of geometry.
+//! from them hit front faces: few level rays escape, few rays hit back faces) and clear of
+//! geometry. Only level rays count for the sky: a roofless level (a block-out, a courtyard)
+//! is inside where its walls surround the eye, whatever is above.
 
 use glam::Vec3;
 
-use super::rays::{sphere_dirs, Hit, Probe, TriangleScene};
+use super::rays::{ring_dirs, sphere_dirs, Hit, Probe, TriangleScene};
 
 /// Least `normal.y` of a floor (about 45°: ramps and stairs' treads count, walls do not).
 pub const FLOOR_MIN_UP: f32 = 0.7;
-/// Most share of a place's rays that may escape the model (sky): more is outside.
+/// Most share of a place's level rays (around it, at most 12° up) that may escape the model
+/// (sky): more is outside.
 pub const MAX_ESCAPED: f32 = 0.25;
 /// Most share of a place's rays that may hit back faces: more is inside a solid or outside a
 /// shell that is only meant to be seen from within.
 pub const MAX_BACK: f32 = 0.125;
-/// Directions of the full probe of a candidate place.
+/// Directions of the full probe of a candidate place (back faces).
 const PROBE_RAYS: usize = 48;
+/// Level directions of a candidate place (sky); every fourth is the quick first look.
+const RING_RAYS: usize = 32;
+/// Percentile of the floor-to-ceiling heights that sets the scale: high, so that low surfaces
+/// (tables, shelves, the space under stairs) do not pull it down.
+const HEIGHT_PERCENTILE: f32 = 0.9;
+/// Standard eye height in meters.
+const EYE_METERS: f32 = 1.7;
 /// Most surfaces followed down one column.
 const MAX_LAYERS: usize = 64;
 
@@ -49,9 +59,10 @@ pub fn is_floor(h: &Hit) -> bool {
     h.front && h.normal.y >= FLOOR_MIN_UP
 }
 
-/// Whether a probe says its point is inside: rays hit front faces, few escape, few hit backs.
-pub fn is_inside(p: &Probe) -> bool {
-    p.escaped_share() <= MAX_ESCAPED && p.back_share() <= MAX_BACK
+/// Whether probes say their point is inside: few of the `level` rays escape, few of the
+/// `around` rays hit back faces.
+pub fn is_inside(level: &Probe, around: &Probe) -> bool {
+    level.escaped_share() <= MAX_ESCAPED && around.back_share() <= MAX_BACK
 }
 
 /// The grid over the bounds' horizontal extent with cells of side `cell`: (columns along x,
@@ -98,10 +109,10 @@ pub fn floors(rays: &TriangleScene, cell: f32) -> Vec<Floor> {
     out
 }
 
-/// The scene's scale: the eye height is 1.7 where the median floor-to-ceiling height (under
-/// front faces) says the
-/// units are meters (at most 30), capped at 40% of that height; in other units 40% of it.
-/// `eye_height` and `margin` override; `grid` is the most cells along the longer side.
+/// The scene's scale. `h` is a high percentile of the floor-to-ceiling heights (under front
+/// faces); where it says the units are meters (at most 30) the eye is at 1.7, capped at 60% of
+/// `h`; in other units at 40% of `h`. `eye_height` and `margin` override; `grid` is the most
+/// cells along the longer side.
 pub fn scale(
     rays: &TriangleScene,
     eye_height: Option<f32>,
@@ -120,14 +131,13 @@ pub fn scale(
                 .filter(|h| h.is_finite() && *h > 0.0)
                 .collect();
             heights.sort_by(f32::total_cmp);
-            let median = heights
-                .get(heights.len() / 2)
-                .copied()
-                .unwrap_or(e.y.max(1e-3));
-            if median <= 30.0 {
-                (0.4 * median).min(1.7)
+            let at = ((heights.len() as f32 * HEIGHT_PERCENTILE) as usize)
+                .min(heights.len().saturating_sub(1));
+            let h = heights.get(at).copied().unwrap_or(e.y.max(1e-3));
+            if h <= 30.0 {
+                (0.6 * h).min(EYE_METERS)
             } else {
-                0.4 * median
+                0.4 * h
             }
         });
     let margin = margin
@@ -152,8 +162,10 @@ pub struct Place {
     pub floor: Vec3,
     /// The eye.
     pub eye: Vec3,
-    /// Mean distance of the probe rays that hit a front face (escaping rays do not count).
+    /// Mean distance of the level rays that hit a front face (escaping rays do not count).
     pub openness: f32,
+    /// Distance of the nearest level hit: how far the closest wall is.
+    pub nearest: f32,
 }
 
 /// Why floors were not places, for the line that says why a model has no inside.
@@ -175,8 +187,8 @@ impl std::fmt::Display for Rejections {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} floor places: {} see sky (over {:.0}% of their rays), {} see back faces (over \
-             {:.1}%), {} lack headroom, {} are too close to geometry",
+            "{} floor places: {} see sky (over {:.0}% of their level rays), {} see back faces \
+             (over {:.1}%), {} lack headroom, {} are too close to geometry",
             self.floors,
             self.sky,
             100.0 * MAX_ESCAPED,
@@ -192,14 +204,8 @@ impl std::fmt::Display for Rejections {
 pub fn places(rays: &TriangleScene, floors: &[Floor], s: &Scale) -> (Vec<Place>, Rejections) {
     let far = rays.bounds.extent().length() * 2.0 + 1.0;
     let dirs = sphere_dirs(PROBE_RAYS);
-    let axes = [
-        Vec3::Y,
-        Vec3::X,
-        Vec3::NEG_X,
-        Vec3::Z,
-        Vec3::NEG_Z,
-        Vec3::NEG_Y,
-    ];
+    let ring = ring_dirs(RING_RAYS);
+    let quick: Vec<Vec3> = ring.iter().step_by(4).copied().collect();
     let mut why = Rejections {
         floors: floors.len(),
         ..Rejections::default()
@@ -215,31 +221,28 @@ pub fn places(rays: &TriangleScene, floors: &[Floor], s: &Scale) -> (Vec<Place>,
             why.cramped += 1;
             continue;
         }
-        // Six axis rays first: most outside places are told apart by them alone.
-        let quick = rays.probe(eye, &axes, far);
-        let probe = if is_inside(&Probe {
-            // The six rays decide only when half or more say outside.
-            escaped: quick.escaped.saturating_sub(2),
-            back: quick.back.saturating_sub(2),
-            ..quick
-        }) {
-            rays.probe(eye, &dirs, far)
-        } else {
-            quick
-        };
-        if !is_inside(&probe) {
-            if probe.escaped_share() > MAX_ESCAPED {
-                why.sky += 1;
-            } else {
-                why.back += 1;
-            }
+        // A few level rays first: most outside places are told apart by them alone.
+        let first = rays.probe(eye, &quick, far);
+        if first.escaped * 2 >= first.rays {
+            why.sky += 1;
+            continue;
+        }
+        let level = rays.probe(eye, &ring, far);
+        if level.escaped_share() > MAX_ESCAPED {
+            why.sky += 1;
+            continue;
+        }
+        let around = rays.probe(eye, &dirs, far);
+        if !is_inside(&level, &around) {
+            why.back += 1;
             continue;
         }
         out.push(Place {
             cell: f.cell,
             floor: f.point,
             eye,
-            openness: probe.mean_front_distance,
+            openness: level.mean_front_distance,
+            nearest: level.nearest,
         });
     }
     (out, why)

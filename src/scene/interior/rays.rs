@@ -3,7 +3,9 @@
 //!
 //! A ray hits the *front* of a triangle when it comes from the side its counter-clockwise
 //! winding faces (glTF's front face); triangles of a `doubleSided` material are front from both
-//! sides, and their hit normal is turned towards the ray.
+//! sides, and their hit normal is turned towards the ray, except those of a closed solid: an
+//! object whose triangles close around a volume and face out of it is seen from outside only
+//! (a point inside it is inside geometry), double-sided or not.
 
 use std::time::Duration;
 
@@ -40,13 +42,12 @@ pub struct TriangleScene {
 }
 
 impl TriangleScene {
-    /// The scene's world-space triangles (those of double-sided materials marked so); `None`
-    /// when it has none with finite corners.
+    /// The scene's world-space triangles (those of double-sided materials marked so, unless
+    /// their object is a [`closed_solid`]); `None` when it has none with finite corners.
     pub fn new(scene: &Scene) -> Option<TriangleScene> {
         let mut triangles = Vec::new();
         let mut two_sided = Vec::new();
         for (i, o) in scene.objects.iter().enumerate() {
-            let both = scene.object_material(i).is_some_and(|m| m.double_sided);
             let first = o.first_index as usize;
             let Some(idx) = scene
                 .indices
@@ -54,6 +55,7 @@ impl TriangleScene {
             else {
                 continue;
             };
+            let start = triangles.len();
             for t in idx.chunks_exact(3) {
                 let corner = |i: u32| {
                     let v = scene
@@ -63,9 +65,11 @@ impl TriangleScene {
                 };
                 if let (Some(a), Some(b), Some(c)) = (corner(t[0]), corner(t[1]), corner(t[2])) {
                     triangles.push([a, b, c]);
-                    two_sided.push(both);
                 }
             }
+            let both = scene.object_material(i).is_some_and(|m| m.double_sided)
+                && !closed_solid(&triangles[start..]);
+            two_sided.resize(triangles.len(), both);
         }
         TriangleScene::from_triangles(&triangles, &two_sided)
     }
@@ -177,6 +181,37 @@ impl TriangleScene {
     }
 }
 
+/// Whether `tris` close around a volume and face out of it: every edge (corners matched by
+/// position) is shared by an even number of triangles and the signed volume is positive, a
+/// thousandth of the bounding box's at least. Such an object is a solid (a wall, a pillar, a
+/// prop): its inside is never a place, even when its material is double-sided.
+pub fn closed_solid(tris: &[[Vec3; 3]]) -> bool {
+    let mut bounds = Aabb::EMPTY;
+    tris.iter().flatten().for_each(|&p| bounds.grow(p));
+    let e = bounds.extent();
+    if tris.len() < 4 || !e.is_finite() || e.min_element() <= 0.0 {
+        return false;
+    }
+    let q = 1e-5 * e.max_element();
+    let key = |p: Vec3| ((p - bounds.min) / q).round().as_ivec3().to_array();
+    let mut edges: std::collections::HashMap<_, u32> = std::collections::HashMap::new();
+    let mut volume = 0.0f64;
+    for t in tris {
+        let k = t.map(key);
+        for (a, b) in [(k[0], k[1]), (k[1], k[2]), (k[2], k[0])] {
+            if a != b {
+                *edges
+                    .entry(if a < b { (a, b) } else { (b, a) })
+                    .or_default() += 1;
+            }
+        }
+        let [a, b, c] = t.map(|p| (p - bounds.center()).as_dvec3());
+        volume += a.dot(b.cross(c)) / 6.0;
+    }
+    edges.values().all(|n| n % 2 == 0)
+        && volume > 1e-3 * f64::from(e.x) * f64::from(e.y) * f64::from(e.z)
+}
+
 /// Distance from `p` to the triangle `t` (closest point by Voronoi regions, Ericson 5.1.5).
 pub fn distance_to_triangle(p: Vec3, t: &[Vec3; 3]) -> f32 {
     let [a, b, c] = *t;
@@ -229,6 +264,19 @@ pub fn sphere_dirs(n: usize) -> Vec<Vec3> {
         .collect()
 }
 
+/// `n` unit directions around the vertical axis, level or slightly up: azimuths evenly spaced,
+/// elevations alternating between 2° and 12° (what a person looking around at eye height sees
+/// of the walls, even where the level has no ceiling). Deterministic.
+pub fn ring_dirs(n: usize) -> Vec<Vec3> {
+    (0..n)
+        .map(|i| {
+            let a = std::f32::consts::TAU * i as f32 / n.max(1) as f32;
+            let e = if i % 2 == 0 { 2f32 } else { 12f32 }.to_radians();
+            Vec3::new(e.cos() * a.cos(), e.sin(), e.cos() * a.sin())
+        })
+        .collect()
+}
+
 /// What rays in many directions from one point see.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Probe {
@@ -240,6 +288,8 @@ pub struct Probe {
     pub back: usize,
     /// Mean distance of the rays that hit a front face (0 when none did).
     pub mean_front_distance: f32,
+    /// Distance of the nearest hit, front or back (infinite when every ray escaped).
+    pub nearest: f32,
 }
 
 impl Probe {
@@ -259,11 +309,16 @@ impl TriangleScene {
     pub fn probe(&self, p: Vec3, dirs: &[Vec3], far: f32) -> Probe {
         let mut probe = Probe {
             rays: dirs.len(),
+            nearest: f32::INFINITY,
             ..Probe::default()
         };
         let (mut sum, mut fronts) = (0.0, 0usize);
         for &d in dirs {
-            match self.hit(p, d, far) {
+            let hit = self.hit(p, d, far);
+            if let Some(h) = hit {
+                probe.nearest = probe.nearest.min(h.t);
+            }
+            match hit {
                 None => probe.escaped += 1,
                 Some(h) if !h.front => probe.back += 1,
                 Some(h) => {

@@ -1,7 +1,8 @@
 //! Procedural levels with the failure modes of real ones: a leak to the outside, a level
 //! floating above a ground plane, rooms joined by doorways and a staircase with thick walls and
-//! closed voids, ceilings whose tops are flat and reachable by rays inside a sky box, and a
-//! level whose materials are all double-sided with the winding reversed.
+//! closed voids, ceilings whose tops are flat and reachable by rays inside a sky box, a level
+//! whose materials are all double-sided with the winding reversed, a roofless level (a
+//! block-out) and a closed double-sided solid.
 
 use glam::{Mat4, Vec3, Vec4};
 
@@ -245,7 +246,7 @@ fn a_level_floating_above_a_ground_plane_is_walked_inside() {
     l.flat((-20.0, -20.0, 40.0, 26.0), 0.0, true);
     let walk = assert_walks_rooms(&l.rays(), &rooms, &[], 3);
     assert!(
-        (walk.scale.eye_height - 1.4).abs() < 1e-3,
+        (walk.scale.eye_height - 1.7).abs() < 1e-3,
         "{:?}",
         walk.scale
     );
@@ -259,12 +260,20 @@ fn ceiling_tops_inside_a_sky_box_are_not_floors() {
     // the level's void, over ceilings (back faces from above) and under floors.
     let (a, b) = (Vec3::new(-1.0, -0.5, -1.0), Vec3::new(19.0, 9.0, 7.0));
     l.room_shell(Room { min: a, max: b }, [false; 4]);
-    let walk = assert_walks_rooms(&l.rays(), &rooms, &[], 3);
+    let rays = l.rays();
+    let walk = assert_walks_rooms(&rays, &rooms, &[], 3);
     assert!(
         walk.waypoints.iter().all(|w| w.y < 3.5),
         "{:?}",
         walk.waypoints
     );
+    // The void beside the outer walls sees their backs: no place there, walked or not.
+    let floors = places::floors(&rays, walk.scale.cell);
+    let (found, why) = places::places(&rays, &floors, &walk.scale);
+    assert!(why.back > 0, "{why}");
+    for p in &found {
+        assert!(rooms.iter().any(|r| r.contains(p.eye)), "{p:?}");
+    }
 }
 
 /// Rooms of solid brushes: thick walls (1 m, closed voids inside), doorways, a room raised
@@ -431,4 +440,99 @@ fn bad_paths_are_reported_with_frame_and_position() {
     let walk = find(&rays, &InteriorParams::default()).expect("walk");
     let v = path_check::views(&rays, &walk.path);
     assert_eq!(path_check::report(&walk.path, &v, true), None);
+}
+
+#[test]
+fn a_roofless_level_is_inside_between_its_walls() {
+    let mut l = Level::default();
+    let rooms = row_of_rooms(&mut l, 0.0, true);
+    // No ceilings (a block-out), a leak in the last room's outer wall, open ground outside.
+    l.tris.retain(|t| !t.iter().all(|p| p.y == 3.5));
+    l.flat((18.0, -20.0, 60.0, 26.0), 0.0, true);
+    let rays = l.rays();
+    let walk = find(&rays, &InteriorParams::default()).expect("an interior walk");
+    let path = &walk.path;
+    let mut visited = [false; 3];
+    for f in 0..=path.natural_frames() {
+        let eye = path.pose_at(f as f32).eye;
+        let k = rooms.iter().position(|r| r.contains(eye));
+        let k = k.unwrap_or_else(|| panic!("frame {f}: {eye} is outside the rooms"));
+        visited[k] = true;
+    }
+    assert_eq!(visited, [true; 3], "waypoints {:?}", walk.waypoints);
+    for v in path_check::views(&rays, path) {
+        assert_eq!(v.problem(true), None, "{v:?}");
+    }
+}
+
+#[test]
+fn a_closed_double_sided_solid_is_not_a_room() {
+    // A large block whose material is double-sided: its inside sees front faces only, but it
+    // is a solid (closed, facing out), so it has no inside.
+    let mut l = Level::default();
+    l.brush(Vec3::ZERO, Vec3::new(12.0, 5.0, 12.0));
+    let scene = l.scene(true);
+    let err = interior_path(&scene, &InteriorParams::default()).expect_err("no inside");
+    assert!(err.to_string().contains("no inside"), "{err}");
+    let rays = TriangleScene::new(&scene).expect("triangles");
+    let inside = rays.hit(Vec3::splat(3.0), Vec3::X, 100.0).expect("a wall");
+    assert!(!inside.front, "{inside:?}");
+    // The same block turned inside out is a room (a closed shell seen from within).
+    for t in &mut l.tris {
+        t.swap(1, 2);
+    }
+    let walk = find(
+        &TriangleScene::new(&l.scene(true)).expect("triangles"),
+        &InteriorParams::default(),
+    );
+    assert!(walk.is_ok(), "{:?}", walk.err());
+}
+
+/// Summary of the interior walk of each glTF file in `COHERENT_LEVELS` (colon-separated):
+/// `COHERENT_LEVELS=a.glb:b.gltf cargo test --release --lib interior::tests::levels -- --ignored --nocapture`.
+#[test]
+#[ignore = "needs glTF files named in COHERENT_LEVELS"]
+fn levels() {
+    let list = std::env::var("COHERENT_LEVELS").unwrap_or_default();
+    for file in list.split(':').filter(|f| !f.is_empty()) {
+        let (scene, _) = crate::scene::gltf::load_gltf(std::path::Path::new(file)).expect("load");
+        let rays = TriangleScene::new(&scene).expect("triangles");
+        let t = std::time::Instant::now();
+        match find(&rays, &InteriorParams::default()) {
+            Ok(w) => {
+                let views = path_check::views(&rays, &w.path);
+                let worst = views.iter().map(|v| v.sky).fold(0.0f32, f32::max);
+                println!(
+                    "{file}: {} tris, bounds {:?}, {:?}, {} places, part {}, {} keys, {} frames, \
+                     waypoints {:?}, worst sky {worst:.2}, check {:?} ({:.1} s)",
+                    rays.len(),
+                    rays.bounds,
+                    w.scale,
+                    w.places,
+                    w.part,
+                    w.path.keys.len(),
+                    w.path.natural_frames(),
+                    w.waypoints,
+                    path_check::report(&w.path, &views, true),
+                    t.elapsed().as_secs_f32()
+                );
+            }
+            Err(why) => println!("{file}: no inside: {why}"),
+        }
+        if let Ok(w) = find(&rays, &InteriorParams::default()) {
+            let n = w.path.natural_frames();
+            for k in 0..6 {
+                let pose = w.path.pose_at((n * k / 5) as f32);
+                let d = (pose.target - pose.eye).normalize();
+                let hit = rays.hit(pose.eye, d, 1e4);
+                println!(
+                    "  frame {}: eye {:.2} dir {:.2} ahead {:?}",
+                    n * k / 5,
+                    pose.eye,
+                    d,
+                    hit.map(|h| (h.t, h.front))
+                );
+            }
+        }
+    }
 }

@@ -120,7 +120,8 @@ pub fn dijkstra(
 }
 
 /// Waypoints over `part`: its most open place, then repeatedly the open place (openness at
-/// least the part's median) farthest along the graph from those chosen, up to `count`.
+/// least the part's median, and a wall no nearer than an eye height where there are such)
+/// farthest along the graph from those chosen, up to `count`.
 pub fn waypoints(
     places: &[Place],
     adj: &[Vec<usize>],
@@ -131,11 +132,17 @@ pub fn waypoints(
     let mut open: Vec<f32> = part.iter().map(|&i| places[i].openness).collect();
     open.sort_by(f32::total_cmp);
     let median = open.get(open.len() / 2).copied().unwrap_or(0.0);
-    let candidates: Vec<usize> = part
+    let open: Vec<usize> = part
         .iter()
         .copied()
         .filter(|&i| places[i].openness >= median)
         .collect();
+    let roomy: Vec<usize> = open
+        .iter()
+        .copied()
+        .filter(|&i| places[i].nearest >= eye_height)
+        .collect();
+    let candidates = if roomy.is_empty() { open } else { roomy };
     let Some(&start) = candidates.iter().max_by(|&&a, &&b| {
         places[a]
             .openness
@@ -192,14 +199,11 @@ pub fn tour(places: &[Place], adj: &[Vec<usize>], chosen: &[usize], eye_height: 
     route
 }
 
-/// Keys along `eyes` about every `spacing`, each looking ahead along the route; when the
-/// spline through them would come closer than `margin` to geometry, every eye is a key.
-pub fn keys_through(
-    rays: &TriangleScene,
-    eyes: &[Vec3],
-    margin: f32,
-    spacing: f32,
-) -> Vec<CameraPose> {
+/// Keys along `eyes` about every `2.5` cells (at least 0.8 eye heights), each looking the most
+/// open way ahead (see [`look_dirs`]) at a target that far; when the spline through them
+/// would come closer than the margin to geometry, every eye is a key.
+pub fn keys_through(rays: &TriangleScene, eyes: &[Vec3], s: &Scale) -> Vec<CameraPose> {
+    let spacing = (2.5 * s.cell).max(0.8 * s.eye_height);
     let mut keys: Vec<Vec3> = Vec::new();
     for &e in eyes {
         if keys.last().is_none_or(|l| l.distance(e) >= spacing) {
@@ -211,33 +215,94 @@ pub fn keys_through(
             keys.push(last);
         }
     }
-    let sparse = poses_of(&keys);
     let path = crate::scene::CameraPath {
         name: String::new(),
-        keys: sparse,
+        keys: poses_of(rays, &keys, s.eye_height, spacing),
     };
     let frames = path.natural_frames();
-    let clear = (0..=frames).all(|f| !rays.within(path.pose_at(f as f32).eye, margin));
+    let clear = (0..=frames).all(|f| !rays.within(path.pose_at(f as f32).eye, s.margin));
     if clear {
         path.keys
     } else {
-        poses_of(eyes)
+        poses_of(rays, eyes, s.eye_height, spacing)
     }
 }
 
-/// Poses through `eyes`, each looking towards the eyes a little ahead (at its own height).
-fn poses_of(eyes: &[Vec3]) -> Vec<CameraPose> {
+/// Level look directions tried at each key.
+const LOOK_DIRS: usize = 24;
+/// Half angle of the fan of rays that measures how open one look direction is.
+const LOOK_FAN_DEG: f32 = 8.0;
+/// Openness counted at most, in eye heights: farther views are all equally good.
+const LOOK_CAP: f32 = 25.0;
+/// Weight of the look directions behind the way ahead (1 ahead, ½ sideways).
+const LOOK_BACK: f32 = 0.3;
+
+/// Look directions at `eyes` (unit, level): at each, the direction whose fan of three rays sees
+/// the farthest front faces (a ray that escapes or hits a back face counts as nothing;
+/// openness capped at `LOOK_CAP` eye heights), weighted from 1 straight along the way ahead to
+/// ½ sideways and `LOOK_BACK` behind; then smoothed with the neighbours' so the view turns
+/// gradually. Looks down rooms and corridors rather than at a close wall, turning round when
+/// the way ahead ends at one.
+pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32) -> Vec<Vec3> {
     let n = eyes.len();
-    (0..n)
+    let far = rays.bounds.extent().length() * 2.0 + 1.0;
+    let cap = LOOK_CAP * eye_height;
+    let reach = |eye: Vec3, d: Vec3| match rays.hit(eye, d, far) {
+        Some(h) if h.front => h.t.min(cap),
+        _ => 0.0,
+    };
+    let raw: Vec<Vec3> = (0..n)
         .map(|i| {
             let ahead = eyes[(i + 2).min(n - 1)] - eyes[i.saturating_sub(1)];
-            let dir = Vec3::new(ahead.x, 0.0, ahead.z)
+            let ahead = Vec3::new(ahead.x, 0.0, ahead.z)
                 .try_normalize()
                 .unwrap_or(Vec3::NEG_Z);
-            CameraPose {
-                eye: eyes[i],
-                target: eyes[i] + dir,
+            let mut best = (0.0f32, ahead);
+            for k in 0..LOOK_DIRS {
+                let a = std::f32::consts::TAU * k as f32 / LOOK_DIRS as f32;
+                let d = Vec3::new(a.cos(), 0.0, a.sin());
+                let along = d.dot(ahead);
+                let fan = LOOK_FAN_DEG.to_radians();
+                let open: f32 = [-fan, 0.0, fan]
+                    .iter()
+                    .map(|&f| reach(eyes[i], glam::Quat::from_rotation_y(f) * d))
+                    .sum::<f32>()
+                    / 3.0;
+                let weight = if along >= 0.0 {
+                    0.5 + 0.5 * along
+                } else {
+                    0.5 + (0.5 - LOOK_BACK) * along
+                };
+                let score = open * weight;
+                if score > best.0 {
+                    best = (score, d);
+                }
             }
+            best.1
+        })
+        .collect();
+    (0..n)
+        .map(|i| {
+            let (a, b) = (raw[i.saturating_sub(1)], raw[(i + 1).min(n - 1)]);
+            (2.0 * raw[i] + a + b).try_normalize().unwrap_or(raw[i])
+        })
+        .collect()
+}
+
+/// How far below level the walk looks: a person walking looks a little down, and the view
+/// then shows the floor ahead rather than a wall above it (or sky over a roofless level).
+const LOOK_DOWN_DEG: f32 = 10.0;
+
+/// Poses through `eyes`, each looking along [`look_dirs`], `LOOK_DOWN_DEG` down, at a target
+/// `reach` away.
+fn poses_of(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32, reach: f32) -> Vec<CameraPose> {
+    let down = Vec3::NEG_Y * LOOK_DOWN_DEG.to_radians().tan();
+    look_dirs(rays, eyes, eye_height)
+        .into_iter()
+        .zip(eyes)
+        .map(|(dir, &eye)| CameraPose {
+            eye,
+            target: eye + (dir + down).normalize() * reach,
         })
         .collect()
 }
