@@ -874,12 +874,7 @@ impl Renderer {
         self.use_pipeline(PipelineKind::Render);
         self.bind_scene_buffers();
         for &o in objects {
-            let d = *self.objects.get(o as usize).ok_or_else(|| {
-                Error::Input(format!(
-                    "object {o} does not exist (scene has {})",
-                    self.objects.len()
-                ))
-            })?;
+            let d = self.object_draw(o)?;
             if d.index_count > 0 {
                 if self.pipelines.materials {
                     self.bind_material(&d);
@@ -889,6 +884,72 @@ impl Renderer {
             }
         }
         Ok(())
+    }
+
+    /// How object `o` is drawn (an error names an object the scene does not have).
+    fn object_draw(&self, o: u32) -> Result<ObjectDraw> {
+        self.objects.get(o as usize).copied().ok_or_else(|| {
+            Error::Input(format!(
+                "object {o} does not exist (scene has {})",
+                self.objects.len()
+            ))
+        })
+    }
+
+    /// Where the predicate of query `query` lies: its buffer (index into the predicate
+    /// buffers) and byte offset; an error unless it was resolved in this frame.
+    fn predicate_slot(&self, query: QueryId) -> Result<(usize, u64)> {
+        if query >= self.predicates_resolved {
+            return Err(Error::Input(format!(
+                "query {query} is not a resolved predicate of this frame"
+            )));
+        }
+        let chunk = self.occlusion.chunk();
+        Ok(((query / chunk) as usize, u64::from(query % chunk) * 4))
+    }
+
+    /// Records an occlusion query of `boxes`; with `predicate`, its boxes are drawn inside a
+    /// conditional block on that query's predicate (the query itself begins and ends
+    /// unconditionally: a predicate does not affect them, so under a false one it counts no
+    /// sample).
+    fn record_query(&mut self, boxes: &[Aabb], predicate: Option<QueryId>) -> Result<QueryId> {
+        let block = match predicate {
+            Some(p) => Some((p, self.predicate_slot(p)?)),
+            None => None,
+        };
+        self.ensure_recording()?;
+        self.use_pipeline(PipelineKind::Query);
+        let id = self.occlusion.allocate()?;
+        self.query_segment.push(self.current_segment() as u32);
+        self.query_read.push(false);
+        self.recorder.begin_occlusion_query(&self.occlusion, id);
+        let mut drawn = match block {
+            Some((p, (buffer, offset))) => {
+                self.recorder
+                    .begin_conditional(&self.predicates[buffer], offset, p)
+            }
+            None => Ok(()),
+        };
+        let mut rest = boxes;
+        while drawn.is_ok() && !rest.is_empty() {
+            match self.draw_boxes(rest) {
+                Ok(r) => rest = r,
+                Err(e) => drawn = Err(e),
+            }
+        }
+        if block.is_some() {
+            self.recorder.end_conditional();
+        }
+        self.recorder.end_query(&self.occlusion, id);
+        drawn.map(|()| id)
+    }
+
+    /// Tags the last query with what the culler said it is for.
+    fn tag_query(&mut self, purpose: QueryPurpose) {
+        self.recorder.tag_query(
+            purpose == QueryPurpose::Multiquery,
+            purpose == QueryPurpose::VisibleLeaf,
+        );
     }
 
     /// Binds the scene's vertex and index buffers unless they are bound.
@@ -945,12 +1006,7 @@ impl Renderer {
                     break;
                 }
                 used += 1;
-                let d = self.objects.get(o as usize).ok_or_else(|| {
-                    Error::Input(format!(
-                        "object {o} does not exist (scene has {})",
-                        self.objects.len()
-                    ))
-                })?;
+                let d = self.object_draw(o)?;
                 if d.index_count == 0 {
                     continue;
                 }
@@ -1044,20 +1100,13 @@ impl OcclusionBackend for Renderer {
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
-        if query >= self.predicates_resolved {
-            return Err(Error::Input(format!(
-                "query {query} is not a resolved predicate of this frame"
-            ))
-            .into());
-        }
+        let (buffer, offset) = self.predicate_slot(query)?;
         if objects.is_empty() {
             return Ok(());
         }
         self.ensure_recording()?;
-        let chunk = self.occlusion.chunk();
-        let buffer = &self.predicates[(query / chunk) as usize];
-        let offset = u64::from(query % chunk) * 4;
-        self.recorder.begin_conditional(buffer, offset, query)?;
+        self.recorder
+            .begin_conditional(&self.predicates[buffer], offset, query)?;
         let drawn = if self.multi_draws() {
             self.record_objects_indirect(objects)
         } else {
@@ -1076,56 +1125,13 @@ impl OcclusionBackend for Renderer {
         boxes: &[Aabb],
         purpose: QueryPurpose,
     ) -> coherent_cull::Result<QueryId> {
-        if predicate >= self.predicates_resolved {
-            return Err(Error::Input(format!(
-                "query {predicate} is not a resolved predicate of this frame"
-            ))
-            .into());
-        }
-        self.ensure_recording()?;
-        self.use_pipeline(PipelineKind::Query);
-        let id = self.occlusion.allocate()?;
-        self.query_segment.push(self.current_segment() as u32);
-        self.query_read.push(false);
-        // The query begins and ends unconditionally (a predicate does not affect them); its
-        // boxes are drawn only if the predicate holds, else it counts no sample.
-        self.recorder.begin_occlusion_query(&self.occlusion, id);
-        let chunk = self.occlusion.chunk();
-        let buffer = &self.predicates[(predicate / chunk) as usize];
-        let offset = u64::from(predicate % chunk) * 4;
-        let drawn = self
-            .recorder
-            .begin_conditional(buffer, offset, predicate)
-            .and_then(|()| {
-                let mut rest = boxes;
-                while !rest.is_empty() {
-                    rest = self.draw_boxes(rest)?;
-                }
-                Ok(())
-            });
-        self.recorder.end_conditional();
-        self.recorder.end_query(&self.occlusion, id);
-        drawn?;
-        self.recorder.tag_query(
-            purpose == QueryPurpose::Multiquery,
-            purpose == QueryPurpose::VisibleLeaf,
-        );
+        let id = self.record_query(boxes, Some(predicate))?;
+        self.tag_query(purpose);
         Ok(id)
     }
 
     fn issue_query(&mut self, boxes: &[Aabb]) -> coherent_cull::Result<QueryId> {
-        self.ensure_recording()?;
-        self.use_pipeline(PipelineKind::Query);
-        let id = self.occlusion.allocate()?;
-        self.query_segment.push(self.current_segment() as u32);
-        self.query_read.push(false);
-        self.recorder.begin_occlusion_query(&self.occlusion, id);
-        let mut rest = boxes;
-        while !rest.is_empty() {
-            rest = self.draw_boxes(rest)?;
-        }
-        self.recorder.end_query(&self.occlusion, id);
-        Ok(id)
+        Ok(self.record_query(boxes, None)?)
     }
 
     fn issue_query_for(
@@ -1133,11 +1139,8 @@ impl OcclusionBackend for Renderer {
         boxes: &[Aabb],
         purpose: QueryPurpose,
     ) -> coherent_cull::Result<QueryId> {
-        let id = self.issue_query(boxes)?;
-        self.recorder.tag_query(
-            purpose == QueryPurpose::Multiquery,
-            purpose == QueryPurpose::VisibleLeaf,
-        );
+        let id = self.record_query(boxes, None)?;
+        self.tag_query(purpose);
         Ok(id)
     }
 

@@ -519,21 +519,16 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
         }
         self.enter_query_state(slot);
         let s = &mut self.backend.slots[slot as usize];
-        let index = s.issued;
-        let first_box = s.boxes_used;
+        let (index, first_box, pool) = (s.issued, s.boxes_used, s.pool);
         s.write_corners(first_box, boxes);
         // SAFETY: recording inside rendering with the box pipeline bound; the query was reset
-        // in this frame's begin_frame and is used once. With a predicate: the predicate
-        // buffer has CONDITIONAL_RENDERING_EXT usage, the offset is a multiple of 4 inside it,
-        // its value was copied before the resolve's barrier, and no block is open.
+        // in this frame's begin_frame and is used once; a predicate is a resolved one of this
+        // slot (`resolved_predicate`) and no block is open.
         unsafe {
             let d = &self.backend.device;
-            d.cmd_begin_query(self.cmd, s.pool, index, vk::QueryControlFlags::PRECISE);
-            if let (Some(p), Some(fp)) = (predicate, self.backend.conditional.as_ref()) {
-                let info = vk::ConditionalRenderingBeginInfoEXT::default()
-                    .buffer(s.predicates.buffer)
-                    .offset(u64::from(p) * 4);
-                (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info);
+            d.cmd_begin_query(self.cmd, pool, index, vk::QueryControlFlags::PRECISE);
+            if let Some(p) = predicate {
+                self.begin_block(slot, p);
             }
             d.cmd_draw_indexed(
                 self.cmd,
@@ -543,11 +538,12 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
                 (first_box * 8) as i32,
                 0,
             );
-            if let (Some(_), Some(fp)) = (predicate, self.backend.conditional.as_ref()) {
-                (fp.cmd_end_conditional_rendering_ext)(self.cmd);
+            if predicate.is_some() {
+                self.end_block();
             }
-            d.cmd_end_query(self.cmd, s.pool, index);
+            d.cmd_end_query(self.cmd, pool, index);
         }
+        let s = &mut self.backend.slots[slot as usize];
         s.issued += 1;
         s.boxes_used += boxes.len() as u32;
         let c = &mut self.backend.counts;
@@ -564,6 +560,34 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
             QueryPurpose::Node => {}
         }
         Ok(slot + self.backend.desc.frames_in_flight * index)
+    }
+
+    /// Opens a conditional block on the predicate at `index` of slot `slot`: the draws until
+    /// [`FrameBackend::end_block`] run only if it is non-zero.
+    ///
+    /// # Safety
+    /// `cmd` is recording inside the host's rendering, no block is open, and the predicate at
+    /// `index` was copied before a resolve's barrier in this command buffer.
+    unsafe fn begin_block(&self, slot: u32, index: u32) {
+        if let Some(fp) = self.backend.conditional.as_ref() {
+            let info = vk::ConditionalRenderingBeginInfoEXT::default()
+                .buffer(self.backend.slots[slot as usize].predicates.buffer)
+                .offset(u64::from(index) * 4);
+            // SAFETY: per the caller; the predicate buffer has CONDITIONAL_RENDERING_EXT usage
+            // and the offset is a multiple of 4 inside it.
+            unsafe { (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info) };
+        }
+    }
+
+    /// Closes the block [`FrameBackend::begin_block`] opened.
+    ///
+    /// # Safety
+    /// A block begun in this rendering instance is open.
+    unsafe fn end_block(&self) {
+        if let Some(fp) = self.backend.conditional.as_ref() {
+            // SAFETY: per the caller.
+            unsafe { (fp.cmd_end_conditional_rendering_ext)(self.cmd) };
+        }
     }
 
     /// The index in this frame's slot of `query`, a resolved predicate of this frame.
@@ -707,24 +731,16 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
         let index = self.resolved_predicate(query)?;
-        let s = &self.backend.slots[self.slot()? as usize];
-        let Some(fp) = self.backend.conditional.as_ref() else {
-            return Err(coherent_cull::predicates_unsupported());
-        };
         if objects.is_empty() {
             return Ok(());
         }
-        let info = vk::ConditionalRenderingBeginInfoEXT::default()
-            .buffer(s.predicates.buffer)
-            .offset(u64::from(index) * 4);
-        let end = fp.cmd_end_conditional_rendering_ext;
-        // SAFETY: recording inside the host's rendering; the predicate buffer has
-        // CONDITIONAL_RENDERING_EXT usage, the offset is a multiple of 4 inside it, and its
-        // value was copied before the resolve's barrier; no block is open.
-        unsafe { (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info) };
+        let slot = self.slot()?;
+        // SAFETY: recording inside the host's rendering; the predicate is a resolved one of
+        // this slot and no block is open.
+        unsafe { self.begin_block(slot, index) };
         let drawn = self.draw_objects(objects);
         // SAFETY: the block begun above is open in this rendering instance.
-        unsafe { end(self.cmd) };
+        unsafe { self.end_block() };
         drawn?;
         let c = &mut self.backend.counts;
         c.conditional_blocks += 1;

@@ -258,6 +258,31 @@ impl<'a> MockBackend<'a> {
         self.early_reads
     }
 
+    /// Records a query of `boxes` (entering query state); it counts the pixels the visibility
+    /// function gives them when `drawn`, else none (boxes under a false predicate). Returns its
+    /// id and pixels.
+    fn record_query(&mut self, boxes: &[Aabb], drawn: bool) -> (QueryId, u64) {
+        if !self.in_query_state {
+            self.in_query_state = true;
+            self.counts.state_changes += 1;
+        }
+        let pixels: u64 = if drawn {
+            boxes.iter().map(|b| (self.visibility)(b)).sum()
+        } else {
+            0
+        };
+        let id = self.queries.len() as QueryId;
+        self.queries.push(Issued {
+            pixels,
+            frame: self.frame,
+            complete: self.completion == Completion::Immediate,
+            resolved: false,
+        });
+        self.counts.queries += 1;
+        self.counts.query_boxes += boxes.len() as u32;
+        (id, pixels)
+    }
+
     /// Query `query` as a predicate: issued in this frame and resolved since.
     fn predicate(&self, query: QueryId) -> Result<&Issued> {
         let q = self.issued(query)?;
@@ -313,20 +338,7 @@ impl OcclusionBackend for MockBackend<'_> {
     }
 
     fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
-        if !self.in_query_state {
-            self.in_query_state = true;
-            self.counts.state_changes += 1;
-        }
-        let pixels: u64 = boxes.iter().map(|b| (self.visibility)(b)).sum();
-        let id = self.queries.len() as QueryId;
-        self.queries.push(Issued {
-            pixels,
-            frame: self.frame,
-            complete: self.completion == Completion::Immediate,
-            resolved: false,
-        });
-        self.counts.queries += 1;
-        self.counts.query_boxes += boxes.len() as u32;
+        let (id, pixels) = self.record_query(boxes, true);
         self.events.push(MockEvent::Query {
             id,
             purpose,
@@ -417,19 +429,14 @@ impl OcclusionBackend for MockBackend<'_> {
         &mut self,
         predicate: QueryId,
         boxes: &[Aabb],
-        purpose: QueryPurpose,
+        _purpose: QueryPurpose,
     ) -> Result<QueryId> {
         if !self.supports_predicated_queries() {
             return Err(crate::predicates_unsupported());
         }
         let taken = self.predicate(predicate)?.pixels > 0;
-        let id = self.issue_query_for(boxes, purpose)?;
-        self.events.pop();
-        let q = &mut self.queries[id as usize];
-        if !taken {
-            q.pixels = 0;
-        }
-        let visible = q.pixels > 0;
+        let (id, pixels) = self.record_query(boxes, taken);
+        let visible = pixels > 0;
         self.counts.predicated_queries += 1;
         self.events.push(MockEvent::QueryIf {
             id,
