@@ -174,9 +174,19 @@ pub struct ChcppArgs {
     /// Visibility threshold in pixels.
     #[arg(long, default_value_t = 0)]
     pub pixel_threshold: u64,
-    /// Turn CHC++ parts off: any of batching, interval, multiqueries, tight (comma separated).
+    /// Turn CHC++ parts off: any of batching, interval, multiqueries, tight, and for the
+    /// predicated mode split-multiqueries (draw a multiquery's objects under its own predicate
+    /// instead of querying its nodes under it) (comma separated).
     #[arg(long, value_delimiter = ',')]
     pub disable: Vec<String>,
+    /// Predicated mode: levels below a queried node whose parts are queried under its
+    /// predicate in the same frame (0: the node's objects all drawn under its own predicate).
+    #[arg(long, default_value_t = 2)]
+    pub refine_levels: u32,
+    /// Predicated mode: a node is split into parts only while it holds more than this many
+    /// objects in the frustum.
+    #[arg(long, default_value_t = 4)]
+    pub refine_objects: u32,
 }
 
 impl ChcppArgs {
@@ -185,6 +195,8 @@ impl ChcppArgs {
             batch_size: self.batch_size.max(1),
             visible_interval: self.visible_interval.max(1),
             pixel_threshold: self.pixel_threshold,
+            predicated_refine_levels: self.refine_levels,
+            predicated_refine_objects: self.refine_objects,
             ..ChcppParams::default()
         };
         for d in &self.disable {
@@ -197,8 +209,10 @@ impl ChcppArgs {
                 }
                 "multiqueries" => p.multiqueries = false,
                 "tight" => p.tight_bounds = false,
+                "split-multiqueries" => p.predicated_split_multiqueries = false,
                 other => bail!(
-                    "unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight)"
+                    "unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight, \
+                     split-multiqueries)"
                 ),
             }
         }

@@ -4,6 +4,7 @@
 
 pub mod frame;
 pub mod hiz;
+mod ordered;
 pub mod passes;
 pub mod upload;
 
@@ -130,6 +131,12 @@ pub struct Renderer {
     /// Scratch for one multi-draw: its command bytes and its objects with their triangles.
     draw_bytes: Vec<u8>,
     draw_objects: Vec<(u32, u64)>,
+    /// One command per object in the culler's subtree order (`set_draw_order`): a run of a
+    /// predicate's objects that is a run of the order is one multi-draw of these.
+    ordered: ordered::OrderedDraws,
+    /// Scratch of one ordered draw: its pieces and its scattered objects.
+    pieces: Vec<ordered::Piece>,
+    scattered: Vec<u32>,
 }
 
 impl Renderer {
@@ -226,6 +233,9 @@ impl Renderer {
             draw_used: 0,
             draw_bytes: Vec::new(),
             draw_objects: Vec::new(),
+            ordered: ordered::OrderedDraws::default(),
+            pieces: Vec::new(),
+            scattered: Vec::new(),
         })
     }
 
@@ -278,6 +288,7 @@ impl Renderer {
         } else {
             self.objects[slot] = draw;
         }
+        self.ordered.update(object, &draw)?;
         self.object_buffer.write(slot * stride + 128, &color)?;
         self.set_object_transform(object, transform)
     }
@@ -430,6 +441,7 @@ impl Renderer {
         self.predicates_resolved = 0;
         self.draw_chunk = 0;
         self.draw_used = 0;
+        self.ordered.begin_frame();
         let vp = raster_matrix(view);
         self.push[..64].copy_from_slice(bytes_of(&vp.to_cols_array()));
         Ok(())
@@ -1010,9 +1022,7 @@ impl Renderer {
                 if d.index_count == 0 {
                     continue;
                 }
-                for word in [d.index_count, 1, d.first_index, d.vertex_offset as u32, o] {
-                    self.draw_bytes.extend_from_slice(&word.to_ne_bytes());
-                }
+                ordered::command_bytes(o, &d, &mut self.draw_bytes);
                 self.draw_objects.push((o, u64::from(d.index_count / 3)));
             }
             rest = &rest[used..];
@@ -1025,6 +1035,63 @@ impl Renderer {
             self.recorder
                 .draw_objects_indirect(chunk, offset as u64, &self.draw_objects);
             self.draw_used += self.draw_objects.len() as u32;
+        }
+        Ok(())
+    }
+
+    /// Records `objects` in render state as indexed indirect multi-draws: each run of them
+    /// that is a run of the culler's subtree order (at least [`ordered::MIN_RUN`] long) as one
+    /// multi-draw of the ordered commands, the objects between runs as multi-draws written
+    /// for this frame ([`Renderer::record_objects_indirect`]), in the order given.
+    fn record_objects_ordered(&mut self, objects: &[u32]) -> Result<()> {
+        if self.ordered.buffer().is_none() {
+            return self.record_objects_indirect(objects);
+        }
+        let max = self.ctx.info.max_draw_indirect_count.max(1) as usize;
+        let mut pieces = std::mem::take(&mut self.pieces);
+        let mut scattered = std::mem::take(&mut self.scattered);
+        self.ordered.pieces(objects, max, &mut pieces);
+        scattered.clear();
+        let mut result = Ok(());
+        for p in &pieces {
+            let Some(position) = p.position else {
+                scattered.push(objects[p.start]);
+                continue;
+            };
+            if !scattered.is_empty() {
+                result = self.record_objects_indirect(&scattered);
+                scattered.clear();
+            }
+            if result.is_ok() {
+                result = self.record_run(&objects[p.start..p.start + p.len], position);
+            }
+            if result.is_err() {
+                break;
+            }
+        }
+        if result.is_ok() && !scattered.is_empty() {
+            result = self.record_objects_indirect(&scattered);
+        }
+        self.pieces = pieces;
+        self.scattered = scattered;
+        result
+    }
+
+    /// One multi-draw of the ordered commands `position..` that draw `run`.
+    fn record_run(&mut self, run: &[u32], position: u32) -> Result<()> {
+        self.use_pipeline(PipelineKind::Render);
+        self.bind_scene_buffers();
+        self.draw_objects.clear();
+        for &o in run {
+            let d = self.object_draw(o)?;
+            self.draw_objects.push((o, u64::from(d.index_count / 3)));
+        }
+        if let Some(buffer) = self.ordered.buffer() {
+            self.recorder.draw_objects_indirect(
+                buffer,
+                u64::from(position) * DRAW_BYTES as u64,
+                &self.draw_objects,
+            );
         }
         Ok(())
     }
@@ -1108,13 +1175,21 @@ impl OcclusionBackend for Renderer {
         self.recorder
             .begin_conditional(&self.predicates[buffer], offset, query)?;
         let drawn = if self.multi_draws() {
-            self.record_objects_indirect(objects)
+            self.record_objects_ordered(objects)
         } else {
             self.record_objects(objects)
         };
         self.recorder.end_conditional();
         Ok(drawn?)
     }
+
+    fn set_draw_order(&mut self, order: &[u32]) -> coherent_cull::Result<()> {
+        if self.multi_draws() {
+            self.ordered.set(&self.ctx, order, &self.objects)?;
+        }
+        Ok(())
+    }
+
     fn supports_predicated_queries(&self) -> bool {
         self.supports_predicates()
     }

@@ -479,6 +479,8 @@ struct Dynamics {
     built_area: f64,
     /// Inserts and removals since the last build.
     churn: usize,
+    /// Bumped when an object enters or leaves a leaf (insert, remove, build).
+    layout: u64,
     live: usize,
     policy: RebuildPolicy,
 }
@@ -524,6 +526,7 @@ impl ObjectBvh {
         };
         d.object_bounds[id as usize] = b;
         d.churn += 1;
+        d.layout += 1;
         d.live += 1;
         let leaf = self.best_leaf(&b);
         let target = if self.nodes[leaf as usize].object_count == 0 {
@@ -556,6 +559,7 @@ impl ObjectBvh {
         d.object_bounds[object as usize] = Aabb::EMPTY;
         d.free.push(object);
         d.churn += 1;
+        d.layout += 1;
         d.live -= 1;
         self.mark_dirty(leaf);
         Ok(())
@@ -643,6 +647,12 @@ impl ObjectBvh {
     /// or indexed by an older structure must be extended or rebuilt.
     pub fn structure(&self) -> u64 {
         self.dynamics.structure
+    }
+
+    /// Bumped whenever an object enters or leaves a leaf (build, rebuild, insert, remove):
+    /// per-leaf object lists kept elsewhere ([`crate::SubtreeOrder`]) are stale when it moved.
+    pub fn layout(&self) -> u64 {
+        self.dynamics.layout
     }
 
     /// One past the largest object id ever handed out (per-object arrays need this length).
@@ -735,6 +745,7 @@ impl ObjectBvh {
         d.changed_at = vec![d.epoch; n];
         d.grown_at = vec![d.epoch; n];
         d.structure += 1;
+        d.layout += 1;
         d.churn = 0;
         d.object_leaf.iter_mut().for_each(|l| *l = u32::MAX);
         d.live = 0;

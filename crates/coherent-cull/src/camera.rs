@@ -94,6 +94,14 @@ impl Frustum {
             planes: planes.map(|p| p / p.truncate().length().max(1e-20)),
         }
     }
+    /// Whether the box lies entirely inside every plane (so every box inside it intersects).
+    pub fn contains(&self, b: &Aabb) -> bool {
+        self.planes.iter().all(|p| {
+            let n = p.truncate();
+            let v = Vec3::select(n.cmpge(Vec3::ZERO), b.min, b.max);
+            n.dot(v) + p.w >= 0.0
+        })
+    }
     /// Conservative box test: false only if the box is entirely outside one plane.
     pub fn intersects(&self, b: &Aabb) -> bool {
         self.planes.iter().all(|p| {

@@ -151,6 +151,7 @@ pub mod error;
 pub mod latency;
 pub mod nohc;
 pub mod oracle;
+pub mod order;
 pub mod pvs;
 pub mod rng;
 pub mod stop_and_wait;
@@ -174,6 +175,7 @@ pub use chcpp::ChcppParams;
 #[doc = include_str!("../README.md")]
 struct ReadmeExample;
 pub use nohc::{CostModel, NohcParams};
+pub use order::SubtreeOrder;
 pub use pvs::Pvs;
 
 /// An occlusion query handed out by the backend, valid within one frame.
@@ -254,6 +256,16 @@ pub trait OcclusionBackend {
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
         let _ = (query, objects);
         Err(predicates_unsupported())
+    }
+    /// The order in which the predicated mode hands over objects: every object of the
+    /// hierarchy, the objects of every subtree contiguous ([`SubtreeOrder`]). A backend may
+    /// keep one draw command per object in this order and draw a run of `objects` that is a
+    /// run of the order with one command range; `objects` of later calls may still come in
+    /// any order. Called before the frame's first conditional draw whenever the hierarchy's
+    /// leaves changed. Default: ignored.
+    fn set_draw_order(&mut self, order: &[u32]) -> Result<()> {
+        let _ = order;
+        Ok(())
     }
     /// Whether the backend can issue a query under another query's predicate
     /// ([`OcclusionBackend::issue_query_if`]): the predicated mode then tests the parts of a

@@ -151,6 +151,8 @@ pub struct MockBackend<'a> {
     early_reads: u64,
     predicates: bool,
     predicated_queries: bool,
+    draw_order: Vec<u32>,
+    draw_orders: u32,
 }
 
 impl<'a> MockBackend<'a> {
@@ -171,6 +173,8 @@ impl<'a> MockBackend<'a> {
             early_reads: 0,
             predicates: true,
             predicated_queries: true,
+            draw_order: Vec::new(),
+            draw_orders: 0,
         }
     }
 
@@ -230,6 +234,16 @@ impl<'a> MockBackend<'a> {
         self.counts = MockCounts::default();
         self.drawn.clear();
         self.in_query_state = false;
+    }
+
+    /// The last draw order a culler set ([`OcclusionBackend::set_draw_order`]; empty if none).
+    pub fn draw_order(&self) -> &[u32] {
+        &self.draw_order
+    }
+
+    /// How many times a culler set the draw order.
+    pub fn draw_orders_set(&self) -> u32 {
+        self.draw_orders
     }
 
     /// What the culler asked for since the last [`MockBackend::end_frame`], in order.
@@ -445,6 +459,12 @@ impl OcclusionBackend for MockBackend<'_> {
             visible,
         });
         Ok(id)
+    }
+
+    fn set_draw_order(&mut self, order: &[u32]) -> Result<()> {
+        self.draw_order = order.to_vec();
+        self.draw_orders += 1;
+        Ok(())
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {

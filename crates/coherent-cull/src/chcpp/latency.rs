@@ -41,8 +41,8 @@ pub(super) trait LatencyMode: Sync {
         Ok(())
     }
 
-    /// The hierarchy's structure changed: fits the mode's per-node data to it.
-    fn fit(&self, _c: &mut Chcpp, _bvh: &ObjectBvh) {}
+    /// A frame starts (the per-node state fits the hierarchy): fits the mode's own data to it.
+    fn begin_frame(&self, _c: &mut Chcpp, _bvh: &ObjectBvh) {}
 
     /// A node in the frustum that was not visible last frame: whether the mode opens it itself
     /// (draws it, or visits its children) instead of leaving it to the query rule.

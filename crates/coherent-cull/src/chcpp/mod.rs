@@ -99,6 +99,8 @@ impl Chcpp {
     /// Starts a frame: empty queues, the root in the traversal queue.
     fn begin_frame(&mut self, bvh: &ObjectBvh, eye: glam::Vec3) {
         self.prepare(bvh);
+        let mode = self.mode;
+        mode.begin_frame(self, bvh);
         self.frame += 1;
         self.traversal.clear();
         self.query_queue.clear();

@@ -49,9 +49,14 @@ pub struct ChcppParams {
     /// level, the node's objects all drawn under its own predicate).
     pub predicated_refine_levels: u32,
     /// Predicated mode: a queried node is split into parts (see `predicated_refine_levels`)
-    /// only while it holds more than this many objects in the frustum (default 4); a
-    /// multiquery's nodes are always queried one by one under its predicate.
+    /// only while it holds more than this many objects in the frustum (default 4).
     pub predicated_refine_objects: u32,
+    /// Predicated mode, on a backend that issues queries under predicates: whether the nodes
+    /// of a multiquery are queried one by one under its predicate (default true). Off, a
+    /// multiquery's objects are all drawn under its own predicate: fewer queries (a
+    /// multiquery is grouped because its nodes are expected to stay hidden), more extra draws
+    /// in the frame one of them turns visible.
+    pub predicated_split_multiqueries: bool,
 }
 
 impl Default for ChcppParams {
@@ -73,6 +78,7 @@ impl Default for ChcppParams {
             predicated_budget: 8.0,
             predicated_refine_levels: 2,
             predicated_refine_objects: 4,
+            predicated_split_multiqueries: true,
         }
     }
 }

@@ -18,9 +18,10 @@
 //!    ([`OcclusionBackend::draw_objects_if`]).
 //! 4. On a backend that can issue queries under a predicate
 //!    ([`OcclusionBackend::supports_predicated_queries`]), a queried node with more than
-//!    `predicated_refine_objects` objects in the frustum, and every node of a multiquery, is
-//!    split instead: its parts (descendants down to `predicated_refine_levels` levels, fewer
-//!    where a part is a leaf or small) are queried under the node's predicate
+//!    `predicated_refine_objects` objects in the frustum, and every node of a multiquery
+//!    (unless `predicated_split_multiqueries` is off), is split instead: its parts
+//!    (descendants down to `predicated_refine_levels` levels, fewer where a part is a leaf or
+//!    small) are queried under the node's predicate
 //!    ([`OcclusionBackend::issue_query_if`]: when the node's query counted nothing, the parts'
 //!    boxes are not drawn and their queries count nothing), against the depth of everything
 //!    drawn so far. A second resolve follows, and each part's objects are drawn under the
@@ -65,7 +66,7 @@ use super::latency::LatencyMode;
 use super::{Chcpp, ChcppParams, Pending, QueryKind};
 use crate::bvh::ObjectBvh;
 use crate::error::Result;
-use crate::{CullStats, Latency, OcclusionBackend, View};
+use crate::{CullStats, Latency, OcclusionBackend, SubtreeOrder, View};
 
 /// The predicated mode's policy: the traversal's decision points as the steps above say.
 pub(super) struct Predicated;
@@ -83,8 +84,11 @@ impl LatencyMode for Predicated {
         }
     }
 
-    fn fit(&self, c: &mut Chcpp, bvh: &ObjectBvh) {
-        c.predicated.count_objects(bvh);
+    /// The objects below each node, kept in the order handed to the backend.
+    fn begin_frame(&self, c: &mut Chcpp, bvh: &ObjectBvh) {
+        if c.predicated.order.update(bvh) {
+            c.predicated.order_sent = false;
+        }
     }
 
     /// A node held open: its children are visited.
@@ -155,32 +159,16 @@ pub(super) struct Scratch {
     split: Vec<(crate::QueryId, u32)>,
     /// The parts of one split node.
     parts: Vec<u32>,
-    /// Objects below each node.
-    objects_below: Vec<u32>,
+    /// The hierarchy's objects with every subtree contiguous (how many lie below a node).
+    order: SubtreeOrder,
+    /// Whether the backend has `order` ([`OcclusionBackend::set_draw_order`]).
+    order_sent: bool,
 }
 
 impl Scratch {
-    /// The objects below `node` (0 before [`Scratch::count_objects`]).
+    /// The objects below `node`.
     pub(super) fn objects_below(&self, node: u32) -> u32 {
-        self.objects_below.get(node as usize).copied().unwrap_or(0)
-    }
-
-    /// Counts the objects below each node of `bvh` (after a change of its structure).
-    pub(super) fn count_objects(&mut self, bvh: &ObjectBvh) {
-        let mut order: Vec<u32> = (0..bvh.nodes.len() as u32).collect();
-        order.sort_unstable_by_key(|&n| std::cmp::Reverse(bvh.nodes[n as usize].depth));
-        self.objects_below = vec![0; bvh.nodes.len()];
-        for n in order {
-            let b = &bvh.nodes[n as usize];
-            self.objects_below[n as usize] = if b.is_leaf() {
-                b.object_count
-            } else {
-                b.children
-                    .iter()
-                    .map(|&c| self.objects_below.get(c as usize).copied().unwrap_or(0))
-                    .sum()
-            };
-        }
+        self.order.count_below(node)
     }
 
     /// Appends the objects of `node`'s subtree whose leaves lie in the frustum.
@@ -194,6 +182,9 @@ impl Scratch {
             }
             if b.is_leaf() {
                 self.objects.extend_from_slice(bvh.objects(n));
+            } else if view.frustum.contains(&b.bounds) {
+                // Every leaf below lies in the frustum: the subtree's objects in walk order.
+                self.objects.extend_from_slice(self.order.subtree(n));
             } else {
                 self.stack.extend(b.children.iter().map(|&c| (c, 0)));
             }
@@ -220,6 +211,10 @@ impl Chcpp {
         }
         let first = self.query_queue.len();
         self.issue_i_queue(bvh, backend, stats)?;
+        if !self.predicated.order_sent {
+            backend.set_draw_order(self.predicated.order.objects())?;
+            self.predicated.order_sent = true;
+        }
         backend.resolve_predicates()?;
         stats.predicate_resolves += 1;
         let split =
@@ -254,7 +249,11 @@ impl Chcpp {
             }
             scratch.objects.clear();
             for &n in &self.query_nodes[q.first as usize..(q.first + q.count) as usize] {
-                if split && (q.count > 1 || self.split_node(bvh, n, view, scratch)) {
+                let multiquery = q.count > 1;
+                if split
+                    && ((multiquery && self.params.predicated_split_multiqueries)
+                        || (!multiquery && self.split_node(bvh, n, view, scratch)))
+                {
                     scratch.split.push((q.id, n));
                     self.query_queue[i].split = true;
                 } else {

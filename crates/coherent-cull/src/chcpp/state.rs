@@ -122,8 +122,6 @@ impl Chcpp {
         self.structure = bvh.structure();
         self.rebuilds = bvh.rebuilds();
         self.reserve(bvh);
-        let mode = self.mode;
-        mode.fit(self, bvh);
     }
 
     /// After a rebuild: leaves with an object drawn last frame were visible last frame.
