@@ -61,9 +61,9 @@ pub struct CommandCounts {
     pub indirect_objects: u32,
     /// Triangles of those objects, read back likewise.
     pub indirect_triangles: u64,
-    /// Object draws of moving objects: render-state draws whose object lies in
-    /// [`Recorder::count_mover_draws`]'s range, plus the movers among GPU-generated indirect
-    /// draws as read back after the frame (added by `hiz`).
+    /// Object draws of moving objects, added after the frame by whoever knows which objects
+    /// move (the scene renderer's draw log, and `hiz` for its GPU-generated draws, read
+    /// back); for reports only.
     pub mover_draws: u32,
     /// Predicate resolves: query results copied into the predicate buffer for conditional
     /// rendering (each a pass break: end rendering, copy, barrier, resume).
@@ -78,7 +78,7 @@ pub struct CommandCounts {
     /// draw, or by one command of a multi-draw).
     pub predicated_objects: u32,
     /// Of those, objects whose predicate was true, read back from the predicate buffer after
-    /// the frame ([`Recorder::note_predicates_taken`]); for reports only.
+    /// the frame (added by the scene renderer); for reports only.
     pub predicated_objects_taken: u32,
 }
 
@@ -283,12 +283,6 @@ pub struct Recorder {
     render_extent: vk::Extent2D,
     /// Counts since the last [`Recorder::take_counts`].
     pub counts: CommandCounts,
-    /// Whether render-state draws log the object they draw (their `first_instance`).
-    log_objects: bool,
-    /// Objects drawn in render state since the last [`Recorder::clear_drawn_objects`].
-    drawn_objects: Vec<u32>,
-    /// Objects whose render-state draws also count as `mover_draws` (empty: none).
-    movers: std::ops::Range<u32>,
     /// The device's `maxComputeWorkGroupCount`, checked by every dispatch.
     max_work_group_count: [u32; 3],
     /// `VK_EXT_conditional_rendering`'s commands, when enabled.
@@ -299,9 +293,6 @@ pub struct Recorder {
     /// visible to conditional-rendering reads yet (the validation layers do not track
     /// predicate reads, so the recorder does).
     predicates_unguarded: bool,
-    /// With the drawn-object log: objects drawn inside a conditional block, with the query
-    /// whose predicate decides.
-    predicated_objects: Vec<(u32, u32)>,
 }
 
 impl Recorder {
@@ -316,14 +307,10 @@ impl Recorder {
             in_query: false,
             render_extent: vk::Extent2D::default(),
             counts: CommandCounts::default(),
-            log_objects: false,
-            drawn_objects: Vec::new(),
-            movers: 0..0,
             max_work_group_count: ctx.info.max_compute_work_group_count,
             conditional: ctx.conditional_rendering.clone(),
             in_conditional: None,
             predicates_unguarded: false,
-            predicated_objects: Vec::new(),
         }
     }
 
@@ -406,61 +393,6 @@ impl Recorder {
             // instance) is open.
             unsafe { (fp.cmd_end_conditional_rendering_ext)(self.cmd) };
         }
-    }
-
-    /// Objects drawn under predicates since the last clear, each with the query whose
-    /// predicate decides (with the drawn-object log on).
-    pub fn predicated_objects(&self) -> &[(u32, u32)] {
-        &self.predicated_objects
-    }
-
-    /// After the frame: the objects of [`Recorder::predicated_objects`] whose predicate
-    /// `taken(query)` says was true join the drawn-object log and count in
-    /// [`CommandCounts::predicated_objects_taken`] (of `counts`, the frame's counts).
-    pub fn note_predicates_taken(
-        &mut self,
-        counts: &mut CommandCounts,
-        taken: impl Fn(u32) -> bool,
-    ) {
-        for &(object, query) in &self.predicated_objects {
-            if taken(query) {
-                counts.predicated_objects_taken += 1;
-                if self.log_objects {
-                    self.drawn_objects.push(object);
-                }
-            }
-        }
-        self.predicated_objects.clear();
-    }
-
-    /// Counts render-state draws of the objects in `objects` (the moving ones; their
-    /// `first_instance`) in [`CommandCounts::mover_draws`] too. An empty range counts none.
-    pub fn count_mover_draws(&mut self, objects: std::ops::Range<u32>) {
-        self.movers = objects;
-    }
-
-    /// The objects counted as movers ([`Recorder::count_mover_draws`]).
-    pub fn mover_objects(&self) -> std::ops::Range<u32> {
-        self.movers.clone()
-    }
-
-    /// Turns on (or off) the log of objects drawn in render state: every render-state
-    /// `draw_indexed` records its `first_instance`, which the scene renderer sets to the
-    /// object's index. This is how `walk --check` knows what an algorithm really drew.
-    pub fn log_drawn_objects(&mut self, on: bool) {
-        self.log_objects = on;
-        self.drawn_objects.clear();
-    }
-
-    /// The objects drawn in render state since the last clear (in draw order, with repeats).
-    pub fn drawn_objects(&self) -> &[u32] {
-        &self.drawn_objects
-    }
-
-    /// Forgets the drawn-object log (keeps its capacity).
-    pub fn clear_drawn_objects(&mut self) {
-        self.drawn_objects.clear();
-        self.predicated_objects.clear();
     }
 
     /// Starts recording into a new command buffer (already begun): bound state is forgotten.
@@ -602,18 +534,13 @@ impl Recorder {
         };
         let tris = (index_count / 3) as u64 * instances as u64;
         self.count_draw(tris);
-        if !self.in_query && self.last_kind == Some(PipelineKind::Render) {
-            if let Some(query) = self.in_conditional {
-                // Drawn only if the predicate holds: logged once it is read back.
-                self.counts.predicated_calls += 1;
-                self.counts.predicated_objects += 1;
-                self.predicated_objects.push((first_instance, query));
-            } else if self.log_objects {
-                self.drawn_objects.push(first_instance);
-            }
-            if self.movers.contains(&first_instance) {
-                self.counts.mover_draws += 1;
-            }
+        if !self.in_query
+            && self.last_kind == Some(PipelineKind::Render)
+            && self.in_conditional.is_some()
+        {
+            // Drawn only if the predicate holds.
+            self.counts.predicated_calls += 1;
+            self.counts.predicated_objects += 1;
         }
     }
 
@@ -1025,21 +952,21 @@ impl Recorder {
         self.counts.indirect_draws += 1;
     }
 
-    /// `vkCmdDrawIndexedIndirect` of `objects.len()` commands of 20 bytes from `commands` at
-    /// `offset`, which the caller wrote as the draws of `objects` (object index as
-    /// `first_instance`, one instance) with their triangle counts. One draw call and one
-    /// indirect draw; in render state it is one object draw whose objects count like
-    /// [`Recorder::draw_indexed`]'s (drawn-object log, movers, triangles, and inside a
-    /// conditional block the predicated objects). More than one command needs the device's
-    /// `multiDrawIndirect` and at most `maxDrawIndirectCount` of them, and an object index other
-    /// than 0 needs `drawIndirectFirstInstance` (checked by the caller).
+    /// `vkCmdDrawIndexedIndirect` of `count` commands of 20 bytes from `commands` at
+    /// `offset`, which the caller wrote as the draws of `count` objects of `triangles`
+    /// triangles in all. One draw call and one indirect draw; in render state it is one object
+    /// draw, and inside a conditional block it counts as one predicated call of `count`
+    /// objects. More than one command needs the device's `multiDrawIndirect` and at most
+    /// `maxDrawIndirectCount` of them, and an object index other than 0 as `first_instance`
+    /// needs `drawIndirectFirstInstance` (checked by the caller).
     pub fn draw_objects_indirect(
         &mut self,
         commands: &Buffer,
         offset: u64,
-        objects: &[(u32, u64)],
+        count: u32,
+        triangles: u64,
     ) {
-        if objects.is_empty() {
+        if count == 0 {
             return;
         }
         // SAFETY: recording inside rendering with a bound pipeline and index buffer; the
@@ -1050,29 +977,19 @@ impl Recorder {
                 self.cmd,
                 commands.handle,
                 offset,
-                objects.len() as u32,
+                count,
                 std::mem::size_of::<vk::DrawIndexedIndirectCommand>() as u32,
             )
         };
-        let tris = objects.iter().map(|&(_, t)| t).sum();
-        self.count_draw(tris);
+        self.count_draw(triangles);
         self.counts.indirect_draws += 1;
-        if self.in_query || self.last_kind != Some(PipelineKind::Render) {
-            return;
-        }
-        if let Some(query) = self.in_conditional {
+        if !self.in_query
+            && self.last_kind == Some(PipelineKind::Render)
+            && self.in_conditional.is_some()
+        {
             self.counts.predicated_calls += 1;
-            self.counts.predicated_objects += objects.len() as u32;
-            self.predicated_objects
-                .extend(objects.iter().map(|&(o, _)| (o, query)));
-        } else if self.log_objects {
-            self.drawn_objects.extend(objects.iter().map(|&(o, _)| o));
+            self.counts.predicated_objects += count;
         }
-        let movers = objects
-            .iter()
-            .filter(|(o, _)| self.movers.contains(o))
-            .count();
-        self.counts.mover_draws += movers as u32;
     }
 
     /// Fills `size` bytes of `buffer` at `offset` with the u32 `value` (outside rendering).

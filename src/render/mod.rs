@@ -2,6 +2,7 @@
 //! chain of segments (command buffers): when a culler needs query results the current segment is
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
+mod draw_log;
 pub mod frame;
 pub mod hiz;
 mod ordered;
@@ -128,9 +129,11 @@ pub struct Renderer {
     /// The chunk being filled and the commands in it (this frame).
     draw_chunk: usize,
     draw_used: u32,
-    /// Scratch for one multi-draw: its command bytes and its objects with their triangles.
+    /// Scratch for one multi-draw: its command bytes and its objects.
     draw_bytes: Vec<u8>,
-    draw_objects: Vec<(u32, u64)>,
+    draw_objects: Vec<u32>,
+    /// What the object draws drew (`walk --check`) and the mover draws.
+    log: draw_log::DrawLog,
     /// One command per object in the culler's subtree order (`set_draw_order`): a run of a
     /// predicate's objects that is a run of the order is one multi-draw of these.
     ordered: ordered::OrderedDraws,
@@ -233,6 +236,7 @@ impl Renderer {
             draw_used: 0,
             draw_bytes: Vec::new(),
             draw_objects: Vec::new(),
+            log: draw_log::DrawLog::default(),
             ordered: ordered::OrderedDraws::default(),
             pieces: Vec::new(),
             scattered: Vec::new(),
@@ -437,7 +441,7 @@ impl Renderer {
         self.box_used = 0;
         self.stall = Duration::ZERO;
         self.recorder.take_counts();
-        self.recorder.clear_drawn_objects();
+        self.log.begin_frame();
         self.predicates_resolved = 0;
         self.draw_chunk = 0;
         self.draw_used = 0;
@@ -570,30 +574,30 @@ impl Renderer {
     /// Turns the log of drawn objects on or off (`walk --check` needs it; it costs a push per
     /// object draw).
     pub fn log_drawn_objects(&mut self, on: bool) {
-        self.recorder.log_drawn_objects(on);
+        self.log.set_logging(on);
     }
 
     /// Counts the draws of the objects in `movers` (the scene's moving objects) as the frame's
-    /// `mover_draws` too (the recorder's count; an empty range counts none).
+    /// `mover_draws` too (an empty range counts none).
     pub fn count_mover_draws(&mut self, movers: std::ops::Range<u32>) {
-        self.recorder.count_mover_draws(movers);
+        self.log.set_movers(movers);
     }
 
     /// The objects whose draws count as mover draws ([`Renderer::count_mover_draws`]).
     pub fn mover_objects(&self) -> std::ops::Range<u32> {
-        self.recorder.mover_objects()
+        self.log.movers()
     }
 
     /// Objects the last frame drew, in draw order (with [`Renderer::log_drawn_objects`] on).
     pub fn drawn_objects(&self) -> &[u32] {
-        self.recorder.drawn_objects()
+        self.log.drawn()
     }
 
-    /// Compares what the last frame drew (the recorder's log, see
+    /// Compares what the last frame drew (the draw log, see
     /// [`Renderer::log_drawn_objects`]) with `pixels` from [`Renderer::object_pixels`] for the
     /// same camera.
     pub fn check_drawn(&self, pixels: &[u32]) -> Check {
-        Renderer::check_objects(self.recorder.drawn_objects(), pixels)
+        Renderer::check_objects(self.log.drawn(), pixels)
     }
 
     /// [`Renderer::check_drawn`] for a list of drawn objects from elsewhere (the GPU-generated
@@ -880,9 +884,9 @@ fn box_chunk(ctx: &Arc<GpuContext>) -> Result<Buffer> {
 }
 
 impl Renderer {
-    /// Records draws of `objects` in render state (inside a conditional block when one is
-    /// open).
-    fn record_objects(&mut self, objects: &[u32]) -> Result<()> {
+    /// Records draws of `objects` in render state (inside the conditional block on
+    /// `predicate` when one is given and open).
+    fn record_objects(&mut self, objects: &[u32], predicate: Option<QueryId>) -> Result<()> {
         self.use_pipeline(PipelineKind::Render);
         self.bind_scene_buffers();
         for &o in objects {
@@ -893,6 +897,7 @@ impl Renderer {
                 }
                 self.recorder
                     .draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
+                self.log.drew(&[o], predicate);
             }
         }
         Ok(())
@@ -988,7 +993,11 @@ impl Renderer {
     /// Records `objects` in render state as indexed indirect multi-draws, each command drawing
     /// one object (its index as `first_instance`, as [`Renderer::record_objects`] does), from
     /// this frame's command chunks.
-    fn record_objects_indirect(&mut self, objects: &[u32]) -> Result<()> {
+    fn record_objects_indirect(
+        &mut self,
+        objects: &[u32],
+        predicate: Option<QueryId>,
+    ) -> Result<()> {
         self.use_pipeline(PipelineKind::Render);
         self.bind_scene_buffers();
         let per_chunk = DRAW_CHUNK.min(self.ctx.info.max_draw_indirect_count);
@@ -1012,7 +1021,7 @@ impl Renderer {
             let room = (per_chunk - self.draw_used) as usize;
             self.draw_bytes.clear();
             self.draw_objects.clear();
-            let mut used = 0;
+            let (mut used, mut triangles) = (0, 0);
             for &o in rest {
                 if self.draw_objects.len() == room {
                     break;
@@ -1023,7 +1032,8 @@ impl Renderer {
                     continue;
                 }
                 ordered::command_bytes(o, &d, &mut self.draw_bytes);
-                self.draw_objects.push((o, u64::from(d.index_count / 3)));
+                self.draw_objects.push(o);
+                triangles += u64::from(d.index_count / 3);
             }
             rest = &rest[used..];
             if self.draw_objects.is_empty() {
@@ -1032,9 +1042,11 @@ impl Renderer {
             let offset = self.draw_used as usize * DRAW_BYTES;
             let chunk = &mut self.draw_chunks[self.draw_chunk];
             chunk.write(offset, &self.draw_bytes)?;
+            let count = self.draw_objects.len() as u32;
             self.recorder
-                .draw_objects_indirect(chunk, offset as u64, &self.draw_objects);
-            self.draw_used += self.draw_objects.len() as u32;
+                .draw_objects_indirect(chunk, offset as u64, count, triangles);
+            self.log.drew(&self.draw_objects, predicate);
+            self.draw_used += count;
         }
         Ok(())
     }
@@ -1043,9 +1055,13 @@ impl Renderer {
     /// that is a run of the culler's subtree order (at least [`ordered::MIN_RUN`] long) as one
     /// multi-draw of the ordered commands, the objects between runs as multi-draws written
     /// for this frame ([`Renderer::record_objects_indirect`]), in the order given.
-    fn record_objects_ordered(&mut self, objects: &[u32]) -> Result<()> {
+    fn record_objects_ordered(
+        &mut self,
+        objects: &[u32],
+        predicate: Option<QueryId>,
+    ) -> Result<()> {
         if self.ordered.buffer().is_none() {
-            return self.record_objects_indirect(objects);
+            return self.record_objects_indirect(objects, predicate);
         }
         let max = self.ctx.info.max_draw_indirect_count.max(1) as usize;
         let mut pieces = std::mem::take(&mut self.pieces);
@@ -1059,18 +1075,19 @@ impl Renderer {
                 continue;
             };
             if !scattered.is_empty() {
-                result = self.record_objects_indirect(&scattered);
+                result = self.record_objects_indirect(&scattered, predicate);
                 scattered.clear();
             }
             if result.is_ok() {
-                result = self.record_run(&objects[p.start..p.start + p.len], position);
+                let run = &objects[p.start..p.start + p.len];
+                result = self.record_run(run, position, predicate);
             }
             if result.is_err() {
                 break;
             }
         }
         if result.is_ok() && !scattered.is_empty() {
-            result = self.record_objects_indirect(&scattered);
+            result = self.record_objects_indirect(&scattered, predicate);
         }
         self.pieces = pieces;
         self.scattered = scattered;
@@ -1078,31 +1095,26 @@ impl Renderer {
     }
 
     /// One multi-draw of the ordered commands `position..` that draw `run`.
-    fn record_run(&mut self, run: &[u32], position: u32) -> Result<()> {
+    fn record_run(&mut self, run: &[u32], position: u32, predicate: Option<QueryId>) -> Result<()> {
         self.use_pipeline(PipelineKind::Render);
         self.bind_scene_buffers();
-        self.draw_objects.clear();
+        let mut triangles = 0;
         for &o in run {
-            let d = self.object_draw(o)?;
-            self.draw_objects.push((o, u64::from(d.index_count / 3)));
+            triangles += u64::from(self.object_draw(o)?.index_count / 3);
         }
         if let Some(buffer) = self.ordered.buffer() {
-            self.recorder.draw_objects_indirect(
-                buffer,
-                u64::from(position) * DRAW_BYTES as u64,
-                &self.draw_objects,
-            );
+            let offset = u64::from(position) * DRAW_BYTES as u64;
+            self.recorder
+                .draw_objects_indirect(buffer, offset, run.len() as u32, triangles);
+            self.log.drew(run, predicate);
         }
         Ok(())
     }
 
     /// After the frame: reads the predicates back, so objects drawn under a false predicate
     /// do not count as drawn (`walk --check`) and `counts.predicated_objects_taken` says how
-    /// many were.
+    /// many were; adds the mover draws.
     fn read_predicates(&mut self, counts: &mut CommandCounts) -> Result<()> {
-        if counts.predicated_objects == 0 {
-            return Ok(());
-        }
         let chunk = self.occlusion.chunk();
         let buffers = &self.predicates;
         let value = |q: u32| -> Option<u32> {
@@ -1110,8 +1122,8 @@ impl Renderer {
             let at = (q % chunk) as usize * 4;
             Some(u32::from_ne_bytes(bytes.get(at..at + 4)?.try_into().ok()?))
         };
-        self.recorder
-            .note_predicates_taken(counts, |q| value(q).is_some_and(|v| v != 0));
+        self.log
+            .end_frame(counts, |q| value(q).is_some_and(|v| v != 0));
         Ok(())
     }
 
@@ -1129,7 +1141,7 @@ impl OcclusionBackend for Renderer {
             return Ok(());
         }
         self.ensure_recording()?;
-        Ok(self.record_objects(objects)?)
+        Ok(self.record_objects(objects, None)?)
     }
 
     fn supports_predicates(&self) -> bool {
@@ -1175,9 +1187,9 @@ impl OcclusionBackend for Renderer {
         self.recorder
             .begin_conditional(&self.predicates[buffer], offset, query)?;
         let drawn = if self.multi_draws() {
-            self.record_objects_ordered(objects)
+            self.record_objects_ordered(objects, Some(query))
         } else {
-            self.record_objects(objects)
+            self.record_objects(objects, Some(query))
         };
         self.recorder.end_conditional();
         Ok(drawn?)

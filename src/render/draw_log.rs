@@ -1,0 +1,95 @@
+//! What the renderer's object draws drew: the log `walk --check` compares with the exact ID
+//! pass, and the draws of moving objects. Kept beside the recorder, which records and counts
+//! commands and knows nothing of objects.
+
+use std::ops::Range;
+
+use crate::gpu::CommandCounts;
+
+/// The objects one frame's object draws drew (with the log on), and its mover draws.
+#[derive(Default)]
+pub(super) struct DrawLog {
+    /// Whether draws are logged (`walk --check`).
+    on: bool,
+    /// Objects drawn unconditionally this frame, in draw order (with repeats).
+    drawn: Vec<u32>,
+    /// With the log on: objects drawn under a predicate this frame, with the query whose
+    /// predicate decides; they join `drawn` once the predicates are read back, if theirs was
+    /// true.
+    predicated: Vec<(u32, u32)>,
+    /// Per query whose predicate decided draws this frame: how many objects (log on or off).
+    predicated_counts: Vec<(u32, u32)>,
+    /// Objects whose draws count as mover draws.
+    movers: Range<u32>,
+    /// Draws of those this frame (drawn or under a predicate).
+    mover_draws: u32,
+}
+
+impl DrawLog {
+    /// Turns the log on or off (and forgets it).
+    pub(super) fn set_logging(&mut self, on: bool) {
+        self.on = on;
+        self.begin_frame();
+    }
+
+    /// Counts draws of `objects` as mover draws from now on.
+    pub(super) fn set_movers(&mut self, objects: Range<u32>) {
+        self.movers = objects;
+    }
+
+    /// The objects counted as movers.
+    pub(super) fn movers(&self) -> Range<u32> {
+        self.movers.clone()
+    }
+
+    /// A new frame: forgets the last one (keeps the capacity).
+    pub(super) fn begin_frame(&mut self) {
+        self.drawn.clear();
+        self.predicated.clear();
+        self.predicated_counts.clear();
+        self.mover_draws = 0;
+    }
+
+    /// `objects` were drawn in render state, under `predicate`'s query if given.
+    pub(super) fn drew(&mut self, objects: &[u32], predicate: Option<u32>) {
+        if !self.movers.is_empty() {
+            let movers = objects.iter().filter(|o| self.movers.contains(o)).count();
+            self.mover_draws += movers as u32;
+        }
+        match predicate {
+            Some(query) => {
+                self.predicated_counts.push((query, objects.len() as u32));
+                if self.on {
+                    self.predicated.extend(objects.iter().map(|&o| (o, query)));
+                }
+            }
+            None if self.on => self.drawn.extend_from_slice(objects),
+            None => {}
+        }
+    }
+
+    /// After the frame, with the predicates read back (`taken(query)`): adds the mover draws
+    /// and the objects drawn under true predicates to `counts`, and those objects to the log.
+    pub(super) fn end_frame(&mut self, counts: &mut CommandCounts, taken: impl Fn(u32) -> bool) {
+        counts.mover_draws += self.mover_draws;
+        self.mover_draws = 0;
+        for &(query, objects) in &self.predicated_counts {
+            if taken(query) {
+                counts.predicated_objects_taken += objects;
+            }
+        }
+        for &(object, query) in &self.predicated {
+            if taken(query) {
+                self.drawn.push(object);
+            }
+        }
+        self.predicated.clear();
+        self.predicated_counts.clear();
+    }
+
+    /// The objects drawn (with the log on), in draw order; those under predicates follow the
+    /// unconditional ones once [`DrawLog::end_frame`] read their predicates.
+    pub(super) fn drawn(&self) -> &[u32] {
+        &self.drawn
+    }
+}
