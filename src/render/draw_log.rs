@@ -13,12 +13,12 @@ pub(super) struct DrawLog {
     on: bool,
     /// Objects drawn unconditionally this frame, in draw order (with repeats).
     drawn: Vec<u32>,
-    /// With the log on: objects drawn under a predicate this frame, with the query whose
-    /// predicate decides; they join `drawn` once the predicates are read back, if theirs was
-    /// true.
-    predicated: Vec<(u32, u32)>,
-    /// Per query whose predicate decided draws this frame: how many objects (log on or off).
-    predicated_counts: Vec<(u32, u32)>,
+    /// With the log on: objects drawn under a predicate this frame, call by call; they join
+    /// `drawn` once the predicates are read back, if theirs was true.
+    predicated: Vec<u32>,
+    /// Per call under a predicate this frame: its query and how many objects it drew (log on
+    /// or off; with the log on, the next that many of `predicated`).
+    predicated_calls: Vec<(u32, u32)>,
     /// Objects whose draws count as mover draws.
     movers: Range<u32>,
     /// Draws of those this frame (drawn or under a predicate).
@@ -46,7 +46,7 @@ impl DrawLog {
     pub(super) fn begin_frame(&mut self) {
         self.drawn.clear();
         self.predicated.clear();
-        self.predicated_counts.clear();
+        self.predicated_calls.clear();
         self.mover_draws = 0;
     }
 
@@ -58,9 +58,9 @@ impl DrawLog {
         }
         match predicate {
             Some(query) => {
-                self.predicated_counts.push((query, objects.len() as u32));
+                self.predicated_calls.push((query, objects.len() as u32));
                 if self.on {
-                    self.predicated.extend(objects.iter().map(|&o| (o, query)));
+                    self.predicated.extend_from_slice(objects);
                 }
             }
             None if self.on => self.drawn.extend_from_slice(objects),
@@ -73,18 +73,20 @@ impl DrawLog {
     pub(super) fn end_frame(&mut self, counts: &mut CommandCounts, taken: impl Fn(u32) -> bool) {
         counts.mover_draws += self.mover_draws;
         self.mover_draws = 0;
-        for &(query, objects) in &self.predicated_counts {
-            if taken(query) {
-                counts.predicated_objects_taken += objects;
+        let mut first = 0;
+        for &(query, objects) in &self.predicated_calls {
+            let call = first..first + objects as usize;
+            first = call.end;
+            if !taken(query) {
+                continue;
             }
-        }
-        for &(object, query) in &self.predicated {
-            if taken(query) {
-                self.drawn.push(object);
+            counts.predicated_objects_taken += objects;
+            if self.on {
+                self.drawn.extend_from_slice(&self.predicated[call]);
             }
         }
         self.predicated.clear();
-        self.predicated_counts.clear();
+        self.predicated_calls.clear();
     }
 
     /// The objects drawn (with the log on), in draw order; those under predicates follow the

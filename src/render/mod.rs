@@ -1031,7 +1031,8 @@ impl Renderer {
                 if d.index_count == 0 {
                     continue;
                 }
-                ordered::command_bytes(o, &d, &mut self.draw_bytes);
+                self.draw_bytes
+                    .extend_from_slice(&ordered::command_bytes(o, &d));
                 self.draw_objects.push(o);
                 triangles += u64::from(d.index_count / 3);
             }

@@ -39,16 +39,19 @@ pub(super) struct Piece {
 }
 
 /// The command that draws `draw` as object `object` (its index as `first_instance`).
-pub(super) fn command_bytes(object: u32, draw: &ObjectDraw, out: &mut Vec<u8>) {
-    for word in [
+pub(super) fn command_bytes(object: u32, draw: &ObjectDraw) -> [u8; DRAW_BYTES] {
+    let words = [
         draw.index_count,
         1,
         draw.first_index,
         draw.vertex_offset as u32,
         object,
-    ] {
-        out.extend_from_slice(&word.to_ne_bytes());
+    ];
+    let mut out = [0; DRAW_BYTES];
+    for (bytes, word) in out.chunks_exact_mut(4).zip(words) {
+        bytes.copy_from_slice(&word.to_ne_bytes());
     }
+    out
 }
 
 impl OrderedDraws {
@@ -77,7 +80,7 @@ impl OrderedDraws {
                     draws.len()
                 ))
             })?;
-            command_bytes(o, draw, &mut bytes);
+            bytes.extend_from_slice(&command_bytes(o, draw));
             position[o as usize] = p as u32;
         }
         let size = (bytes.len().max(DRAW_BYTES)) as u64;
@@ -108,9 +111,7 @@ impl OrderedDraws {
         if p == u32::MAX {
             return Ok(());
         }
-        let mut bytes = Vec::with_capacity(DRAW_BYTES);
-        command_bytes(object, draw, &mut bytes);
-        buffer.write(p as usize * DRAW_BYTES, &bytes)
+        buffer.write(p as usize * DRAW_BYTES, &command_bytes(object, draw))
     }
 
     /// A new frame: the buffers replaced before it are no longer used.
