@@ -70,6 +70,9 @@ pub struct CommandCounts {
     pub predicate_resolves: u32,
     /// Conditional-rendering blocks (`vkCmdBeginConditionalRenderingEXT`).
     pub conditional_blocks: u32,
+    /// Queries whose boxes were drawn inside a conditional block (a block begun while a query
+    /// is active); also in `queries_begun`.
+    pub predicated_queries: u32,
     /// Render-state draw calls recorded inside a conditional block: one per object, or one
     /// indirect multi-draw of several objects ([`Recorder::draw_objects_indirect`]); also in
     /// `object_draws`.
@@ -382,6 +385,7 @@ impl Recorder {
         // multiple of 4 inside it, and no conditional block is open.
         unsafe { (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info) };
         self.counts.conditional_blocks += 1;
+        self.counts.predicated_queries += self.in_query as u32;
         self.in_conditional = Some(query);
         Ok(())
     }

@@ -227,18 +227,60 @@ fn parse(bytes: &[u8]) -> Result<Gltf, String> {
             errors.push((path(), error))
         });
     }
-    let tolerated = errors.iter().all(|(path, error)| {
+    errors.retain(|(path, error)| {
         let path = path.to_string();
-        (*error == ::gltf::json::validation::Error::Missing
+        let tolerated = (*error == ::gltf::json::validation::Error::Missing
             && (path.ends_with(".min") || path.ends_with(".max")))
             || (*error == ::gltf::json::validation::Error::Unsupported
-                && super::gltf_ext::is_honored_required(&path))
+                && super::gltf_ext::is_honored_required(&path));
+        !tolerated
     });
-    if tolerated {
+    if errors.is_empty() {
         Ok(Gltf { document, blob })
     } else {
-        Err(::gltf::Error::Validation(errors).to_string())
+        Err(validation_message(document.as_json(), &errors))
     }
+}
+
+/// Most validation errors a load error lists (a file can have thousands: one per accessor of a
+/// compressed mesh).
+const LISTED_ERRORS: usize = 5;
+
+/// A load error for a document that failed validation: the required extensions the loader
+/// does not support first (they usually cause the rest, e.g. a Draco mesh's accessors have no
+/// buffer views), then the first [`LISTED_ERRORS`] errors and how many more there are.
+fn validation_message(
+    root: &::gltf::json::Root,
+    errors: &[(::gltf::json::Path, ::gltf::json::validation::Error)],
+) -> String {
+    let unsupported: Vec<&str> = root
+        .extensions_required
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| {
+            // The crate's path for it reads `extensionsRequired[i] = "NAME"`.
+            let path = format!("extensionsRequired[{i}]");
+            errors.iter().any(|(p, _)| p.to_string().starts_with(&path))
+        })
+        .map(|(_, name)| name.as_str())
+        .collect();
+    let mut out = String::from("invalid glTF: ");
+    if !unsupported.is_empty() {
+        out += &format!(
+            "it requires extensions this loader does not support ({}); ",
+            unsupported.join(", ")
+        );
+    }
+    let listed: Vec<String> = errors
+        .iter()
+        .take(LISTED_ERRORS)
+        .map(|(path, error)| format!("{path}: {error}"))
+        .collect();
+    out += &listed.join("; ");
+    if errors.len() > LISTED_ERRORS {
+        out += &format!("; and {} more", errors.len() - LISTED_ERRORS);
+    }
+    out
 }
 
 /// A GLB header's total length covers at least the header itself (the gltf crate subtracts the
@@ -1137,6 +1179,31 @@ mod tests {
             warnings[0].contains("wire") && warnings[0].contains("Lines"),
             "{warnings:?}"
         );
+    }
+
+    #[test]
+    fn unsupported_required_extension_is_named_first_and_the_error_stays_short() {
+        let dir = temp_dir("draco");
+        let mut b = GltfBuilder::default();
+        // A Draco-compressed file's accessors have no buffer views: 40 errors follow from one
+        // unsupported extension.
+        let accessors: Vec<String> = (0..40)
+            .map(|_| r#"{"componentType":5126,"count":3,"type":"VEC3"}"#.to_string())
+            .collect();
+        b.accessors.extend(accessors);
+        b.meshes
+            .push(r#"{"primitives":[{"attributes":{"POSITION":0}}]}"#.to_string());
+        b.node(0, [0.0; 3]);
+        let json = b.gltf_embedded().replacen(
+            r#"{"asset":{"version":"2.0"},"#,
+            r#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"],"#,
+            1,
+        );
+        let path = write(&dir, "draco.gltf", json);
+        assert_scene_err(&path, "does not support (KHR_draco_mesh_compression)");
+        let msg = load_gltf(&path).err().unwrap().to_string();
+        assert!(msg.contains("and 36 more"), "{msg}");
+        assert!(msg.len() < 600, "{} characters: {msg}", msg.len());
     }
 
     #[test]

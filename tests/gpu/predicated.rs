@@ -84,6 +84,10 @@ fn matches_vfc(
                 res.cull.predicated_draws + res.cull.predicated_queries,
                 "{tag}"
             );
+            assert_eq!(
+                res.counts.predicated_queries, res.cull.predicated_queries,
+                "{tag}: queries under predicates"
+            );
             split_queries += res.cull.predicated_queries;
             assert_eq!(
                 res.counts.predicated_objects, res.cull.predicated_objects,

@@ -65,6 +65,12 @@ pub struct FrameRecord {
     pub predicated_taken: u32,
     /// Predicate resolves: pass breaks that turn query results into predicates.
     pub predicate_resolves: u32,
+    /// Of the queries, multiqueries (several nodes in one query).
+    pub multiqueries: u32,
+    /// Of the queries, queries of previously visible leaves.
+    pub visible_leaf_queries: u32,
+    /// Of the queries, queries whose boxes were drawn under another query's predicate.
+    pub predicated_queries: u32,
 }
 
 impl FrameRecord {
@@ -96,12 +102,15 @@ impl FrameRecord {
             predicated_draws: r.counts.predicated_objects,
             predicated_taken: r.counts.predicated_objects_taken,
             predicate_resolves: r.counts.predicate_resolves,
+            multiqueries: r.counts.multiqueries,
+            visible_leaf_queries: r.counts.visible_leaf_queries,
+            predicated_queries: r.counts.predicated_queries,
         }
     }
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 22] = [
+pub const CSV_HEADER: [&str; 25] = [
     "algorithm",
     "frame",
     "repeat",
@@ -124,6 +133,9 @@ pub const CSV_HEADER: [&str; 22] = [
     "predicated_draws",
     "predicated_taken",
     "predicate_resolves",
+    "multiqueries",
+    "visible_leaf_queries",
+    "predicated_queries",
 ];
 
 /// Quotes a CSV field if it contains a separator, quote or line break.
@@ -147,7 +159,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.repeat,
@@ -169,7 +181,10 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             optional(r.mover_draws),
             r.predicated_draws,
             r.predicated_taken,
-            r.predicate_resolves
+            r.predicate_resolves,
+            r.multiqueries,
+            r.visible_leaf_queries,
+            r.predicated_queries
         )?;
     }
     w.flush()?;
@@ -237,12 +252,12 @@ mod tests {
             "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
              pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,\
              missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,\
-             predicate_resolves"
+             predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries"
         );
         assert_eq!(lines.len(), 1 + records.len());
         assert_eq!(
             lines[1],
-            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,0,0,0"
+            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,0,0,0,0,0,0"
         );
         assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();
