@@ -187,6 +187,11 @@ pub struct ChcppArgs {
     /// objects in the frustum.
     #[arg(long, default_value_t = 4)]
     pub refine_objects: u32,
+    /// Predicated mode: split a node only when (1 - p) * objects * RATIO exceeds its parts
+    /// (p: the chance its query comes back hidden; RATIO: an object draw's cost over a query
+    /// whose boxes a false predicate discards). 0: split by size alone.
+    #[arg(long, default_value_t = 0.0)]
+    pub split_ratio: f32,
 }
 
 impl ChcppArgs {
@@ -197,6 +202,7 @@ impl ChcppArgs {
             pixel_threshold: self.pixel_threshold,
             predicated_refine_levels: self.refine_levels,
             predicated_refine_objects: self.refine_objects,
+            predicated_split_ratio: self.split_ratio,
             ..ChcppParams::default()
         };
         for d in &self.disable {
@@ -215,6 +221,12 @@ impl ChcppArgs {
                      split-multiqueries)"
                 ),
             }
+        }
+        if !(p.predicated_split_ratio >= 0.0 && p.predicated_split_ratio.is_finite()) {
+            bail!(
+                "--split-ratio {} must be a finite number at least 0",
+                p.predicated_split_ratio
+            );
         }
         if p.multiqueries && !p.batching {
             bail!(

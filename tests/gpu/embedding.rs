@@ -351,6 +351,9 @@ fn engine_example_runs_with_two_frames_in_flight() {
     assert!(out.status.success(), "engine failed:\n{text}\n{err}");
     assert!(text.contains("validation: no messages"), "{text}");
     assert!(text.contains("predicated mode"), "runs predicated: {text}");
+    // The culler's subtree order reaches the engine's draw callback once (the leaves of the
+    // engine's hierarchy never change).
+    assert!(text.contains("draw order received 1 time(s)"), "{text}");
     // frame, cull ms, pace ms, draws, predicated, breaks, queries, multi, binds, switches,
     // visible, submits, waits: the predicated columns are checked, then dropped.
     let rows: Vec<Vec<f64>> = text

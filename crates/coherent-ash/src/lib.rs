@@ -85,7 +85,10 @@
 //! follows the queries of the parts of split nodes, whose boxes the backend draws inside a
 //! conditional block on their node's predicate (`OcclusionBackend::issue_query_if`). Without the
 //! extension [`QueryBackend::new`] refuses `predicates` with an error that names it; a frame
-//! without a resume makes the culler refuse the mode.
+//! without a resume makes the culler refuse the mode. The culler also hands over its draw
+//! order ([`DrawObjects::set_order`]): each subtree's objects are contiguous in it, so a host
+//! that keeps one indirect command per object in that order can draw a predicate's run of
+//! objects as one multi-draw (the built-in renderer of the `coherent` package does).
 //!
 //! ## Requirements
 //!
@@ -203,6 +206,17 @@ pub struct QueryCounts {
 pub trait DrawObjects {
     /// Records the draws (see the trait docs).
     fn draw(&mut self, cmd: vk::CommandBuffer, objects: &[u32], rebind: bool) -> Result<()>;
+
+    /// The culler's draw order (`Latency::Predicated`; see
+    /// [`coherent_cull::OcclusionBackend::set_draw_order`]): every object once, each subtree
+    /// of the hierarchy contiguous. The objects of a draw under a predicate come mostly in
+    /// runs of it, so a host that keeps one indexed indirect command per object in this order
+    /// can record a run as one `vkCmdDrawIndexedIndirect`. Sent again when the hierarchy's
+    /// leaves change. Default: ignored.
+    fn set_order(&mut self, order: &[u32]) -> Result<()> {
+        let _ = order;
+        Ok(())
+    }
 }
 
 impl<F> DrawObjects for F
@@ -727,6 +741,10 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         }
         self.box_bound_since_draw = false;
         Ok(())
+    }
+
+    fn set_draw_order(&mut self, order: &[u32]) -> Result<()> {
+        self.draw.set_order(order)
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {

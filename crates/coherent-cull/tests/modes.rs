@@ -728,3 +728,49 @@ fn predicated_hands_over_subtrees_in_the_draw_order_it_set() {
     assert_eq!(backend.draw_order().len(), 599);
     assert!(!backend.draw_order().contains(&7));
 }
+
+#[test]
+fn a_split_ratio_queries_fewer_parts_of_long_hidden_nodes_and_stays_exact() {
+    let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
+    let mut parts_by_ratio = Vec::new();
+    for ratio in [0.0, 4.0, 1e9, 1e-9] {
+        let params = ChcppParams {
+            predicated_split_ratio: ratio,
+            ..ChcppParams::default()
+        };
+        let mut c = Chcpp::new(params)
+            .with_latency(Latency::Predicated)
+            .with_frames_in_flight(1);
+        let mut backend = MockBackend::new(|_| 0);
+        let (mut parts, mut sent) = (0, 0);
+        for f in 1..=40 {
+            // The walk, then twenty frames standing still: nodes stay hidden, and their
+            // history says they will.
+            let cam = walk(f.min(20));
+            let fog = Fog::new(&cam, 35.0);
+            let want = fog.visible_objects(&bvh);
+            backend.set_visibility(move |b| fog.pixels(b));
+            let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+            let lost = missing(&want, &fr.drawn);
+            assert!(lost.is_empty(), "ratio {ratio} frame {f}: {lost:?} missed");
+            if f > 25 {
+                parts += fr.counts.predicated_queries;
+                sent += fr.stats.predicated_objects;
+            }
+        }
+        eprintln!("ratio {ratio}: {parts} parts queried, {sent} objects under predicates");
+        parts_by_ratio.push(parts);
+    }
+    assert!(parts_by_ratio[0] > 0, "the size rule splits nodes");
+    assert!(
+        parts_by_ratio[1] * 5 < parts_by_ratio[0] * 4,
+        "long-hidden nodes are not worth their parts: {parts_by_ratio:?}"
+    );
+    // The rule only filters the size rule's splits: nearly all of them when every split
+    // with an object in the frustum pays, none when none does.
+    assert!(
+        parts_by_ratio[2] <= parts_by_ratio[0] && parts_by_ratio[2] > parts_by_ratio[1],
+        "{parts_by_ratio:?}"
+    );
+    assert_eq!(parts_by_ratio[3], 0, "{parts_by_ratio:?}");
+}

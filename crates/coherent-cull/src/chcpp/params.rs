@@ -57,6 +57,14 @@ pub struct ChcppParams {
     /// multiquery is grouped because its nodes are expected to stay hidden), more extra draws
     /// in the frame one of them turns visible.
     pub predicated_split_multiqueries: bool,
+    /// Predicated mode: split a node (or a node of a multiquery) only when it pays in
+    /// expectation, `(1 - p) · objects · ratio > parts`, with `1 - p` the chance that its
+    /// query's predicate is true (from the nodes' invisibility history, as for multiqueries),
+    /// `objects` its objects in the frustum, `parts` the queries splitting costs, and `ratio`
+    /// this value: the cost of drawing an object over that of a query whose boxes a false
+    /// predicate discards (the begin and end of every split query are recorded, and paid,
+    /// whatever the predicate). 0 (the default) splits by size alone.
+    pub predicated_split_ratio: f32,
 }
 
 impl Default for ChcppParams {
@@ -79,6 +87,7 @@ impl Default for ChcppParams {
             predicated_refine_levels: 2,
             predicated_refine_objects: 4,
             predicated_split_multiqueries: true,
+            predicated_split_ratio: 0.0,
         }
     }
 }

@@ -248,11 +248,21 @@ impl Chcpp {
                 continue;
             }
             scratch.objects.clear();
-            for &n in &self.query_nodes[q.first as usize..(q.first + q.count) as usize] {
-                let multiquery = q.count > 1;
+            let nodes = q.first as usize..(q.first + q.count) as usize;
+            let multiquery = q.count > 1;
+            let p_true = if self.params.predicated_split_ratio > 0.0 {
+                1.0 - self.query_nodes[nodes.clone()]
+                    .iter()
+                    .map(|&n| self.stays_invisible(n).clamp(0.0, 1.0))
+                    .product::<f32>()
+            } else {
+                1.0
+            };
+            for &n in &self.query_nodes[nodes] {
                 if split
                     && ((multiquery && self.params.predicated_split_multiqueries)
                         || (!multiquery && self.split_node(bvh, n, view, scratch)))
+                    && self.split_pays(bvh, n, view, p_true, scratch)
                 {
                     scratch.split.push((q.id, n));
                     self.query_queue[i].split = true;
@@ -317,6 +327,31 @@ impl Chcpp {
         let in_frustum = scratch.objects.len() - before;
         scratch.objects.truncate(before);
         in_frustum > self.params.predicated_refine_objects as usize
+    }
+
+    /// Whether splitting `node`, queried under a predicate that is true with probability
+    /// `p_true`, pays in expectation (`predicated_split_ratio`; always with a ratio of 0).
+    fn split_pays(
+        &self,
+        bvh: &ObjectBvh,
+        node: u32,
+        view: &View,
+        p_true: f32,
+        scratch: &mut Scratch,
+    ) -> bool {
+        let ratio = self.params.predicated_split_ratio;
+        if ratio <= 0.0 {
+            return true;
+        }
+        let before = scratch.objects.len();
+        scratch.collect(bvh, node, view);
+        let objects = scratch.objects.len() - before;
+        scratch.objects.truncate(before);
+        scratch.parts.clear();
+        self.parts_of(bvh, node, view, scratch);
+        let parts = scratch.parts.len();
+        scratch.parts.clear();
+        p_true * objects as f32 * ratio > parts as f32
     }
 
     /// The parts of a split node in the frustum, into `scratch.parts`: its descendants down to
