@@ -112,7 +112,7 @@ fn walk_writes_csv_json_and_plots() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves"
+        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries"
     );
     assert_eq!(lines.count(), 6 * 5);
     for png in ["frametime.png", "counts.png"] {
@@ -156,6 +156,7 @@ fn walk_scaling_table_and_bad_flags() {
         // Multiqueries need the i-queue: the combination is refused, not silently changed.
         vec!["--disable", "batching"],
         vec!["--repeat", "0"],
+        vec!["--split-ratio", "inf"],
     ] {
         let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
             .args(["walk", "--scene", "cornell", "--size", "32x32"])
