@@ -27,7 +27,10 @@
 //!    drawn so far. A second resolve follows, and each part's objects are drawn under the
 //!    part's own predicate: a node that turns visible draws the parts that show, not its
 //!    whole subtree. Blocks do not nest, and none has to: a part's query lies in its node's
-//!    block, its draws in its own.
+//!    block, its draws in its own. With `predicated_split_ratio` R > 0 a node is split only
+//!    when it pays in expectation, `(1 - p) · objects · R > parts`, `1 - p` the chance that
+//!    its query's predicate is true (the multiqueries' estimate from the nodes' history): a
+//!    split query costs its begin and end even when a false predicate discards its boxes.
 //! 5. The results are read `k` frames later only to update the hierarchy: a queried node that
 //!    came back visible is opened `predicated_levels` levels deep (the nodes below are queried,
 //!    and drawn under their own predicates, from then on), a failed multiquery's nodes lose their
