@@ -100,23 +100,32 @@ fn plot_missed(
     if !records.iter().any(|r| r.missed_pixels.is_some()) {
         return Ok(());
     }
-    let series: Vec<(String, Vec<(u32, f64)>)> = algorithms
-        .iter()
-        .map(|a| {
-            let pts = records
-                .iter()
-                .filter(|r| &r.algorithm == a && r.repeat == 0)
-                .map(|r| (r.frame, r.missed_pixels.unwrap_or(0) as f64))
-                .collect();
-            (a.clone(), pts)
-        })
-        .collect();
+    let series = first_repeat_series(records, algorithms, |r| {
+        (r.frame, r.missed_pixels.unwrap_or(0) as f64)
+    });
     report::plot_missed_pixels(
         &dir.join("missed_pixels.png"),
         &format!("Missed pixels: {title}"),
         &series,
     )?;
     Ok(())
+}
+
+/// One plot series per algorithm: `point` of each of its rows of the first repeat, in order.
+fn first_repeat_series<T>(
+    records: &[FrameRecord],
+    algorithms: &[String],
+    point: impl Fn(&FrameRecord) -> T,
+) -> Vec<(String, Vec<T>)> {
+    algorithms
+        .iter()
+        .map(|a| {
+            let rows = records
+                .iter()
+                .filter(|r| &r.algorithm == a && r.repeat == 0);
+            (a.clone(), rows.map(&point).collect())
+        })
+        .collect()
 }
 
 /// Writes `frames.csv`, `summary.json`, `frametime.png` and `counts.png` into `dir`.
@@ -149,40 +158,16 @@ pub fn write_report(
         size.0,
         size.1
     );
-    let series: Vec<(String, Vec<(u32, f64)>)> = algorithms
-        .iter()
-        .map(|a| {
-            (
-                a.clone(),
-                records
-                    .iter()
-                    .filter(|r| &r.algorithm == a && r.repeat == 0)
-                    .map(|r| (r.frame, r.frame_ms))
-                    .collect(),
-            )
-        })
-        .collect();
+    let series = first_repeat_series(records, algorithms, |r| (r.frame, r.frame_ms));
     report::plot_frametime(
         &dir.join("frametime.png"),
         &format!("Frame time: {title}"),
         &series,
     )?;
-    let counts: Vec<report::CountSeries> = algorithms
-        .iter()
-        .map(|a| {
-            (
-                a.clone(),
-                records
-                    .iter()
-                    .filter(|r| &r.algorithm == a && r.repeat == 0)
-                    .map(|r| {
-                        let (q, w) = (r.queries as f64, r.wasted_queries as f64);
-                        (r.frame, q, w, r.state_changes as f64)
-                    })
-                    .collect(),
-            )
-        })
-        .collect();
+    let counts: Vec<report::CountSeries> = first_repeat_series(records, algorithms, |r| {
+        let (q, w) = (r.queries as f64, r.wasted_queries as f64);
+        (r.frame, q, w, r.state_changes as f64)
+    });
     report::plot_counts(
         &dir.join("counts.png"),
         &format!("Queries, wasted queries, state changes: {title}"),
