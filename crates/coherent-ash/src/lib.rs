@@ -105,6 +105,7 @@
 #![deny(missing_docs)]
 
 mod pipeline;
+mod set;
 mod slots;
 
 use ash::vk;
@@ -113,9 +114,8 @@ use coherent_cull::{
 };
 
 pub use coherent_cull;
-
-use pipeline::BoxPipeline;
-use slots::{Arena, HostBuffer, Slot};
+pub use pipeline::{BoxPipeline, BoxPipelineDesc};
+pub use set::{QuerySet, QuerySetDesc};
 
 /// SPIR-V of the box vertex shader (compiled from the workspace's `shaders/query_box.vert`).
 pub const QUERY_BOX_VERT_SPV: &[u8] = include_bytes!("../spirv/query_box.vert.spv");
@@ -140,6 +140,9 @@ pub struct QueryBackendDesc {
     pub view_mask: u32,
     /// The host's depth convention: which depth compare and bias face the eye.
     pub depth: DepthConvention,
+    /// Cull the boxes' back faces, given the winding a box face seen from outside has in the
+    /// host's viewport ([`BoxPipelineDesc::cull_back_faces`]); `None` (the default) draws both.
+    pub cull_back_faces: Option<vk::FrontFace>,
     /// Predicated draws for `Latency::Predicated` (see [Predicated frames](crate#predicated-frames)):
     /// the device needs `VK_EXT_conditional_rendering` with `conditionalRendering` enabled.
     pub predicates: bool,
@@ -156,6 +159,7 @@ impl Default for QueryBackendDesc {
             samples: vk::SampleCountFlags::TYPE_1,
             view_mask: 0,
             depth: DepthConvention::REVERSE_Z_INFINITE,
+            cull_back_faces: None,
             predicates: false,
         }
     }
@@ -233,17 +237,16 @@ where
 pub struct QueryBackend {
     device: ash::Device,
     desc: QueryBackendDesc,
-    pipeline: BoxPipeline,
-    /// The 36 indices of each of `max_boxes` boxes (8 corners each), shared by every slot.
-    indices: HostBuffer,
-    slots: Vec<Slot>,
-    /// The memory every buffer lives in.
-    arena: Arena,
+    /// One query set per frame-in-flight slot (dropped before the pipeline).
+    slots: Vec<QuerySet>,
+    /// The results each slot's previous frame copied, read at `begin_frame`.
+    read: Vec<Vec<Option<u64>>>,
+    /// The box pipeline (`None` once destroyed).
+    pipeline: Option<BoxPipeline>,
     /// The slot of the frame being recorded (`None` outside begin/end).
     current: Option<u32>,
-    counts: QueryCounts,
-    /// `VK_EXT_conditional_rendering`'s commands, with predicates on.
-    conditional: Option<ash::ext::conditional_rendering::DeviceFn>,
+    /// The slot of the last frame begun (whose counts [`QueryBackend::counts`] returns).
+    last: Option<u32>,
 }
 
 /// The 8 corners of `b`, corner `c` = x | y << 1 | z << 2 (the layout of [`BOX_FACES`]).
@@ -297,42 +300,41 @@ impl QueryBackend {
                     .into(),
             });
         }
-        // SAFETY: as above.
-        let memory = unsafe { instance.get_physical_device_memory_properties(physical_device) };
-        let mut out = QueryBackend {
-            device: device.clone(),
-            pipeline: BoxPipeline::null(),
-            indices: HostBuffer::null(),
-            slots: Vec::new(),
-            arena: Arena::null(),
-            current: None,
-            counts: QueryCounts::default(),
-            conditional: desc.predicates.then(|| {
-                ash::ext::conditional_rendering::Device::new(instance, device)
-                    .fp()
-                    .clone()
-            }),
-            desc,
+        let pipeline_desc = BoxPipelineDesc {
+            depth_format: desc.depth_format,
+            color_formats: desc.color_formats.clone(),
+            samples: desc.samples,
+            view_mask: desc.view_mask,
+            depth: desc.depth,
+            cull_back_faces: desc.cull_back_faces,
+            layout: None,
         };
-        // On an error below, `out` is dropped and destroys what was created so far.
-        out.pipeline = unsafe { BoxPipeline::new(device, &out.desc)? };
-        let index_bytes = u64::from(out.desc.max_boxes) * 36 * 4;
-        out.indices =
-            unsafe { HostBuffer::create(device, index_bytes, vk::BufferUsageFlags::INDEX_BUFFER)? };
-        for _ in 0..out.desc.frames_in_flight {
-            let slot = unsafe { Slot::new(device, &out.desc)? };
-            out.slots.push(slot);
+        // SAFETY: the caller's guarantees.
+        let pipeline = unsafe { BoxPipeline::new(device, &pipeline_desc)? };
+        let set_desc = QuerySetDesc {
+            queries_per_pool: desc.max_queries,
+            max_queries: desc.max_queries,
+            boxes_per_buffer: desc.max_boxes,
+            max_boxes: desc.max_boxes,
+            predicates: desc.predicates,
+            host_query_reset: false,
+        };
+        let mut slots = Vec::new();
+        for _ in 0..desc.frames_in_flight {
+            // SAFETY: the caller's guarantees; on an error the sets made so far are dropped.
+            slots.push(unsafe {
+                QuerySet::new(instance, physical_device, device, set_desc.clone())?
+            });
         }
-        let mut buffers = vec![&mut out.indices];
-        for s in &mut out.slots {
-            buffers.extend(s.buffers());
-        }
-        out.arena = unsafe { Arena::new(device, &memory, &mut buffers)? };
-        let indices: Vec<u32> = (0..out.desc.max_boxes)
-            .flat_map(|b| BOX_FACES.iter().map(move |i| i + 8 * b))
-            .collect();
-        out.indices.write(0, as_bytes(&indices));
-        Ok(out)
+        Ok(QueryBackend {
+            device: device.clone(),
+            read: vec![Vec::new(); slots.len()],
+            slots,
+            pipeline: Some(pipeline),
+            current: None,
+            last: None,
+            desc,
+        })
     }
 
     /// The description the backend was made with.
@@ -359,14 +361,16 @@ impl QueryBackend {
                 "begin_frame({slot}) while the frame in slot {open} was not ended (end_frame)"
             )));
         }
-        self.counts = QueryCounts::default();
         let s = &mut self.slots[slot as usize];
-        self.counts.results_read = s.read_results();
-        // SAFETY: the caller guarantees the recording state outside rendering.
-        if unsafe { s.record_reset(&self.device, cmd) } {
-            self.counts.resets += 1;
-        }
+        let read = &mut self.read[slot as usize];
+        read.clear();
+        read.extend((0..s.copied()).map(|i| s.copied_result(i).map(u64::from)));
+        // SAFETY: the caller guarantees the recording state outside rendering, and that the
+        // slot's previous frame has completed.
+        unsafe { s.record_reset(cmd) };
+        s.counts_mut().results_read = read.len() as u32;
         self.current = Some(slot);
+        self.last = Some(slot);
         Ok(())
     }
 
@@ -405,17 +409,17 @@ impl QueryBackend {
             .current
             .take()
             .ok_or_else(|| Error::Input("end_frame without begin_frame".into()))?;
-        let s = &mut self.slots[slot as usize];
-        // SAFETY: the caller guarantees the recording state outside rendering.
-        if unsafe { s.record_copy(&self.device, cmd) } {
-            self.counts.result_copies += 1;
-        }
+        // SAFETY: the caller guarantees the recording state outside rendering, after the
+        // frame's queries.
+        unsafe { self.slots[slot as usize].record_copy(cmd) };
         Ok(())
     }
 
     /// What was recorded since the last [`QueryBackend::begin_frame`].
     pub fn counts(&self) -> QueryCounts {
-        self.counts
+        self.last
+            .map(|s| self.slots[s as usize].counts())
+            .unwrap_or_default()
     }
 
     /// Destroys every Vulkan object of the backend (also done on drop).
@@ -425,27 +429,15 @@ impl QueryBackend {
     pub unsafe fn destroy(&mut self) {
         for s in &mut self.slots {
             // SAFETY: the caller (or drop) guarantees the device is done with them.
-            unsafe { s.destroy(&self.device) };
+            unsafe { s.destroy() };
         }
         self.slots.clear();
-        unsafe {
-            self.indices.destroy(&self.device);
-            self.arena.destroy(&self.device);
-            self.pipeline.destroy(&self.device);
-        }
+        self.pipeline = None;
     }
 
     fn slot_of(&self, id: QueryId) -> (u32, u32) {
         let k = self.desc.frames_in_flight;
         (id % k, id / k)
-    }
-}
-
-impl Drop for QueryBackend {
-    fn drop(&mut self) {
-        // SAFETY: the crate docs require dropping the backend only once the device is done
-        // with its frames.
-        unsafe { self.destroy() };
     }
 }
 
@@ -483,33 +475,35 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
             .ok_or_else(|| Error::Input("a culler frame outside begin_frame/end_frame".into()))
     }
 
-    fn enter_query_state(&mut self, slot: u32) {
+    /// The query set of the frame being recorded.
+    fn set(&mut self) -> Result<&mut QuerySet> {
+        let slot = self.slot()?;
+        Ok(&mut self.backend.slots[slot as usize])
+    }
+
+    fn enter_query_state(&mut self) -> Result<()> {
         if self.in_query_state {
-            return;
+            return Ok(());
         }
         self.in_query_state = true;
         self.box_bound_since_draw = true;
-        let c = &mut self.backend.counts;
-        c.state_changes += 1;
-        c.pipeline_binds += 1;
-        let slot = &self.backend.slots[slot as usize];
+        let (cmd, view_proj) = (self.cmd, self.view_proj);
+        let slot = self.slot()?;
+        let b = &mut *self.backend;
+        let pipeline = b
+            .pipeline
+            .as_ref()
+            .ok_or_else(|| Error::Input("the backend was destroyed".into()))?;
+        let set = &mut b.slots[slot as usize];
+        set.counts_mut().state_changes += 1;
         // SAFETY: `cmd` is recording inside the host's rendering (the `frame` contract); the
-        // pipeline, layout and buffers live as long as the backend.
-        unsafe {
-            self.backend.pipeline.bind(
-                &self.backend.device,
-                self.cmd,
-                &self.view_proj,
-                slot.vertices.buffer,
-                self.backend.indices.buffer,
-            )
-        };
+        // pipeline and the set live as long as the backend.
+        unsafe { set.bind(cmd, pipeline, &view_proj) };
+        Ok(())
     }
-}
 
-impl<D: DrawObjects> FrameBackend<'_, D> {
     /// Records an occlusion query of `boxes`; with `predicate` (the index of a resolved
-    /// query of this slot), its box draw lies inside a conditional block on that predicate.
+    /// query of this slot), its box draws lie inside a conditional block on that predicate.
     fn record_query(
         &mut self,
         boxes: &[Aabb],
@@ -517,57 +511,14 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
         predicate: Option<u32>,
     ) -> Result<QueryId> {
         let slot = self.slot()?;
-        let (max_q, max_b) = (self.backend.desc.max_queries, self.backend.desc.max_boxes);
-        let s = &self.backend.slots[slot as usize];
-        if s.issued >= max_q {
-            return Err(Error::Input(format!(
-                "more than {max_q} queries in one frame (raise QueryBackendDesc::max_queries)"
-            )));
-        }
-        if boxes.is_empty() || s.boxes_used + boxes.len() as u32 > max_b {
-            return Err(Error::Input(format!(
-                "a query of {} boxes: the frame has room for {} more (QueryBackendDesc::max_boxes)",
-                boxes.len(),
-                max_b - s.boxes_used
-            )));
-        }
-        self.enter_query_state(slot);
-        let s = &mut self.backend.slots[slot as usize];
-        let (index, first_box, pool) = (s.issued, s.boxes_used, s.pool);
-        s.write_corners(first_box, boxes);
-        // SAFETY: recording inside rendering with the box pipeline bound; the query was reset
-        // in this frame's begin_frame and is used once; a predicate is a resolved one of this
-        // slot (`resolved_predicate`) and no block is open.
-        unsafe {
-            let d = &self.backend.device;
-            d.cmd_begin_query(self.cmd, pool, index, vk::QueryControlFlags::PRECISE);
-            if let Some(p) = predicate {
-                self.begin_block(slot, p);
-            }
-            d.cmd_draw_indexed(
-                self.cmd,
-                36 * boxes.len() as u32,
-                1,
-                0,
-                (first_box * 8) as i32,
-                0,
-            );
-            if predicate.is_some() {
-                self.end_block();
-            }
-            d.cmd_end_query(self.cmd, pool, index);
-        }
-        let s = &mut self.backend.slots[slot as usize];
-        s.issued += 1;
-        s.boxes_used += boxes.len() as u32;
-        let c = &mut self.backend.counts;
-        c.queries += 1;
-        c.query_boxes += boxes.len() as u32;
-        c.box_draws += 1;
-        if predicate.is_some() {
-            c.conditional_blocks += 1;
-            c.predicated_queries += 1;
-        }
+        self.enter_query_state()?;
+        let cmd = self.cmd;
+        let set = self.set()?;
+        // SAFETY: recording inside the host's rendering with the box pipeline bound by
+        // `enter_query_state` and nothing of the host's since; the set was reset in this
+        // frame's begin_frame; a predicate is checked by the set.
+        let index = unsafe { set.record_query(cmd, boxes, predicate)? };
+        let c = set.counts_mut();
         match purpose {
             QueryPurpose::Multiquery => c.multiqueries += 1,
             QueryPurpose::VisibleLeaf => c.visible_leaf_queries += 1,
@@ -576,45 +527,16 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
         Ok(slot + self.backend.desc.frames_in_flight * index)
     }
 
-    /// Opens a conditional block on the predicate at `index` of slot `slot`: the draws until
-    /// [`FrameBackend::end_block`] run only if it is non-zero.
-    ///
-    /// # Safety
-    /// `cmd` is recording inside the host's rendering, no block is open, and the predicate at
-    /// `index` was copied before a resolve's barrier in this command buffer.
-    unsafe fn begin_block(&self, slot: u32, index: u32) {
-        if let Some(fp) = self.backend.conditional.as_ref() {
-            let info = vk::ConditionalRenderingBeginInfoEXT::default()
-                .buffer(self.backend.slots[slot as usize].predicates.buffer)
-                .offset(u64::from(index) * 4);
-            // SAFETY: per the caller; the predicate buffer has CONDITIONAL_RENDERING_EXT usage
-            // and the offset is a multiple of 4 inside it.
-            unsafe { (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info) };
-        }
-    }
-
-    /// Closes the block [`FrameBackend::begin_block`] opened.
-    ///
-    /// # Safety
-    /// A block begun in this rendering instance is open.
-    unsafe fn end_block(&self) {
-        if let Some(fp) = self.backend.conditional.as_ref() {
-            // SAFETY: per the caller.
-            unsafe { (fp.cmd_end_conditional_rendering_ext)(self.cmd) };
-        }
-    }
-
     /// The index in this frame's slot of `query`, a resolved predicate of this frame.
     fn resolved_predicate(&self, query: QueryId) -> Result<u32> {
         let current = self.slot()?;
         let (slot, index) = self.backend.slot_of(query);
-        let s = &self.backend.slots[slot as usize];
-        if slot != current || index >= s.resolved {
+        if slot != current || index >= self.backend.slots[slot as usize].resolved() {
             return Err(Error::Input(format!(
                 "query {query} is not a resolved predicate of this frame"
             )));
         }
-        if self.backend.conditional.is_none() {
+        if !self.backend.desc.predicates {
             return Err(coherent_cull::predicates_unsupported());
         }
         Ok(index)
@@ -626,14 +548,14 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         if objects.is_empty() {
             return Ok(());
         }
-        if self.in_query_state {
-            self.in_query_state = false;
-            self.backend.counts.state_changes += 1;
+        if std::mem::take(&mut self.in_query_state) {
+            self.set()?.counts_mut().state_changes += 1;
         }
         let rebind = std::mem::take(&mut self.box_bound_since_draw);
         self.draw.draw(self.cmd, objects, rebind)?;
-        self.backend.counts.object_draw_calls += 1;
-        self.backend.counts.objects_drawn += objects.len() as u32;
+        let c = self.set()?.counts_mut();
+        c.object_draw_calls += 1;
+        c.objects_drawn += objects.len() as u32;
         Ok(())
     }
 
@@ -660,9 +582,8 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
     }
 
     fn restore_render_state(&mut self) -> Result<()> {
-        if self.in_query_state {
-            self.in_query_state = false;
-            self.backend.counts.state_changes += 1;
+        if std::mem::take(&mut self.in_query_state) {
+            self.set()?.counts_mut().state_changes += 1;
         }
         Ok(())
     }
@@ -678,12 +599,14 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
     fn query_result(&mut self, query: QueryId) -> Result<Option<u64>> {
         let current = self.slot()?;
         let (slot, index) = self.backend.slot_of(query);
-        let s = &self.backend.slots[slot as usize];
-        if slot != current || s.issued > 0 {
+        if slot != current || self.backend.slots[slot as usize].issued() > 0 {
             // Another slot's frame has not been waited for, or this slot was reused already.
             return Ok(None);
         }
-        Ok(s.result(index))
+        Ok(self.backend.read[slot as usize]
+            .get(index as usize)
+            .copied()
+            .flatten())
     }
 
     fn wait_query(&mut self, query: QueryId) -> Result<u64> {
@@ -713,31 +636,30 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
     }
 
     fn supports_predicates(&self) -> bool {
-        self.backend.conditional.is_some() && self.resume.is_some()
+        self.backend.desc.predicates && self.resume.is_some()
     }
 
     fn resolve_predicates(&mut self) -> Result<()> {
         let slot = self.slot()?;
-        let (Some(_), Some(resume)) = (self.backend.conditional.as_ref(), self.resume.as_mut())
-        else {
+        let (true, Some(resume)) = (self.backend.desc.predicates, self.resume.as_mut()) else {
             return Err(Error::Unsupported {
                 feature: "predicated draws (QueryBackendDesc::predicates with \
                           VK_EXT_conditional_rendering, and FrameBackend::with_resume)"
                     .into(),
             });
         };
-        let d = &self.backend.device;
+        let (cmd, device) = (self.cmd, self.backend.device.clone());
+        let set = &mut self.backend.slots[slot as usize];
         // SAFETY: `cmd` is recording inside the host's rendering (the `frame` contract): it is
         // ended here, the copy and barrier recorded outside it, and the host resumes it.
         unsafe {
-            d.cmd_end_rendering(self.cmd);
-            self.backend.slots[slot as usize].record_resolve(d, self.cmd);
+            device.cmd_end_rendering(cmd);
+            set.record_resolve(cmd)?;
         }
-        resume(self.cmd)?;
-        self.backend.counts.resolves += 1;
+        resume(cmd)?;
         // The host binds its own state while resuming: back in render state.
         if std::mem::take(&mut self.in_query_state) {
-            self.backend.counts.state_changes += 1;
+            self.set()?.counts_mut().state_changes += 1;
         }
         self.box_bound_since_draw = false;
         Ok(())
@@ -752,17 +674,15 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         if objects.is_empty() {
             return Ok(());
         }
-        let slot = self.slot()?;
-        // SAFETY: recording inside the host's rendering; the predicate is a resolved one of
-        // this slot and no block is open.
-        unsafe { self.begin_block(slot, index) };
+        let cmd = self.cmd;
+        // SAFETY: recording inside the host's rendering, after the resolve in this command
+        // buffer; the set checks the predicate and that no block is open.
+        unsafe { self.set()?.begin_block(cmd, index)? };
         let drawn = self.draw_objects(objects);
         // SAFETY: the block begun above is open in this rendering instance.
-        unsafe { self.end_block() };
+        unsafe { self.set()?.end_block(cmd) };
         drawn?;
-        let c = &mut self.backend.counts;
-        c.conditional_blocks += 1;
-        c.predicated_objects += objects.len() as u32;
+        self.set()?.counts_mut().predicated_objects += objects.len() as u32;
         Ok(())
     }
 }

@@ -5,70 +5,112 @@
 use std::ffi::CStr;
 
 use ash::vk;
-use coherent_cull::{Error, Result};
+use coherent_cull::{DepthConvention, Error, Result};
 
-use crate::{vk_err, QueryBackendDesc, QUERY_BOX_VERT_SPV};
+use crate::{vk_err, QUERY_BOX_VERT_SPV};
 
-/// The box pipeline and its layout.
-pub(crate) struct BoxPipeline {
+/// How the host renders, for [`BoxPipeline::new`].
+#[derive(Clone, Debug)]
+pub struct BoxPipelineDesc {
+    /// Depth attachment format of the host's depth pass.
+    pub depth_format: vk::Format,
+    /// Color attachment formats of the host's depth pass (the box pipeline writes none).
+    pub color_formats: Vec<vk::Format>,
+    /// Rasterization samples of the host's attachments.
+    pub samples: vk::SampleCountFlags,
+    /// View mask of the host's rendering (0 without multiview).
+    pub view_mask: u32,
+    /// The host's depth convention: which depth compare and bias face the eye.
+    pub depth: DepthConvention,
+    /// The winding of a box face seen from outside, as the host's viewport shows it
+    /// ([`crate::BOX_FACES`] winds counter-clockwise seen from outside in world space): with it,
+    /// back faces are culled, which halves the boxes' fill and needs the eye outside every
+    /// queried box (the culler draws a node whose box holds the eye instead of querying it).
+    /// `None` draws both faces.
+    pub cull_back_faces: Option<vk::FrontFace>,
+    /// The host's pipeline layout, whose push constants hold the column-major
+    /// world-to-clip matrix at offset 0 for the vertex stage (then the box pipeline shares the
+    /// host's push block and never pushes). `None`: a layout of its own, pushed at each
+    /// [`crate::QuerySet::bind`].
+    pub layout: Option<vk::PipelineLayout>,
+}
+
+impl Default for BoxPipelineDesc {
+    fn default() -> Self {
+        BoxPipelineDesc {
+            depth_format: vk::Format::D32_SFLOAT,
+            color_formats: Vec::new(),
+            samples: vk::SampleCountFlags::TYPE_1,
+            view_mask: 0,
+            depth: DepthConvention::REVERSE_Z_INFINITE,
+            cull_back_faces: None,
+            layout: None,
+        }
+    }
+}
+
+/// The pipeline query boxes are drawn with, built from the SPIR-V shipped in this crate.
+pub struct BoxPipeline {
+    device: ash::Device,
+    /// A layout of its own (destroyed with the pipeline), or null with the host's.
+    own_layout: vk::PipelineLayout,
     layout: vk::PipelineLayout,
     pipeline: vk::Pipeline,
 }
 
 impl BoxPipeline {
-    /// Owns nothing yet.
-    pub fn null() -> BoxPipeline {
-        BoxPipeline {
-            layout: vk::PipelineLayout::null(),
-            pipeline: vk::Pipeline::null(),
-        }
-    }
-
-    /// Creates the layout and the pipeline for `desc`'s formats and depth convention.
+    /// Creates the pipeline (and its layout, unless the host's is given) for `desc`'s formats,
+    /// depth convention and culling.
     ///
     /// # Safety
-    /// `device` is valid, with dynamic rendering enabled.
-    pub unsafe fn new(device: &ash::Device, desc: &QueryBackendDesc) -> Result<BoxPipeline> {
+    /// `device` is valid, with dynamic rendering enabled, and outlives the pipeline; a host
+    /// layout in `desc` was made on it and outlives the pipeline.
+    pub unsafe fn new(device: &ash::Device, desc: &BoxPipelineDesc) -> Result<BoxPipeline> {
         let words = spirv_words(QUERY_BOX_VERT_SPV)?;
-        let mut out = BoxPipeline::null();
+        let mut out = BoxPipeline {
+            device: device.clone(),
+            own_layout: vk::PipelineLayout::null(),
+            layout: vk::PipelineLayout::null(),
+            pipeline: vk::Pipeline::null(),
+        };
         let push = [vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::VERTEX)
             .offset(0)
             .size(64)];
-        // SAFETY: valid device and create infos; everything created is destroyed on error.
+        // SAFETY: valid device and create infos; what was created is destroyed when `out` is
+        // dropped on an error.
         unsafe {
-            out.layout = device
-                .create_pipeline_layout(
-                    &vk::PipelineLayoutCreateInfo::default().push_constant_ranges(&push),
-                    None,
-                )
-                .map_err(vk_err("vkCreatePipelineLayout"))?;
-            let module = match device
-                .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None)
-            {
-                Ok(m) => m,
-                Err(e) => {
-                    out.destroy(device);
-                    return Err(vk_err("vkCreateShaderModule")(e));
+            out.layout = match desc.layout {
+                Some(layout) => layout,
+                None => {
+                    out.own_layout = device
+                        .create_pipeline_layout(
+                            &vk::PipelineLayoutCreateInfo::default().push_constant_ranges(&push),
+                            None,
+                        )
+                        .map_err(vk_err("vkCreatePipelineLayout"))?;
+                    out.own_layout
                 }
             };
+            let module = device
+                .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None)
+                .map_err(vk_err("vkCreateShaderModule"))?;
             let made = out.create_pipeline(device, desc, module);
             device.destroy_shader_module(module, None);
-            match made {
-                Ok(p) => out.pipeline = p,
-                Err(e) => {
-                    out.destroy(device);
-                    return Err(e);
-                }
-            }
+            out.pipeline = made?;
         }
         Ok(out)
+    }
+
+    /// The pipeline handle (a host that tracks its bound pipeline compares it).
+    pub fn handle(&self) -> vk::Pipeline {
+        self.pipeline
     }
 
     unsafe fn create_pipeline(
         &self,
         device: &ash::Device,
-        desc: &QueryBackendDesc,
+        desc: &BoxPipelineDesc,
         module: vk::ShaderModule,
     ) -> Result<vk::Pipeline> {
         const MAIN: &CStr = c"main";
@@ -95,13 +137,17 @@ impl BoxPipeline {
             .scissor_count(1);
         // Towards the eye is smaller depth in the standard convention, larger in reverse-Z: a
         // box face lying on the surface it bounds then passes the test, so a query can only
-        // report more pixels, never fewer. Both faces are drawn: the host's winding and
-        // viewport orientation are not known here.
+        // report more pixels, never fewer. Both faces are drawn unless the host says how its
+        // viewport shows the boxes' winding.
         let towards_eye = if desc.depth.reverse_z { 1.0 } else { -1.0 };
+        let (cull, front) = match desc.cull_back_faces {
+            Some(front) => (vk::CullModeFlags::BACK, front),
+            None => (vk::CullModeFlags::NONE, vk::FrontFace::COUNTER_CLOCKWISE),
+        };
         let raster = vk::PipelineRasterizationStateCreateInfo::default()
             .polygon_mode(vk::PolygonMode::FILL)
-            .cull_mode(vk::CullModeFlags::NONE)
-            .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+            .cull_mode(cull)
+            .front_face(front)
             .line_width(1.0)
             .depth_bias_enable(true)
             .depth_bias_constant_factor(4.0 * towards_eye)
@@ -154,47 +200,42 @@ impl BoxPipeline {
         }
     }
 
-    /// Binds the pipeline, pushes the view-projection and binds the box vertex and index
-    /// buffers.
+    /// Binds the pipeline and, with a layout of its own, pushes the view-projection.
     ///
     /// # Safety
-    /// `cmd` is recording inside a rendering compatible with the pipeline.
-    pub unsafe fn bind(
+    /// `cmd` is recording inside a rendering compatible with the pipeline, on `device`.
+    pub(crate) unsafe fn bind(
         &self,
         device: &ash::Device,
         cmd: vk::CommandBuffer,
         view_proj: &[f32; 16],
-        vertices: vk::Buffer,
-        indices: vk::Buffer,
     ) {
-        let mut push = [0u8; 64];
-        for (i, v) in view_proj.iter().enumerate() {
-            push[4 * i..4 * i + 4].copy_from_slice(&v.to_ne_bytes());
-        }
-        // SAFETY: per the caller; the handles live as long as the backend.
+        // SAFETY: per the caller; the handles live as long as the pipeline.
         unsafe {
             device.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, self.pipeline);
-            device.cmd_push_constants(cmd, self.layout, vk::ShaderStageFlags::VERTEX, 0, &push);
-            device.cmd_bind_vertex_buffers(cmd, 0, &[vertices], &[0]);
-            device.cmd_bind_index_buffer(cmd, indices, 0, vk::IndexType::UINT32);
+            if self.own_layout != vk::PipelineLayout::null() {
+                let mut push = [0u8; 64];
+                for (i, v) in view_proj.iter().enumerate() {
+                    push[4 * i..4 * i + 4].copy_from_slice(&v.to_ne_bytes());
+                }
+                device.cmd_push_constants(cmd, self.layout, vk::ShaderStageFlags::VERTEX, 0, &push);
+            }
         }
     }
+}
 
-    /// Destroys the pipeline and its layout.
-    ///
-    /// # Safety
-    /// The device no longer uses them.
-    pub unsafe fn destroy(&mut self, device: &ash::Device) {
-        // SAFETY: per the caller; null handles are skipped.
+impl Drop for BoxPipeline {
+    fn drop(&mut self) {
+        // SAFETY: the owner drops the pipeline only once the device no longer uses it; null
+        // handles are skipped.
         unsafe {
             if self.pipeline != vk::Pipeline::null() {
-                device.destroy_pipeline(self.pipeline, None);
+                self.device.destroy_pipeline(self.pipeline, None);
             }
-            if self.layout != vk::PipelineLayout::null() {
-                device.destroy_pipeline_layout(self.layout, None);
+            if self.own_layout != vk::PipelineLayout::null() {
+                self.device.destroy_pipeline_layout(self.own_layout, None);
             }
         }
-        *self = BoxPipeline::null();
     }
 }
 
