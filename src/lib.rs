@@ -48,8 +48,10 @@
 //! An engine does not need this crate: the culling core is `coherent-cull` (no Vulkan, no I/O)
 //! and the query side for ash hosts is `coherent-ash` (query pools per frame in flight, result
 //! copies, the box pipeline; no shaderc). Their crate docs are the embedding guide, and
-//! `examples/engine.rs` is a complete host. This crate re-exports the core as [`culling`] and
-//! [`bvh`] for the built-in renderer and the command line.
+//! `examples/engine.rs` is a complete host. The built-in renderer records its occlusion queries
+//! through coherent-ash too (its `QuerySet` and `BoxPipeline`, with submissions inside the frame
+//! for the in-frame modes). This crate re-exports the core as [`culling`] and [`bvh`] for the
+//! built-in renderer and the command line.
 
 /// The culling core: every algorithm, the backend trait, the camera math (`coherent-cull`).
 pub use coherent_cull as culling;

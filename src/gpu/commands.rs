@@ -282,20 +282,14 @@ pub struct Recorder {
     cmd: vk::CommandBuffer,
     bound: Option<vk::Pipeline>,
     last_kind: Option<PipelineKind>,
-    in_query: bool,
     render_extent: vk::Extent2D,
     /// Counts since the last [`Recorder::take_counts`].
     pub counts: CommandCounts,
     /// The device's `maxComputeWorkGroupCount`, checked by every dispatch.
     max_work_group_count: [u32; 3],
-    /// `VK_EXT_conditional_rendering`'s commands, when enabled.
-    conditional: Option<ash::ext::conditional_rendering::DeviceFn>,
-    /// The predicate (query id) of the open conditional block.
+    /// The predicate (query id) of the conditional block the caller has open (recorded by
+    /// coherent-ash's query set; the recorder counts the draws inside it).
     in_conditional: Option<u32>,
-    /// Query results were copied into a predicate buffer and no barrier has made them
-    /// visible to conditional-rendering reads yet (the validation layers do not track
-    /// predicate reads, so the recorder does).
-    predicates_unguarded: bool,
 }
 
 impl Recorder {
@@ -307,96 +301,34 @@ impl Recorder {
             cmd: vk::CommandBuffer::null(),
             bound: None,
             last_kind: None,
-            in_query: false,
             render_extent: vk::Extent2D::default(),
             counts: CommandCounts::default(),
             max_work_group_count: ctx.info.max_compute_work_group_count,
-            conditional: ctx.conditional_rendering.clone(),
             in_conditional: None,
-            predicates_unguarded: false,
         }
     }
 
-    /// Copies the 32-bit results of queries `first..first + count` of `pools` into
-    /// `predicates` (one buffer per pool of `pools`, 4 bytes a query at the query's slot;
-    /// `CONDITIONAL_RENDERING_EXT` and `TRANSFER_DST` usage), each waited for on the device,
-    /// then, when `barrier`, makes the copies visible to conditional-rendering reads. Outside
-    /// rendering.
-    pub fn copy_predicates(
-        &mut self,
-        pools: &QueryPools,
-        first: u32,
-        count: u32,
-        predicates: &[Buffer],
-        barrier: bool,
-    ) -> Result<()> {
-        for (id, pool, slot, n) in pools.pool_ranges(first, count) {
-            let buffer = predicates
-                .get((id / pools.chunk()) as usize)
-                .ok_or_else(|| Error::Input(format!("no predicate buffer for query {id}")))?;
-            // SAFETY: recording outside rendering; the queries were reset this frame and ended
-            // earlier in this queue's order; at 4 bytes a slot the range lies inside the
-            // buffer, which has TRANSFER_DST usage.
-            unsafe {
-                self.device.cmd_copy_query_pool_results(
-                    self.cmd,
-                    pool,
-                    slot,
-                    n,
-                    buffer.handle,
-                    u64::from(slot) * 4,
-                    4,
-                    vk::QueryResultFlags::WAIT,
-                )
-            };
-        }
-        self.counts.predicate_resolves += 1;
-        self.predicates_unguarded = true;
-        if barrier {
-            self.memory_barrier(Access::TransferWrite, Access::ConditionalRead);
-            self.predicates_unguarded = false;
-        }
-        Ok(())
+    /// Marks the conditional block on query `query`'s predicate that the caller opened (or,
+    /// with `None`, closed) in this command buffer: draws in render state inside it count as
+    /// predicated calls.
+    pub fn note_conditional(&mut self, query: Option<u32>) {
+        self.in_conditional = query;
     }
 
-    /// Opens a conditional block: the draws until [`Recorder::end_conditional`] run only if
-    /// the 32-bit value at `offset` of `buffer` (the predicate of query `query`) is non-zero.
-    /// Refuses when the predicates were copied without the barrier that makes them visible.
-    pub fn begin_conditional(&mut self, buffer: &Buffer, offset: u64, query: u32) -> Result<()> {
-        let Some(fp) = self.conditional.as_ref() else {
-            return Err(Error::Unsupported {
-                feature: "VK_EXT_conditional_rendering".into(),
-            });
-        };
-        if self.predicates_unguarded {
-            return Err(Error::Input(
-                "a conditional block reads predicates that no barrier made visible after \
-                 their copy"
-                    .into(),
-            ));
+    /// Counts a pipeline bind the caller recorded itself (coherent-ash's box pipeline): the
+    /// recorder's bound pipeline and kind follow it, so its next bind of another is recorded.
+    pub fn note_bind(&mut self, pipeline: vk::Pipeline, kind: PipelineKind) {
+        self.bound = Some(pipeline);
+        self.counts.pipeline_binds += 1;
+        if self.last_kind.is_some() && self.last_kind != Some(kind) {
+            self.counts.state_changes += 1;
         }
-        if self.in_conditional.is_some() {
-            return Err(Error::Input("conditional blocks cannot nest".into()));
-        }
-        let info = vk::ConditionalRenderingBeginInfoEXT::default()
-            .buffer(buffer.handle)
-            .offset(offset);
-        // SAFETY: recording; the buffer has CONDITIONAL_RENDERING_EXT usage, the offset is a
-        // multiple of 4 inside it, and no conditional block is open.
-        unsafe { (fp.cmd_begin_conditional_rendering_ext)(self.cmd, &info) };
-        self.counts.conditional_blocks += 1;
-        self.counts.predicated_queries += self.in_query as u32;
-        self.in_conditional = Some(query);
-        Ok(())
+        self.last_kind = Some(kind);
     }
 
-    /// Closes the open conditional block.
-    pub fn end_conditional(&mut self) {
-        if let (Some(fp), Some(_)) = (self.conditional.as_ref(), self.in_conditional.take()) {
-            // SAFETY: recording; a block begun in this command buffer (and rendering
-            // instance) is open.
-            unsafe { (fp.cmd_end_conditional_rendering_ext)(self.cmd) };
-        }
+    /// The pipeline bound last in this command buffer, as far as the recorder knows.
+    pub fn bound_pipeline(&self) -> Option<vk::Pipeline> {
+        self.bound
     }
 
     /// Starts recording into a new command buffer (already begun): bound state is forgotten.
@@ -404,7 +336,6 @@ impl Recorder {
         self.cmd = cmd.0;
         self.bound = None;
         self.in_conditional = None;
-        self.predicates_unguarded = false;
     }
 
     /// The current command buffer.
@@ -538,10 +469,7 @@ impl Recorder {
         };
         let tris = (index_count / 3) as u64 * instances as u64;
         self.count_draw(tris);
-        if !self.in_query
-            && self.last_kind == Some(PipelineKind::Render)
-            && self.in_conditional.is_some()
-        {
+        if self.last_kind == Some(PipelineKind::Render) && self.in_conditional.is_some() {
             // Drawn only if the predicate holds.
             self.counts.predicated_calls += 1;
             self.counts.predicated_objects += 1;
@@ -558,30 +486,16 @@ impl Recorder {
         self.count_draw((vertex_count / 3) as u64 * instances as u64);
     }
 
-    /// Counts a draw of `tris` triangles by what it draws: query boxes (inside a query) or
-    /// objects (render state).
+    /// Counts a draw of `tris` triangles and, in render state, as an object draw (query boxes
+    /// are drawn and counted by coherent-ash's query set, and added to these counts by the
+    /// scene renderer after the frame).
     fn count_draw(&mut self, tris: u64) {
         self.counts.draw_calls += 1;
         self.counts.triangles += tris;
-        if self.in_query {
-            self.counts.query_draws += 1;
-            self.counts.query_triangles += tris;
-        } else if self.last_kind == Some(PipelineKind::Render) {
+        if self.last_kind == Some(PipelineKind::Render) {
             self.counts.object_draws += 1;
             self.counts.render_triangles += tris;
         }
-    }
-
-    /// Begins precise occlusion query `id` of `pools`.
-    pub fn begin_occlusion_query(&mut self, pools: &QueryPools, id: u32) {
-        let (pool, index) = pools.location(id);
-        // SAFETY: the query was reset and is not active.
-        unsafe {
-            self.device
-                .cmd_begin_query(self.cmd, pool, index, vk::QueryControlFlags::PRECISE)
-        };
-        self.counts.queries_begun += 1;
-        self.in_query = true;
     }
 
     /// Tags the query begun last: a multiquery and/or a visible-leaf query (so queries can be
@@ -589,14 +503,6 @@ impl Recorder {
     pub fn tag_query(&mut self, multiquery: bool, visible_leaf: bool) {
         self.counts.multiqueries += multiquery as u32;
         self.counts.visible_leaf_queries += visible_leaf as u32;
-    }
-
-    /// Ends query `id` of `pools`.
-    pub fn end_query(&mut self, pools: &QueryPools, id: u32) {
-        let (pool, index) = pools.location(id);
-        // SAFETY: the query is active in this command buffer.
-        unsafe { self.device.cmd_end_query(self.cmd, pool, index) };
-        self.in_query = false;
     }
 
     /// Writes timestamp `id` of `pools` after all previous work (BOTTOM_OF_PIPE: for a
@@ -758,37 +664,6 @@ impl Recorder {
             .buffer_memory_barriers(buffers);
         // SAFETY: recording outside rendering.
         unsafe { self.device.cmd_pipeline_barrier2(self.cmd, &dep) };
-    }
-
-    /// Copies the results of queries `first..first + count` of `pools` (a readback pool) into
-    /// their result buffers, value and availability, each waited for on the device, and makes
-    /// the copies visible to host reads once this command buffer completes. Outside rendering;
-    /// does nothing for pools without readback.
-    pub fn copy_query_results(&mut self, pools: &QueryPools, first: u32, count: u32) {
-        for (id, pool, slot, n) in pools.pool_ranges(first, count) {
-            let Some(buffer) = pools.result_buffer(id) else {
-                return;
-            };
-            // SAFETY: recording outside rendering; the queries were reset this frame and ended
-            // earlier in this queue's order; the range lies inside the pool and, at 16 bytes a
-            // result, inside the pool's result buffer (TRANSFER_DST); the offset is a multiple
-            // of 8 as 64-bit results require.
-            unsafe {
-                self.device.cmd_copy_query_pool_results(
-                    self.cmd,
-                    pool,
-                    slot,
-                    n,
-                    buffer.handle,
-                    u64::from(slot) * super::queries::COPIED_RESULT_BYTES,
-                    super::queries::COPIED_RESULT_BYTES,
-                    vk::QueryResultFlags::TYPE_64
-                        | vk::QueryResultFlags::WAIT
-                        | vk::QueryResultFlags::WITH_AVAILABILITY,
-                )
-            };
-            self.host_read_barrier(buffer);
-        }
     }
 
     /// Makes transfer writes to `buffer` visible to host reads.
@@ -987,10 +862,7 @@ impl Recorder {
         };
         self.count_draw(triangles);
         self.counts.indirect_draws += 1;
-        if !self.in_query
-            && self.last_kind == Some(PipelineKind::Render)
-            && self.in_conditional.is_some()
-        {
+        if self.last_kind == Some(PipelineKind::Render) && self.in_conditional.is_some() {
             self.counts.predicated_calls += 1;
             self.counts.predicated_objects += count;
         }

@@ -446,8 +446,6 @@ pub struct GpuContext {
     debug: Option<(ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     log: Arc<ValidationLog>,
     log_raw: *const ValidationLog,
-    /// `VK_EXT_conditional_rendering`'s commands, when the device has it enabled.
-    pub(crate) conditional_rendering: Option<ash::ext::conditional_rendering::DeviceFn>,
 }
 
 // SAFETY: the raw log pointer is only read by the validation callback (it points at data behind an
@@ -541,11 +539,6 @@ impl GpuContext {
             allocation_sizes: Default::default(),
         })
         .map_err(|e| Error::from_alloc("the allocator", e))?;
-        let conditional_rendering = info.optional.conditional_rendering.then(|| {
-            ash::ext::conditional_rendering::Device::new(&instance, &device)
-                .fp()
-                .clone()
-        });
         let debug = partial.debug.take();
         partial.instance = None;
         partial.device = None;
@@ -562,7 +555,6 @@ impl GpuContext {
             debug,
             log,
             log_raw,
-            conditional_rendering,
         })
     }
 

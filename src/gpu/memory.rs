@@ -139,15 +139,6 @@ impl Buffer {
         slice[offset..end].copy_from_slice(data);
         Ok(())
     }
-
-    /// Sets the first `len` bytes (at most the whole buffer) of a host-visible buffer to zero;
-    /// does nothing for a buffer that is not mapped.
-    pub(crate) fn zero_prefix(&mut self, len: usize) {
-        if let Some(slice) = self.allocation.as_mut().and_then(|a| a.mapped_slice_mut()) {
-            let n = len.min(slice.len());
-            slice[..n].fill(0);
-        }
-    }
 }
 
 impl Drop for Buffer {

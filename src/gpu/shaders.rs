@@ -27,8 +27,6 @@ pub const SCENE_MAT_FRAG: &[u8] = spirv!("scene_mat.frag");
 pub const SCENE_MAT_MASKED_FRAG: &[u8] = spirv!("scene_mat_masked.frag");
 /// ID-pass fragment shader for alpha-masked materials.
 pub const ID_MASKED_FRAG: &[u8] = spirv!("id_masked.frag");
-/// Query box vertex shader.
-pub const BOX_VERT: &[u8] = spirv!("box.vert");
 /// coherent-ash's query-box vertex shader, compiled from shaders/query_box.vert (the crate ships
 /// its own copy of these words; a test fails when they differ).
 pub const QUERY_BOX_VERT: &[u8] = spirv!("query_box.vert");

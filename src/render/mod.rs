@@ -19,7 +19,7 @@ use crate::bvh::ObjectBvh;
 use crate::culling::{CullStats, Culler, FrameInput, OcclusionBackend, QueryId, QueryPurpose};
 use crate::error::{Error, Result};
 use crate::gpu::queries::QueryPools;
-use crate::gpu::targets::{self, Target, ID_FORMAT};
+use crate::gpu::targets::{self, Target, COLOR_FORMAT, DEPTH_FORMAT, ID_FORMAT};
 use crate::gpu::{
     bytes_of, Attachment, Binding, Buffer, CommandCounts, CommandPool, DescriptorSets, GpuContext,
     Image, ImageUse, Load, OneShot, PipelineKind, Recorder, Timeline,
@@ -30,10 +30,10 @@ use passes::{ScenePipelines, PUSH_SIZE};
 
 pub use frame::{Check, FrameResult};
 
-/// Boxes per box-vertex chunk (8 corners each).
+/// Boxes per box-vertex buffer of the query set (8 corners each).
 const BOX_CHUNK: u32 = 16384;
-/// Bytes of one box's corners in a chunk.
-const BOX_BYTES: usize = 8 * 12;
+/// Occlusion queries per query pool of the query set (it grows by pools).
+const QUERY_CHUNK: u32 = 1024;
 /// Indexed indirect draw commands per command chunk (predicated multi-draws).
 const DRAW_CHUNK: u32 = 4096;
 /// Bytes of one `VkDrawIndexedIndirectCommand`.
@@ -44,7 +44,8 @@ const SKY: [f32; 4] = [0.62, 0.74, 0.86, 1.0];
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Bound {
     Scene,
-    Boxes(usize),
+    /// The query set's box buffers (and the box pipeline).
+    Boxes,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -72,6 +73,14 @@ pub struct Renderer {
     triangles: u64,
     // The timeline is dropped first: it waits for every submitted segment.
     timeline: Timeline,
+    /// The occlusion queries: coherent-ash's query set (pools, box corners, result copies,
+    /// predicates), the query side hosts of coherent-ash use too.
+    queries: coherent_ash::QuerySet,
+    /// coherent-ash's box pipeline, on the scene's pipeline layout (it shares the push block,
+    /// whose first 64 bytes are the view-projection).
+    box_pipeline: coherent_ash::BoxPipeline,
+    /// The frame's view-projection (column-major).
+    view_proj: [f32; 16],
     segments: CommandPool,
     /// Timeline value of each segment of this frame submitted so far.
     segment_values: Vec<u64>,
@@ -89,39 +98,19 @@ pub struct Renderer {
     object_buffer: Buffer,
     /// Object slots the per-object buffer holds.
     object_slots: usize,
-    box_index_buffer: Buffer,
-    box_chunks: Vec<Buffer>,
-    box_chunk: usize,
-    box_used: u32,
     target: Target,
     id_image: Option<Image>,
-    occlusion: QueryPools,
     timestamps: QueryPools,
     query_segment: Vec<u32>,
     query_read: Vec<bool>,
-    /// Occlusion results read from the driver this frame (a segment's copy was missing).
-    driver_reads: u32,
-    /// Id of the first occlusion query of the segment being recorded: the segment copies the
-    /// results of its queries into host memory at its end.
-    segment_first_query: u32,
     recorder: Recorder,
     oneshot: OneShot,
     push: [u8; PUSH_SIZE as usize],
     bound: Option<Bound>,
-    /// Scratch for query-box corners (reused, so queries do not allocate).
-    corners: Vec<[f32; 3]>,
     stall: Duration,
     prepass_counts: CommandCounts,
     /// Pixel count above which a query result means visible (for counting wasted queries).
     pub visibility_threshold: u64,
-    /// Predicates for conditional rendering: 4 bytes per occlusion query, one host-visible
-    /// buffer per query pool (read back after the frame to count what was really drawn).
-    predicates: Vec<Buffer>,
-    /// Occlusion queries of this frame whose results are predicates already.
-    predicates_resolved: u32,
-    /// Leave out the barrier between the predicate copy and the conditional blocks (tests:
-    /// the recorder must refuse).
-    skip_predicate_barrier: bool,
     /// Host-visible chunks of indexed indirect draw commands: the objects of one predicate are
     /// drawn by one multi-draw (scenes without materials, on devices with `multiDrawIndirect`
     /// and `drawIndirectFirstInstance`).
@@ -172,12 +161,7 @@ impl Renderer {
             &uploaded.objects,
             (&mut oneshot, &mut recorder),
         )?;
-        let box_index_buffer = Buffer::with_data(
-            ctx,
-            "box indices",
-            &upload::as_bytes(&upload::box_indices(BOX_CHUNK)),
-            vk::BufferUsageFlags::INDEX_BUFFER,
-        )?;
+        let (queries, box_pipeline) = query_side(ctx, &pipelines)?;
         Ok(Renderer {
             ctx: ctx.clone(),
             objects: scene
@@ -196,6 +180,9 @@ impl Renderer {
                 .collect(),
             triangles: scene.objects.iter().map(|o| o.triangle_count()).sum(),
             timeline: Timeline::new(ctx)?,
+            queries,
+            box_pipeline,
+            view_proj: [0.0; 16],
             segments: CommandPool::new(ctx)?,
             segment_values: Vec::new(),
             recording: false,
@@ -207,30 +194,19 @@ impl Renderer {
             index_buffer: uploaded.indices,
             object_buffer: uploaded.objects,
             object_slots: (scene.objects.len() + spare).max(1),
-            box_index_buffer,
-            box_chunks: vec![box_chunk(ctx)?],
-            box_chunk: 0,
-            box_used: 0,
             target,
             id_image: None,
-            occlusion: QueryPools::with_readback(ctx, vk::QueryType::OCCLUSION, 1024)?,
             timestamps: QueryPools::new(ctx, vk::QueryType::TIMESTAMP, 256)?,
             query_segment: Vec::new(),
             query_read: Vec::new(),
-            segment_first_query: 0,
-            driver_reads: 0,
             recorder,
             oneshot,
             push: initial_push(scene),
             bound: None,
-            corners: Vec::with_capacity(8 * 64),
             stall: Duration::ZERO,
             prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
             bounds_version: 0,
-            predicates: Vec::new(),
-            predicates_resolved: 0,
-            skip_predicate_barrier: false,
             draw_chunks: Vec::new(),
             draw_chunk: 0,
             draw_used: 0,
@@ -328,15 +304,7 @@ impl Renderer {
 
     /// Capacity of the occlusion query pools now (they grow on demand).
     pub fn query_capacity(&self) -> u32 {
-        self.occlusion.capacity()
-    }
-
-    /// Occlusion results of the last frame that had to be read through
-    /// `vkGetQueryPoolResults` because the segment's copy of them was missing. Every segment
-    /// copies its queries' results into host memory when it ends, so this is 0; a read through
-    /// the driver may wait for the whole device (lavapipe does).
-    pub fn driver_query_reads(&self) -> u32 {
-        self.driver_reads
+        self.queries.capacity()
     }
 
     /// A camera with this target's aspect ratio for `pose`, with a far plane that covers `bvh`.
@@ -376,6 +344,7 @@ impl Renderer {
         finished?;
         let gpu_ms = self.gpu_time_ms()?;
         let mut counts: CommandCounts = self.recorder.take_counts();
+        add_query_counts(&mut counts, &self.queries.counts());
         self.read_predicates(&mut counts)?;
         let unread = self.query_read.iter().filter(|r| !**r).count();
         if unread > 0 {
@@ -432,22 +401,20 @@ impl Renderer {
         self.segments.reset(&self.timeline)?;
         self.segment_values.clear();
         self.recording = false;
-        self.occlusion.reset();
+        // SAFETY: every segment of the previous frame has completed (finish() waited).
+        unsafe { self.queries.reset_from_host()? };
         self.timestamps.reset();
         self.query_segment.clear();
         self.query_read.clear();
-        self.driver_reads = 0;
-        self.box_chunk = 0;
-        self.box_used = 0;
         self.stall = Duration::ZERO;
         self.recorder.take_counts();
         self.log.begin_frame();
-        self.predicates_resolved = 0;
         self.draw_chunk = 0;
         self.draw_used = 0;
         self.ordered.begin_frame();
         let vp = raster_matrix(view);
-        self.push[..64].copy_from_slice(bytes_of(&vp.to_cols_array()));
+        self.view_proj = vp.to_cols_array();
+        self.push[..64].copy_from_slice(bytes_of(&self.view_proj));
         Ok(())
     }
 
@@ -464,7 +431,6 @@ impl Renderer {
         }
         let first = self.segments.used() == 0;
         self.begin_segment()?;
-        self.segment_first_query = self.occlusion.used();
         self.write_timestamp()?;
         self.begin_target_rendering(first)?;
         self.recording = true;
@@ -511,9 +477,8 @@ impl Renderer {
             return Ok(());
         }
         self.recorder.end_rendering();
-        let first = self.segment_first_query;
-        self.recorder
-            .copy_query_results(&self.occlusion, first, self.occlusion.used() - first);
+        // SAFETY: outside rendering, after the segment's queries.
+        unsafe { self.queries.record_copy(self.recorder.command_buffer().0) };
         let ts = self.timestamps.allocate()?;
         self.recorder.write_timestamp(&self.timestamps, ts);
         self.recording = false;
@@ -535,13 +500,24 @@ impl Renderer {
         Ok(total as f64 * self.ctx.info.timestamp_period_ns as f64 * 1e-6)
     }
 
-    fn use_pipeline(&mut self, kind: PipelineKind) {
-        let p = if kind == PipelineKind::Query {
-            &self.pipelines.query
-        } else {
-            &self.pipelines.render
-        };
-        self.recorder.bind_pipeline(p);
+    /// Binds the render pipeline (render state).
+    fn use_render_pipeline(&mut self) {
+        self.recorder.bind_pipeline(&self.pipelines.render);
+    }
+
+    /// Enters query state: the query set binds the box pipeline and its buffers unless they
+    /// are bound (the recorder counts the bind).
+    fn use_box_pipeline(&mut self) {
+        let handle = self.box_pipeline.handle();
+        if self.recorder.bound_pipeline() == Some(handle) && self.bound == Some(Bound::Boxes) {
+            return;
+        }
+        let cmd = self.recorder.command_buffer().0;
+        // SAFETY: recording inside the target's rendering, which the box pipeline was made
+        // for; the set and pipeline live as long as the renderer.
+        unsafe { self.queries.bind(cmd, &self.box_pipeline, &self.view_proj) };
+        self.recorder.note_bind(handle, PipelineKind::Query);
+        self.bound = Some(Bound::Boxes);
     }
 
     /// Finds the objects that cover at least one pixel: renders the frustum's objects into an
@@ -872,22 +848,65 @@ fn initial_push(scene: &Scene) -> [u8; PUSH_SIZE as usize] {
     push
 }
 
-/// A host-visible buffer for the corners of [`BOX_CHUNK`] query boxes.
-fn box_chunk(ctx: &Arc<GpuContext>) -> Result<Buffer> {
-    Buffer::new(
-        ctx,
-        "box corners",
-        BOX_CHUNK as u64 * BOX_BYTES as u64,
-        vk::BufferUsageFlags::VERTEX_BUFFER,
-        MemoryLocation::CpuToGpu,
-    )
+/// The query set and box pipeline of a renderer with `pipelines` (the set grows by pools of
+/// [`QUERY_CHUNK`] queries and buffers of [`BOX_CHUNK`] boxes, reset from the host).
+fn query_side(
+    ctx: &Arc<GpuContext>,
+    pipelines: &ScenePipelines,
+) -> Result<(coherent_ash::QuerySet, coherent_ash::BoxPipeline)> {
+    let desc = coherent_ash::BoxPipelineDesc {
+        depth_format: DEPTH_FORMAT,
+        color_formats: vec![COLOR_FORMAT],
+        samples: vk::SampleCountFlags::TYPE_1,
+        view_mask: 0,
+        depth: crate::culling::DepthConvention::STANDARD,
+        // Front faces suffice: the camera is never inside a queried box (the culler draws a
+        // node whose box, enlarged by the near-plane corner distance, holds the eye), so every
+        // visible point of a box is covered by a front face at most as deep. Halves the fill.
+        // Counter-clockwise, as the scene pipelines' front faces (gpu/pipelines.rs).
+        cull_back_faces: Some(vk::FrontFace::COUNTER_CLOCKWISE),
+        layout: Some(pipelines.layout.handle),
+    };
+    let sets = coherent_ash::QuerySetDesc {
+        queries_per_pool: QUERY_CHUNK,
+        max_queries: 1 << 24,
+        boxes_per_buffer: BOX_CHUNK,
+        max_boxes: 1 << 26,
+        predicates: ctx.info.optional.conditional_rendering,
+        host_query_reset: true,
+    };
+    // SAFETY: the context's device was made from its physical device with precise occlusion
+    // queries and host query resets enabled (and conditional rendering when the info says
+    // so), with dynamic rendering; it outlives the renderer, which drops these first.
+    unsafe {
+        let pipeline = coherent_ash::BoxPipeline::new(&ctx.device, &desc)?;
+        let set =
+            coherent_ash::QuerySet::new(&ctx.instance, ctx.physical_device, &ctx.device, sets)?;
+        Ok((set, pipeline))
+    }
+}
+
+/// Adds what the query set recorded in the frame to the recorder's counts: its box draws,
+/// queries, predicate resolves, conditional blocks and buffer binds (its pipeline binds were
+/// counted when the renderer entered query state).
+fn add_query_counts(c: &mut CommandCounts, q: &coherent_ash::QueryCounts) {
+    c.draw_calls += q.box_draws;
+    c.query_draws += q.box_draws;
+    let triangles = 12 * u64::from(q.query_boxes);
+    c.triangles += triangles;
+    c.query_triangles += triangles;
+    c.queries_begun += q.queries;
+    c.predicate_resolves += q.resolves;
+    c.conditional_blocks += q.conditional_blocks;
+    c.predicated_queries += q.predicated_queries;
+    c.buffer_binds += q.buffer_binds;
 }
 
 impl Renderer {
     /// Records draws of `objects` in render state (inside the conditional block on
     /// `predicate` when one is given and open).
     fn record_objects(&mut self, objects: &[u32], predicate: Option<QueryId>) -> Result<()> {
-        self.use_pipeline(PipelineKind::Render);
+        self.use_render_pipeline();
         self.bind_scene_buffers();
         for &o in objects {
             let d = self.object_draw(o)?;
@@ -913,52 +932,20 @@ impl Renderer {
         })
     }
 
-    /// Where the predicate of query `query` lies: its buffer (index into the predicate
-    /// buffers) and byte offset; an error unless it was resolved in this frame.
-    fn predicate_slot(&self, query: QueryId) -> Result<(usize, u64)> {
-        if query >= self.predicates_resolved {
-            return Err(Error::Input(format!(
-                "query {query} is not a resolved predicate of this frame"
-            )));
-        }
-        let chunk = self.occlusion.chunk();
-        Ok(((query / chunk) as usize, u64::from(query % chunk) * 4))
-    }
-
-    /// Records an occlusion query of `boxes`; with `predicate`, its boxes are drawn inside a
-    /// conditional block on that query's predicate (the query itself begins and ends
-    /// unconditionally: a predicate does not affect them, so under a false one it counts no
-    /// sample).
+    /// Records an occlusion query of `boxes` through the query set; with `predicate`, its
+    /// boxes are drawn inside a conditional block on that query's predicate (the query itself
+    /// begins and ends unconditionally: a predicate does not affect them, so under a false one
+    /// it counts no sample).
     fn record_query(&mut self, boxes: &[Aabb], predicate: Option<QueryId>) -> Result<QueryId> {
-        let block = match predicate {
-            Some(p) => Some((p, self.predicate_slot(p)?)),
-            None => None,
-        };
         self.ensure_recording()?;
-        self.use_pipeline(PipelineKind::Query);
-        let id = self.occlusion.allocate()?;
+        self.use_box_pipeline();
+        let cmd = self.recorder.command_buffer().0;
+        // SAFETY: recording inside rendering with the set bound and nothing bound since; the
+        // set was reset for this frame; it checks the predicate.
+        let id = unsafe { self.queries.record_query(cmd, boxes, predicate)? };
         self.query_segment.push(self.current_segment() as u32);
         self.query_read.push(false);
-        self.recorder.begin_occlusion_query(&self.occlusion, id);
-        let mut drawn = match block {
-            Some((p, (buffer, offset))) => {
-                self.recorder
-                    .begin_conditional(&self.predicates[buffer], offset, p)
-            }
-            None => Ok(()),
-        };
-        let mut rest = boxes;
-        while drawn.is_ok() && !rest.is_empty() {
-            match self.draw_boxes(rest) {
-                Ok(r) => rest = r,
-                Err(e) => drawn = Err(e),
-            }
-        }
-        if block.is_some() {
-            self.recorder.end_conditional();
-        }
-        self.recorder.end_query(&self.occlusion, id);
-        drawn.map(|()| id)
+        Ok(id)
     }
 
     /// Tags the last query with what the culler said it is for.
@@ -998,7 +985,7 @@ impl Renderer {
         objects: &[u32],
         predicate: Option<QueryId>,
     ) -> Result<()> {
-        self.use_pipeline(PipelineKind::Render);
+        self.use_render_pipeline();
         self.bind_scene_buffers();
         let per_chunk = DRAW_CHUNK.min(self.ctx.info.max_draw_indirect_count);
         let mut rest = objects;
@@ -1097,7 +1084,7 @@ impl Renderer {
 
     /// One multi-draw of the ordered commands `position..` that draw `run`.
     fn record_run(&mut self, run: &[u32], position: u32, predicate: Option<QueryId>) -> Result<()> {
-        self.use_pipeline(PipelineKind::Render);
+        self.use_render_pipeline();
         self.bind_scene_buffers();
         let mut triangles = 0;
         for &o in run {
@@ -1116,23 +1103,17 @@ impl Renderer {
     /// do not count as drawn (`walk --check`) and `counts.predicated_objects_taken` says how
     /// many were; adds the mover draws.
     fn read_predicates(&mut self, counts: &mut CommandCounts) -> Result<()> {
-        let chunk = self.occlusion.chunk();
-        let buffers = &self.predicates;
-        let value = |q: u32| -> Option<u32> {
-            let bytes = buffers.get((q / chunk) as usize)?.mapped()?;
-            let at = (q % chunk) as usize * 4;
-            Some(u32::from_ne_bytes(bytes.get(at..at + 4)?.try_into().ok()?))
-        };
+        let queries = &self.queries;
         self.log
-            .end_frame(counts, |q| value(q).is_some_and(|v| v != 0));
+            .end_frame(counts, |q| queries.predicate(q).is_some_and(|v| v != 0));
         Ok(())
     }
 
     /// Leaves out the barrier between the predicate copy and the conditional blocks (for the
-    /// test that shows the recorder refuses such a frame).
+    /// test that shows such a frame is refused).
     #[doc(hidden)]
     pub fn skip_predicate_barrier(&mut self, skip: bool) {
-        self.skip_predicate_barrier = skip;
+        self.queries.skip_resolve_barrier(skip);
     }
 }
 
@@ -1146,7 +1127,7 @@ impl OcclusionBackend for Renderer {
     }
 
     fn supports_predicates(&self) -> bool {
-        self.ctx.info.optional.conditional_rendering
+        self.queries.desc().predicates
     }
 
     fn resolve_predicates(&mut self) -> coherent_cull::Result<()> {
@@ -1154,45 +1135,41 @@ impl OcclusionBackend for Renderer {
             return Err(coherent_cull::predicates_unsupported());
         }
         self.ensure_recording()?;
-        let (first, used) = (self.predicates_resolved, self.occlusion.used());
-        while self.predicates.len() < used.div_ceil(self.occlusion.chunk()) as usize {
-            self.predicates.push(Buffer::new(
-                &self.ctx,
-                "predicates",
-                u64::from(self.occlusion.chunk()) * 4,
-                vk::BufferUsageFlags::CONDITIONAL_RENDERING_EXT
-                    | vk::BufferUsageFlags::TRANSFER_DST,
-                MemoryLocation::GpuToCpu,
-            )?);
-        }
         // A pass break: the copy runs outside rendering, which resumes with LOAD ops.
         self.recorder.end_rendering();
-        self.recorder.copy_predicates(
-            &self.occlusion,
-            first,
-            used - first,
-            &self.predicates,
-            !self.skip_predicate_barrier,
-        )?;
+        // SAFETY: outside rendering, after the queries it copies.
+        unsafe {
+            self.queries
+                .record_resolve(self.recorder.command_buffer().0)?
+        };
         self.begin_target_rendering(false)?;
-        self.predicates_resolved = used;
         Ok(())
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
-        let (buffer, offset) = self.predicate_slot(query)?;
+        if query >= self.queries.resolved() {
+            return Err(Error::Input(format!(
+                "query {query} is not a resolved predicate of this frame"
+            ))
+            .into());
+        }
         if objects.is_empty() {
             return Ok(());
         }
         self.ensure_recording()?;
-        self.recorder
-            .begin_conditional(&self.predicates[buffer], offset, query)?;
+        let cmd = self.recorder.command_buffer().0;
+        // SAFETY: recording inside rendering, after the resolve in this command buffer; the
+        // set checks the predicate, its barrier and that no block is open.
+        unsafe { self.queries.begin_block(cmd, query)? };
+        self.recorder.note_conditional(Some(query));
         let drawn = if self.multi_draws() {
             self.record_objects_ordered(objects, Some(query))
         } else {
             self.record_objects(objects, Some(query))
         };
-        self.recorder.end_conditional();
+        // SAFETY: the block begun above is open in this rendering instance.
+        unsafe { self.queries.end_block(cmd) };
+        self.recorder.note_conditional(None);
         Ok(drawn?)
     }
 
@@ -1234,7 +1211,7 @@ impl OcclusionBackend for Renderer {
 
     fn restore_render_state(&mut self) -> coherent_cull::Result<()> {
         if self.recording {
-            self.use_pipeline(PipelineKind::Render);
+            self.use_render_pipeline();
         }
         Ok(())
     }
@@ -1258,14 +1235,8 @@ impl OcclusionBackend for Renderer {
         if !self.timeline.is_complete(value)? {
             return Ok(None);
         }
-        // The segment copied its results into host memory; asking the driver is the fallback.
-        let r = match self.occlusion.copied(query) {
-            Some(v) => Some(v),
-            None => {
-                self.driver_reads += 1;
-                self.occlusion.poll(query)?
-            }
-        };
+        // The segment copied its results into host memory (never vkGetQueryPoolResults).
+        let r = self.queries.copied_result(query).map(u64::from);
         if let Some(v) = r {
             if !self.query_read[query as usize] {
                 self.query_read[query as usize] = true;
@@ -1305,33 +1276,7 @@ impl OcclusionBackend for Renderer {
     }
 }
 
-impl Renderer {
-    /// Writes as many of `boxes` as fit into the current box chunk (starting a new chunk when
-    /// it is full), draws them inside the active query and returns the rest.
-    fn draw_boxes<'b>(&mut self, boxes: &'b [Aabb]) -> Result<&'b [Aabb]> {
-        if self.box_used == BOX_CHUNK {
-            self.box_chunk += 1;
-            self.box_used = 0;
-            if self.box_chunk == self.box_chunks.len() {
-                self.box_chunks.push(box_chunk(&self.ctx)?);
-            }
-        }
-        let n = (BOX_CHUNK - self.box_used).min(boxes.len() as u32);
-        self.corners.clear();
-        upload::box_corners_into(&boxes[..n as usize], &mut self.corners);
-        let chunk = &mut self.box_chunks[self.box_chunk];
-        chunk.write(self.box_used as usize * BOX_BYTES, bytes_of(&self.corners))?;
-        if self.bound != Some(Bound::Boxes(self.box_chunk)) {
-            self.recorder
-                .bind_buffers(chunk, 0, Some(&self.box_index_buffer));
-            self.bound = Some(Bound::Boxes(self.box_chunk));
-        }
-        self.recorder
-            .draw_indexed(36 * n, 1, 0, (self.box_used * 8) as i32, 0);
-        self.box_used += n;
-        Ok(&boxes[n as usize..])
-    }
-}
+impl Renderer {}
 
 /// One object as GPU-driven culling uploads it: its world bounds and its indexed draw range.
 #[derive(Clone, Copy, Debug)]

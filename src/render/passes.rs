@@ -1,7 +1,8 @@
-//! The forward renderer's pipelines: shaded scene geometry (render state), query boxes (query
-//! state: depth test, no writes) and the object-ID pass of the exact-visibility oracle. They
-//! share one layout: set 0 binds the per-object storage buffer; push constants hold view_proj
-//! and the sun direction.
+//! The forward renderer's pipelines: shaded scene geometry (render state) and the object-ID
+//! pass of the exact-visibility oracle. They share one layout: set 0 binds the per-object
+//! storage buffer; push constants hold view_proj and the sun direction. The query boxes are
+//! drawn with coherent-ash's box pipeline on this layout (it reads view_proj from the same
+//! push block).
 
 use std::sync::Arc;
 
@@ -37,8 +38,6 @@ pub struct ScenePipelines {
     // Pipelines are declared before the layout so they are dropped first.
     /// Shaded geometry.
     pub render: Pipeline,
-    /// Query boxes.
-    pub query: Pipeline,
     /// Object IDs (oracle pre-pass).
     pub id: Pipeline,
     /// Shaded alpha-masked geometry (scenes with materials only).
@@ -61,7 +60,6 @@ impl ScenePipelines {
         let layout = PipelineLayout::new(ctx, &[vk::DescriptorType::STORAGE_BUFFER], PUSH_SIZE)?;
         Ok(ScenePipelines {
             render: Pipeline::graphics(ctx, &layout, &scene_desc("render", shaded()))?,
-            query: Pipeline::graphics(ctx, &layout, &query_desc())?,
             id: Pipeline::graphics(ctx, &layout, &scene_desc("id", ids()))?,
             render_masked: None,
             id_masked: None,
@@ -72,7 +70,7 @@ impl ScenePipelines {
     }
 
     /// The pipelines for a scene: [`ScenePipelines::new`] unless `materials`, then the
-    /// material pipelines (opaque and masked render, ID and masked ID, the same query boxes)
+    /// material pipelines (opaque and masked render, ID and masked ID)
     /// with set 0 = (objects, base color texture).
     pub fn for_scene(ctx: &Arc<GpuContext>, materials: bool) -> Result<ScenePipelines> {
         if !materials {
@@ -99,7 +97,6 @@ impl ScenePipelines {
                 &layout,
                 &mat("render", shaders::SCENE_MAT_FRAG, shaded()),
             )?,
-            query: Pipeline::graphics(ctx, &layout, &query_desc())?,
             id: Pipeline::graphics(ctx, &layout, &mat("id", shaders::ID_FRAG, ids()))?,
             render_masked: Some(Pipeline::graphics(
                 ctx,
@@ -217,31 +214,5 @@ fn scene_desc(name: &'static str, out: SceneOutput) -> PipelineDesc<'static> {
         cull: vk::CullModeFlags::BACK,
         kind: out.kind,
         depth_bias: (0.0, 0.0),
-    }
-}
-
-fn query_desc() -> PipelineDesc<'static> {
-    PipelineDesc {
-        name: "query",
-        vert: shaders::BOX_VERT,
-        frag: None,
-        vertex_stride: 12,
-        attributes: &[(0, vk::Format::R32G32B32_SFLOAT, 0)],
-        color_formats: &[COLOR_FORMAT],
-        color_write: false,
-        depth_format: DEPTH_FORMAT,
-        depth_compare: vk::CompareOp::LESS_OR_EQUAL,
-        depth_write: false,
-        // Front faces suffice: the camera is never inside a queried box (enlarged by the
-        // near-plane corner distance), so every visible point of a box is covered by a front
-        // face at most as deep. Halves the query fill.
-        cull: vk::CullModeFlags::BACK,
-        kind: PipelineKind::Query,
-        // Conservative against depth precision: a box face that lies exactly on the surface it
-        // bounds (a panel flush on a wall, a tile on a floor) rasterizes with slightly
-        // different depths than that surface's own triangles, and with LESS_OR_EQUAL could
-        // fail where the object is visible. Pulling boxes towards the eye by a few depth units
-        // plus one pixel's depth slope can only make a query report more pixels, never fewer.
-        depth_bias: (-4.0, -1.0),
     }
 }

@@ -10,7 +10,7 @@ use crate::gpu::memory::Buffer;
 use crate::gpu::{
     AddressMode, GpuContext, Mips, OneShot, Recorder, Sampler, SamplerModes, Texture,
 };
-use crate::scene::{Aabb, SamplerDesc, Scene, TextureImage, Wrap};
+use crate::scene::{SamplerDesc, Scene, TextureImage, Wrap};
 
 /// The scene's GPU buffers.
 pub struct UploadedScene {
@@ -82,21 +82,6 @@ pub fn upload_scene_with_spare(
         indices,
         objects,
     })
-}
-
-/// Indices for `n` boxes of 8 corners each (corner c = x | y << 1 | z << 2), 12 triangles each.
-/// The same box layout as coherent-ash's query boxes ([`coherent_ash::BOX_FACES`]).
-pub fn box_indices(n: u32) -> Vec<u32> {
-    (0..n)
-        .flat_map(|b| coherent_ash::BOX_FACES.iter().map(move |i| i + 8 * b))
-        .collect()
-}
-
-/// Appends the world-space corners of `boxes` (8 per box) to `out`.
-pub fn box_corners_into(boxes: &[Aabb], out: &mut Vec<[f32; 3]>) {
-    for b in boxes {
-        out.extend(coherent_ash::box_corners(b));
-    }
 }
 
 /// Position, normal, texture coordinates and color of every vertex, interleaved

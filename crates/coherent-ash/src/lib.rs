@@ -90,6 +90,21 @@
 //! that keeps one indirect command per object in that order can draw a predicate's run of
 //! objects as one multi-draw (the built-in renderer of the `coherent` package does).
 //!
+//! ## Building blocks for a frame of your own
+//!
+//! [`QueryBackend`] is made of two public parts that a host with another frame structure can
+//! use directly (the built-in renderer of the `coherent` package does: it submits and waits
+//! inside a frame for the in-frame modes and stop-and-wait, which [`QueryBackend`] refuses):
+//!
+//! - [`QuerySet`]: the occlusion queries of one frame, growing (pools of
+//!   [`QuerySetDesc::queries_per_pool`], reset from the host with `hostQueryReset`, or made at
+//!   full size and reset by a command), the box corners they draw, the copies of their results
+//!   into host memory (as often as the host submits: [`QuerySet::record_copy`] copies what was
+//!   issued since the last copy), and their predicates and conditional blocks, all counted;
+//! - [`BoxPipeline`]: the box pipeline for the host's formats and depth convention, on its own
+//!   layout or on the host's ([`BoxPipelineDesc::layout`], sharing the host's push block), with
+//!   back faces culled when the host says how its viewport winds them.
+//!
 //! ## Requirements
 //!
 //! Vulkan 1.3 (or 1.2 with `VK_KHR_dynamic_rendering`) with `dynamicRendering` enabled, and
@@ -180,6 +195,8 @@ pub struct QueryCounts {
     pub box_draws: u32,
     /// Binds of the box pipeline (`vkCmdBindPipeline`).
     pub pipeline_binds: u32,
+    /// Binds of the box vertex and index buffers (one per bind call of either or both).
+    pub buffer_binds: u32,
     /// Switches between the host's render state and the query state, either way.
     pub state_changes: u32,
     /// Calls of the host's draw callback with at least one object.

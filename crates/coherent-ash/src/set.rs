@@ -271,7 +271,7 @@ impl QuerySet {
     }
 
     /// What the set recorded since the last reset: `queries`, `query_boxes`, `box_draws`,
-    /// `pipeline_binds` (by [`QuerySet::bind`]), `resets`, `result_copies`, `resolves`,
+    /// `pipeline_binds` and `buffer_binds` (by [`QuerySet::bind`] and box draws), `resets`, `result_copies`, `resolves`,
     /// `conditional_blocks` and `predicated_queries`. The other fields are left to the caller
     /// ([`QuerySet::counts_mut`]).
     pub fn counts(&self) -> QueryCounts {
@@ -367,6 +367,7 @@ impl QuerySet {
         }
         self.bound_boxes = Some(current);
         self.counts.pipeline_binds += 1;
+        self.counts.buffer_binds += 1;
     }
 
     /// The box buffer the next box goes into (the last one when all are full).
@@ -455,6 +456,7 @@ impl QuerySet {
                 if self.bound_boxes != Some(buffer) {
                     d.cmd_bind_vertex_buffers(cmd, 0, &[self.boxes[buffer].buffer], &[0]);
                     self.bound_boxes = Some(buffer);
+                    self.counts.buffer_binds += 1;
                 }
                 d.cmd_draw_indexed(cmd, 36 * n, 1, 0, (first * 8) as i32, 0);
                 self.counts.box_draws += 1;
