@@ -1,8 +1,9 @@
 //! coherent-ash's `QueryBackend` on a real device under strict validation (core,
 //! synchronization, best practices): a culler in next-frame mode with two frames in flight,
 //! queries recorded into a host command buffer inside a depth pass, results copied and read two
-//! frames later; and the shipped SPIR-V of its box shader equals what the workspace's GLSL
-//! compiles to.
+//! frames later; its building blocks (`QuerySet`, `BoxPipeline`) on their own, growing and
+//! copying across pools; and the shipped SPIR-V of its box shader equals what the workspace's
+//! GLSL compiles to.
 
 use ash::vk;
 use coherent::gpu::memory::Image;
@@ -285,4 +286,231 @@ fn query_backend_draws_everything_that_is_visible() {
         &(0..16).collect::<Vec<u32>>(),
         "drawn per frame: {drawn:?}"
     );
+}
+
+/// Begins `cmd`, records the reset of `reset` when given, and begins a depth-only rendering
+/// into `depth` (cleared to `clear`), viewport and scissor set.
+///
+/// # Safety
+/// `cmd` is in the initial state; `depth` is a `W`x`H` depth attachment of its device; every
+/// earlier use of `reset` has completed.
+unsafe fn begin_depth_pass(
+    d: &ash::Device,
+    cmd: vk::CommandBuffer,
+    depth: &Image,
+    clear: f32,
+    reset: Option<&mut coherent_ash::QuerySet>,
+) -> u32 {
+    let range = vk::ImageSubresourceRange::default()
+        .aspect_mask(vk::ImageAspectFlags::DEPTH)
+        .level_count(1)
+        .layer_count(1);
+    let to_attachment = vk::ImageMemoryBarrier2::default()
+        .image(depth.handle)
+        .subresource_range(range)
+        .old_layout(vk::ImageLayout::UNDEFINED)
+        .new_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+        .dst_stage_mask(vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS)
+        .dst_access_mask(vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE);
+    let attachment = vk::RenderingAttachmentInfo::default()
+        .image_view(depth.view)
+        .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(vk::AttachmentStoreOp::DONT_CARE)
+        .clear_value(vk::ClearValue {
+            depth_stencil: vk::ClearDepthStencilValue {
+                depth: clear,
+                stencil: 0,
+            },
+        });
+    let extent = vk::Extent2D {
+        width: W,
+        height: H,
+    };
+    // SAFETY: per the caller.
+    unsafe {
+        d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+            .expect("begin");
+        let resets = reset.map_or(0, |set| set.record_reset(cmd));
+        d.cmd_pipeline_barrier2(
+            cmd,
+            &vk::DependencyInfo::default().image_memory_barriers(&[to_attachment]),
+        );
+        d.cmd_begin_rendering(
+            cmd,
+            &vk::RenderingInfo::default()
+                .render_area(extent.into())
+                .layer_count(1)
+                .depth_attachment(&attachment),
+        );
+        d.cmd_set_viewport(
+            cmd,
+            0,
+            &[vk::Viewport {
+                x: 0.0,
+                y: 0.0,
+                width: W as f32,
+                height: H as f32,
+                min_depth: 0.0,
+                max_depth: 1.0,
+            }],
+        );
+        d.cmd_set_scissor(cmd, 0, &[extent.into()]);
+        resets
+    }
+}
+
+/// coherent-ash's building blocks on their own, as a host with its own frame uses them: a
+/// `QuerySet` that grows by pools of 4 queries and buffers of 8 boxes while one command buffer
+/// is recorded (reset from the host), drawn with a `BoxPipeline` on its own layout; one copy of
+/// every result across the pool boundaries, read once the submission completed. Boxes in front
+/// of a wall count samples, boxes far behind it none, a query whose boxes span several box
+/// buffers sees its visible box; a set made at full size refuses a query past `max_queries`
+/// and a query before its pipeline is bound, with errors that say so.
+#[test]
+fn query_set_grows_copies_across_pools_and_refuses_clearly() {
+    use coherent_ash::{BoxPipeline, BoxPipelineDesc, QuerySet, QuerySetDesc};
+    use coherent_cull::Aabb;
+    let (ctx, log) = common::context();
+    {
+        let d = &ctx.device;
+        let (bvh, cam) = row();
+        let boxes: Vec<Aabb> = (0..16)
+            .map(|o| bvh.object_bounds(o).expect("object"))
+            .collect();
+        let depth = Image::new(
+            &ctx,
+            "query set test depth",
+            vk::Format::D32_SFLOAT,
+            (W, H),
+            1,
+            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+        )
+        .expect("depth image");
+        let view: CameraView = (&cam).into();
+        let view_proj = view.view_proj.to_cols_array();
+        let growing = QuerySetDesc {
+            queries_per_pool: 4,
+            max_queries: 64,
+            boxes_per_buffer: 8,
+            max_boxes: 256,
+            predicates: false,
+            host_query_reset: true,
+        };
+        let full_size = QuerySetDesc {
+            max_queries: 4,
+            host_query_reset: false,
+            ..growing.clone()
+        };
+        let pipeline_desc = BoxPipelineDesc {
+            depth: DepthConvention::STANDARD,
+            ..BoxPipelineDesc::default()
+        };
+        // SAFETY: the context's device has dynamic rendering, precise queries and host query
+        // resets; everything is dropped after the device went idle, before the context.
+        unsafe {
+            let pipeline = BoxPipeline::new(d, &pipeline_desc).expect("box pipeline");
+            let mut set =
+                QuerySet::new(&ctx.instance, ctx.physical_device, d, growing).expect("query set");
+            let mut small = QuerySet::new(&ctx.instance, ctx.physical_device, d, full_size)
+                .expect("full-size query set");
+            assert_eq!(set.capacity(), 4);
+            assert_eq!(small.capacity(), 4);
+            let pool = d
+                .create_command_pool(
+                    &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
+                    None,
+                )
+                .expect("pool");
+            let cmd = d
+                .allocate_command_buffers(
+                    &vk::CommandBufferAllocateInfo::default()
+                        .command_pool(pool)
+                        .command_buffer_count(1),
+                )
+                .expect("command buffer")[0];
+            set.reset_from_host().expect("host reset");
+            let refused_reset = small.reset_from_host().expect_err("no host resets");
+            assert!(
+                refused_reset.to_string().contains("host_query_reset"),
+                "{refused_reset}"
+            );
+            begin_depth_pass(d, cmd, &depth, depth_at(&cam, 10.5), None);
+            let unbound = set
+                .record_query(cmd, &boxes[..1], None)
+                .expect_err("a query before bind");
+            assert!(unbound.to_string().contains("bind"), "{unbound}");
+            set.bind(cmd, &pipeline, &view_proj);
+            // One query per box (4 pools), then one of 12 boxes: the far ones first, so that
+            // the visible box 0 is drawn from the fourth box buffer.
+            for b in &boxes {
+                set.record_query(cmd, std::slice::from_ref(b), None)
+                    .expect("query");
+            }
+            let mut far_then_near: Vec<Aabb> = boxes[5..16].to_vec();
+            far_then_near.push(boxes[0]);
+            let spanning = set.record_query(cmd, &far_then_near, None).expect("query");
+            let far_only = set.record_query(cmd, &boxes[6..16], None).expect("query");
+            d.cmd_end_rendering(cmd);
+            assert_eq!(set.record_copy(cmd), 18);
+            assert_eq!(set.record_copy(cmd), 0, "a second copy has nothing new");
+            d.end_command_buffer(cmd).expect("end");
+            d.queue_submit(
+                ctx.queue,
+                &[vk::SubmitInfo::default().command_buffers(&[cmd])],
+                vk::Fence::null(),
+            )
+            .expect("submit");
+            d.queue_wait_idle(ctx.queue).expect("wait");
+            assert!(set.capacity() >= 18, "capacity {}", set.capacity());
+            let results: Vec<Option<u32>> = (0..16).map(|q| set.copied_result(q)).collect();
+            assert!(
+                results[..3].iter().all(|r| r.is_some_and(|v| v > 0)),
+                "boxes in front of the wall: {results:?}"
+            );
+            assert!(
+                results[5..].iter().all(|r| *r == Some(0)),
+                "boxes far behind the wall: {results:?}"
+            );
+            assert!(set.copied_result(spanning).is_some_and(|v| v > 0));
+            assert_eq!(set.copied_result(far_only), Some(0));
+            assert_eq!(set.copied_result(18), None, "never issued");
+            let c = set.counts();
+            assert_eq!((c.queries, c.query_boxes), (18, 16 + 12 + 10));
+            assert!(c.box_draws > 18, "a query spanning box buffers: {c:?}");
+            assert_eq!(c.result_copies, 5, "one copy per pool: {c:?}");
+
+            // The full-size set: four queries, then a clear refusal.
+            d.reset_command_pool(pool, vk::CommandPoolResetFlags::empty())
+                .expect("reset pool");
+            assert_eq!(begin_depth_pass(d, cmd, &depth, 1.0, Some(&mut small)), 1);
+            small.bind(cmd, &pipeline, &view_proj);
+            for b in &boxes[..4] {
+                small
+                    .record_query(cmd, std::slice::from_ref(b), None)
+                    .expect("query");
+            }
+            let full = small
+                .record_query(cmd, &boxes[..1], None)
+                .expect_err("past max_queries");
+            assert!(full.to_string().contains("max_queries"), "{full}");
+            d.cmd_end_rendering(cmd);
+            small.record_copy(cmd);
+            d.end_command_buffer(cmd).expect("end");
+            d.queue_submit(
+                ctx.queue,
+                &[vk::SubmitInfo::default().command_buffers(&[cmd])],
+                vk::Fence::null(),
+            )
+            .expect("submit");
+            d.queue_wait_idle(ctx.queue).expect("wait");
+            assert!((0..4).all(|q| small.copied_result(q).is_some_and(|v| v > 0)));
+            drop(set);
+            drop(small);
+            drop(pipeline);
+            d.destroy_command_pool(pool, None);
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
 }
