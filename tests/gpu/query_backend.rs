@@ -142,68 +142,9 @@ fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCoun
                 d.reset_fences(&[fences[slot]]).expect("reset fence");
                 d.reset_command_pool(pools[slot], vk::CommandPoolResetFlags::empty())
                     .expect("reset");
-                d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
-                    .expect("begin");
-                queries.begin_frame(cmd, slot as u32).expect("begin_frame");
-                let range = vk::ImageSubresourceRange::default()
-                    .aspect_mask(vk::ImageAspectFlags::DEPTH)
-                    .level_count(1)
-                    .layer_count(1);
-                let stages = vk::PipelineStageFlags::EARLY_FRAGMENT_TESTS
-                    | vk::PipelineStageFlags::LATE_FRAGMENT_TESTS;
-                let access = vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_READ
-                    | vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_WRITE;
-                let to_attachment = vk::ImageMemoryBarrier::default()
-                    .image(depth.handle)
-                    .subresource_range(range)
-                    .old_layout(vk::ImageLayout::UNDEFINED)
-                    .new_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-                    .src_access_mask(access)
-                    .dst_access_mask(access);
-                d.cmd_pipeline_barrier(
-                    cmd,
-                    stages,
-                    stages,
-                    vk::DependencyFlags::empty(),
-                    &[],
-                    &[],
-                    &[to_attachment],
-                );
-                let attachment = vk::RenderingAttachmentInfo::default()
-                    .image_view(depth.view)
-                    .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-                    .load_op(vk::AttachmentLoadOp::CLEAR)
-                    .store_op(vk::AttachmentStoreOp::DONT_CARE)
-                    .clear_value(vk::ClearValue {
-                        depth_stencil: vk::ClearDepthStencilValue {
-                            depth: clear,
-                            stencil: 0,
-                        },
-                    });
-                let extent = vk::Extent2D {
-                    width: W,
-                    height: H,
-                };
-                d.cmd_begin_rendering(
-                    cmd,
-                    &vk::RenderingInfo::default()
-                        .render_area(extent.into())
-                        .layer_count(1)
-                        .depth_attachment(&attachment),
-                );
-                d.cmd_set_viewport(
-                    cmd,
-                    0,
-                    &[vk::Viewport {
-                        x: 0.0,
-                        y: 0.0,
-                        width: W as f32,
-                        height: H as f32,
-                        min_depth: 0.0,
-                        max_depth: 1.0,
-                    }],
-                );
-                d.cmd_set_scissor(cmd, 0, &[extent.into()]);
+                begin_depth_pass(d, cmd, &depth, clear, |cmd| {
+                    queries.begin_frame(cmd, slot as u32).expect("begin_frame")
+                });
             }
             let input = FrameInput {
                 bvh: &bvh,
@@ -288,30 +229,38 @@ fn query_backend_draws_everything_that_is_visible() {
     );
 }
 
-/// Begins `cmd`, records the reset of `reset` when given, and begins a depth-only rendering
-/// into `depth` (cleared to `clear`), viewport and scissor set.
+/// Begins `cmd`, records what `before` records outside rendering (a query reset), and begins a
+/// depth-only rendering into `depth` (cleared to `clear`, after the writes of earlier frames),
+/// viewport and scissor set; returns what `before` returned.
 ///
 /// # Safety
-/// `cmd` is in the initial state; `depth` is a `W`x`H` depth attachment of its device; every
-/// earlier use of `reset` has completed.
-unsafe fn begin_depth_pass(
+/// `cmd` is in the initial state; `depth` is a `W`x`H` depth attachment of its device; `before`
+/// records only commands valid outside rendering.
+unsafe fn begin_depth_pass<T>(
     d: &ash::Device,
     cmd: vk::CommandBuffer,
     depth: &Image,
     clear: f32,
-    reset: Option<&mut coherent_ash::QuerySet>,
-) -> u32 {
+    before: impl FnOnce(vk::CommandBuffer) -> T,
+) -> T {
     let range = vk::ImageSubresourceRange::default()
         .aspect_mask(vk::ImageAspectFlags::DEPTH)
         .level_count(1)
         .layer_count(1);
+    let tests = vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS
+        | vk::PipelineStageFlags2::LATE_FRAGMENT_TESTS;
     let to_attachment = vk::ImageMemoryBarrier2::default()
         .image(depth.handle)
         .subresource_range(range)
         .old_layout(vk::ImageLayout::UNDEFINED)
         .new_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-        .dst_stage_mask(vk::PipelineStageFlags2::EARLY_FRAGMENT_TESTS)
-        .dst_access_mask(vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE);
+        .src_stage_mask(tests)
+        .src_access_mask(vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE)
+        .dst_stage_mask(tests)
+        .dst_access_mask(
+            vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_READ
+                | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE,
+        );
     let attachment = vk::RenderingAttachmentInfo::default()
         .image_view(depth.view)
         .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
@@ -331,7 +280,7 @@ unsafe fn begin_depth_pass(
     unsafe {
         d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
             .expect("begin");
-        let resets = reset.map_or(0, |set| set.record_reset(cmd));
+        let out = before(cmd);
         d.cmd_pipeline_barrier2(
             cmd,
             &vk::DependencyInfo::default().image_memory_barriers(&[to_attachment]),
@@ -356,7 +305,7 @@ unsafe fn begin_depth_pass(
             }],
         );
         d.cmd_set_scissor(cmd, 0, &[extent.into()]);
-        resets
+        out
     }
 }
 
@@ -435,7 +384,7 @@ fn query_set_grows_copies_across_pools_and_refuses_clearly() {
                 refused_reset.to_string().contains("host_query_reset"),
                 "{refused_reset}"
             );
-            begin_depth_pass(d, cmd, &depth, depth_at(&cam, 10.5), None);
+            begin_depth_pass(d, cmd, &depth, depth_at(&cam, 10.5), |_| ());
             let unbound = set
                 .record_query(cmd, &boxes[..1], None)
                 .expect_err("a query before bind");
@@ -483,7 +432,8 @@ fn query_set_grows_copies_across_pools_and_refuses_clearly() {
             // The full-size set: four queries, then a clear refusal.
             d.reset_command_pool(pool, vk::CommandPoolResetFlags::empty())
                 .expect("reset pool");
-            assert_eq!(begin_depth_pass(d, cmd, &depth, 1.0, Some(&mut small)), 1);
+            let resets = begin_depth_pass(d, cmd, &depth, 1.0, |cmd| small.record_reset(cmd));
+            assert_eq!(resets, 1);
             small.bind(cmd, &pipeline, &view_proj);
             for b in &boxes[..4] {
                 small

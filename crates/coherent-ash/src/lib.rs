@@ -309,14 +309,7 @@ impl QueryBackend {
                 feature: "occlusionQueryPrecise (precise occlusion queries)".into(),
             });
         }
-        // SAFETY: as above.
-        if desc.predicates && !unsafe { has_conditional_rendering(instance, physical_device) } {
-            return Err(Error::Unsupported {
-                feature: "VK_EXT_conditional_rendering (conditionalRendering), which \
-                          QueryBackendDesc::predicates needs"
-                    .into(),
-            });
-        }
+        // (Without VK_EXT_conditional_rendering, QuerySet::new refuses `predicates`.)
         let pipeline_desc = BoxPipelineDesc {
             depth_format: desc.depth_format,
             color_formats: desc.color_formats.clone(),

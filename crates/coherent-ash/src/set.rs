@@ -489,36 +489,15 @@ impl QuerySet {
         if n == 0 {
             return 0;
         }
-        for (chunk, slot, count) in self.ranges(first, n) {
-            let c = &self.pools[chunk];
-            // SAFETY: per the caller; the range lies in the pool and, at 8 bytes a result, in
-            // its result buffer (TRANSFER_DST).
-            unsafe {
-                self.device.cmd_copy_query_pool_results(
-                    cmd,
-                    c.pool,
-                    slot,
-                    count,
-                    c.results.buffer,
-                    u64::from(slot) * RESULT_BYTES,
-                    RESULT_BYTES,
-                    vk::QueryResultFlags::WAIT | vk::QueryResultFlags::WITH_AVAILABILITY,
-                )
-            };
-            self.counts.result_copies += 1;
-        }
-        let barrier = vk::MemoryBarrier2::default()
-            .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-            .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-            .dst_access_mask(vk::AccessFlags2::HOST_READ);
         // SAFETY: per the caller.
         unsafe {
-            self.device.cmd_pipeline_barrier2(
+            self.copy_results(cmd, first, n, false);
+            self.barrier(
                 cmd,
-                &vk::DependencyInfo::default().memory_barriers(&[barrier]),
-            )
-        };
+                vk::PipelineStageFlags2::HOST,
+                vk::AccessFlags2::HOST_READ,
+            );
+        }
         self.copied = self.issued;
         n
     }
@@ -549,35 +528,17 @@ impl QuerySet {
             return Err(coherent_cull::predicates_unsupported());
         }
         let (first, n) = (self.resolved, self.issued - self.resolved);
-        for (chunk, slot, count) in self.ranges(first, n) {
-            let c = &self.pools[chunk];
-            // SAFETY: per the caller; at 4 bytes a predicate the range lies in the buffer.
-            unsafe {
-                self.device.cmd_copy_query_pool_results(
-                    cmd,
-                    c.pool,
-                    slot,
-                    count,
-                    c.predicates.buffer,
-                    u64::from(slot) * PREDICATE_BYTES,
-                    PREDICATE_BYTES,
-                    vk::QueryResultFlags::WAIT,
-                )
-            };
-        }
+        // SAFETY: per the caller.
+        unsafe { self.copy_results(cmd, first, n, true) };
         if self.skip_barrier {
             self.unguarded = true;
         } else {
-            let barrier = vk::MemoryBarrier2::default()
-                .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-                .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                .dst_stage_mask(vk::PipelineStageFlags2::CONDITIONAL_RENDERING_EXT)
-                .dst_access_mask(vk::AccessFlags2::CONDITIONAL_RENDERING_READ_EXT);
             // SAFETY: per the caller.
             unsafe {
-                self.device.cmd_pipeline_barrier2(
+                self.barrier(
                     cmd,
-                    &vk::DependencyInfo::default().memory_barriers(&[barrier]),
+                    vk::PipelineStageFlags2::CONDITIONAL_RENDERING_EXT,
+                    vk::AccessFlags2::CONDITIONAL_RENDERING_READ_EXT,
                 )
             };
             self.unguarded = false;
@@ -585,6 +546,78 @@ impl QuerySet {
         self.resolved = self.issued;
         self.counts.resolves += 1;
         Ok(n)
+    }
+
+    /// Records the copies of the results of queries `first..first + n`, pool by pool: as
+    /// 32-bit predicates into the predicate buffers, or as (value, availability) pairs into
+    /// the result buffers; `vkCmdCopyQueryPoolResults` waits for each on the device.
+    ///
+    /// # Safety
+    /// `cmd` is recording outside a render pass instance, after those queries ended.
+    unsafe fn copy_results(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        first: u32,
+        n: u32,
+        predicates: bool,
+    ) {
+        for (chunk, slot, count) in self.ranges(first, n) {
+            let c = &self.pools[chunk];
+            let (buffer, stride, flags) = if predicates {
+                (
+                    c.predicates.buffer,
+                    PREDICATE_BYTES,
+                    vk::QueryResultFlags::WAIT,
+                )
+            } else {
+                (
+                    c.results.buffer,
+                    RESULT_BYTES,
+                    vk::QueryResultFlags::WAIT | vk::QueryResultFlags::WITH_AVAILABILITY,
+                )
+            };
+            // SAFETY: per the caller; the range lies in the pool and, at `stride` bytes a
+            // query, in the buffer (TRANSFER_DST).
+            unsafe {
+                self.device.cmd_copy_query_pool_results(
+                    cmd,
+                    c.pool,
+                    slot,
+                    count,
+                    buffer,
+                    u64::from(slot) * stride,
+                    stride,
+                    flags,
+                )
+            };
+            if !predicates {
+                self.counts.result_copies += 1;
+            }
+        }
+    }
+
+    /// A global barrier from the copies (transfer writes) to `stage`'s `access`.
+    ///
+    /// # Safety
+    /// `cmd` is recording outside a render pass instance.
+    unsafe fn barrier(
+        &self,
+        cmd: vk::CommandBuffer,
+        stage: vk::PipelineStageFlags2,
+        access: vk::AccessFlags2,
+    ) {
+        let barrier = vk::MemoryBarrier2::default()
+            .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
+            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+            .dst_stage_mask(stage)
+            .dst_access_mask(access);
+        // SAFETY: per the caller.
+        unsafe {
+            self.device.cmd_pipeline_barrier2(
+                cmd,
+                &vk::DependencyInfo::default().memory_barriers(&[barrier]),
+            )
+        };
     }
 
     /// Leaves out the barrier after the predicate copies of [`QuerySet::record_resolve`] (for
