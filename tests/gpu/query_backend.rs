@@ -51,6 +51,19 @@ fn row() -> (ObjectBvh, Camera) {
     (bvh, Camera::from_pose(pose, 1.0, 100.0))
 }
 
+/// A `W`x`H` D32 depth attachment.
+fn depth_image(ctx: &std::sync::Arc<coherent::gpu::GpuContext>) -> Image {
+    Image::new(
+        ctx,
+        "query test depth",
+        vk::Format::D32_SFLOAT,
+        (W, H),
+        1,
+        vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+    )
+    .expect("depth image")
+}
+
 /// Depth (standard convention) of a point `d` in front of the camera.
 fn depth_at(cam: &Camera, d: f32) -> f32 {
     let p = cam.view_proj() * coherent_cull::glam::Vec4::new(0.0, 0.0, -d, 1.0);
@@ -66,15 +79,7 @@ fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCoun
     {
         let (bvh, cam) = row();
         let d = &ctx.device;
-        let depth = Image::new(
-            &ctx,
-            "query test depth",
-            vk::Format::D32_SFLOAT,
-            (W, H),
-            1,
-            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
-        )
-        .expect("depth image");
+        let depth = depth_image(&ctx);
         let desc = QueryBackendDesc {
             frames_in_flight: 2,
             depth_format: vk::Format::D32_SFLOAT,
@@ -309,6 +314,25 @@ unsafe fn begin_depth_pass<T>(
     }
 }
 
+/// Ends `cmd`, submits it and waits until the queue is idle.
+///
+/// # Safety
+/// `cmd` is recording, outside rendering, on `ctx`'s device.
+unsafe fn submit_and_wait(ctx: &coherent::gpu::GpuContext, cmd: vk::CommandBuffer) {
+    let d = &ctx.device;
+    // SAFETY: per the caller.
+    unsafe {
+        d.end_command_buffer(cmd).expect("end");
+        d.queue_submit(
+            ctx.queue,
+            &[vk::SubmitInfo::default().command_buffers(&[cmd])],
+            vk::Fence::null(),
+        )
+        .expect("submit");
+        d.queue_wait_idle(ctx.queue).expect("wait");
+    }
+}
+
 /// coherent-ash's building blocks on their own, as a host with its own frame uses them: a
 /// `QuerySet` that grows by pools of 4 queries and buffers of 8 boxes while one command buffer
 /// is recorded (reset from the host), drawn with a `BoxPipeline` on its own layout; one copy of
@@ -327,15 +351,7 @@ fn query_set_grows_copies_across_pools_and_refuses_clearly() {
         let boxes: Vec<Aabb> = (0..16)
             .map(|o| bvh.object_bounds(o).expect("object"))
             .collect();
-        let depth = Image::new(
-            &ctx,
-            "query set test depth",
-            vk::Format::D32_SFLOAT,
-            (W, H),
-            1,
-            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
-        )
-        .expect("depth image");
+        let depth = depth_image(&ctx);
         let view: CameraView = (&cam).into();
         let view_proj = view.view_proj.to_cols_array();
         let growing = QuerySetDesc {
@@ -403,14 +419,7 @@ fn query_set_grows_copies_across_pools_and_refuses_clearly() {
             d.cmd_end_rendering(cmd);
             assert_eq!(set.record_copy(cmd), 18);
             assert_eq!(set.record_copy(cmd), 0, "a second copy has nothing new");
-            d.end_command_buffer(cmd).expect("end");
-            d.queue_submit(
-                ctx.queue,
-                &[vk::SubmitInfo::default().command_buffers(&[cmd])],
-                vk::Fence::null(),
-            )
-            .expect("submit");
-            d.queue_wait_idle(ctx.queue).expect("wait");
+            submit_and_wait(&ctx, cmd);
             assert!(set.capacity() >= 18, "capacity {}", set.capacity());
             let results: Vec<Option<u32>> = (0..16).map(|q| set.copied_result(q)).collect();
             assert!(
@@ -446,14 +455,7 @@ fn query_set_grows_copies_across_pools_and_refuses_clearly() {
             assert!(full.to_string().contains("max_queries"), "{full}");
             d.cmd_end_rendering(cmd);
             small.record_copy(cmd);
-            d.end_command_buffer(cmd).expect("end");
-            d.queue_submit(
-                ctx.queue,
-                &[vk::SubmitInfo::default().command_buffers(&[cmd])],
-                vk::Fence::null(),
-            )
-            .expect("submit");
-            d.queue_wait_idle(ctx.queue).expect("wait");
+            submit_and_wait(&ctx, cmd);
             assert!((0..4).all(|q| small.copied_result(q).is_some_and(|v| v > 0)));
             drop(set);
             drop(small);
