@@ -364,12 +364,7 @@ impl Recorder {
             self.device
                 .cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::GRAPHICS, p.handle)
         };
-        self.bound = Some(p.handle);
-        self.counts.pipeline_binds += 1;
-        if self.last_kind.is_some() && self.last_kind != Some(p.kind) {
-            self.counts.state_changes += 1;
-        }
-        self.last_kind = Some(p.kind);
+        self.note_bind(p.handle, p.kind);
         true
     }
 

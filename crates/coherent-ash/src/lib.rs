@@ -658,13 +658,12 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
                     .into(),
             });
         };
-        let (cmd, device) = (self.cmd, self.backend.device.clone());
-        let set = &mut self.backend.slots[slot as usize];
+        let (cmd, b) = (self.cmd, &mut *self.backend);
         // SAFETY: `cmd` is recording inside the host's rendering (the `frame` contract): it is
         // ended here, the copy and barrier recorded outside it, and the host resumes it.
         unsafe {
-            device.cmd_end_rendering(cmd);
-            set.record_resolve(cmd)?;
+            b.device.cmd_end_rendering(cmd);
+            b.slots[slot as usize].record_resolve(cmd)?;
         }
         resume(cmd)?;
         // The host binds its own state while resuming: back in render state.

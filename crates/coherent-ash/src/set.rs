@@ -96,9 +96,6 @@ pub struct QuerySet {
     counts: QueryCounts,
 }
 
-// SAFETY: the set owns its Vulkan objects and mapped memory; nothing is tied to a thread.
-unsafe impl Send for QuerySet {}
-
 impl QuerySet {
     /// Creates the first query pool, box buffer and index buffer (all of them without
     /// `host_query_reset`).
@@ -271,9 +268,9 @@ impl QuerySet {
     }
 
     /// What the set recorded since the last reset: `queries`, `query_boxes`, `box_draws`,
-    /// `pipeline_binds` and `buffer_binds` (by [`QuerySet::bind`] and box draws), `resets`, `result_copies`, `resolves`,
-    /// `conditional_blocks` and `predicated_queries`. The other fields are left to the caller
-    /// ([`QuerySet::counts_mut`]).
+    /// `pipeline_binds` and `buffer_binds` (by [`QuerySet::bind`] and box draws), `resets`,
+    /// `result_copies`, `resolves`, `conditional_blocks` and `predicated_queries`. The other
+    /// fields are left to the caller ([`QuerySet::counts_mut`]).
     pub fn counts(&self) -> QueryCounts {
         self.counts
     }
@@ -435,14 +432,13 @@ impl QuerySet {
         }
         self.make_room(boxes.len() as u32)?;
         let id = self.issued;
-        let per_pool = self.desc.queries_per_pool;
-        let (chunk, index) = ((id / per_pool) as usize, id % per_pool);
+        let (chunk, index) = self.location(id);
         let pool = self.pools[chunk].pool;
-        let d = self.device.clone();
         // SAFETY (whole block): per the caller; the query was reset and is used once; the
         // predicate was checked; the boxes written below lie in their buffers.
         unsafe {
-            d.cmd_begin_query(cmd, pool, index, vk::QueryControlFlags::PRECISE);
+            self.device
+                .cmd_begin_query(cmd, pool, index, vk::QueryControlFlags::PRECISE);
             if let Some(p) = predicate {
                 self.begin_conditional(cmd, p);
             }
@@ -454,11 +450,13 @@ impl QuerySet {
                 let n = (per_box - first).min(rest.len() as u32);
                 write_corners(&mut self.boxes[buffer], first, &rest[..n as usize]);
                 if self.bound_boxes != Some(buffer) {
-                    d.cmd_bind_vertex_buffers(cmd, 0, &[self.boxes[buffer].buffer], &[0]);
+                    self.device
+                        .cmd_bind_vertex_buffers(cmd, 0, &[self.boxes[buffer].buffer], &[0]);
                     self.bound_boxes = Some(buffer);
                     self.counts.buffer_binds += 1;
                 }
-                d.cmd_draw_indexed(cmd, 36 * n, 1, 0, (first * 8) as i32, 0);
+                self.device
+                    .cmd_draw_indexed(cmd, 36 * n, 1, 0, (first * 8) as i32, 0);
                 self.counts.box_draws += 1;
                 self.boxes_used += n;
                 rest = &rest[n as usize..];
@@ -467,7 +465,7 @@ impl QuerySet {
                 self.end_block(cmd);
                 self.counts.predicated_queries += 1;
             }
-            d.cmd_end_query(cmd, pool, index);
+            self.device.cmd_end_query(cmd, pool, index);
         }
         let c = &mut self.pools[chunk];
         c.dirty = c.dirty.max(index + 1);
@@ -705,8 +703,7 @@ impl QuerySet {
 
     /// Pool chunk and slot of query `id`.
     fn location(&self, id: u32) -> (usize, u32) {
-        let per = self.desc.queries_per_pool;
-        ((id / per) as usize, id % per)
+        location(self.desc.queries_per_pool, id)
     }
 
     /// Queries `first..first + count` split at pool boundaries: (chunk, first slot, count).
@@ -716,7 +713,7 @@ impl QuerySet {
         let mut id = first;
         std::iter::from_fn(move || {
             (id < end).then(|| {
-                let (chunk, slot) = ((id / per) as usize, id % per);
+                let (chunk, slot) = location(per, id);
                 let n = (per - slot).min(end - id);
                 id += n;
                 (chunk, slot, n)
@@ -757,6 +754,11 @@ impl Drop for QuerySet {
     }
 }
 
+/// Pool chunk and slot of query `id` with `per` queries a pool.
+fn location(per: u32, id: u32) -> (usize, u32) {
+    ((id / per) as usize, id % per)
+}
+
 /// Writes the corners of `boxes` from box `first` of `buffer` on.
 fn write_corners(buffer: &mut HostBuffer, first: u32, boxes: &[Aabb]) {
     let mut bytes = [0u8; BOX_BYTES as usize];
@@ -770,6 +772,13 @@ fn write_corners(buffer: &mut HostBuffer, first: u32, boxes: &[Aabb]) {
         buffer.write((u64::from(first) + i as u64) * BOX_BYTES, &bytes);
     }
 }
+
+/// The set is `Send` from its parts (its host buffers' mappings are); this fails to compile
+/// if a part stops being so.
+const _: fn() = || {
+    fn send<T: Send>() {}
+    send::<QuerySet>();
+};
 
 fn check_desc(d: &QuerySetDesc) -> Result<()> {
     if d.queries_per_pool == 0 || d.max_queries == 0 || d.boxes_per_buffer == 0 || d.max_boxes == 0
