@@ -36,6 +36,11 @@ pub struct FrameView {
     pub back_around: f32,
     /// Whether geometry is closer to the eye than the near plane (0.1).
     pub clips: bool,
+    /// Share of the view in its most common colour: the sky, or one flat colour of the
+    /// built-in renderer's (an untextured surface at one angle to the light); textured
+    /// surfaces count as many colours. Not a problem by itself (a wall close ahead is one
+    /// colour); the interior walk looks elsewhere when it can.
+    pub one_colour: f32,
 }
 
 impl FrameView {
@@ -61,13 +66,18 @@ impl FrameView {
     }
 }
 
-/// Unit view directions of a pose through a grid over its image.
+/// Unit view directions of a pose through a grid of `VIEW_RAYS` over its image.
 fn view_dirs(pose: &CameraPose) -> Vec<Vec3> {
+    view_grid(pose, VIEW_RAYS)
+}
+
+/// Unit view directions of a pose through a grid of `nx` x `ny` rays over its image (the
+/// built-in camera's field of view, 16:9).
+pub fn view_grid(pose: &CameraPose, (nx, ny): (usize, usize)) -> Vec<Vec3> {
     let fwd = (pose.target - pose.eye).normalize_or(Vec3::NEG_Z);
     let right = fwd.cross(Vec3::Y).try_normalize().unwrap_or(Vec3::X);
     let up = right.cross(fwd);
     let h = (0.5 * FOV_Y_DEG.to_radians()).tan();
-    let (nx, ny) = VIEW_RAYS;
     let mut out = Vec::with_capacity(nx * ny);
     for j in 0..ny {
         for i in 0..nx {
@@ -77,6 +87,13 @@ fn view_dirs(pose: &CameraPose) -> Vec<Vec3> {
         }
     }
     out
+}
+
+/// Share of the view at `pose` in its most common colour (see [`FrameView::one_colour`]).
+pub fn one_colour_at(rays: &TriangleScene, pose: &CameraPose) -> f32 {
+    let far = rays.bounds.extent().length() * 2.0 + (pose.eye - rays.bounds.center()).length();
+    rays.probe(pose.eye, &view_dirs(pose), far)
+        .one_colour_share()
 }
 
 /// What the camera at `pose` (frame `frame`) sees.
@@ -91,6 +108,7 @@ pub fn view_at(rays: &TriangleScene, pose: &CameraPose, frame: u32) -> FrameView
         back: seen.back_share(),
         back_around: around.back_share(),
         clips: rays.within(pose.eye, 0.1),
+        one_colour: seen.one_colour_share(),
     }
 }
 

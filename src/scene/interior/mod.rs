@@ -3,8 +3,8 @@
 //! rays from it hit front faces (few level rays escape to the sky, few rays hit back faces);
 //! places of neighbouring cells join into a walkable graph (a step height, clearance at the eye
 //! and the knees), and the walk tours waypoints spread over its largest connected part, looking
-//! down the most open way ahead. Also the light path that goes with it. Deterministic for a
-//! given scene.
+//! down the most open way ahead where the view is not filled by one colour (a bare floor, a
+//! wall close ahead). Also the light path that goes with it. Deterministic for a given scene.
 
 use glam::Vec3;
 
@@ -46,6 +46,10 @@ pub struct InteriorParams {
     pub grid: usize,
     /// Most waypoints of the tour.
     pub waypoints: usize,
+    /// Most share of one colour (the sky, or one flat colour of the built-in renderer's) a
+    /// view of the walk may have before it looks another way where it can (default 0.3; 1
+    /// turns the rule off). See [`walk::look_dirs`].
+    pub one_colour_most: f32,
 }
 
 impl Default for InteriorParams {
@@ -55,6 +59,7 @@ impl Default for InteriorParams {
             margin: None,
             grid: 256,
             waypoints: 6,
+            one_colour_most: 0.3,
         }
     }
 }
@@ -99,7 +104,7 @@ pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWal
     let chosen = walk::waypoints(&found, &adj, &part, params.waypoints, scale.eye_height);
     let route = walk::tour(&found, &adj, &chosen, scale.eye_height);
     let eyes: Vec<Vec3> = route.iter().map(|&i| found[i].eye).collect();
-    let keys = walk::keys_through(rays, &eyes, &scale);
+    let keys = walk::keys_through(rays, &eyes, &scale, params.one_colour_most);
     let waypoints = route
         .iter()
         .filter(|i| chosen.contains(i))

@@ -29,6 +29,12 @@ pub struct Hit {
     /// Whether the ray hit a side that is meant to be seen (the front, or either side of a
     /// double-sided triangle).
     pub front: bool,
+    /// The colour the built-in renderer gives the side that was hit when it is one flat colour
+    /// (see [`flat_colour`]), `None` when the colour varies over the triangle (a texture,
+    /// vertex colours or normals that differ between its corners).
+    pub colour: Option<[u8; 3]>,
+    /// The triangle hit (an index of this scene's own order).
+    pub triangle: u32,
 }
 
 /// World triangles with a BVH for ray casts and distance queries.
@@ -37,6 +43,9 @@ pub struct TriangleScene {
     triangles: Vec<Triangle>,
     /// Per triangle (in `triangles`' order): whether its material is double-sided.
     two_sided: Vec<bool>,
+    /// Per triangle (in `triangles`' order): the colours of its front and back sides when the
+    /// built-in renderer draws each in one colour, `None` when its colour varies over it.
+    colours: Vec<Option<[[u8; 3]; 2]>>,
     /// World bounds.
     pub bounds: Aabb,
 }
@@ -47,6 +56,7 @@ impl TriangleScene {
     pub fn new(scene: &Scene) -> Option<TriangleScene> {
         let mut triangles = Vec::new();
         let mut two_sided = Vec::new();
+        let mut sides = Vec::new();
         for (i, o) in scene.objects.iter().enumerate() {
             let first = o.first_index as usize;
             let Some(idx) = scene
@@ -65,21 +75,35 @@ impl TriangleScene {
                 };
                 if let (Some(a), Some(b), Some(c)) = (corner(t[0]), corner(t[1]), corner(t[2])) {
                     triangles.push([a, b, c]);
+                    sides.push(flat_sides(scene, i, t));
                 }
             }
             let both = scene.object_material(i).is_some_and(|m| m.double_sided)
                 && !closed_solid(&triangles[start..]);
             two_sided.resize(triangles.len(), both);
         }
-        TriangleScene::from_triangles(&triangles, &two_sided)
+        TriangleScene::build(&triangles, &two_sided, &sides)
     }
 
     /// A scene of `triangles` (counter-clockwise fronts), `two_sided[i]` marking double-sided
-    /// ones (missing entries: single-sided); `None` when none has finite corners.
+    /// ones (missing entries: single-sided), all of one grey lit as glTF scenes are (from
+    /// (0.4, 1, 0.3)); `None` when none has finite corners.
     pub fn from_triangles(triangles: &[[Vec3; 3]], two_sided: &[bool]) -> Option<TriangleScene> {
+        TriangleScene::build(triangles, two_sided, &[])
+    }
+
+    /// A scene of `triangles` and their sides (as [`from_triangles`](Self::from_triangles))
+    /// with the colours of their front and back sides where each is one flat colour (missing
+    /// entries: grey by the face normal, lit as glTF scenes are).
+    pub fn build(
+        triangles: &[[Vec3; 3]],
+        two_sided: &[bool],
+        colours: &[Option<[[u8; 3]; 2]>],
+    ) -> Option<TriangleScene> {
         let mut bounds = Aabb::EMPTY;
         let mut tris = Vec::new();
         let mut sides = Vec::new();
+        let (colours_in, mut colours) = (colours, Vec::new());
         for (i, t) in triangles.iter().enumerate() {
             if !t.iter().all(|p| p.is_finite()) {
                 continue;
@@ -91,21 +115,30 @@ impl TriangleScene {
                 v2: t[2].into(),
             });
             sides.push(two_sided.get(i).copied().unwrap_or(false));
+            let sun = Vec3::new(0.4, 1.0, 0.3).normalize();
+            let grey = |n: Vec3| flat_colour(Vec3::splat(0.8), n, sun);
+            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+            colours.push(
+                colours_in
+                    .get(i)
+                    .copied()
+                    .unwrap_or(Some([grey(n), grey(-n)])),
+            );
         }
         if tris.is_empty() {
             return None;
         }
         let mut time = Duration::ZERO;
         let bvh = build_bvh2_from_tris(&tris, BvhBuildParams::fast_build(), &mut time);
-        let (triangles, two_sided) = bvh
-            .primitive_indices
-            .iter()
-            .map(|&i| (tris[i as usize], sides[i as usize]))
-            .unzip();
+        let order = &bvh.primitive_indices;
+        let triangles = order.iter().map(|&i| tris[i as usize]).collect();
+        let two_sided = order.iter().map(|&i| sides[i as usize]).collect();
+        let colours = order.iter().map(|&i| colours[i as usize]).collect();
         Some(TriangleScene {
             bvh,
             triangles,
             two_sided,
+            colours,
             bounds,
         })
     }
@@ -133,11 +166,45 @@ impl TriangleScene {
         let id = hit.primitive_id as usize;
         let n = Vec3::from(self.triangles[id].compute_normal());
         let facing = n.dot(dir) < 0.0;
+        let normal = if facing { n } else { -n };
+        let front = facing || self.two_sided[id];
         Some(Hit {
             t: hit.t,
-            normal: if facing { n } else { -n },
-            front: facing || self.two_sided[id],
+            normal,
+            front,
+            colour: self.colours[id]
+                .filter(|_| front)
+                .map(|c| c[usize::from(!facing)]),
+            triangle: id as u32,
         })
+    }
+
+    /// The colour of a second, coplanar side that `hit` (along the unit `dir` from `origin`)
+    /// shares its distance with, when it differs: which of two coincident surfaces the
+    /// renderer shows depends on draw order and depth precision, so both count.
+    fn coplanar_colour(&self, origin: Vec3, dir: Vec3, hit: &Hit) -> Option<[u8; 3]> {
+        let eps = 1e-4 * hit.t.max(1.0);
+        let ray = Ray::new(origin.into(), dir.into(), hit.t - eps, hit.t + eps);
+        let mut other = RayHit::none();
+        let first = hit.triangle as usize;
+        let found = self.bvh.ray_traverse(ray, &mut other, |r, id| {
+            if id == first {
+                f32::INFINITY
+            } else {
+                self.triangles[id].intersect(r)
+            }
+        });
+        let id = other.primitive_id as usize;
+        if !found || id == first {
+            return None;
+        }
+        let n = Vec3::from(self.triangles[id].compute_normal());
+        let facing = n.dot(dir) < 0.0;
+        let front = facing || self.two_sided[id];
+        self.colours[id]
+            .filter(|_| front)
+            .map(|c| c[usize::from(!facing)])
+            .filter(|&c| Some(c) != hit.colour)
     }
 
     /// Distance to the closest hit along a unit `dir` (up to `t_max`) and the triangle's front
@@ -179,6 +246,55 @@ impl TriangleScene {
         let steps = ((b - a).length() / (0.5 * r)).ceil().clamp(1.0, 4096.0) as usize;
         (0..=steps).all(|i| !self.within(a.lerp(b, i as f32 / steps as f32), r))
     }
+}
+
+/// The colours of the front and the back of triangle `t` (indices relative to the object's
+/// vertex offset) of `object` when the built-in renderer draws each side in one colour: no base
+/// colour texture, and the same colour at its three corners from their vertex colours and
+/// normals (see [`flat_colour`]).
+fn flat_sides(scene: &Scene, object: usize, t: &[u32]) -> Option<[[u8; 3]; 2]> {
+    let o = &scene.objects[object];
+    if scene
+        .object_material(object)
+        .is_some_and(|m| m.base_color_texture.is_some())
+    {
+        return None;
+    }
+    let normal_matrix = o.transform.inverse().transpose();
+    let mut sides: Option<[[u8; 3]; 2]> = None;
+    for &i in t {
+        let at = o.vertex_offset.saturating_add(i) as usize;
+        let mut base = o.color.truncate();
+        if !scene.attributes.is_empty() {
+            let c = scene.attributes.get(at)?.color;
+            base *= Vec3::new(c[0].into(), c[1].into(), c[2].into()) / 255.0;
+        }
+        let n = normal_matrix
+            .transform_vector3(Vec3::from_array(scene.vertices.get(at)?.normal))
+            .try_normalize()?;
+        let corner = [
+            flat_colour(base, n, scene.sun_dir),
+            flat_colour(base, -n, scene.sun_dir),
+        ];
+        if sides.is_some_and(|s| s != corner) {
+            return None;
+        }
+        sides = Some(corner);
+    }
+    sides
+}
+
+/// The 8-bit colour the built-in renderer's forward pass (`shaders/scene.frag`,
+/// `scene_mat.frag`) gives a flat `base` colour on a side with unit `normal`: Lambert from the
+/// light towards `sun` plus a sky term, gamma 2.2.
+pub fn flat_colour(base: Vec3, normal: Vec3, sun: Vec3) -> [u8; 3] {
+    let lambert = normal.dot(sun).max(0.0);
+    let sky = 0.5 + 0.5 * normal.y;
+    let c = base * (0.75 * lambert + 0.25 * sky + 0.05);
+    c.clamp(Vec3::ZERO, Vec3::ONE)
+        .powf(1.0 / 2.2)
+        .to_array()
+        .map(|x| (x * 255.0).round() as u8)
 }
 
 /// Whether `tris` close around a volume and face out of it: every edge (corners matched by
@@ -290,6 +406,9 @@ pub struct Probe {
     pub mean_front_distance: f32,
     /// Distance of the nearest hit, front or back (infinite when every ray escaped).
     pub nearest: f32,
+    /// Rays that see the most common colour: the sky (rays that escaped), or one flat colour of
+    /// the built-in renderer's (see [`Hit::colour`]).
+    pub one_colour: usize,
 }
 
 impl Probe {
@@ -302,6 +421,11 @@ impl Probe {
     pub fn back_share(&self) -> f32 {
         self.back as f32 / self.rays.max(1) as f32
     }
+
+    /// Share of rays that see the most common colour (sky or one flat colour).
+    pub fn one_colour_share(&self) -> f32 {
+        self.one_colour as f32 / self.rays.max(1) as f32
+    }
 }
 
 impl TriangleScene {
@@ -313,10 +437,17 @@ impl TriangleScene {
             ..Probe::default()
         };
         let (mut sum, mut fronts) = (0.0, 0usize);
+        let mut colours: std::collections::HashMap<[u8; 3], usize> = Default::default();
         for &d in dirs {
             let hit = self.hit(p, d, far);
             if let Some(h) = hit {
                 probe.nearest = probe.nearest.min(h.t);
+            }
+            if let Some(h) = hit.filter(|h| h.front) {
+                let second = self.coplanar_colour(p, d, &h);
+                for c in h.colour.into_iter().chain(second) {
+                    *colours.entry(c).or_default() += 1;
+                }
             }
             match hit {
                 None => probe.escaped += 1,
@@ -330,6 +461,7 @@ impl TriangleScene {
         if fronts > 0 {
             probe.mean_front_distance = sum / fronts as f32;
         }
+        probe.one_colour = colours.into_values().max().unwrap_or(0).max(probe.escaped);
         probe
     }
 }

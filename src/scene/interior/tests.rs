@@ -502,9 +502,26 @@ fn levels() {
             Ok(w) => {
                 let views = path_check::views(&rays, &w.path);
                 let worst = views.iter().map(|v| v.sky).fold(0.0f32, f32::max);
+                let one = views.iter().map(|v| v.one_colour).fold(0.0f32, f32::max);
+                let keys: Vec<String> = w
+                    .path
+                    .keys
+                    .iter()
+                    .enumerate()
+                    .map(|(k, p)| (k, path_check::view_at(&rays, p, 30 * k as u32).one_colour))
+                    .filter(|(_, s)| *s > 0.4)
+                    .map(|(k, s)| format!("{k}:{s:.2}"))
+                    .collect();
+                let frames: Vec<String> = views
+                    .iter()
+                    .filter(|v| v.one_colour > 0.4)
+                    .map(|v| format!("{}:{:.2}", v.frame, v.one_colour))
+                    .collect();
+                println!("  keys over 40% one colour: {keys:?}; frames: {frames:?}");
                 println!(
                     "{file}: {} tris, bounds {:?}, {:?}, {} places, part {}, {} keys, {} frames, \
-                     waypoints {:?}, worst sky {worst:.2}, check {:?} ({:.1} s)",
+                     waypoints {:?}, worst sky {worst:.2}, most one colour {one:.2}, check {:?} \
+                     ({:.1} s)",
                     rays.len(),
                     rays.bounds,
                     w.scale,
@@ -525,14 +542,103 @@ fn levels() {
                 let pose = w.path.pose_at((n * k / 5) as f32);
                 let d = (pose.target - pose.eye).normalize();
                 let hit = rays.hit(pose.eye, d, 1e4);
+                let view = path_check::view_at(&rays, &pose, n * k / 5);
                 println!(
-                    "  frame {}: eye {:.2} dir {:.2} ahead {:?}",
+                    "  frame {}: eye {:.2} dir {:.2} ahead {:?} one colour {:.2}",
                     n * k / 5,
                     pose.eye,
                     d,
-                    hit.map(|h| (h.t, h.front))
+                    hit.map(|h| (h.t, h.front)),
+                    view.one_colour
                 );
             }
         }
+    }
+}
+
+#[test]
+fn one_colour_counts_flat_sides_the_sky_and_both_of_coplanar_surfaces() {
+    // Seen from 2 above, straight down: a 4 x 4 floor (blue) under a 60° field of view covers
+    // the whole view; its west half has a red twin in the same plane, its south-east quarter
+    // is textured (no flat colour).
+    let quad = |x0: f32, z0: f32, x1: f32, z1: f32| {
+        let c = [(x0, z0), (x1, z0), (x1, z1), (x0, z1)].map(|(x, z)| Vec3::new(x, 0.0, z));
+        [[c[0], c[2], c[1]], [c[0], c[3], c[2]]]
+    };
+    let (blue, red) = (Vec3::new(0.2, 0.3, 0.9), Vec3::new(0.9, 0.1, 0.1));
+    let sun = Vec3::new(0.4, 1.0, 0.3).normalize();
+    let flat = |c: Vec3| {
+        Some([
+            rays::flat_colour(c, Vec3::Y, sun),
+            rays::flat_colour(c, Vec3::NEG_Y, sun),
+        ])
+    };
+    let mut tris = Vec::new();
+    let mut colours = Vec::new();
+    for (t, c) in [
+        (quad(-20.0, -20.0, 0.0, 20.0), flat(blue)),
+        (quad(0.0, -20.0, 20.0, 0.0), flat(blue)),
+        (quad(0.0, 0.0, 20.0, 20.0), None),
+        (quad(-20.0, -20.0, 0.0, 20.0), flat(red)),
+    ] {
+        assert!((t[0][1] - t[0][0]).cross(t[0][2] - t[0][0]).y > 0.0);
+        tris.extend(t);
+        colours.extend([c, c]);
+    }
+    let rays = TriangleScene::build(&tris, &[], &colours).expect("triangles");
+    let eye = Vec3::new(0.0, 2.0, 0.0);
+    let dirs: Vec<Vec3> = (0..16)
+        .flat_map(|j| (0..16).map(move |i| (i, j)))
+        .map(|(i, j)| Vec3::new(i as f32 - 7.5, -20.0, j as f32 - 7.5).normalize())
+        .collect();
+    let probe = rays.probe(eye, &dirs, 100.0);
+    // Blue: the west half (under its red twin) and the north-east quarter, 3/4 of the rays.
+    assert_eq!(probe.one_colour, 192, "{probe:?}");
+    // Without the north-east blue quarter: the west half in blue and in red, 1/2 each.
+    let rays = TriangleScene::build(
+        &[&tris[..2], &tris[4..]].concat(),
+        &[],
+        &[&colours[..2], &colours[4..]].concat(),
+    )
+    .expect("triangles");
+    assert_eq!(rays.probe(eye, &dirs, 100.0).one_colour, 128);
+    // Looking up: every ray sees the sky, one colour.
+    let up: Vec<Vec3> = dirs.iter().map(|&d| -d).collect();
+    assert_eq!(rays.probe(eye, &up, 100.0).one_colour, 256);
+    // From below the single-sided floor: back faces are no colour; the sky past its edges is.
+    let below = rays.probe(Vec3::new(0.0, -1.0, 0.0), &up, 100.0);
+    assert!(below.back > 0 && below.escaped > 0, "{below:?}");
+    assert_eq!(below.one_colour, below.escaped, "{below:?}");
+}
+
+#[test]
+fn the_walk_looks_away_from_views_of_one_colour() {
+    // Untextured grey rooms: floors, ceilings and the walls facing one way are each one flat
+    // colour, so many views are mostly one colour. The walk's views (from the path check's
+    // rays) fill more than 40% of the image with one colour in less than a third as many
+    // sampled frames as with the rule turned off.
+    let over = |l: &Level, most: f32| {
+        let rays = l.rays();
+        let params = InteriorParams {
+            one_colour_most: most,
+            ..Default::default()
+        };
+        let w = find(&rays, &params).expect("walk");
+        let views = path_check::views(&rays, &w.path);
+        views.iter().filter(|v| v.one_colour > 0.4).count()
+    };
+    let mut house_level = Level::default();
+    let _ = house(&mut house_level);
+    let mut rooms = Level::default();
+    let _ = row_of_rooms(&mut rooms, 0.0, false);
+    for l in [&house_level, &rooms] {
+        let (with, without) = (
+            over(l, InteriorParams::default().one_colour_most),
+            over(l, 1.0),
+        );
+        assert!(
+            3 * with < without,
+            "{with} frames over 40% one colour, {without} without the rule"
+        );
     }
 }

@@ -9,6 +9,7 @@ use glam::Vec3;
 
 use super::places::{Place, Scale};
 use super::rays::TriangleScene;
+use crate::scene::camera::FRAMES_PER_KEY;
 use crate::scene::CameraPose;
 
 /// Neighbour lists: places in adjacent cells (8-neighbourhood) whose floors differ by at most
@@ -200,10 +201,17 @@ pub fn tour(places: &[Place], adj: &[Vec<usize>], chosen: &[usize], eye_height: 
 }
 
 /// Keys along `eyes` about every `2.5` cells (at least 0.8 eye heights), each looking the most
-/// open way ahead (see [`look_dirs`]) at a target that far; when the spline through them
-/// would come closer than the margin to geometry, every eye is a key.
-pub fn keys_through(rays: &TriangleScene, eyes: &[Vec3], s: &Scale) -> Vec<CameraPose> {
+/// open way ahead (see [`look_dirs`]) at a target `TARGET_REACH` eye heights away; when the
+/// spline through them would come closer than the margin to geometry, every eye is a key. Then
+/// [`hold_views`].
+pub fn keys_through(
+    rays: &TriangleScene,
+    eyes: &[Vec3],
+    s: &Scale,
+    one_colour_most: f32,
+) -> Vec<CameraPose> {
     let spacing = (2.5 * s.cell).max(0.8 * s.eye_height);
+    let reach = TARGET_REACH * s.eye_height;
     let mut keys: Vec<Vec3> = Vec::new();
     for &e in eyes {
         if keys.last().is_none_or(|l| l.distance(e) >= spacing) {
@@ -215,18 +223,81 @@ pub fn keys_through(rays: &TriangleScene, eyes: &[Vec3], s: &Scale) -> Vec<Camer
             keys.push(last);
         }
     }
-    let path = crate::scene::CameraPath {
+    // The spline of the eyes does not depend on where they look.
+    let mut path = crate::scene::CameraPath {
         name: String::new(),
-        keys: poses_of(rays, &keys, s.eye_height, spacing),
+        keys: keys
+            .iter()
+            .map(|&eye| CameraPose {
+                eye,
+                target: eye + Vec3::NEG_Z,
+            })
+            .collect(),
     };
     let frames = path.natural_frames();
     let clear = (0..=frames).all(|f| !rays.within(path.pose_at(f as f32).eye, s.margin));
-    if clear {
-        path.keys
-    } else {
-        poses_of(rays, eyes, s.eye_height, spacing)
+    let eyes = if clear { &keys[..] } else { eyes };
+    path.keys = poses_of(rays, eyes, s.eye_height, reach, one_colour_most);
+    hold_views(rays, &mut path, one_colour_most);
+    path.keys
+}
+
+/// Most share of one colour of the views between two keys (a third and two thirds of the way).
+fn between(rays: &TriangleScene, path: &crate::scene::CameraPath, segment: usize) -> f32 {
+    [1.0, 2.0]
+        .iter()
+        .map(|j| {
+            let f = (segment as f32 + j / 3.0) * FRAMES_PER_KEY;
+            crate::scene::path_check::one_colour_at(rays, &path.pose_at(f))
+        })
+        .fold(0.0, f32::max)
+}
+
+/// Where turning from one key's view to the next sweeps across a wall or a bare floor (a view
+/// between them has more than `most` of one colour), one of the two keys takes the other's
+/// look direction when that makes the worst view around them better; `HOLD_ROUNDS` passes
+/// along the path.
+fn hold_views(rays: &TriangleScene, path: &mut crate::scene::CameraPath, most: f32) {
+    let n = path.keys.len();
+    let around = |path: &crate::scene::CameraPath, k: usize| {
+        (k.saturating_sub(2)..(k + 3).min(n - 1))
+            .map(|s| between(rays, path, s))
+            .chain(
+                (k.saturating_sub(1)..(k + 3).min(n))
+                    .map(|j| crate::scene::path_check::one_colour_at(rays, &path.keys[j])),
+            )
+            .fold(0.0, f32::max)
+    };
+    for _ in 0..HOLD_ROUNDS {
+        let mut changed = false;
+        for k in 0..n.saturating_sub(1) {
+            if between(rays, path, k) <= most {
+                continue;
+            }
+            let before = around(path, k);
+            for (from, to) in [(k, k + 1), (k + 1, k)] {
+                let old = path.keys[to];
+                let look = path.keys[from].target - path.keys[from].eye;
+                path.keys[to].target = old.eye + look;
+                if around(path, k) < before {
+                    changed = true;
+                    break;
+                }
+                path.keys[to] = old;
+            }
+        }
+        if !changed {
+            break;
+        }
     }
 }
+
+/// Passes of [`hold_views`] along a path.
+const HOLD_ROUNDS: usize = 3;
+
+/// Distance of a key's target from its eye, in eye heights: far enough that interpolating the
+/// targets of two keys turns the view steadily from one's direction to the other's.
+const TARGET_REACH: f32 = 8.0;
 
 /// Level look directions tried at each key.
 const LOOK_DIRS: usize = 24;
@@ -236,14 +307,44 @@ const LOOK_FAN_DEG: f32 = 8.0;
 const LOOK_CAP: f32 = 25.0;
 /// Weight of the look directions behind the way ahead (1 ahead, ½ sideways).
 const LOOK_BACK: f32 = 0.3;
+/// How far below level the walk looks, preferred first: a person walking looks a little down,
+/// and the view then shows the floor ahead rather than a wall above it (or sky over a roofless
+/// level); nearly level where the floor would fill the view in one colour.
+const LOOK_DOWN_DEG: [f32; 3] = [10.0, 4.0, -2.0];
+/// Most open look directions of a key whose views are judged by their colours.
+const COLOUR_CANDIDATES: usize = 12;
+/// Rays across and down a candidate view when judging its colours.
+const COLOUR_RAYS: (usize, usize) = (24, 14);
 
-/// Look directions at `eyes` (unit, level): at each, the direction whose fan of three rays sees
-/// the farthest front faces (a ray that escapes or hits a back face counts as nothing;
-/// openness capped at `LOOK_CAP` eye heights), weighted from 1 straight along the way ahead to
-/// ½ sideways and `LOOK_BACK` behind; then smoothed with the neighbours' so the view turns
-/// gradually. Looks down rooms and corridors rather than at a close wall, turning round when
-/// the way ahead ends at one.
-pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32) -> Vec<Vec3> {
+/// A key's view: a level direction and how far below level it looks (the tangent).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Look {
+    /// Unit level direction.
+    pub dir: Vec3,
+    /// Tangent of the angle below level.
+    pub down: f32,
+}
+
+impl Look {
+    fn at(&self, eye: Vec3, reach: f32) -> CameraPose {
+        CameraPose {
+            eye,
+            target: eye + (self.dir + Vec3::NEG_Y * self.down).normalize() * reach,
+        }
+    }
+}
+
+/// Views at `eyes`: at each, the level directions are ranked by how far their fan of three
+/// rays sees front faces (a ray that escapes or hits a back face counts as nothing; openness
+/// capped at `LOOK_CAP` eye heights), weighted from 1 straight along the way ahead to ½
+/// sideways and `LOOK_BACK` behind; of the most open ones, the first whose view (looking
+/// `LOOK_DOWN_DEG` down, the first angle preferred) has at most `most` of one colour (see
+/// [`Probe::one_colour`](super::Probe)) is taken, else the one with the least: an untextured
+/// floor or a wall close ahead filling the image shows nothing of the level. Then smoothed
+/// with the neighbours' so the view turns gradually (unless the smoothed view has more of one
+/// colour than `most` and than its own). Looks down rooms and corridors rather than at a close
+/// wall or a bare floor, turning round when the way ahead ends at one.
+pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32, most: f32) -> Vec<Look> {
     let n = eyes.len();
     let far = rays.bounds.extent().length() * 2.0 + 1.0;
     let cap = LOOK_CAP * eye_height;
@@ -251,14 +352,17 @@ pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32) -> Vec<Ve
         Some(h) if h.front => h.t.min(cap),
         _ => 0.0,
     };
-    let raw: Vec<Vec3> = (0..n)
-        .map(|i| {
-            let ahead = eyes[(i + 2).min(n - 1)] - eyes[i.saturating_sub(1)];
-            let ahead = Vec3::new(ahead.x, 0.0, ahead.z)
-                .try_normalize()
-                .unwrap_or(Vec3::NEG_Z);
-            let mut best = (0.0f32, ahead);
-            for k in 0..LOOK_DIRS {
+    let one_colour = |eye: Vec3, look: Look| {
+        let view = crate::scene::path_check::view_grid(&look.at(eye, 1.0), COLOUR_RAYS);
+        rays.probe(eye, &view, far).one_colour_share()
+    };
+    let raw: Vec<(f32, Look)> = parallel_map(n, |i| {
+        let ahead = eyes[(i + 2).min(n - 1)] - eyes[i.saturating_sub(1)];
+        let ahead = Vec3::new(ahead.x, 0.0, ahead.z)
+            .try_normalize()
+            .unwrap_or(Vec3::NEG_Z);
+        let mut ranked: Vec<(f32, Vec3)> = (0..LOOK_DIRS)
+            .map(|k| {
                 let a = std::f32::consts::TAU * k as f32 / LOOK_DIRS as f32;
                 let d = Vec3::new(a.cos(), 0.0, a.sin());
                 let along = d.dot(ahead);
@@ -273,36 +377,93 @@ pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32) -> Vec<Ve
                 } else {
                     0.5 + (0.5 - LOOK_BACK) * along
                 };
-                let score = open * weight;
-                if score > best.0 {
-                    best = (score, d);
+                (open * weight, d)
+            })
+            .collect();
+        ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let best_open = ranked[0].0;
+        let mut best: Option<(f32, Look)> = None;
+        'search: for &(open, dir) in ranked.iter().take(COLOUR_CANDIDATES) {
+            if open <= 0.0 || open < 0.25 * best_open {
+                break;
+            }
+            for deg in LOOK_DOWN_DEG {
+                let look = Look {
+                    dir,
+                    down: deg.to_radians().tan(),
+                };
+                let one = one_colour(eyes[i], look);
+                if best.is_none_or(|(b, _)| one < b) {
+                    best = Some((one, look));
+                }
+                if one <= most {
+                    break 'search;
                 }
             }
-            best.1
-        })
-        .collect();
+        }
+        best.map_or(
+            (
+                1.0,
+                Look {
+                    dir: ranked[0].1,
+                    down: LOOK_DOWN_DEG[0].to_radians().tan(),
+                },
+            ),
+            |b| b,
+        )
+    });
     (0..n)
         .map(|i| {
-            let (a, b) = (raw[i.saturating_sub(1)], raw[(i + 1).min(n - 1)]);
-            (2.0 * raw[i] + a + b).try_normalize().unwrap_or(raw[i])
+            let (a, b) = (raw[i.saturating_sub(1)].1, raw[(i + 1).min(n - 1)].1);
+            let (own_share, own) = raw[i];
+            let smooth = Look {
+                dir: (2.0 * own.dir + a.dir + b.dir)
+                    .try_normalize()
+                    .unwrap_or(own.dir),
+                down: 0.5 * own.down + 0.25 * (a.down + b.down),
+            };
+            let share = one_colour(eyes[i], smooth);
+            if share > most && share > own_share {
+                own
+            } else {
+                smooth
+            }
         })
         .collect()
 }
 
-/// How far below level the walk looks: a person walking looks a little down, and the view
-/// then shows the floor ahead rather than a wall above it (or sky over a roofless level).
-const LOOK_DOWN_DEG: f32 = 10.0;
-
-/// Poses through `eyes`, each looking along [`look_dirs`], `LOOK_DOWN_DEG` down, at a target
-/// `reach` away.
-fn poses_of(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32, reach: f32) -> Vec<CameraPose> {
-    let down = Vec3::NEG_Y * LOOK_DOWN_DEG.to_radians().tan();
-    look_dirs(rays, eyes, eye_height)
+/// Poses through `eyes`, each with its view from [`look_dirs`], at a target `reach` away.
+fn poses_of(
+    rays: &TriangleScene,
+    eyes: &[Vec3],
+    eye_height: f32,
+    reach: f32,
+    most: f32,
+) -> Vec<CameraPose> {
+    look_dirs(rays, eyes, eye_height, most)
         .into_iter()
         .zip(eyes)
-        .map(|(dir, &eye)| CameraPose {
-            eye,
-            target: eye + (dir + down).normalize() * reach,
-        })
+        .map(|(look, &eye)| look.at(eye, reach))
         .collect()
+}
+
+/// `f(0)`, .., `f(n - 1)` computed on the available cores, in order.
+fn parallel_map<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |t| t.get())
+        .min(n.max(1));
+    let chunk = n.div_ceil(threads.max(1)).max(1);
+    std::thread::scope(|scope| {
+        let f = &f;
+        let parts: Vec<_> = (0..n)
+            .step_by(chunk)
+            .map(|start| {
+                scope.spawn(move || (start..(start + chunk).min(n)).map(f).collect::<Vec<T>>())
+            })
+            .collect();
+        parts
+            .into_iter()
+            .flat_map(|p| p.join().expect("a look-direction thread panicked"))
+            .collect()
+    })
 }
