@@ -202,8 +202,9 @@ pub fn tour(places: &[Place], adj: &[Vec<usize>], chosen: &[usize], eye_height: 
 
 /// Keys along `eyes` about every `2.5` cells (at least 0.8 eye heights), each looking the most
 /// open way ahead (see [`look_dirs`]) at a target `TARGET_REACH` eye heights away; when the
-/// spline through them would come closer than the margin to geometry, every eye is a key. Then
-/// [`hold_views`].
+/// spline through them would come closer than the margin to geometry, every eye is a key.
+/// Where the turn between two keys sweeps across a view of more than `one_colour_most` of one
+/// colour, one key takes the other's direction (`hold_views`).
 pub fn keys_through(
     rays: &TriangleScene,
     eyes: &[Vec3],
