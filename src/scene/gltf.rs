@@ -15,6 +15,10 @@ use super::gltf_material::{primitive_attributes, MaterialLoader};
 use super::{Aabb, CameraPath, CameraPose, Object, Scene, Vertex, VertexAttributes};
 use crate::Error;
 
+/// Direction towards the directional light the loader gives every glTF scene (not
+/// normalized): from above, a little from the side.
+pub const DEFAULT_SUN: Vec3 = Vec3::new(0.4, 1.0, 0.3);
+
 /// Upper bound on node visits while flattening the hierarchy (guards against exponential DAGs).
 const MAX_NODE_VISITS: usize = 10_000_000;
 
@@ -118,7 +122,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         indices: loader.indices,
         objects: loader.objects,
         paths,
-        sun_dir: Vec3::new(0.4, 1.0, 0.3).normalize(),
+        sun_dir: DEFAULT_SUN.normalize(),
         attributes,
         materials: mats.materials,
         images: mats.images,

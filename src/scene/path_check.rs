@@ -13,7 +13,7 @@ const FOV_Y_DEG: f32 = 60.0;
 /// Aspect ratio the check assumes.
 const ASPECT: f32 = 16.0 / 9.0;
 /// Rays across and down the view.
-const VIEW_RAYS: (usize, usize) = (32, 18);
+pub const VIEW_RAYS: (usize, usize) = (32, 18);
 /// Most frames checked along one path.
 const MAX_SAMPLES: u32 = 120;
 /// Share of the view above which a frame is "mostly" sky or back faces.
@@ -66,11 +66,6 @@ impl FrameView {
     }
 }
 
-/// Unit view directions of a pose through a grid of `VIEW_RAYS` over its image.
-fn view_dirs(pose: &CameraPose) -> Vec<Vec3> {
-    view_grid(pose, VIEW_RAYS)
-}
-
 /// Unit view directions of a pose through a grid of `nx` x `ny` rays over its image (the
 /// built-in camera's field of view, 16:9).
 pub fn view_grid(pose: &CameraPose, (nx, ny): (usize, usize)) -> Vec<Vec3> {
@@ -89,17 +84,22 @@ pub fn view_grid(pose: &CameraPose, (nx, ny): (usize, usize)) -> Vec<Vec3> {
     out
 }
 
-/// Share of the view at `pose` in its most common colour (see [`FrameView::one_colour`]).
-pub fn one_colour_at(rays: &TriangleScene, pose: &CameraPose) -> f32 {
-    let far = rays.bounds.extent().length() * 2.0 + (pose.eye - rays.bounds.center()).length();
-    rays.probe(pose.eye, &view_dirs(pose), far)
-        .one_colour_share()
+/// Ray length that reaches all of `rays` from `eye`.
+fn far_from(rays: &TriangleScene, eye: Vec3) -> f32 {
+    rays.bounds.extent().length() * 2.0 + (eye - rays.bounds.center()).length()
+}
+
+/// Share of the view at `pose` in its most common colour (see [`FrameView::one_colour`]),
+/// through a grid of `grid` rays.
+pub fn one_colour_at(rays: &TriangleScene, pose: &CameraPose, grid: (usize, usize)) -> f32 {
+    rays.one_colour_share(pose.eye, &view_grid(pose, grid), far_from(rays, pose.eye))
 }
 
 /// What the camera at `pose` (frame `frame`) sees.
 pub fn view_at(rays: &TriangleScene, pose: &CameraPose, frame: u32) -> FrameView {
-    let far = rays.bounds.extent().length() * 2.0 + (pose.eye - rays.bounds.center()).length();
-    let seen = rays.probe(pose.eye, &view_dirs(pose), far);
+    let far = far_from(rays, pose.eye);
+    let view = view_grid(pose, VIEW_RAYS);
+    let seen = rays.probe(pose.eye, &view, far);
     let around = rays.probe(pose.eye, &sphere_dirs(48), far);
     FrameView {
         frame,
@@ -108,7 +108,7 @@ pub fn view_at(rays: &TriangleScene, pose: &CameraPose, frame: u32) -> FrameView
         back: seen.back_share(),
         back_around: around.back_share(),
         clips: rays.within(pose.eye, 0.1),
-        one_colour: seen.one_colour_share(),
+        one_colour: rays.one_colour_share(pose.eye, &view, far),
     }
 }
 

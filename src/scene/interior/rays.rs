@@ -9,14 +9,15 @@
 
 use std::time::Duration;
 
-use glam::{Vec3, Vec3A};
+use glam::{Mat4, Vec3, Vec3A};
 use obvhs::aabb::Aabb as BvhAabb;
 use obvhs::bvh2::{builder::build_bvh2_from_tris, Bvh2};
 use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
-use crate::scene::{Aabb, Scene};
+use crate::scene::gltf::DEFAULT_SUN;
+use crate::scene::{Aabb, Object, Scene};
 
 /// One ray hit.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,6 +59,11 @@ impl TriangleScene {
         let mut two_sided = Vec::new();
         let mut sides = Vec::new();
         for (i, o) in scene.objects.iter().enumerate() {
+            // A textured object is never one flat colour.
+            let textured = scene
+                .object_material(i)
+                .is_some_and(|m| m.base_color_texture.is_some());
+            let normal_matrix = (!textured).then(|| o.transform.inverse().transpose());
             let first = o.first_index as usize;
             let Some(idx) = scene
                 .indices
@@ -75,7 +81,7 @@ impl TriangleScene {
                 };
                 if let (Some(a), Some(b), Some(c)) = (corner(t[0]), corner(t[1]), corner(t[2])) {
                     triangles.push([a, b, c]);
-                    sides.push(flat_sides(scene, i, t));
+                    sides.push(normal_matrix.and_then(|m| flat_sides(scene, o, m, t)));
                 }
             }
             let both = scene.object_material(i).is_some_and(|m| m.double_sided)
@@ -104,6 +110,8 @@ impl TriangleScene {
         let mut tris = Vec::new();
         let mut sides = Vec::new();
         let (colours_in, mut colours) = (colours, Vec::new());
+        let sun = DEFAULT_SUN.normalize();
+        let grey = |n: Vec3| flat_colour(Vec3::splat(0.8), n, sun);
         for (i, t) in triangles.iter().enumerate() {
             if !t.iter().all(|p| p.is_finite()) {
                 continue;
@@ -115,15 +123,10 @@ impl TriangleScene {
                 v2: t[2].into(),
             });
             sides.push(two_sided.get(i).copied().unwrap_or(false));
-            let sun = Vec3::new(0.4, 1.0, 0.3).normalize();
-            let grey = |n: Vec3| flat_colour(Vec3::splat(0.8), n, sun);
-            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
-            colours.push(
-                colours_in
-                    .get(i)
-                    .copied()
-                    .unwrap_or(Some([grey(n), grey(-n)])),
-            );
+            colours.push(colours_in.get(i).copied().unwrap_or_else(|| {
+                let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+                Some([grey(n), grey(-n)])
+            }));
         }
         if tris.is_empty() {
             return None;
@@ -163,20 +166,24 @@ impl TriangleScene {
         {
             return None;
         }
-        let id = hit.primitive_id as usize;
+        Some(self.side(hit.primitive_id as usize, dir, hit.t))
+    }
+
+    /// The hit on triangle `id` at distance `t` along the unit `dir`: the side it meets, whether
+    /// that side is meant to be seen, and its flat colour.
+    fn side(&self, id: usize, dir: Vec3, t: f32) -> Hit {
         let n = Vec3::from(self.triangles[id].compute_normal());
         let facing = n.dot(dir) < 0.0;
-        let normal = if facing { n } else { -n };
         let front = facing || self.two_sided[id];
-        Some(Hit {
-            t: hit.t,
-            normal,
+        Hit {
+            t,
+            normal: if facing { n } else { -n },
             front,
             colour: self.colours[id]
                 .filter(|_| front)
                 .map(|c| c[usize::from(!facing)]),
             triangle: id as u32,
-        })
+        }
     }
 
     /// The colour of a second, coplanar side that `hit` (along the unit `dir` from `origin`)
@@ -198,12 +205,8 @@ impl TriangleScene {
         if !found || id == first {
             return None;
         }
-        let n = Vec3::from(self.triangles[id].compute_normal());
-        let facing = n.dot(dir) < 0.0;
-        let front = facing || self.two_sided[id];
-        self.colours[id]
-            .filter(|_| front)
-            .map(|c| c[usize::from(!facing)])
+        self.side(id, dir, other.t)
+            .colour
             .filter(|&c| Some(c) != hit.colour)
     }
 
@@ -249,18 +252,10 @@ impl TriangleScene {
 }
 
 /// The colours of the front and the back of triangle `t` (indices relative to the object's
-/// vertex offset) of `object` when the built-in renderer draws each side in one colour: no base
-/// colour texture, and the same colour at its three corners from their vertex colours and
-/// normals (see [`flat_colour`]).
-fn flat_sides(scene: &Scene, object: usize, t: &[u32]) -> Option<[[u8; 3]; 2]> {
-    let o = &scene.objects[object];
-    if scene
-        .object_material(object)
-        .is_some_and(|m| m.base_color_texture.is_some())
-    {
-        return None;
-    }
-    let normal_matrix = o.transform.inverse().transpose();
+/// vertex offset) of the untextured object `o`, whose normals `normal_matrix` takes to world
+/// space, when the built-in renderer draws each side in one colour: the same colour at its
+/// three corners from their vertex colours and normals (see [`flat_colour`]).
+fn flat_sides(scene: &Scene, o: &Object, normal_matrix: Mat4, t: &[u32]) -> Option<[[u8; 3]; 2]> {
     let mut sides: Option<[[u8; 3]; 2]> = None;
     for &i in t {
         let at = o.vertex_offset.saturating_add(i) as usize;
@@ -406,9 +401,6 @@ pub struct Probe {
     pub mean_front_distance: f32,
     /// Distance of the nearest hit, front or back (infinite when every ray escaped).
     pub nearest: f32,
-    /// Rays that see the most common colour: the sky (rays that escaped), or one flat colour of
-    /// the built-in renderer's (see [`Hit::colour`]).
-    pub one_colour: usize,
 }
 
 impl Probe {
@@ -421,11 +413,6 @@ impl Probe {
     pub fn back_share(&self) -> f32 {
         self.back as f32 / self.rays.max(1) as f32
     }
-
-    /// Share of rays that see the most common colour (sky or one flat colour).
-    pub fn one_colour_share(&self) -> f32 {
-        self.one_colour as f32 / self.rays.max(1) as f32
-    }
 }
 
 impl TriangleScene {
@@ -437,17 +424,10 @@ impl TriangleScene {
             ..Probe::default()
         };
         let (mut sum, mut fronts) = (0.0, 0usize);
-        let mut colours: std::collections::HashMap<[u8; 3], usize> = Default::default();
         for &d in dirs {
             let hit = self.hit(p, d, far);
             if let Some(h) = hit {
                 probe.nearest = probe.nearest.min(h.t);
-            }
-            if let Some(h) = hit.filter(|h| h.front) {
-                let second = self.coplanar_colour(p, d, &h);
-                for c in h.colour.into_iter().chain(second) {
-                    *colours.entry(c).or_default() += 1;
-                }
             }
             match hit {
                 None => probe.escaped += 1,
@@ -461,7 +441,28 @@ impl TriangleScene {
         if fronts > 0 {
             probe.mean_front_distance = sum / fronts as f32;
         }
-        probe.one_colour = colours.into_values().max().unwrap_or(0).max(probe.escaped);
         probe
+    }
+
+    /// Share of the rays from `p` along `dirs` (up to `far`) that see the most common colour:
+    /// the sky (rays that escape), or one flat colour of the built-in renderer's (see
+    /// [`Hit::colour`]; a ray whose hit has a coplanar twin of another colour counts for both).
+    pub fn one_colour_share(&self, p: Vec3, dirs: &[Vec3], far: f32) -> f32 {
+        let mut colours: std::collections::HashMap<[u8; 3], usize> = Default::default();
+        let mut escaped = 0;
+        for &d in dirs {
+            match self.hit(p, d, far) {
+                None => escaped += 1,
+                Some(h) if h.front => {
+                    let second = self.coplanar_colour(p, d, &h);
+                    for c in h.colour.into_iter().chain(second) {
+                        *colours.entry(c).or_default() += 1;
+                    }
+                }
+                Some(_) => {}
+            }
+        }
+        let most = colours.into_values().max().unwrap_or(0).max(escaped);
+        most as f32 / dirs.len().max(1) as f32
     }
 }

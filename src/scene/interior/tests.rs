@@ -566,7 +566,7 @@ fn one_colour_counts_flat_sides_the_sky_and_both_of_coplanar_surfaces() {
         [[c[0], c[2], c[1]], [c[0], c[3], c[2]]]
     };
     let (blue, red) = (Vec3::new(0.2, 0.3, 0.9), Vec3::new(0.9, 0.1, 0.1));
-    let sun = Vec3::new(0.4, 1.0, 0.3).normalize();
+    let sun = crate::scene::gltf::DEFAULT_SUN.normalize();
     let flat = |c: Vec3| {
         Some([
             rays::flat_colour(c, Vec3::Y, sun),
@@ -591,9 +591,8 @@ fn one_colour_counts_flat_sides_the_sky_and_both_of_coplanar_surfaces() {
         .flat_map(|j| (0..16).map(move |i| (i, j)))
         .map(|(i, j)| Vec3::new(i as f32 - 7.5, -20.0, j as f32 - 7.5).normalize())
         .collect();
-    let probe = rays.probe(eye, &dirs, 100.0);
     // Blue: the west half (under its red twin) and the north-east quarter, 3/4 of the rays.
-    assert_eq!(probe.one_colour, 192, "{probe:?}");
+    assert_eq!(rays.one_colour_share(eye, &dirs, 100.0), 192.0 / 256.0);
     // Without the north-east blue quarter: the west half in blue and in red, 1/2 each.
     let rays = TriangleScene::build(
         &[&tris[..2], &tris[4..]].concat(),
@@ -601,14 +600,18 @@ fn one_colour_counts_flat_sides_the_sky_and_both_of_coplanar_surfaces() {
         &[&colours[..2], &colours[4..]].concat(),
     )
     .expect("triangles");
-    assert_eq!(rays.probe(eye, &dirs, 100.0).one_colour, 128);
+    assert_eq!(rays.one_colour_share(eye, &dirs, 100.0), 128.0 / 256.0);
     // Looking up: every ray sees the sky, one colour.
     let up: Vec<Vec3> = dirs.iter().map(|&d| -d).collect();
-    assert_eq!(rays.probe(eye, &up, 100.0).one_colour, 256);
+    assert_eq!(rays.one_colour_share(eye, &up, 100.0), 1.0);
     // From below the single-sided floor: back faces are no colour; the sky past its edges is.
-    let below = rays.probe(Vec3::new(0.0, -1.0, 0.0), &up, 100.0);
+    let under = Vec3::new(0.0, -1.0, 0.0);
+    let below = rays.probe(under, &up, 100.0);
     assert!(below.back > 0 && below.escaped > 0, "{below:?}");
-    assert_eq!(below.one_colour, below.escaped, "{below:?}");
+    assert_eq!(
+        rays.one_colour_share(under, &up, 100.0),
+        below.escaped as f32 / 256.0
+    );
 }
 
 #[test]

@@ -10,6 +10,7 @@ use glam::Vec3;
 use super::places::{Place, Scale};
 use super::rays::TriangleScene;
 use crate::scene::camera::FRAMES_PER_KEY;
+use crate::scene::path_check::{one_colour_at, VIEW_RAYS};
 use crate::scene::CameraPose;
 
 /// Neighbour lists: places in adjacent cells (8-neighbourhood) whose floors differ by at most
@@ -249,7 +250,7 @@ fn between(rays: &TriangleScene, path: &crate::scene::CameraPath, segment: usize
         .iter()
         .map(|j| {
             let f = (segment as f32 + j / 3.0) * FRAMES_PER_KEY;
-            crate::scene::path_check::one_colour_at(rays, &path.pose_at(f))
+            one_colour_at(rays, &path.pose_at(f), VIEW_RAYS)
         })
         .fold(0.0, f32::max)
 }
@@ -265,7 +266,7 @@ fn hold_views(rays: &TriangleScene, path: &mut crate::scene::CameraPath, most: f
             .map(|s| between(rays, path, s))
             .chain(
                 (k.saturating_sub(1)..(k + 3).min(n))
-                    .map(|j| crate::scene::path_check::one_colour_at(rays, &path.keys[j])),
+                    .map(|j| one_colour_at(rays, &path.keys[j], VIEW_RAYS)),
             )
             .fold(0.0, f32::max)
     };
@@ -353,10 +354,7 @@ pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32, most: f32
         Some(h) if h.front => h.t.min(cap),
         _ => 0.0,
     };
-    let one_colour = |eye: Vec3, look: Look| {
-        let view = crate::scene::path_check::view_grid(&look.at(eye, 1.0), COLOUR_RAYS);
-        rays.probe(eye, &view, far).one_colour_share()
-    };
+    let one_colour = |eye: Vec3, look: Look| one_colour_at(rays, &look.at(eye, 1.0), COLOUR_RAYS);
     let raw: Vec<(f32, Look)> = parallel_map(n, |i| {
         let ahead = eyes[(i + 2).min(n - 1)] - eyes[i.saturating_sub(1)];
         let ahead = Vec3::new(ahead.x, 0.0, ahead.z)
@@ -402,16 +400,13 @@ pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32, most: f32
                 }
             }
         }
-        best.map_or(
-            (
-                1.0,
-                Look {
-                    dir: ranked[0].1,
-                    down: LOOK_DOWN_DEG[0].to_radians().tan(),
-                },
-            ),
-            |b| b,
-        )
+        best.unwrap_or((
+            1.0,
+            Look {
+                dir: ranked[0].1,
+                down: LOOK_DOWN_DEG[0].to_radians().tan(),
+            },
+        ))
     });
     (0..n)
         .map(|i| {
