@@ -13,6 +13,10 @@ pub struct FrameResult {
     /// Time spent blocked on query results inside the frame (every wait for a segment; the
     /// final wait for the frame's completion is not included).
     pub stall_ms: f64,
+    /// The CPU's part of the frame: traversal, recording and submission, from the start of
+    /// traversal until the last submission, less `stall_ms`. What an engine's render thread
+    /// would spend on the frame; on a CPU driver recording competes with rendering for cores.
+    pub cpu_ms: f64,
     /// What the recorder counted.
     pub counts: CommandCounts,
     /// The algorithm's own bookkeeping.

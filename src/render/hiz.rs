@@ -290,7 +290,9 @@ impl HizCuller {
         }
         rec.memory_barrier(Access::ComputeReadWrite, Access::HostRead);
         r.submit_and_wait()?;
-        let frame_ms = start.elapsed().as_secs_f64() * 1e3;
+        let frame_time = start.elapsed();
+        let frame_ms = frame_time.as_secs_f64() * 1e3;
+        let cpu_ms = r.cpu_ms(start, frame_time);
         self.pyramid_valid = true;
         let (phases, triangles) = self.read_counters()?;
         self.last_phases = phases;
@@ -308,6 +310,7 @@ impl HizCuller {
             frame_ms,
             gpu_ms,
             stall_ms: 0.0,
+            cpu_ms,
             counts,
             cull: CullStats {
                 objects_drawn: objects,

@@ -108,6 +108,9 @@ pub struct Renderer {
     push: [u8; PUSH_SIZE as usize],
     bound: Option<Bound>,
     stall: Duration,
+    /// When the frame's last submission was handed to the queue (the CPU's part of the frame
+    /// ends there; `FrameResult::cpu_ms`).
+    last_submit: Option<Instant>,
     prepass_counts: CommandCounts,
     /// Pixel count above which a query result means visible (for counting wasted queries).
     pub visibility_threshold: u64,
@@ -204,6 +207,7 @@ impl Renderer {
             push: initial_push(scene),
             bound: None,
             stall: Duration::ZERO,
+            last_submit: None,
             prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
             bounds_version: 0,
@@ -357,6 +361,7 @@ impl Renderer {
             frame_ms: frame_time.as_secs_f64() * 1e3,
             gpu_ms,
             stall_ms: self.stall.as_secs_f64() * 1e3,
+            cpu_ms: self.cpu_ms(start, frame_time),
             counts,
             cull,
             check: None,
@@ -407,6 +412,7 @@ impl Renderer {
         self.query_segment.clear();
         self.query_read.clear();
         self.stall = Duration::ZERO;
+        self.last_submit = None;
         self.recorder.take_counts();
         self.log.begin_frame();
         self.draw_chunk = 0;
@@ -483,8 +489,19 @@ impl Renderer {
         self.recorder.write_timestamp(&self.timestamps, ts);
         self.recording = false;
         let value = self.timeline.submit(&mut self.recorder)?;
+        self.last_submit = Some(Instant::now());
         self.segment_values.push(value);
         Ok(())
+    }
+
+    /// The CPU's part of a frame that began at `start` and took `frame_time`: until its last
+    /// submission, less the time blocked on query results.
+    pub(crate) fn cpu_ms(&self, start: Instant, frame_time: Duration) -> f64 {
+        let until_submit = self
+            .last_submit
+            .map(|t| t.saturating_duration_since(start))
+            .unwrap_or(frame_time);
+        until_submit.saturating_sub(self.stall).as_secs_f64() * 1e3
     }
 
     fn gpu_time_ms(&self) -> Result<f64> {
@@ -1354,6 +1371,7 @@ impl Renderer {
     /// submitted has completed.
     pub(crate) fn submit_and_wait(&mut self) -> Result<()> {
         let value = self.timeline.submit(&mut self.recorder)?;
+        self.last_submit = Some(Instant::now());
         self.segment_values.push(value);
         self.timeline.wait_all()
     }

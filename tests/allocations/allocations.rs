@@ -1,5 +1,5 @@
-//! Steady frames allocate nothing: after a warm-up, rendering frames of vfc, chc, chcpp and nohc
-//! performs no heap allocation in the culler or the renderer's recording path (counted with a
+//! Steady frames allocate nothing: after a warm-up, rendering frames of vfc, chc, chcpp, nohc
+//! and chcpp in the predicated mode performs no heap allocation in the culler or the renderer's recording path (counted with a
 //! global allocator that counts this thread's allocations while a frame is being rendered).
 
 use crate::common;
@@ -21,8 +21,14 @@ fn steady_frames_do_not_allocate() {
         let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
         let (warmup, counted) = (30u32, 50u32);
         let setup = common::setup(common::triangles(&scene), (160, 90), 0.05);
-        for name in ["vfc", "chc", "chcpp", "nohc"] {
-            let mut alg = culling::create_with(name, &setup).unwrap();
+        for name in ["vfc", "chc", "chcpp", "nohc", "chcpp@predicated"] {
+            let mut alg = match name.split_once('@') {
+                Some((base, "predicated")) => {
+                    culling::create_latency(base, &setup.params, culling::Latency::Predicated)
+                        .unwrap()
+                }
+                _ => culling::create_with(name, &setup).unwrap(),
+            };
             let mut per_frame = Vec::with_capacity(counted as usize);
             for f in 0..warmup + counted {
                 let cam = r.camera(path.sample(f, warmup + counted), &bvh);

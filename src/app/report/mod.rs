@@ -30,6 +30,8 @@ pub struct FrameRecord {
     pub gpu_ms: f64,
     /// Time the CPU spent waiting for query results, in milliseconds.
     pub stall_ms: f64,
+    /// CPU time of the frame (traversal, recording, submission; stalls excluded).
+    pub cpu_ms: f64,
     /// Occlusion queries issued.
     pub queries: u32,
     /// Queries whose result did not change visibility.
@@ -83,6 +85,7 @@ impl FrameRecord {
             frame_ms: r.frame_ms,
             gpu_ms: r.gpu_ms,
             stall_ms: r.stall_ms,
+            cpu_ms: r.cpu_ms,
             queries: r.counts.queries_begun,
             wasted_queries: r.counts.queries_visible,
             state_changes: r.counts.state_changes,
@@ -110,7 +113,7 @@ impl FrameRecord {
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 25] = [
+pub const CSV_HEADER: [&str; 26] = [
     "algorithm",
     "frame",
     "repeat",
@@ -136,6 +139,7 @@ pub const CSV_HEADER: [&str; 25] = [
     "multiqueries",
     "visible_leaf_queries",
     "predicated_queries",
+    "cpu_ms",
 ];
 
 /// Quotes a CSV field if it contains a separator, quote or line break.
@@ -159,7 +163,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.repeat,
@@ -184,7 +188,8 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             r.predicate_resolves,
             r.multiqueries,
             r.visible_leaf_queries,
-            r.predicated_queries
+            r.predicated_queries,
+            r.cpu_ms
         )?;
     }
     w.flush()?;
@@ -252,12 +257,12 @@ mod tests {
             "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
              pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,\
              missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,\
-             predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries"
+             predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,cpu_ms"
         );
         assert_eq!(lines.len(), 1 + records.len());
         assert_eq!(
             lines[1],
-            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,0,0,0,0,0,0"
+            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,0,0,0,0,0,0,0"
         );
         assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();

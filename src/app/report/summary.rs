@@ -23,6 +23,8 @@ pub struct AlgorithmSummary {
     pub gpu_ms_median: f64,
     /// Median query-result stall in ms.
     pub stall_ms_median: f64,
+    /// Median CPU time in ms (traversal, recording, submission; stalls excluded).
+    pub cpu_ms_median: f64,
     /// Median occlusion queries per frame.
     pub queries_median: f64,
     /// Median wasted queries per frame.
@@ -96,6 +98,7 @@ impl AlgorithmSummary {
             frame_ms_p95: percentile(&mut col(&|r| r.frame_ms), 95.0),
             gpu_ms_median: med(&|r| r.gpu_ms),
             stall_ms_median: med(&|r| r.stall_ms),
+            cpu_ms_median: med(&|r| r.cpu_ms),
             queries_median: med(&|r| f64::from(r.queries)),
             wasted_queries_median: med(&|r| f64::from(r.wasted_queries)),
             state_changes_median: med(&|r| f64::from(r.state_changes)),
@@ -406,11 +409,12 @@ impl WalkSummary {
             self.scene, self.objects, self.triangles, self.device, self.size, self.frames
         );
         let header = format!(
-            "{:<name_w$} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>11} {:>7} {:>8}",
+            "{:<name_w$} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>11} {:>7} {:>8}",
             "algorithm",
             "frame ms",
             "p95 ms",
             "gpu ms",
+            "cpu ms",
             "stall ms",
             "queries",
             "wasted",
@@ -431,11 +435,12 @@ impl WalkSummary {
             };
             let _ = writeln!(
                 out,
-                "{:<name_w$} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>11} {:>7} {:>8}",
+                "{:<name_w$} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>8} {:>8} {:>8} {:>7} {:>7} {:>7} {:>11} {:>7} {:>8}",
                 name,
                 s.frame_ms_median,
                 s.frame_ms_p95,
                 s.gpu_ms_median,
+                s.cpu_ms_median,
                 s.stall_ms_median,
                 fmt_count(s.queries_median),
                 fmt_count(s.wasted_queries_median),
@@ -659,6 +664,7 @@ mod tests {
             "frame_ms_p95",
             "gpu_ms_median",
             "stall_ms_median",
+            "cpu_ms_median",
             "queries_median",
             "wasted_queries_median",
             "state_changes_median",

@@ -38,6 +38,9 @@ pub struct Hit {
     pub triangle: u32,
 }
 
+/// Triangles above which the ray scene's BVH is built for speed rather than quality.
+const LARGE_SCENE_TRIANGLES: usize = 4_000_000;
+
 /// World triangles with a BVH for ray casts and distance queries.
 pub struct TriangleScene {
     bvh: Bvh2,
@@ -55,10 +58,25 @@ impl TriangleScene {
     /// The scene's world-space triangles (those of double-sided materials marked so, unless
     /// their object is a [`closed_solid`]); `None` when it has none with finite corners.
     pub fn new(scene: &Scene) -> Option<TriangleScene> {
+        TriangleScene::of_objects(scene, |_| true)
+    }
+
+    /// As [`new`](Self::new), with the triangles of the objects whose bounds meet `region`
+    /// only.
+    pub fn near(scene: &Scene, region: &Aabb) -> Option<TriangleScene> {
+        TriangleScene::of_objects(scene, |o| {
+            o.bounds.min.cmple(region.max).all() && o.bounds.max.cmpge(region.min).all()
+        })
+    }
+
+    fn of_objects(scene: &Scene, keep: impl Fn(&Object) -> bool) -> Option<TriangleScene> {
         let mut triangles = Vec::new();
         let mut two_sided = Vec::new();
         let mut sides = Vec::new();
         for (i, o) in scene.objects.iter().enumerate() {
+            if !keep(o) {
+                continue;
+            }
             // A textured object is never one flat colour.
             let textured = scene
                 .object_material(i)
@@ -132,10 +150,19 @@ impl TriangleScene {
             return None;
         }
         let mut time = Duration::ZERO;
-        let bvh = build_bvh2_from_tris(&tris, BvhBuildParams::fast_build(), &mut time);
+        // A large scene (a scaled-up city) is only path-checked, a few thousand rays: a quick
+        // build without reinsertion is several times faster there and ample for that.
+        let params = if tris.len() > LARGE_SCENE_TRIANGLES {
+            BvhBuildParams::fastest_build()
+        } else {
+            BvhBuildParams::fast_build()
+        };
+        let bvh = build_bvh2_from_tris(&tris, params, &mut time);
         let order = &bvh.primitive_indices;
         let triangles = order.iter().map(|&i| tris[i as usize]).collect();
+        drop(tris);
         let two_sided = order.iter().map(|&i| sides[i as usize]).collect();
+        drop(sides);
         let colours = order.iter().map(|&i| colours[i as usize]).collect();
         Some(TriangleScene {
             bvh,

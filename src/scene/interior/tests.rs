@@ -10,7 +10,7 @@ use super::rays::TriangleScene;
 use super::*;
 use crate::scene::mesh::{Mesh, SceneBuilder};
 use crate::scene::path_check;
-use crate::scene::{Material, Vertex};
+use crate::scene::{Aabb, Material, Vertex};
 
 /// Triangles of a level under construction (counter-clockwise fronts).
 #[derive(Default)]
@@ -644,4 +644,27 @@ fn the_walk_looks_away_from_views_of_one_colour() {
             "{with} frames over 40% one colour, {without} without the rule"
         );
     }
+}
+
+/// On a large scene the path check builds its rays from the objects near the path only: the
+/// ray scene then holds exactly the triangles of the objects whose bounds meet the region,
+/// and the region holds every eye of the path.
+#[test]
+fn the_ray_scene_near_a_region_holds_the_objects_that_meet_it() {
+    let scene = Scene::load("city", 0.1, 4096).expect("city");
+    let all = TriangleScene::new(&scene).expect("triangles");
+    let region = scene.objects[0].bounds.enlarged(1.0);
+    let meets = |b: &Aabb| b.min.cmple(region.max).all() && b.max.cmpge(region.min).all();
+    let kept: u64 = scene
+        .objects
+        .iter()
+        .filter(|o| meets(&o.bounds))
+        .map(|o| o.triangle_count())
+        .sum();
+    let near = TriangleScene::near(&scene, &region).expect("triangles");
+    assert_eq!(near.len() as u64, kept);
+    assert!(near.len() < all.len(), "{} of {}", near.len(), all.len());
+    let path = scene.path("street").expect("street");
+    let local = path_check::local_region(path);
+    assert!(path.keys.iter().all(|k| local.contains(k.eye)));
 }
