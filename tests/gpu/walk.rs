@@ -83,6 +83,7 @@ fn walk_writes_csv_json_and_plots() {
         "frame_ms_p95",
         "gpu_ms_median",
         "stall_ms_median",
+        "cpu_ms_median",
         "queries_median",
         "wasted_queries_median",
         "state_changes_median",
@@ -106,13 +107,24 @@ fn walk_writes_csv_json_and_plots() {
         assert_eq!(got, want, "{name}");
     }
     assert_eq!(algs["vfc"]["queries_median"], 0.0);
+    // The CPU's part of a frame is measured and never more than the frame.
+    for (name, a) in algs {
+        let (cpu, frame) = (
+            a["cpu_ms_median"].as_f64().unwrap(),
+            a["frame_ms_median"].as_f64().unwrap(),
+        );
+        assert!(
+            cpu > 0.0 && cpu <= frame,
+            "{name}: cpu {cpu} ms, frame {frame} ms"
+        );
+    }
     assert!(algs["chcpp"]["queries_median"].as_f64().unwrap() > 0.0);
 
     let csv = std::fs::read_to_string(dir.join("frames.csv")).unwrap();
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries"
+        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,cpu_ms"
     );
     assert_eq!(lines.count(), 6 * 5);
     for png in ["frametime.png", "counts.png"] {
