@@ -488,6 +488,11 @@ impl Renderer {
         let ts = self.timestamps.allocate()?;
         self.recorder.write_timestamp(&self.timestamps, ts);
         self.recording = false;
+        self.submit_recorded()
+    }
+
+    /// Submits what the recorder holds as one of this frame's segments, noting when.
+    fn submit_recorded(&mut self) -> Result<()> {
         let value = self.timeline.submit(&mut self.recorder)?;
         self.last_submit = Some(Instant::now());
         self.segment_values.push(value);
@@ -1370,9 +1375,7 @@ impl Renderer {
     /// Submits the command buffer being recorded on the timeline and waits until everything
     /// submitted has completed.
     pub(crate) fn submit_and_wait(&mut self) -> Result<()> {
-        let value = self.timeline.submit(&mut self.recorder)?;
-        self.last_submit = Some(Instant::now());
-        self.segment_values.push(value);
+        self.submit_recorded()?;
         self.timeline.wait_all()
     }
 

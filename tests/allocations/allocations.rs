@@ -1,6 +1,7 @@
 //! Steady frames allocate nothing: after a warm-up, rendering frames of vfc, chc, chcpp, nohc
-//! and chcpp in the predicated mode performs no heap allocation in the culler or the renderer's recording path (counted with a
-//! global allocator that counts this thread's allocations while a frame is being rendered).
+//! and chcpp in the predicated mode performs no heap allocation in the culler or the
+//! renderer's recording path (counted with a global allocator that counts this thread's
+//! allocations while a frame is being rendered).
 
 use crate::common;
 

@@ -55,6 +55,10 @@ impl Aabb {
     pub fn contains(&self, p: Vec3) -> bool {
         p.cmpge(self.min).all() && p.cmple(self.max).all()
     }
+    /// Whether the two closed boxes share a point (touching counts).
+    pub fn overlaps(&self, other: &Aabb) -> bool {
+        self.min.cmple(other.max).all() && other.min.cmple(self.max).all()
+    }
     /// Squared distance from `p` to the box (0 inside).
     pub fn distance_squared(&self, p: Vec3) -> f32 {
         let d = (self.min - p).max(p - self.max).max(Vec3::ZERO);
@@ -109,5 +113,28 @@ impl From<[[f32; 3]; 2]> for Aabb {
 impl From<Aabb> for [[f32; 3]; 2] {
     fn from(b: Aabb) -> [[f32; 3]; 2] {
         b.to_arrays()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn boxes_overlap_when_they_share_a_point() {
+        let a = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let inside = Aabb::new(Vec3::splat(0.25), Vec3::splat(0.5));
+        let touching = Aabb::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0));
+        let apart = Aabb::new(Vec3::new(1.5, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0));
+        let apart_in_z = Aabb::new(Vec3::new(0.0, 0.0, 2.0), Vec3::new(1.0, 1.0, 3.0));
+        for (b, want) in [
+            (inside, true),
+            (touching, true),
+            (apart, false),
+            (apart_in_z, false),
+        ] {
+            assert_eq!(a.overlaps(&b), want, "{b:?}");
+            assert_eq!(b.overlaps(&a), want, "{b:?} (swapped)");
+        }
     }
 }

@@ -684,7 +684,6 @@ impl View {
         let n = near.truncate();
         let closest = Vec3::select(n.cmpge(Vec3::ZERO), b.min, b.max);
         let reaches_near = n.dot(closest) + near.w <= 0.0;
-        let touches = b.min.cmple(self.near_box.max).all() && self.near_box.min.cmple(b.max).all();
-        reaches_near && touches
+        reaches_near && b.overlaps(&self.near_box)
     }
 }

@@ -196,9 +196,7 @@ impl<'a> MockBackend<'a> {
     /// else none.
     pub fn visible_regions(regions: Vec<Aabb>) -> MockBackend<'a> {
         MockBackend::new(move |b: &Aabb| {
-            let hit = regions
-                .iter()
-                .any(|r| b.min.cmple(r.max).all() && r.min.cmple(b.max).all());
+            let hit = regions.iter().any(|r| b.overlaps(r));
             if hit {
                 100
             } else {

@@ -40,7 +40,7 @@ fn masked<'a>(boxes: &'a [Aabb], mask: &'a Cell<u64>) -> impl FnMut(&Aabb) -> u6
         let hit = boxes
             .iter()
             .enumerate()
-            .any(|(i, o)| mask.get() & (1 << i) != 0 && overlaps(o, b));
+            .any(|(i, o)| mask.get() & (1 << i) != 0 && o.overlaps(b));
         if hit {
             PIXELS
         } else {

@@ -64,9 +64,7 @@ impl TriangleScene {
     /// As [`new`](Self::new), with the triangles of the objects whose bounds meet `region`
     /// only.
     pub fn near(scene: &Scene, region: &Aabb) -> Option<TriangleScene> {
-        TriangleScene::of_objects(scene, |o| {
-            o.bounds.min.cmple(region.max).all() && o.bounds.max.cmpge(region.min).all()
-        })
+        TriangleScene::of_objects(scene, |o| o.bounds.overlaps(region))
     }
 
     fn of_objects(scene: &Scene, keep: impl Fn(&Object) -> bool) -> Option<TriangleScene> {

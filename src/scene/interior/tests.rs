@@ -10,7 +10,7 @@ use super::rays::TriangleScene;
 use super::*;
 use crate::scene::mesh::{Mesh, SceneBuilder};
 use crate::scene::path_check;
-use crate::scene::{Aabb, Material, Vertex};
+use crate::scene::{Material, Vertex};
 
 /// Triangles of a level under construction (counter-clockwise fronts).
 #[derive(Default)]
@@ -654,11 +654,10 @@ fn the_ray_scene_near_a_region_holds_the_objects_that_meet_it() {
     let scene = Scene::load("city", 0.1, 4096).expect("city");
     let all = TriangleScene::new(&scene).expect("triangles");
     let region = scene.objects[0].bounds.enlarged(1.0);
-    let meets = |b: &Aabb| b.min.cmple(region.max).all() && b.max.cmpge(region.min).all();
     let kept: u64 = scene
         .objects
         .iter()
-        .filter(|o| meets(&o.bounds))
+        .filter(|o| o.bounds.overlaps(&region))
         .map(|o| o.triangle_count())
         .sum();
     let near = TriangleScene::near(&scene, &region).expect("triangles");

@@ -19,10 +19,6 @@ struct Mock {
     completed: usize,
 }
 
-fn touches(a: &Aabb, b: &Aabb) -> bool {
-    a.min.cmple(b.max).all() && b.min.cmple(a.max).all()
-}
-
 impl OcclusionBackend for Mock {
     fn draw_objects(&mut self, _objects: &[u32]) -> Result<()> {
         Ok(())
@@ -30,7 +26,7 @@ impl OcclusionBackend for Mock {
     fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
         let hit = boxes
             .iter()
-            .any(|b| self.visible.iter().any(|v| touches(b, v)));
+            .any(|b| self.visible.iter().any(|v| b.overlaps(v)));
         self.results.push(if hit { 100 } else { 0 });
         self.boxes_per_query.push(boxes.len());
         Ok(self.results.len() as u32 - 1)

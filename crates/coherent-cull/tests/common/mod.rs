@@ -11,11 +11,6 @@ use coherent_cull::{Aabb, CullStats, Culler, FrameInput, ObjectBvh};
 /// Pixels a visible box sees in the visibility models below.
 pub const PIXELS: u64 = 100;
 
-/// Whether two closed boxes overlap.
-pub fn overlaps(a: &Aabb, b: &Aabb) -> bool {
-    a.min.cmple(b.max).all() && b.min.cmple(a.max).all()
-}
-
 /// `n` boxes of mixed sizes on a 200 × 200 ground (some tall), from `seed`.
 pub fn random_boxes(n: u32, seed: u64) -> Vec<Aabb> {
     let mut rng = Rng::new(seed);
@@ -87,7 +82,7 @@ impl Fog {
     pub fn visible(&self, b: &Aabb) -> bool {
         self.frustum.intersects(b)
             && (b.distance_squared(self.eye) < self.range * self.range
-                || self.landmarks.iter().any(|l| overlaps(l, b)))
+                || self.landmarks.iter().any(|l| l.overlaps(b)))
     }
 
     pub fn pixels(&self, b: &Aabb) -> u64 {
