@@ -101,7 +101,7 @@ pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWal
             found.len()
         ));
     }
-    let chosen = walk::waypoints(&found, &adj, &part, params.waypoints, scale.eye_height);
+    let chosen = walk::waypoints(&found, &adj, &part, params.waypoints, &scale);
     let route = walk::tour(&found, &adj, &chosen, scale.eye_height);
     let eyes: Vec<Vec3> = route.iter().map(|&i| found[i].eye).collect();
     let keys = walk::keys_through(rays, &eyes, &scale, params.one_colour_most);

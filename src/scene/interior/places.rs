@@ -23,6 +23,9 @@ const RING_RAYS: usize = 32;
 /// Percentile of the floor-to-ceiling heights that sets the scale: high, so that low surfaces
 /// (tables, shelves, the space under stairs) do not pull it down.
 const HEIGHT_PERCENTILE: f32 = 0.9;
+/// Least share of the floor columns under a ceiling for the ceilings to set the scale; fewer
+/// is a roofless level, whose storey height the walls' tops give.
+const ROOFED_SHARE: f32 = 0.25;
 /// Standard eye height in meters.
 const EYE_METERS: f32 = 1.7;
 /// Most surfaces followed down one column.
@@ -110,8 +113,10 @@ pub fn floors(rays: &TriangleScene, cell: f32) -> Vec<Floor> {
 }
 
 /// The scene's scale. `h` is a high percentile of the floor-to-ceiling heights (under front
-/// faces); where it says the units are meters (at most 30) the eye is at 1.7, capped at 60% of
-/// `h`; in other units at 40% of `h`. `eye_height` and `margin` override; `grid` is the most
+/// faces); where under a quarter of the floors have a ceiling and `h` is lower than an eye
+/// height in meters, at least the median height of the scene's top over the floors (a roofless
+/// house: the ceilings found are its tables). Where `h` says the units are meters (at most 30) the eye
+/// is at 1.7, capped at 60% of `h`; in other units at 40% of `h`. `eye_height` and `margin` override; `grid` is the most
 /// cells along the longer side.
 pub fn scale(
     rays: &TriangleScene,
@@ -124,7 +129,8 @@ pub fn scale(
     let eye = eye_height
         .filter(|h| h.is_finite() && *h > 0.0)
         .unwrap_or_else(|| {
-            let mut heights: Vec<f32> = floors(rays, side / 64.0)
+            let found = floors(rays, side / 64.0);
+            let mut heights: Vec<f32> = found
                 .iter()
                 .filter(|f| f.ceiling)
                 .map(|f| f.headroom)
@@ -133,7 +139,18 @@ pub fn scale(
             heights.sort_by(f32::total_cmp);
             let at = ((heights.len() as f32 * HEIGHT_PERCENTILE) as usize)
                 .min(heights.len().saturating_sub(1));
-            let h = heights.get(at).copied().unwrap_or(e.y.max(1e-3));
+            let mut h = heights.get(at).copied().unwrap_or(e.y.max(1e-3));
+            if h < EYE_METERS && (heights.len() as f32) < ROOFED_SHARE * found.len() as f32 {
+                // Roofless, and the few ceilings are lower than a person in meters: they are
+                // the undersides of furniture (tables). The walls' tops above the floors tell
+                // the storey.
+                let mut tops: Vec<f32> = found
+                    .iter()
+                    .map(|f| rays.bounds.max.y - f.point.y)
+                    .collect();
+                tops.sort_by(f32::total_cmp);
+                h = h.max(tops.get(tops.len() / 2).copied().unwrap_or(h));
+            }
             if h <= 30.0 {
                 (0.6 * h).min(EYE_METERS)
             } else {

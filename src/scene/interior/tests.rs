@@ -2,7 +2,7 @@
 //! floating above a ground plane, rooms joined by doorways and a staircase with thick walls and
 //! closed voids, ceilings whose tops are flat and reachable by rays inside a sky box, a level
 //! whose materials are all double-sided with the winding reversed, a roofless level (a
-//! block-out) and a closed double-sided solid.
+//! block-out), a roofless furnished house and a closed double-sided solid.
 
 use glam::{Mat4, Vec3, Vec4};
 
@@ -463,6 +463,119 @@ fn a_roofless_level_is_inside_between_its_walls() {
     for v in path_check::views(&rays, path) {
         assert_eq!(v.problem(true), None, "{v:?}");
     }
+}
+
+#[test]
+fn a_roofless_furnished_house_is_walked_at_eye_height_on_its_floors() {
+    let mut l = Level::default();
+    let rooms = row_of_rooms(&mut l, 0.0, false);
+    l.tris.retain(|t| !t.iter().all(|p| p.y == 3.5));
+    // Furniture: in every room a table (a top 0.7 m up: its underside is the only ceiling
+    // in the house) and a sofa against a wall; in the middle room a bed between the doors.
+    for r in &rooms {
+        let x = r.min.x;
+        l.brush(Vec3::new(x + 0.8, 0.7, 0.8), Vec3::new(x + 2.0, 0.75, 1.6));
+        l.brush(Vec3::new(x + 4.2, 0.7, 4.4), Vec3::new(x + 5.4, 0.75, 5.2));
+        l.brush(Vec3::new(x + 1.0, 0.0, 5.2), Vec3::new(x + 3.0, 0.45, 5.9));
+    }
+    l.brush(Vec3::new(8.0, 0.0, 2.2), Vec3::new(10.0, 0.5, 3.8));
+    let rays = l.rays();
+    let walk = find(&rays, &InteriorParams::default()).expect("an interior walk");
+    // The storey comes from the walls, not from the tables' undersides.
+    assert!(
+        (walk.scale.eye_height - 1.7).abs() < 1e-3,
+        "{:?}",
+        walk.scale
+    );
+    let path = &walk.path;
+    let mut visited = [false; 3];
+    for f in 0..=path.natural_frames() {
+        let eye = path.pose_at(f as f32).eye;
+        let k = rooms.iter().position(|r| r.contains(eye));
+        let k = k.unwrap_or_else(|| panic!("frame {f}: {eye} is outside the rooms"));
+        visited[k] = true;
+        // On the floor, never on a table, the sofas or the bed.
+        assert!(
+            (eye.y - 1.7).abs() < 0.05,
+            "frame {f}: eye {eye} is not at eye height over the floor (waypoints {:?})",
+            walk.waypoints
+        );
+    }
+    assert_eq!(visited, [true; 3], "waypoints {:?}", walk.waypoints);
+    for v in path_check::views(&rays, path) {
+        assert_eq!(v.problem(true), None, "{v:?}");
+    }
+}
+
+#[test]
+fn furniture_tops_are_told_from_stairs_and_floors() {
+    // The house with its stairs and raised room, a bed in the first room and a table in
+    // the fourth: the places on the bed are furniture, no other place is.
+    let mut l = Level::default();
+    let (rooms, _) = house(&mut l);
+    let bed = Room::new(2.0, 2.0, 4.0, 3.6, 0.0, 0.5);
+    let table = Room::new(2.0, 9.0, 3.5, 10.0, 0.7, 0.75);
+    for b in [bed, table] {
+        l.brush(b.min, b.max);
+    }
+    let rays = l.rays();
+    let s = places::scale(&rays, None, None, 256);
+    let (found, _) = places::places(&rays, &places::floors(&rays, s.cell), &s);
+    let adj = walk::neighbours(&rays, &found, &s);
+    let top = walk::on_furniture(&found, &adj, &s);
+    let on = |r: &Room, p: &Place| {
+        (p.floor.y - r.max.y).abs() < 1e-3
+            && (r.min.x..=r.max.x).contains(&p.floor.x)
+            && (r.min.z..=r.max.z).contains(&p.floor.z)
+    };
+    // The table stands higher than a step: its top is joined to no floor (not walked to), and
+    // left as it is.
+    let mut tops = 0;
+    for (p, t) in found.iter().zip(&top) {
+        assert_eq!(*t, on(&bed, p), "{p:?}");
+        tops += usize::from(*t);
+    }
+    assert!(tops > 0, "no place on the bed");
+    assert!(found.iter().any(|p| on(&table, p)), "no place on the table");
+    // The raised room and the stairs have places, none of them furniture.
+    assert!(found.iter().any(|p| rooms[2].contains(p.eye)));
+    assert!(found
+        .iter()
+        .any(|p| p.floor.x > 11.0 && p.floor.x < 13.0 && p.floor.y > 0.1));
+}
+
+#[test]
+fn the_tour_walks_around_a_bed_rather_than_over_it() {
+    // A bed between two places: two steps over it, or four around it on the floor.
+    let place = |x: f32, z: f32, y: f32| Place {
+        cell: (x as i32, z as i32),
+        floor: Vec3::new(x, y, z),
+        eye: Vec3::new(x, y + 1.7, z),
+        openness: 5.0,
+        nearest: 2.0,
+    };
+    let found = [
+        place(0.0, 0.0, 0.0),
+        place(1.0, 0.0, 0.5),
+        place(2.0, 0.0, 0.0),
+        place(0.0, 1.0, 0.0),
+        place(1.0, 1.0, 0.0),
+        place(2.0, 1.0, 0.0),
+    ];
+    // 0 - 1 (bed) - 2, and 0 - 3 - 4 - 5 - 2 around it.
+    let edges = [(0, 1), (1, 2), (0, 3), (3, 4), (4, 5), (5, 2)];
+    let mut adj = vec![Vec::new(); found.len()];
+    for (a, b) in edges {
+        adj[a].push(b);
+        adj[b].push(a);
+    }
+    let (over, _) = walk::dijkstra(&found, &adj, &[0], 1.7, 0.0);
+    assert_eq!(
+        over[2], 1,
+        "without a cost for climbing the shortest way is over the bed"
+    );
+    let (around, _) = walk::dijkstra(&found, &adj, &[0], 1.7, walk::CLIMB_COST);
+    assert_eq!(around[2], 5, "the tour steps around the bed");
 }
 
 #[test]

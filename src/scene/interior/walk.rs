@@ -76,13 +76,26 @@ pub fn largest_component(adj: &[Vec<usize>]) -> Vec<usize> {
     best
 }
 
-/// Shortest paths from `sources` (cost: length, more near walls through the openness),
-/// returning each place's predecessor and distance.
+/// Most floor height between neighbouring cells of one flat area, in eye heights: a slope or
+/// an uneven floor, not a stair's riser or a bed.
+const FLAT_RISE: f32 = 0.1;
+/// What a unit of height climbed or descended beyond [`FLAT_RISE`] costs on the tour's legs,
+/// in units walked: a route steps around a bed or a table rather than over it, and still
+/// takes the stairs.
+pub const CLIMB_COST: f32 = 4.0;
+/// Least area of a flat floor that stands above all around it for it to be walked to, in
+/// square eye heights: a bed's or a table's top is smaller than a room's floor.
+const MIN_FLAT_AREA: f32 = 2.0;
+
+/// Shortest paths from `sources` (cost: length, more near walls through the openness, and
+/// `climb_cost` per unit of height climbed or descended at a step), returning each place's
+/// predecessor and distance.
 pub fn dijkstra(
     places: &[Place],
     adj: &[Vec<usize>],
     sources: &[usize],
     eye_height: f32,
+    climb_cost: f32,
 ) -> (Vec<usize>, Vec<f32>) {
     #[derive(PartialEq)]
     struct Item(f32, usize);
@@ -110,7 +123,10 @@ pub fn dijkstra(
         }
         for &j in &adj[i] {
             let len = places[i].eye.distance(places[j].eye);
-            let nd = d + len * (1.0 + eye_height / places[j].openness.max(1e-3 * eye_height));
+            let rise = (places[j].floor.y - places[i].floor.y).abs();
+            let climb = climb_cost * (rise - FLAT_RISE * eye_height).max(0.0);
+            let nd =
+                d + len * (1.0 + eye_height / places[j].openness.max(1e-3 * eye_height)) + climb;
             if nd < dist[j] {
                 dist[j] = nd;
                 prev[j] = i;
@@ -121,16 +137,26 @@ pub fn dijkstra(
     (prev, dist)
 }
 
-/// Waypoints over `part`: its most open place, then repeatedly the open place (openness at
-/// least the part's median, and a wall no nearer than an eye height where there are such)
-/// farthest along the graph from those chosen, up to `count`.
+/// Waypoints over `part`: its most open place, then repeatedly the open place farthest along
+/// the graph from those chosen, up to `count`. Open: openness at least the median of the
+/// places on a floor (not on furniture: [`on_furniture`]), and a wall
+/// no nearer than an eye height where there are `count` such (a furnished house's rooms may
+/// hold one or none).
 pub fn waypoints(
     places: &[Place],
     adj: &[Vec<usize>],
     part: &[usize],
     count: usize,
-    eye_height: f32,
+    s: &Scale,
 ) -> Vec<usize> {
+    let eye_height = s.eye_height;
+    let furniture = on_furniture(places, adj, s);
+    let on_floor: Vec<usize> = part.iter().copied().filter(|&i| !furniture[i]).collect();
+    let part = if on_floor.is_empty() {
+        part
+    } else {
+        &on_floor[..]
+    };
     let mut open: Vec<f32> = part.iter().map(|&i| places[i].openness).collect();
     open.sort_by(f32::total_cmp);
     let median = open.get(open.len() / 2).copied().unwrap_or(0.0);
@@ -144,7 +170,11 @@ pub fn waypoints(
         .copied()
         .filter(|&i| places[i].nearest >= eye_height)
         .collect();
-    let candidates = if roomy.is_empty() { open } else { roomy };
+    let candidates = if roomy.len() < count.max(2) {
+        open
+    } else {
+        roomy
+    };
     let Some(&start) = candidates.iter().max_by(|&&a, &&b| {
         places[a]
             .openness
@@ -155,7 +185,7 @@ pub fn waypoints(
     };
     let mut chosen = vec![start];
     while chosen.len() < count.max(2) {
-        let (_, dist) = dijkstra(places, adj, &chosen, eye_height);
+        let (_, dist) = dijkstra(places, adj, &chosen, eye_height, 0.0);
         let far = candidates
             .iter()
             .copied()
@@ -169,6 +199,46 @@ pub fn waypoints(
     chosen
 }
 
+/// Places on the top of a piece of furniture: a flat area (neighbours at most [`FLAT_RISE`]
+/// apart) smaller than [`MIN_FLAT_AREA`] with neighbours outside it, all lower: a bed's or a
+/// table's top, not a stair's tread (a higher tread follows) or a room's floor.
+pub fn on_furniture(places: &[Place], adj: &[Vec<usize>], s: &Scale) -> Vec<bool> {
+    let level = FLAT_RISE * s.eye_height;
+    let least = MIN_FLAT_AREA * s.eye_height * s.eye_height;
+    let mut top = vec![false; places.len()];
+    let mut seen = vec![false; places.len()];
+    for start in 0..places.len() {
+        if seen[start] {
+            continue;
+        }
+        seen[start] = true;
+        let mut patch = vec![start];
+        let (mut higher_around, mut lower_around) = (false, false);
+        let mut k = 0;
+        while k < patch.len() {
+            let i = patch[k];
+            for &j in &adj[i] {
+                let rise = places[j].floor.y - places[i].floor.y;
+                if rise.abs() > level {
+                    higher_around |= rise > 0.0;
+                    lower_around |= rise < 0.0;
+                } else if !seen[j] {
+                    seen[j] = true;
+                    patch.push(j);
+                }
+            }
+            k += 1;
+        }
+        let small = (patch.len() as f32) * s.cell * s.cell < least;
+        if small && lower_around && !higher_around {
+            for &i in &patch {
+                top[i] = true;
+            }
+        }
+    }
+    top
+}
+
 /// The tour's place indices: from the first waypoint, greedily the nearest (by path) of the
 /// others, joined by shortest paths.
 pub fn tour(places: &[Place], adj: &[Vec<usize>], chosen: &[usize], eye_height: f32) -> Vec<usize> {
@@ -179,7 +249,7 @@ pub fn tour(places: &[Place], adj: &[Vec<usize>], chosen: &[usize], eye_height: 
     let mut current = start;
     let mut left: Vec<usize> = chosen[1..].to_vec();
     while !left.is_empty() {
-        let (prev, dist) = dijkstra(places, adj, &[current], eye_height);
+        let (prev, dist) = dijkstra(places, adj, &[current], eye_height, CLIMB_COST);
         let k = (0..left.len())
             .min_by(|&a, &b| dist[left[a]].total_cmp(&dist[left[b]]))
             .unwrap_or(0);
