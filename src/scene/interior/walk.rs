@@ -78,14 +78,14 @@ pub fn largest_component(adj: &[Vec<usize>]) -> Vec<usize> {
 
 /// Most floor height between neighbouring cells of one flat area, in eye heights: a slope or
 /// an uneven floor, not a stair's riser or a bed.
-const FLAT_RISE: f32 = 0.1;
+pub const FLAT_RISE: f32 = 0.1;
 /// What a unit of height climbed or descended beyond [`FLAT_RISE`] costs on the tour's legs,
 /// in units walked: a route steps around a bed or a table rather than over it, and still
 /// takes the stairs.
 pub const CLIMB_COST: f32 = 4.0;
 /// Least area of a flat floor that stands above all around it for it to be walked to, in
 /// square eye heights: a bed's or a table's top is smaller than a room's floor.
-const MIN_FLAT_AREA: f32 = 2.0;
+pub const MIN_FLAT_AREA: f32 = 2.0;
 
 /// Shortest paths from `sources` (cost: length, more near walls through the openness, and
 /// `climb_cost` per unit of height climbed or descended at a step), returning each place's
