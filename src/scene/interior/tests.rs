@@ -449,20 +449,31 @@ fn a_roofless_level_is_inside_between_its_walls() {
     // No ceilings (a block-out), a leak in the last room's outer wall, open ground outside.
     l.tris.retain(|t| !t.iter().all(|p| p.y == 3.5));
     l.flat((18.0, -20.0, 60.0, 26.0), 0.0, true);
-    let rays = l.rays();
-    let walk = find(&rays, &InteriorParams::default()).expect("an interior walk");
+    assert_tours_every_room(&l.rays(), &rooms, |_, _| {});
+}
+
+/// Finds the walk over `rays` and checks that every frame stands in one of `rooms` (and
+/// passes `each(frame, eye)`), every room is visited and no view has a problem.
+fn assert_tours_every_room(
+    rays: &TriangleScene,
+    rooms: &[Room],
+    each: impl Fn(u32, Vec3),
+) -> InteriorWalk {
+    let walk = find(rays, &InteriorParams::default()).expect("an interior walk");
     let path = &walk.path;
-    let mut visited = [false; 3];
+    let mut visited = vec![false; rooms.len()];
     for f in 0..=path.natural_frames() {
         let eye = path.pose_at(f as f32).eye;
         let k = rooms.iter().position(|r| r.contains(eye));
         let k = k.unwrap_or_else(|| panic!("frame {f}: {eye} is outside the rooms"));
         visited[k] = true;
+        each(f, eye);
     }
-    assert_eq!(visited, [true; 3], "waypoints {:?}", walk.waypoints);
-    for v in path_check::views(&rays, path) {
+    assert!(visited.iter().all(|v| *v), "waypoints {:?}", walk.waypoints);
+    for v in path_check::views(rays, path) {
         assert_eq!(v.problem(true), None, "{v:?}");
     }
+    walk
 }
 
 #[test]
@@ -479,32 +490,19 @@ fn a_roofless_furnished_house_is_walked_at_eye_height_on_its_floors() {
         l.brush(Vec3::new(x + 1.0, 0.0, 5.2), Vec3::new(x + 3.0, 0.45, 5.9));
     }
     l.brush(Vec3::new(8.0, 0.0, 2.2), Vec3::new(10.0, 0.5, 3.8));
-    let rays = l.rays();
-    let walk = find(&rays, &InteriorParams::default()).expect("an interior walk");
+    // On the floor, never on a table, the sofas or the bed.
+    let walk = assert_tours_every_room(&l.rays(), &rooms, |f, eye| {
+        assert!(
+            (eye.y - 1.7).abs() < 0.05,
+            "frame {f}: eye {eye} is not at eye height over the floor"
+        );
+    });
     // The storey comes from the walls, not from the tables' undersides.
     assert!(
         (walk.scale.eye_height - 1.7).abs() < 1e-3,
         "{:?}",
         walk.scale
     );
-    let path = &walk.path;
-    let mut visited = [false; 3];
-    for f in 0..=path.natural_frames() {
-        let eye = path.pose_at(f as f32).eye;
-        let k = rooms.iter().position(|r| r.contains(eye));
-        let k = k.unwrap_or_else(|| panic!("frame {f}: {eye} is outside the rooms"));
-        visited[k] = true;
-        // On the floor, never on a table, the sofas or the bed.
-        assert!(
-            (eye.y - 1.7).abs() < 0.05,
-            "frame {f}: eye {eye} is not at eye height over the floor (waypoints {:?})",
-            walk.waypoints
-        );
-    }
-    assert_eq!(visited, [true; 3], "waypoints {:?}", walk.waypoints);
-    for v in path_check::views(&rays, path) {
-        assert_eq!(v.problem(true), None, "{v:?}");
-    }
 }
 
 #[test]
