@@ -787,6 +787,8 @@ pub struct GiArgs {
     #[arg(long)]
     pub validation: bool,
     /// Camera: its first pose is the GI camera (one of the scene's paths or a path file).
+    /// Without it, on an enclosed glTF with no spot light the camera walks the interior path
+    /// over the run, with the light a key ahead.
     #[arg(long)]
     pub path: Option<String>,
     /// Light path file (.json, the camera path format: the light sits at each key's position
@@ -825,6 +827,12 @@ pub fn gi(a: &GiArgs) -> Result<()> {
         },
     };
     let setup = gi_setup(a, &scene)?;
+    if gi_run::walking_path(&scene, &setup).is_some() {
+        println!(
+            "camera: walks the interior path over the run, the light a key ahead \
+             (--path P: stand at P's first pose)"
+        );
+    }
     let summary = gi_run::run_with(&ctx, &scene, &opts, a.out.as_deref(), &setup)?;
     print!("{}", summary.table());
     if let Some(dir) = &a.out {

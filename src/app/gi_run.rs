@@ -193,6 +193,37 @@ pub fn default_camera(scene: &Scene, geometry: &WorldGeometry, aspect: f32) -> C
     Camera::from_pose(pose, aspect, far.max(10.0))
 }
 
+/// The path the GI camera walks over a run, in step with the light, when it walks: with no
+/// camera and no light keys of the user's, on a scene whose light path was found with its
+/// interior walk (an enclosed glTF without a spot light), the camera walks that interior walk
+/// and the light goes a key ahead of it. `None`: the camera stands at one pose.
+pub fn walking_path<'a>(scene: &'a Scene, setup: &GiSetup) -> Option<&'a CameraPath> {
+    if setup.camera.is_some() || setup.light_keys.is_some() {
+        return None;
+    }
+    scene.path(crate::scene::interior::LIGHT_PATH_NAME).ok()?;
+    scene.path(crate::scene::interior::PATH_NAME).ok()
+}
+
+/// The GI camera over a run: at one pose, or walking a path (see [`walking_path`]).
+#[derive(Clone, Debug)]
+struct CameraTrack {
+    camera: Camera,
+    walk: Option<CameraPath>,
+}
+
+impl CameraTrack {
+    /// The camera at `t` in 0..=1 of the run (the light's `t`).
+    fn at(&self, t: f32) -> Camera {
+        let mut camera = self.camera;
+        if let Some(path) = &self.walk {
+            let pose = path.pose_at(t.clamp(0.0, 1.0) * path.natural_frames() as f32);
+            (camera.eye, camera.target) = (pose.eye, pose.target);
+        }
+        camera
+    }
+}
+
 /// Settings of a run.
 #[derive(Clone, Debug)]
 pub struct GiRunOptions {
@@ -382,7 +413,7 @@ fn reference_images(
     ctx: &Arc<GpuContext>,
     world: &mut World,
     path: &LightPath,
-    camera: &Camera,
+    camera: &CameraTrack,
     opts: &GiRunOptions,
     frames: &[u32],
 ) -> Result<Vec<Vec<u8>>> {
@@ -408,10 +439,11 @@ fn reference_images(
     let mut out = Vec::new();
     let mut movers = world.movers.clone();
     for &f in frames {
-        let light = path.at(f as f32 / (opts.frames.max(2) - 1) as f32);
+        let t = f as f32 / (opts.frames.max(2) - 1) as f32;
+        let light = path.at(t);
         world.place(movers.as_mut(), f, &mut renderer)?;
         let stats = set.recompute_all(&light, &world.rays);
-        renderer.frame(&light, set.vpls(), &stats.new_layers, camera)?;
+        renderer.frame(&light, set.vpls(), &stats.new_layers, &camera.at(t))?;
         out.push(renderer.read_output()?);
     }
     Ok(out)
@@ -559,7 +591,7 @@ fn run_mode(
     ctx: &Arc<GpuContext>,
     world: &mut World,
     path: &LightPath,
-    camera: &Camera,
+    camera: &CameraTrack,
     opts: &GiRunOptions,
     mode: GiMode,
     sampled: &[u32],
@@ -583,12 +615,14 @@ fn run_mode(
         last: Vec::new(),
     };
     for f in 0..opts.frames {
-        let light = path.at(f as f32 / (opts.frames.max(2) - 1) as f32);
+        let t = f as f32 / (opts.frames.max(2) - 1) as f32;
+        let light = path.at(t);
+        let camera = camera.at(t);
         let start = Instant::now();
         let moves = world.place(movers.as_mut(), f, &mut renderer)?;
         let layers = world.update_vpls(&mut set, mode, &light, &moves);
         let update = start.elapsed().as_secs_f64() * 1e3;
-        let frame = renderer.frame(&light, set.vpls(), &layers, camera)?;
+        let frame = renderer.frame(&light, set.vpls(), &layers, &camera)?;
         run.update_ms.push(update);
         run.frames.push(frame);
         let is_last = f + 1 == opts.frames;
@@ -640,6 +674,10 @@ pub fn run_with(
     if let Some(pose) = setup.camera {
         (camera.eye, camera.target) = (pose.eye, pose.target);
     }
+    let camera = CameraTrack {
+        camera,
+        walk: walking_path(scene, setup).cloned(),
+    };
     let sampled = sample_frames(opts.frames, opts.sample_frames);
     let reference = reference_images(ctx, &mut world, &path, &camera, opts, &sampled)?;
     if let Some(dir) = out {
@@ -783,4 +821,33 @@ pub fn save_strip(path: &Path, width: u32, height: u32, images: &[Vec<u8>]) -> R
     strip
         .save(path)
         .map_err(|e| Error::Input(format!("{}: cannot write PNG: {e}", path.display())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_walking_camera_follows_its_path_over_the_run_and_a_fixed_one_stands() {
+        let pose = |x: f32| CameraPose {
+            eye: Vec3::new(x, 1.7, 0.0),
+            target: Vec3::new(x, 1.7, -5.0),
+        };
+        let path = CameraPath {
+            name: "interior".into(),
+            keys: vec![pose(0.0), pose(3.0), pose(6.0)],
+        };
+        let camera = Camera::from_pose(pose(-1.0), 16.0 / 9.0, 100.0);
+        let walking = CameraTrack {
+            camera,
+            walk: Some(path),
+        };
+        let near = |a: Vec3, b: Vec3| (a - b).length() < 1e-4;
+        assert!(near(walking.at(0.0).eye, pose(0.0).eye));
+        assert!(near(walking.at(0.5).eye, pose(3.0).eye));
+        assert!(near(walking.at(1.0).eye, pose(6.0).eye));
+        assert!(near(walking.at(1.0).target, pose(6.0).target));
+        let standing = CameraTrack { camera, walk: None };
+        assert_eq!(standing.at(0.7).eye, pose(-1.0).eye);
+    }
 }

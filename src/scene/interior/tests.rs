@@ -577,6 +577,35 @@ fn the_tour_walks_around_a_bed_rather_than_over_it() {
 }
 
 #[test]
+fn gi_walks_the_interior_path_with_its_light_a_key_ahead() {
+    use crate::app::gi_run::{walking_path, GiSetup};
+    let mut l = Level::default();
+    let _ = row_of_rooms(&mut l, 0.0, false);
+    let mut scene = l.scene(false);
+    default_if_enclosed(&mut scene);
+    let walk = walking_path(&scene, &GiSetup::default()).expect("the camera walks");
+    assert_eq!(walk.name, PATH_NAME);
+    assert!(walk.keys.len() >= 3, "{} keys", walk.keys.len());
+    let light = scene.path(LIGHT_PATH_NAME).expect("a light path").clone();
+    assert_eq!(light.keys.len(), walk.keys.len());
+    for (lamp, eye) in light.keys.iter().zip(walk.keys.iter().skip(1)) {
+        let ahead = (lamp.eye - eye.eye).with_y(0.0).length();
+        assert!(ahead < 1e-4 && lamp.eye.y > eye.eye.y, "{lamp:?} {eye:?}");
+    }
+    // The user's camera or light: the camera stands.
+    let camera = GiSetup {
+        camera: Some(walk.keys[0]),
+        ..GiSetup::default()
+    };
+    assert!(walking_path(&scene, &camera).is_none());
+    let lamp = GiSetup {
+        light_keys: Some(light),
+        ..GiSetup::default()
+    };
+    assert!(walking_path(&scene, &lamp).is_none());
+}
+
+#[test]
 fn a_closed_double_sided_solid_is_not_a_room() {
     // A large block whose material is double-sided: its inside sees front faces only, but it
     // is a solid (closed, facing out), so it has no inside.
