@@ -114,10 +114,10 @@ pub fn floors(rays: &TriangleScene, cell: f32) -> Vec<Floor> {
 
 /// The scene's scale. `h` is a high percentile of the floor-to-ceiling heights (under front
 /// faces); where under a quarter of the floors have a ceiling and `h` is lower than an eye
-/// height in meters, at least the median height of the scene's top over the floors (a roofless
-/// house: the ceilings found are its tables). Where `h` says the units are meters (at most 30) the eye
-/// is at 1.7, capped at 60% of `h`; in other units at 40% of `h`. `eye_height` and `margin` override; `grid` is the most
-/// cells along the longer side.
+/// height in meters, at least the median height of the scene's top over the floors (a
+/// roofless house: the ceilings found are its tables). Where `h` says the units are meters (at
+/// most 30) the eye is at 1.7, capped at 60% of `h`; in other units at 40% of `h`. `eye_height`
+/// and `margin` override; `grid` is the most cells along the longer side.
 pub fn scale(
     rays: &TriangleScene,
     eye_height: Option<f32>,

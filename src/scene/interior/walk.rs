@@ -57,23 +57,36 @@ pub fn largest_component(adj: &[Vec<usize>]) -> Vec<usize> {
         if seen[start] {
             continue;
         }
-        seen[start] = true;
-        let mut part = vec![start];
-        let mut k = 0;
-        while k < part.len() {
-            for &j in &adj[part[k]] {
-                if !seen[j] {
-                    seen[j] = true;
-                    part.push(j);
-                }
-            }
-            k += 1;
-        }
+        let part = flood(adj, start, &mut seen, |_, _| true);
         if part.len() > best.len() {
             best = part;
         }
     }
     best
+}
+
+/// The places reached from `start` (not yet `seen`) over the edges `join(i, j)` accepts,
+/// breadth first; marks them seen.
+fn flood(
+    adj: &[Vec<usize>],
+    start: usize,
+    seen: &mut [bool],
+    join: impl Fn(usize, usize) -> bool,
+) -> Vec<usize> {
+    seen[start] = true;
+    let mut part = vec![start];
+    let mut k = 0;
+    while k < part.len() {
+        let i = part[k];
+        for &j in &adj[i] {
+            if !seen[j] && join(i, j) {
+                seen[j] = true;
+                part.push(j);
+            }
+        }
+        k += 1;
+    }
+    part
 }
 
 /// Most floor height between neighbouring cells of one flat area, in eye heights: a slope or
@@ -207,27 +220,21 @@ pub fn on_furniture(places: &[Place], adj: &[Vec<usize>], s: &Scale) -> Vec<bool
     let least = MIN_FLAT_AREA * s.eye_height * s.eye_height;
     let mut top = vec![false; places.len()];
     let mut seen = vec![false; places.len()];
+    let rise = |i: usize, j: usize| places[j].floor.y - places[i].floor.y;
     for start in 0..places.len() {
         if seen[start] {
             continue;
         }
-        seen[start] = true;
-        let mut patch = vec![start];
+        let patch = flood(adj, start, &mut seen, |i, j| rise(i, j).abs() <= level);
         let (mut higher_around, mut lower_around) = (false, false);
-        let mut k = 0;
-        while k < patch.len() {
-            let i = patch[k];
+        for &i in &patch {
             for &j in &adj[i] {
-                let rise = places[j].floor.y - places[i].floor.y;
-                if rise.abs() > level {
-                    higher_around |= rise > 0.0;
-                    lower_around |= rise < 0.0;
-                } else if !seen[j] {
-                    seen[j] = true;
-                    patch.push(j);
+                let r = rise(i, j);
+                if r.abs() > level {
+                    higher_around |= r > 0.0;
+                    lower_around |= r < 0.0;
                 }
             }
-            k += 1;
         }
         let small = (patch.len() as f32) * s.cell * s.cell < least;
         if small && lower_around && !higher_around {
