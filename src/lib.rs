@@ -62,6 +62,7 @@ pub mod error;
 pub mod gi;
 pub mod gpu;
 pub mod image_io;
+mod parallel;
 pub mod render;
 pub mod scene;
 

@@ -293,22 +293,10 @@ impl ObjectRays {
 
     /// One ray per pixel centre of six 90° views, split over the machine's cores.
     fn mark_visible(&self, p: Vec3, face: u32, far: f32, seen: &mut [bool]) {
-        let threads = std::thread::available_parallelism()
-            .map_or(1, |n| n.get())
-            .min(6);
-        let found: Vec<Vec<u32>> = std::thread::scope(|scope| {
-            let handles: Vec<_> = (0..threads)
-                .map(|t| {
-                    scope.spawn(move || {
-                        let mut hits = Vec::new();
-                        for dir in DIRECTIONS.iter().skip(t).step_by(threads) {
-                            self.cast_face(p, *dir, face, far, &mut hits);
-                        }
-                        hits
-                    })
-                })
-                .collect();
-            handles.into_iter().filter_map(|h| h.join().ok()).collect()
+        let found = crate::parallel::map(DIRECTIONS.len(), |d| {
+            let mut hits = Vec::new();
+            self.cast_face(p, DIRECTIONS[d], face, far, &mut hits);
+            hits
         });
         for o in found.into_iter().flatten() {
             seen[o as usize] = true;

@@ -432,7 +432,7 @@ pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32, most: f32
         _ => 0.0,
     };
     let one_colour = |eye: Vec3, look: Look| one_colour_at(rays, &look.at(eye, 1.0), COLOUR_RAYS);
-    let raw: Vec<(f32, Look)> = parallel_map(n, |i| {
+    let raw: Vec<(f32, Look)> = crate::parallel::map(n, |i| {
         let ahead = eyes[(i + 2).min(n - 1)] - eyes[i.saturating_sub(1)];
         let ahead = Vec3::new(ahead.x, 0.0, ahead.z)
             .try_normalize()
@@ -518,25 +518,4 @@ fn poses_of(
         .zip(eyes)
         .map(|(look, &eye)| look.at(eye, reach))
         .collect()
-}
-
-/// `f(0)`, .., `f(n - 1)` computed on the available cores, in order.
-fn parallel_map<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |t| t.get())
-        .min(n.max(1));
-    let chunk = n.div_ceil(threads.max(1)).max(1);
-    std::thread::scope(|scope| {
-        let f = &f;
-        let parts: Vec<_> = (0..n)
-            .step_by(chunk)
-            .map(|start| {
-                scope.spawn(move || (start..(start + chunk).min(n)).map(f).collect::<Vec<T>>())
-            })
-            .collect();
-        parts
-            .into_iter()
-            .flat_map(|p| p.join().expect("a look-direction thread panicked"))
-            .collect()
-    })
 }
