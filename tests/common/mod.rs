@@ -111,3 +111,12 @@ pub fn png(w: u32, h: u32, rgba: Vec<u8>) -> Vec<u8> {
         .expect("png");
     out.into_inner()
 }
+
+/// Makes a child process (the CLI, an example) run on lavapipe unless the caller's
+/// `COHERENT_DEVICE` names another device (the child inherits it then).
+pub fn on_test_device(cmd: &mut std::process::Command) -> &mut std::process::Command {
+    if std::env::var_os("COHERENT_DEVICE").is_none() {
+        cmd.env("COHERENT_DEVICE", "llvmpipe");
+    }
+    cmd
+}

@@ -342,9 +342,7 @@ fn engine_example_runs_with_two_frames_in_flight() {
     let exe = example_binary("engine");
     let mut cmd = std::process::Command::new(&exe);
     cmd.args(["--frames", "8"]);
-    if std::env::var_os("COHERENT_DEVICE").is_none() {
-        cmd.env("COHERENT_DEVICE", "llvmpipe");
-    }
+    common::on_test_device(&mut cmd);
     let out = cmd.output().expect("run the engine example");
     let text = String::from_utf8_lossy(&out.stdout).to_string();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -406,9 +404,7 @@ fn walk_reports_frames_in_flight_as_a_latency_suffix() {
         .args(["--frames", "4", "--warmup", "1", "--algorithms", "chcpp"])
         .args(["--check", "--validation", "--latency", latency, "--out"])
         .arg(&dir);
-        if std::env::var_os("COHERENT_DEVICE").is_none() {
-            cmd.env("COHERENT_DEVICE", "llvmpipe");
-        }
+        common::on_test_device(&mut cmd);
         cmd.output().expect("run coherent")
     };
     let out = walk("in-frame,next-frame-k2");

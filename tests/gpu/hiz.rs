@@ -323,9 +323,7 @@ fn cli_render_walk_and_view_accept_hiz() {
     let dir = std::env::temp_dir().join(format!("coherent-hiz-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let run = |cmd: &mut Command| {
-        if std::env::var_os("COHERENT_DEVICE").is_none() {
-            cmd.env("COHERENT_DEVICE", "llvmpipe");
-        }
+        common::on_test_device(cmd);
         let out = cmd.output().expect("run coherent");
         let text = format!(
             "{}{}",

@@ -299,7 +299,8 @@ fn calibration_is_measured_once_and_replaced_when_foreign() {
 #[test]
 fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
     let out = temp_dir("walk-check");
-    let status = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
+    let exe = env!("CARGO_BIN_EXE_coherent");
+    let status = common::on_test_device(&mut std::process::Command::new(exe))
         .args([
             "walk",
             "--scene",
@@ -329,10 +330,6 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
         .arg(&out)
         .arg("--cache-dir")
         .arg(out.join("cache"))
-        .env(
-            "COHERENT_DEVICE",
-            std::env::var("COHERENT_DEVICE").unwrap_or_else(|_| "llvmpipe".into()),
-        )
         .status()
         .unwrap();
     assert!(status.success());

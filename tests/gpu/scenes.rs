@@ -175,15 +175,11 @@ fn bad_path_files_are_one_line_errors() {
 fn cli_reports_bad_path_file_in_one_line() {
     let dir = temp_dir("cli");
     let file = write(&dir, "broken_path.json", r#"{"keys":[]}"#);
-    let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
+    let out = common::on_test_device(&mut Command::new(env!("CARGO_BIN_EXE_coherent")))
         .args(["render", "--scene", "cornell", "--size", "64x64", "--path"])
         .arg(&file)
         .arg("--out")
         .arg(dir.join("x.png"))
-        .env(
-            "COHERENT_DEVICE",
-            std::env::var("COHERENT_DEVICE").unwrap_or_else(|_| "llvmpipe".into()),
-        )
         .output()
         .expect("run coherent");
     assert!(!out.status.success());

@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::Mutex;
 
+use crate::common;
+
 /// `xvfb-run -a` picks a free display number racily; run one viewer at a time.
 static XVFB: Mutex<()> = Mutex::new(());
 
@@ -27,9 +29,7 @@ fn run_viewer(args: &[&str], env: &[(&str, &str)]) -> Output {
         "view",
     ])
     .args(args);
-    if std::env::var_os("COHERENT_DEVICE").is_none() {
-        cmd.env("COHERENT_DEVICE", "llvmpipe");
-    }
+    common::on_test_device(&mut cmd);
     for (k, v) in env {
         cmd.env(k, v);
     }
