@@ -95,6 +95,15 @@ pub fn one_colour_at(rays: &TriangleScene, pose: &CameraPose, grid: (usize, usiz
     rays.one_colour_share(pose.eye, &view_grid(pose, grid), far_from(rays, pose.eye))
 }
 
+/// [`one_colour_at`] and the share of the view that shows back faces.
+pub fn one_colour_and_back_at(
+    rays: &TriangleScene,
+    pose: &CameraPose,
+    grid: (usize, usize),
+) -> (f32, f32) {
+    rays.one_colour_and_back(pose.eye, &view_grid(pose, grid), far_from(rays, pose.eye))
+}
+
 /// What the camera at `pose` (frame `frame`) sees.
 pub fn view_at(rays: &TriangleScene, pose: &CameraPose, frame: u32) -> FrameView {
     let far = far_from(rays, pose.eye);

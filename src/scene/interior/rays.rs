@@ -473,8 +473,14 @@ impl TriangleScene {
     /// the sky (rays that escape), or one flat colour of the built-in renderer's (see
     /// [`Hit::colour`]; a ray whose hit has a coplanar twin of another colour counts for both).
     pub fn one_colour_share(&self, p: Vec3, dirs: &[Vec3], far: f32) -> f32 {
+        self.one_colour_and_back(p, dirs, far).0
+    }
+
+    /// [`TriangleScene::one_colour_share`] and the share of the rays that hit a back face,
+    /// from one cast of the rays.
+    pub fn one_colour_and_back(&self, p: Vec3, dirs: &[Vec3], far: f32) -> (f32, f32) {
         let mut colours: std::collections::HashMap<[u8; 3], usize> = Default::default();
-        let mut escaped = 0;
+        let (mut escaped, mut back) = (0, 0);
         for &d in dirs {
             match self.hit(p, d, far) {
                 None => escaped += 1,
@@ -484,10 +490,11 @@ impl TriangleScene {
                         *colours.entry(c).or_default() += 1;
                     }
                 }
-                Some(_) => {}
+                Some(_) => back += 1,
             }
         }
         let most = colours.into_values().max().unwrap_or(0).max(escaped);
-        most as f32 / dirs.len().max(1) as f32
+        let rays = dirs.len().max(1) as f32;
+        (most as f32 / rays, back as f32 / rays)
     }
 }

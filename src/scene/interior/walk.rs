@@ -10,7 +10,7 @@ use glam::Vec3;
 use super::places::{Place, Scale};
 use super::rays::TriangleScene;
 use crate::scene::camera::FRAMES_PER_KEY;
-use crate::scene::path_check::{one_colour_at, VIEW_RAYS};
+use crate::scene::path_check::{one_colour_and_back_at, one_colour_at, VIEW_RAYS};
 use crate::scene::CameraPose;
 
 /// Neighbour lists: places in adjacent cells (8-neighbourhood) whose floors differ by at most
@@ -282,7 +282,9 @@ pub fn tour(places: &[Place], adj: &[Vec<usize>], chosen: &[usize], eye_height: 
 /// open way ahead (see [`look_dirs`]) at a target `TARGET_REACH` eye heights away; when the
 /// spline through them would come closer than the margin to geometry, every eye is a key.
 /// Where the turn between two keys sweeps across a view of more than `one_colour_most` of one
-/// colour, one key takes the other's direction (`hold_views`).
+/// colour, one key takes the other's direction (`hold_views`); then the views are judged every
+/// few frames and a turn that still shows more than `one_colour_most` + 0.08 of one colour
+/// gets other looks at its keys (`mend_turns`).
 pub fn keys_through(
     rays: &TriangleScene,
     eyes: &[Vec3],
@@ -318,6 +320,7 @@ pub fn keys_through(
     let eyes = if clear { &keys[..] } else { eyes };
     path.keys = poses_of(rays, eyes, s.eye_height, reach, one_colour_most);
     hold_views(rays, &mut path, one_colour_most);
+    mend_turns(rays, &mut path, one_colour_most + MEND_SLACK);
     path.keys
 }
 
@@ -369,6 +372,192 @@ fn hold_views(rays: &TriangleScene, path: &mut crate::scene::CameraPath, most: f
             break;
         }
     }
+}
+
+/// Frames between the views judged along a turn by [`mend_turns`]: a wall that fills the view
+/// while the camera sweeps past it does so for about ten frames.
+const MEND_STEP: u32 = 3;
+/// Coarser step and ray grid on which [`mend_turns`] ranks its candidate looks before judging
+/// the best few at `MEND_STEP` on [`COLOUR_RAYS`].
+const MEND_RANK: (u32, (usize, usize)) = (6, (10, 6));
+/// Weight of a view's share of back faces against its share of one colour in [`mend_turns`].
+const BACK_WEIGHT: f32 = 8.0;
+/// Candidate looks judged in full per segment mended.
+const MEND_FINALISTS: usize = 6;
+
+/// The views of segment `segment` (from its key's frame to the next key's, every `step` frames,
+/// both keys included) through a grid of `grid` rays, each judged by its share of one colour,
+/// or `BACK_WEIGHT` times its share of back faces when that is more (a view into a solid is
+/// as bad as a wall close ahead when a twentieth of it shows back faces).
+fn segment_views<'a>(
+    rays: &'a TriangleScene,
+    path: &'a crate::scene::CameraPath,
+    segment: usize,
+    (step, grid): (u32, (usize, usize)),
+) -> impl Iterator<Item = f32> + 'a {
+    let first = segment as f32 * FRAMES_PER_KEY;
+    let frames = FRAMES_PER_KEY as u32;
+    (0..frames)
+        .step_by(step as usize)
+        .chain(std::iter::once(frames))
+        .map(move |j| {
+            let (one, back) = one_colour_and_back_at(rays, &path.pose_at(first + j as f32), grid);
+            one.max(BACK_WEIGHT * back)
+        })
+}
+
+/// The worst view of segment `segment` (see [`segment_views`]).
+fn segment_worst(
+    rays: &TriangleScene,
+    path: &crate::scene::CameraPath,
+    segment: usize,
+    judge: (u32, (usize, usize)),
+) -> f32 {
+    segment_views(rays, path, segment, judge).fold(0.0, f32::max)
+}
+
+/// How far the views of `segments` go over `above`: the sum of each view's excess squared, so
+/// that a look is judged by how many views it spoils and by how much.
+fn excess(
+    rays: &TriangleScene,
+    path: &crate::scene::CameraPath,
+    segments: std::ops::Range<usize>,
+    judge: (u32, (usize, usize)),
+    above: f32,
+) -> f32 {
+    segments
+        .flat_map(|s| segment_views(rays, path, s, judge))
+        .map(|v| (v - above).max(0.0).powi(2))
+        .sum()
+}
+
+/// How much more of one colour than a key's look aims at (`one_colour_most`) a view between
+/// keys may show before [`mend_turns`] mends its segment: 0.38 with the default 0.3, as a
+/// frame of over 40% one colour shows little of the level and the estimate on [`COLOUR_RAYS`]
+/// is within about 0.02 of the rendered image's share.
+const MEND_SLACK: f32 = 0.08;
+
+/// [`excess`] over the segments that keys `keys` shape (a Catmull-Rom spline: the two before
+/// a key and the two after).
+fn excess_around(
+    rays: &TriangleScene,
+    path: &crate::scene::CameraPath,
+    keys: std::ops::RangeInclusive<usize>,
+    judge: (u32, (usize, usize)),
+    above: f32,
+) -> f32 {
+    let segments = path.keys.len() - 1;
+    let shaped = keys.start().saturating_sub(2)..(keys.end() + 2).min(segments);
+    excess(rays, path, shaped, judge, above)
+}
+
+/// Where a view between two keys, judged every `MEND_STEP` frames, has more than
+/// `above` of one colour (the camera sweeps past a close wall while it turns), one of
+/// the two keys or both take another look: one of the `LOOK_DIRS` level directions at one of
+/// the `LOOK_DOWN_DEG` angles (both keys the same: the camera does not turn on that segment),
+/// or a neighbour's look. Candidates are ranked on the segment and its two neighbours with a
+/// coarse grid; the best few are judged on every segment the keys shape (`excess_around`), and
+/// the best is kept when it is better than the keys' own looks.
+fn mend_turns(rays: &TriangleScene, path: &mut crate::scene::CameraPath, above: f32) {
+    let n = path.keys.len();
+    if n < 2 {
+        return;
+    }
+    let judge = (MEND_STEP, COLOUR_RAYS);
+    // Per segment: when a key that shapes it last changed, and when it was last tried.
+    let mut changed_at = vec![1usize; n - 1];
+    let mut tried_at = vec![0usize; n - 1];
+    let mut clock = 1;
+    for _ in 0..MEND_PASSES {
+        let worst = crate::parallel::map(n - 1, |k| segment_worst(rays, path, k, judge));
+        for (k, &w) in worst.iter().enumerate() {
+            // Skipped when tried since its keys last changed, or mended by a neighbour's key.
+            if w <= above
+                || tried_at[k] > changed_at[k]
+                || segment_worst(rays, path, k, judge) <= above
+            {
+                continue;
+            }
+            clock += 1;
+            tried_at[k] = clock;
+            if let Some((a, b)) = mend_segment(rays, path, k, above) {
+                clock += 1;
+                let shaped = a.saturating_sub(2)..(b + 2).min(n - 1);
+                changed_at[shaped].fill(clock);
+            }
+        }
+    }
+}
+
+/// Passes of [`mend_turns`] along a path (a mended turn may move to the segment before); a
+/// segment is tried again only when one of its keys changed since.
+const MEND_PASSES: usize = 2;
+
+/// One segment of [`mend_turns`]: the keys that took another look, if any.
+fn mend_segment(
+    rays: &TriangleScene,
+    path: &mut crate::scene::CameraPath,
+    k: usize,
+    above: f32,
+) -> Option<(usize, usize)> {
+    let n = path.keys.len();
+    let judge = (MEND_STEP, COLOUR_RAYS);
+    // (first key, last key, unit look) of the keys that take the look
+    let mut candidates: Vec<(usize, usize, Vec3)> = Vec::new();
+    for d in 0..LOOK_DIRS {
+        let a = std::f32::consts::TAU * d as f32 / LOOK_DIRS as f32;
+        for deg in LOOK_DOWN_DEG {
+            let look = Vec3::new(a.cos(), -deg.to_radians().tan(), a.sin()).normalize();
+            for keys in [(k, k), (k + 1, k + 1), (k, k + 1)] {
+                candidates.push((keys.0, keys.1, look));
+            }
+        }
+    }
+    for key in [k, k + 1] {
+        for other in key.saturating_sub(1)..(key + 2).min(n) {
+            if other != key {
+                let look = path.keys[other].target - path.keys[other].eye;
+                candidates.push((key, key, look.normalize_or(Vec3::NEG_Z)));
+            }
+        }
+    }
+    let with = |c: usize| {
+        let (a, b, look) = candidates[c];
+        let mut trial = path.clone();
+        for key in &mut trial.keys[a..=b] {
+            key.target = key.eye + look * (key.target - key.eye).length();
+        }
+        trial
+    };
+    // Ranked on the segments next to the turn, where a look changes the views most.
+    let near = k.saturating_sub(1)..(k + 2).min(n - 1);
+    let ranked = crate::parallel::map(candidates.len(), |c| {
+        excess(rays, &with(c), near.clone(), MEND_RANK, above)
+    });
+    let mut order: Vec<usize> = (0..candidates.len()).collect();
+    order.sort_by(|&a, &b| ranked[a].total_cmp(&ranked[b]));
+    order.truncate(MEND_FINALISTS);
+    let sets = [(k, k), (k + 1, k + 1), (k, k + 1)];
+    let before = crate::parallel::map(sets.len(), |i| {
+        excess_around(rays, path, sets[i].0..=sets[i].1, judge, above)
+    });
+    let judged = crate::parallel::map(order.len(), |i| {
+        let (a, b, _) = candidates[order[i]];
+        let was = sets
+            .iter()
+            .position(|&s| s == (a, b))
+            .map_or(0.0, |j| before[j]);
+        (
+            was,
+            excess_around(rays, &with(order[i]), a..=b, judge, above),
+        )
+    });
+    let best = (0..order.len())
+        .filter(|&i| judged[i].1 < judged[i].0)
+        .min_by(|&a, &b| judged[a].1.total_cmp(&judged[b].1));
+    let best = order[best?];
+    *path = with(best);
+    Some((candidates[best].0, candidates[best].1))
 }
 
 /// Passes of [`hold_views`] along a path.
