@@ -4,7 +4,9 @@
 //! places of neighbouring cells join into a walkable graph (a step height, clearance at the eye
 //! and the knees), and the walk tours waypoints spread over its largest connected part, looking
 //! down the most open way ahead where the view is not filled by one colour (a bare floor, a
-//! wall close ahead). Also the light path that goes with it. Deterministic for a given scene.
+//! wall close ahead); the views between keys are judged every third frame, and a turn that
+//! sweeps past such a view gets other looks at its keys. Also the light path that goes with
+//! it. Deterministic for a given scene.
 
 use glam::Vec3;
 
