@@ -92,7 +92,7 @@ fn far_from(rays: &TriangleScene, eye: Vec3) -> f32 {
 /// Share of the view at `pose` in its most common colour (see [`FrameView::one_colour`]),
 /// through a grid of `grid` rays.
 pub fn one_colour_at(rays: &TriangleScene, pose: &CameraPose, grid: (usize, usize)) -> f32 {
-    rays.one_colour_share(pose.eye, &view_grid(pose, grid), far_from(rays, pose.eye))
+    one_colour_and_back_at(rays, pose, grid).0
 }
 
 /// [`one_colour_at`] and the share of the view that shows back faces.

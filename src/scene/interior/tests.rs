@@ -792,7 +792,6 @@ fn the_walk_looks_away_from_views_of_one_colour() {
             over(l, InteriorParams::default().one_colour_most),
             over(l, 1.0),
         );
-        println!("ONE with {with} without {without}");
         assert!(
             3 * with < without,
             "{with} frames over 40% one colour, {without} without the rule"
