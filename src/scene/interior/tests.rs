@@ -638,7 +638,8 @@ fn levels() {
         let (scene, _) = crate::scene::gltf::load_gltf(std::path::Path::new(file)).expect("load");
         let rays = TriangleScene::new(&scene).expect("triangles");
         let t = std::time::Instant::now();
-        match find(&rays, &InteriorParams::default()) {
+        let walk = find(&rays, &InteriorParams::default());
+        match &walk {
             Ok(w) => {
                 let views = path_check::views(&rays, &w.path);
                 let worst = views.iter().map(|v| v.sky).fold(0.0f32, f32::max);
@@ -676,7 +677,8 @@ fn levels() {
             }
             Err(why) => println!("{file}: no inside: {why}"),
         }
-        if let Ok(w) = find(&rays, &InteriorParams::default()) {
+        let Ok(w) = walk else { continue };
+        {
             // Every frame of the walk, on the path check's grid of rays.
             let n = w.path.natural_frames() as usize;
             let shares = crate::parallel::map(n + 1, |f| {
@@ -689,7 +691,7 @@ fn levels() {
                 n + 1
             );
         }
-        if let Ok(w) = find(&rays, &InteriorParams::default()) {
+        {
             let n = w.path.natural_frames();
             for k in 0..6 {
                 let pose = w.path.pose_at((n * k / 5) as f32);

@@ -505,9 +505,12 @@ fn mend_segment(
     // (first key, last key, unit look) of the keys that take the look
     let mut candidates: Vec<(usize, usize, Vec3)> = Vec::new();
     for d in 0..LOOK_DIRS {
-        let a = std::f32::consts::TAU * d as f32 / LOOK_DIRS as f32;
         for deg in LOOK_DOWN_DEG {
-            let look = Vec3::new(a.cos(), -deg.to_radians().tan(), a.sin()).normalize();
+            let look = Look {
+                dir: level_dir(d),
+                down: deg.to_radians().tan(),
+            }
+            .unit();
             for keys in [(k, k), (k + 1, k + 1), (k, k + 1)] {
                 candidates.push((keys.0, keys.1, look));
             }
@@ -594,12 +597,23 @@ pub struct Look {
 }
 
 impl Look {
+    /// The unit view direction.
+    fn unit(&self) -> Vec3 {
+        (self.dir + Vec3::NEG_Y * self.down).normalize()
+    }
+
     fn at(&self, eye: Vec3, reach: f32) -> CameraPose {
         CameraPose {
             eye,
-            target: eye + (self.dir + Vec3::NEG_Y * self.down).normalize() * reach,
+            target: eye + self.unit() * reach,
         }
     }
+}
+
+/// The `k`-th of the `LOOK_DIRS` level directions, evenly spaced around the vertical.
+fn level_dir(k: usize) -> Vec3 {
+    let a = std::f32::consts::TAU * k as f32 / LOOK_DIRS as f32;
+    Vec3::new(a.cos(), 0.0, a.sin())
 }
 
 /// Views at `eyes`: at each, the level directions are ranked by how far their fan of three
@@ -628,8 +642,7 @@ pub fn look_dirs(rays: &TriangleScene, eyes: &[Vec3], eye_height: f32, most: f32
             .unwrap_or(Vec3::NEG_Z);
         let mut ranked: Vec<(f32, Vec3)> = (0..LOOK_DIRS)
             .map(|k| {
-                let a = std::f32::consts::TAU * k as f32 / LOOK_DIRS as f32;
-                let d = Vec3::new(a.cos(), 0.0, a.sin());
+                let d = level_dir(k);
                 let along = d.dot(ahead);
                 let fan = LOOK_FAN_DEG.to_radians();
                 let open: f32 = [-fan, 0.0, fan]
