@@ -176,7 +176,8 @@ pub struct ChcppArgs {
     pub pixel_threshold: u64,
     /// Turn CHC++ parts off: any of batching, interval, multiqueries, tight, and for the
     /// predicated mode split-multiqueries (draw a multiquery's objects under its own predicate
-    /// instead of querying its nodes under it) (comma separated).
+    /// instead of querying its nodes under it) and tested-parts (query the parts of split
+    /// nodes instead of the renderer's Hi-Z part test) (comma separated).
     #[arg(long, value_delimiter = ',')]
     pub disable: Vec<String>,
     /// Predicated mode: levels below a queried node whose parts are queried under its
@@ -216,9 +217,10 @@ impl ChcppArgs {
                 "multiqueries" => p.multiqueries = false,
                 "tight" => p.tight_bounds = false,
                 "split-multiqueries" => p.predicated_split_multiqueries = false,
+                "tested-parts" => p.predicated_tested_parts = false,
                 other => bail!(
                     "unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight, \
-                     split-multiqueries)"
+                     split-multiqueries, tested-parts)"
                 ),
             }
         }

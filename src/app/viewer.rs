@@ -835,6 +835,17 @@ impl OcclusionBackend for Probe<'_> {
         self.log.queries.push((id, boxes.to_vec(), false));
         Ok(id)
     }
+    fn test_part_if(
+        &mut self,
+        predicate: QueryId,
+        boxes: &[Aabb],
+    ) -> coherent_cull::Result<Option<QueryId>> {
+        let id = self.inner.test_part_if(predicate, boxes)?;
+        if let Some(id) = id {
+            self.log.queries.push((id, boxes.to_vec(), false));
+        }
+        Ok(id)
+    }
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
         // Drawn only if the predicate holds: the visualization shows them as drawn.
         self.log.drawn.extend_from_slice(objects);

@@ -6,6 +6,7 @@ mod draw_log;
 pub mod frame;
 pub mod hiz;
 mod ordered;
+pub mod part_tests;
 pub mod passes;
 pub mod upload;
 
@@ -132,6 +133,8 @@ pub struct Renderer {
     /// Scratch of one ordered draw: its pieces and its scattered objects.
     pieces: Vec<ordered::Piece>,
     scattered: Vec<u32>,
+    /// The predicated mode's Hi-Z part tests ([`part_tests`]), made on first use.
+    part_tests: Option<part_tests::PartTests>,
 }
 
 impl Renderer {
@@ -220,6 +223,7 @@ impl Renderer {
             ordered: ordered::OrderedDraws::default(),
             pieces: Vec::new(),
             scattered: Vec::new(),
+            part_tests: None,
         })
     }
 
@@ -350,7 +354,8 @@ impl Renderer {
         let mut counts: CommandCounts = self.recorder.take_counts();
         add_query_counts(&mut counts, &self.queries.counts());
         self.read_predicates(&mut counts)?;
-        let unread = self.query_read.iter().filter(|r| !**r).count();
+        let unread = self.query_read.iter().filter(|r| !**r).count()
+            + self.part_tests.as_ref().map_or(0, |p| p.unread());
         if unread > 0 {
             return Err(Error::Input(format!(
                 "{}: {unread} occlusion queries were issued but never read back",
@@ -411,6 +416,9 @@ impl Renderer {
         self.timestamps.reset();
         self.query_segment.clear();
         self.query_read.clear();
+        if let Some(parts) = self.part_tests.as_mut() {
+            parts.begin_frame();
+        }
         self.stall = Duration::ZERO;
         self.last_submit = None;
         self.recorder.take_counts();
@@ -1125,9 +1133,14 @@ impl Renderer {
     /// do not count as drawn (`walk --check`) and `counts.predicated_objects_taken` says how
     /// many were; adds the mover draws.
     fn read_predicates(&mut self, counts: &mut CommandCounts) -> Result<()> {
-        let queries = &self.queries;
+        let (queries, parts) = (&self.queries, self.part_tests.as_ref());
+        let predicate = |q: QueryId| match parts {
+            Some(p) if q & part_tests::PART_BIT != 0 => p.predicate(q),
+            _ => queries.predicate(q),
+        };
         self.log
-            .end_frame(counts, |q| queries.predicate(q).is_some_and(|v| v != 0));
+            .end_frame(counts, |q| predicate(q).is_some_and(|v| v != 0));
+        counts.tested_parts += self.part_tests.as_ref().map_or(0, |p| p.tested());
         Ok(())
     }
 
@@ -1136,6 +1149,19 @@ impl Renderer {
     #[doc(hidden)]
     pub fn skip_predicate_barrier(&mut self, skip: bool) {
         self.queries.skip_resolve_barrier(skip);
+    }
+
+    /// Leaves out the barrier between the Hi-Z part test and the conditional blocks on its
+    /// predicates (for the test that shows such a frame is refused).
+    #[doc(hidden)]
+    pub fn skip_part_barrier(&mut self, skip: bool) -> Result<()> {
+        if self.part_tests.is_none() {
+            self.part_tests = Some(part_tests::PartTests::new(&self.ctx, &self.target.depth)?);
+        }
+        if let Some(p) = self.part_tests.as_mut() {
+            p.skip_barrier = skip;
+        }
+        Ok(())
     }
 }
 
@@ -1164,12 +1190,32 @@ impl OcclusionBackend for Renderer {
             self.queries
                 .record_resolve(self.recorder.command_buffer().0)?
         };
+        if let Some(parts) = self.part_tests.as_mut().filter(|p| p.pending()) {
+            let segment = self.segments.used().saturating_sub(1) as u32;
+            parts.record(
+                &mut self.recorder,
+                &self.target.depth,
+                &mut self.queries,
+                &self.view_proj,
+                segment,
+            )?;
+        }
         self.begin_target_rendering(false)?;
         Ok(())
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
-        if query >= self.queries.resolved() {
+        let part = query & part_tests::PART_BIT != 0;
+        if part {
+            let tested = self.part_tests.as_ref().is_some_and(|p| p.is_tested(query));
+            if !tested {
+                return Err(Error::Input(format!(
+                    "part {} is not a tested predicate of this frame",
+                    query & !part_tests::PART_BIT
+                ))
+                .into());
+            }
+        } else if query >= self.queries.resolved() {
             return Err(Error::Input(format!(
                 "query {query} is not a resolved predicate of this frame"
             ))
@@ -1180,9 +1226,18 @@ impl OcclusionBackend for Renderer {
         }
         self.ensure_recording()?;
         let cmd = self.recorder.command_buffer().0;
-        // SAFETY: recording inside rendering, after the resolve in this command buffer; the
-        // set checks the predicate, its barrier and that no block is open.
-        unsafe { self.queries.begin_block(cmd, query)? };
+        match self.part_tests.as_ref().filter(|_| part) {
+            Some(parts) => {
+                let (buffer, offset) = parts.predicate_at(query)?;
+                // SAFETY: recording inside rendering, after the test that wrote the predicate
+                // and its barrier to conditional rendering, in this command buffer; the set
+                // checks that no block is open.
+                unsafe { self.queries.begin_block_at(cmd, buffer, offset)? };
+            }
+            // SAFETY: recording inside rendering, after the resolve in this command buffer;
+            // the set checks the predicate, its barrier and that no block is open.
+            None => unsafe { self.queries.begin_block(cmd, query)? },
+        }
         self.recorder.note_conditional(Some(query));
         let drawn = if self.multi_draws() {
             self.record_objects_ordered(objects, Some(query))
@@ -1217,6 +1272,14 @@ impl OcclusionBackend for Renderer {
         Ok(id)
     }
 
+    fn test_part_if(
+        &mut self,
+        predicate: QueryId,
+        boxes: &[Aabb],
+    ) -> coherent_cull::Result<Option<QueryId>> {
+        Ok(self.add_tested_part(predicate, boxes)?)
+    }
+
     fn issue_query(&mut self, boxes: &[Aabb]) -> coherent_cull::Result<QueryId> {
         Ok(self.record_query(boxes, None)?)
     }
@@ -1243,6 +1306,9 @@ impl OcclusionBackend for Renderer {
     }
 
     fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
+        if query & part_tests::PART_BIT != 0 {
+            return Ok(self.part_result(query)?);
+        }
         let seg = *self
             .query_segment
             .get(query as usize)
@@ -1272,7 +1338,15 @@ impl OcclusionBackend for Renderer {
         if let Some(v) = self.query_result(query)? {
             return Ok(v);
         }
-        let seg = self.query_segment[query as usize] as usize;
+        let seg = match query & part_tests::PART_BIT {
+            0 => self.query_segment[query as usize] as usize,
+            _ => self
+                .part_tests
+                .as_ref()
+                .and_then(|p| p.segment_of(query))
+                .ok_or_else(|| Error::Input(format!("part {query:#x} was not tested")))?
+                as usize,
+        };
         if seg >= self.segment_values.len() {
             self.submit_segment()?;
         }
@@ -1298,7 +1372,59 @@ impl OcclusionBackend for Renderer {
     }
 }
 
-impl Renderer {}
+impl Renderer {
+    /// A part of a split node under `predicate`, as a Hi-Z part test ([`part_tests`]) when it
+    /// can be: the visibility threshold is 0 (the test says visible or not, not how many
+    /// pixels), the device has conditional rendering, and this frame has room; `None` when
+    /// it is to be queried.
+    fn add_tested_part(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
+        if self.visibility_threshold != 0
+            || !self.supports_predicates()
+            || predicate & part_tests::PART_BIT != 0
+        {
+            return Ok(None);
+        }
+        if predicate >= self.queries.resolved() {
+            return Err(Error::Input(format!(
+                "query {predicate} is not a resolved predicate of this frame"
+            )));
+        }
+        let size = self.size();
+        if self.part_tests.as_ref().is_none_or(|p| p.size() != size) {
+            self.part_tests = Some(part_tests::PartTests::new(&self.ctx, &self.target.depth)?);
+        }
+        let parts = self.part_tests.as_mut().expect("made above");
+        if !parts.fits(boxes.len(), predicate) {
+            return Ok(None);
+        }
+        parts.add(predicate, boxes).map(Some)
+    }
+
+    /// The result of a tested part (1 or 0) once its frame's segment completed.
+    fn part_result(&mut self, part: QueryId) -> Result<Option<u64>> {
+        let parts = self
+            .part_tests
+            .as_ref()
+            .ok_or_else(|| Error::Input(format!("part {part:#x} was not tested")))?;
+        let seg = parts
+            .segment_of(part)
+            .ok_or_else(|| Error::Input(format!("part {part:#x} was not tested")))?
+            as usize;
+        let Some(&value) = self.segment_values.get(seg) else {
+            return Ok(None);
+        };
+        if !self.timeline.is_complete(value)? {
+            return Ok(None);
+        }
+        let r = parts.predicate(part).map(u64::from);
+        if r.is_some() {
+            if let Some(p) = self.part_tests.as_mut() {
+                p.mark_read(part);
+            }
+        }
+        Ok(r)
+    }
+}
 
 /// One object as GPU-driven culling uploads it: its world bounds and its indexed draw range.
 #[derive(Clone, Copy, Debug)]

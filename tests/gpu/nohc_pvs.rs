@@ -350,6 +350,6 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
         .lines()
         .next()
         .unwrap()
-        .ends_with("missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,cpu_ms"));
+        .ends_with("missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,cpu_ms"));
     let _ = std::fs::remove_dir_all(&out);
 }

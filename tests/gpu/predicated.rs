@@ -41,9 +41,10 @@ fn poses(scene: &Scene, path: &str) -> Vec<CameraPose> {
     out
 }
 
-/// Walks `poses` with vfc and both predicated modes: every frame of a predicated mode is one
-/// submission with no wait and two pass breaks at most (the second tests the parts of split
-/// nodes under their predicates), draws every object that owns a pixel
+/// Walks `poses` with vfc and both predicated modes (with `params`): every frame of a
+/// predicated mode is one submission with no wait and two pass breaks at most (the second
+/// decides the parts of split nodes under their predicates: by the renderer's Hi-Z part
+/// test, or with `predicated_tested_parts` off by queries), draws every object that owns a pixel
 /// of the exact ID pass (predicates read back: a draw under a false predicate did not draw),
 /// and its image equals vfc's but for at most `tie_pixels` pixels where surfaces tie in depth
 /// and draw order decides. Returns the objects drawn under true predicates in all.
@@ -53,15 +54,19 @@ fn matches_vfc(
     poses: &[CameraPose],
     movers: Option<&Movers>,
     tie_pixels: usize,
+    params: &ChcppParams,
 ) -> u32 {
-    let setup = CullerSetup::default();
+    let setup = CullerSetup {
+        params: params.clone(),
+        ..CullerSetup::default()
+    };
     let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
     let mut modes: Vec<Box<dyn Culler>> = MODES
         .iter()
         .map(|m| culling::create_named(m, &setup).expect(m))
         .collect();
     r.log_drawn_objects(true);
-    let (mut pixels, mut taken, mut split_queries) = (Vec::new(), 0, 0);
+    let (mut pixels, mut taken, mut split_queries, mut tested_parts) = (Vec::new(), 0, 0, 0);
     for (f, &pose) in poses.iter().enumerate() {
         let f = f as u64;
         if let Some(m) = movers {
@@ -89,6 +94,7 @@ fn matches_vfc(
                 "{tag}: queries under predicates"
             );
             split_queries += res.cull.predicated_queries;
+            tested_parts += res.counts.tested_parts;
             assert_eq!(
                 res.counts.predicated_objects, res.cull.predicated_objects,
                 "{tag}: objects under predicates"
@@ -102,10 +108,14 @@ fn matches_vfc(
             assert!(d <= tie_pixels, "{tag}: differs from vfc in {d} pixels");
         }
     }
-    assert!(
-        split_queries > 0,
-        "no node was split into parts under its predicate"
-    );
+    if params.predicated_tested_parts {
+        assert!(tested_parts > 0, "no part was decided by the Hi-Z test");
+    } else {
+        assert!(
+            split_queries > 0 && tested_parts == 0,
+            "no node was split into parts queried under its predicate"
+        );
+    }
     taken
 }
 
@@ -116,11 +126,19 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
         for (name, scale, path) in [("city", 0.1, "street"), ("powerplant", 0.5, "difficult")] {
             let (scene, mut bvh) = common::scene(name, scale);
             let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
-            let taken = matches_vfc(&mut r, &mut bvh, &poses(&scene, path), None, 0);
-            assert!(
-                taken > 0,
-                "{name}: something was drawn under a true predicate"
-            );
+            // The parts of split nodes decided by the Hi-Z part test (the default), then
+            // queried.
+            for tested in [true, false] {
+                let params = ChcppParams {
+                    predicated_tested_parts: tested,
+                    ..ChcppParams::default()
+                };
+                let taken = matches_vfc(&mut r, &mut bvh, &poses(&scene, path), None, 0, &params);
+                assert!(
+                    taken > 0,
+                    "{name}: something was drawn under a true predicate"
+                );
+            }
         }
     }
     common::assert_silent(&log);
@@ -139,7 +157,14 @@ fn predicated_images_equal_vfc_in_the_parking_with_100_movers() {
         // depth the first drawn wins, and the predicated draws come after the unconditional
         // ones (seen after the cut: the same colour, shaded by another face's normal; at most
         // 1% of the image; missed objects stay 0).
-        matches_vfc(&mut r, &mut bvh, &poses, Some(&movers), 144);
+        matches_vfc(
+            &mut r,
+            &mut bvh,
+            &poses,
+            Some(&movers),
+            144,
+            &ChcppParams::default(),
+        );
     }
     common::assert_silent(&log);
 }
@@ -163,6 +188,21 @@ fn predicates_without_their_barrier_are_refused() {
         r.skip_predicate_barrier(false);
         c.reset();
         let res = r.render_frame(c.as_mut(), &bvh, &cam, 1).unwrap();
+        assert!(res.counts.conditional_blocks > 0);
+        // The same for the predicates of the Hi-Z part test: a walk that splits nodes reads
+        // them, and without their barrier it is refused (the first frames may split none).
+        r.skip_part_barrier(true).unwrap();
+        c.reset();
+        let path = scene.path("street").unwrap().clone();
+        let refused = (0..30).find_map(|f| {
+            let cam = r.camera(path.pose_at(f as f32), &bvh);
+            r.render_frame(c.as_mut(), &bvh, &cam, 2 + f).err()
+        });
+        let err = refused.expect("a frame with part predicates and no barrier was refused");
+        assert!(err.to_string().contains("barrier"), "{err}");
+        r.skip_part_barrier(false).unwrap();
+        c.reset();
+        let res = r.render_frame(c.as_mut(), &bvh, &cam, 40).unwrap();
         assert!(res.counts.conditional_blocks > 0);
     }
     common::assert_silent(&log);

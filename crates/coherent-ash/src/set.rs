@@ -594,6 +594,49 @@ impl QuerySet {
         }
     }
 
+    /// Records copies of the results of queries `first..first + n` as 32-bit values (waited
+    /// for on the device) into the host's `buffer`, 4 bytes per query at byte `4 * id`: for a
+    /// host that turns results into predicates of its own on the device (a compute pass that
+    /// reads a query's value). The buffer needs `TRANSFER_DST` usage and room for query
+    /// `first + n - 1`; the host records the barrier to its readers.
+    ///
+    /// # Safety
+    /// `cmd` is recording outside a render pass instance, after those queries ended (in this
+    /// command buffer or one submitted before it); `buffer` is valid and large enough.
+    pub unsafe fn record_copy_values(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        buffer: vk::Buffer,
+        first: u32,
+        n: u32,
+    ) -> Result<()> {
+        if first.checked_add(n).is_none_or(|end| end > self.issued) {
+            return Err(Error::Input(format!(
+                "queries {first}..{} were not all issued ({} were)",
+                u64::from(first) + u64::from(n),
+                self.issued
+            )));
+        }
+        for (chunk, slot, count) in self.ranges(first, n) {
+            let id = chunk as u64 * u64::from(self.desc.queries_per_pool) + u64::from(slot);
+            // SAFETY: per the caller; the range lies in the pool.
+            unsafe {
+                self.device.cmd_copy_query_pool_results(
+                    cmd,
+                    self.pools[chunk].pool,
+                    slot,
+                    count,
+                    buffer,
+                    id * PREDICATE_BYTES,
+                    PREDICATE_BYTES,
+                    vk::QueryResultFlags::WAIT,
+                )
+            };
+            self.counts.result_copies += 1;
+        }
+        Ok(())
+    }
+
     /// A global barrier from the copies (transfer writes) to `stage`'s `access`.
     ///
     /// # Safety
@@ -675,6 +718,41 @@ impl QuerySet {
         self.check_block(query)?;
         // SAFETY: per the caller; checked above.
         unsafe { self.begin_conditional(cmd, query) };
+        Ok(())
+    }
+
+    /// Opens a conditional block on a predicate the host wrote itself: the 32-bit value at
+    /// byte `offset` of `buffer` (which has `CONDITIONAL_RENDERING_EXT` usage; the host made
+    /// its write visible to `CONDITIONAL_RENDERING_READ_EXT` with a barrier). Close it with
+    /// [`QuerySet::end_block`]. Refuses a block inside a block, an offset that is not a
+    /// multiple of 4, and a set without predicates.
+    ///
+    /// # Safety
+    /// `cmd` is recording inside rendering; `buffer` is valid and holds `offset + 4` bytes.
+    pub unsafe fn begin_block_at(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        buffer: vk::Buffer,
+        offset: u64,
+    ) -> Result<()> {
+        let Some(fp) = self.conditional.as_ref() else {
+            return Err(coherent_cull::predicates_unsupported());
+        };
+        if self.open_block {
+            return Err(Error::Input("conditional blocks cannot nest".into()));
+        }
+        if !offset.is_multiple_of(PREDICATE_BYTES) {
+            return Err(Error::Input(format!(
+                "a predicate's offset ({offset}) must be a multiple of 4"
+            )));
+        }
+        let info = vk::ConditionalRenderingBeginInfoEXT::default()
+            .buffer(buffer)
+            .offset(offset);
+        // SAFETY: per the caller; checked above.
+        unsafe { (fp.cmd_begin_conditional_rendering_ext)(cmd, &info) };
+        self.open_block = true;
+        self.counts.conditional_blocks += 1;
         Ok(())
     }
 

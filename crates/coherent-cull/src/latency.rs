@@ -204,6 +204,12 @@ impl OcclusionBackend for SlotBackend<'_> {
         Ok(self.slot_query(inner))
     }
 
+    fn test_part_if(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
+        let predicate = self.this_frames_query(predicate)?;
+        let inner = self.inner.test_part_if(predicate, boxes)?;
+        Ok(inner.map(|id| self.slot_query(id)))
+    }
+
     fn restore_render_state(&mut self) -> Result<()> {
         self.inner.restore_render_state()
     }

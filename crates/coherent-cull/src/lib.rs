@@ -289,6 +289,17 @@ pub trait OcclusionBackend {
         let _ = (predicate, boxes, purpose);
         Err(predicates_unsupported())
     }
+    /// A part of a split node (predicated mode) decided by the backend's own test instead of
+    /// a query: as [`OcclusionBackend::issue_query_if`], the returned id's predicate (and its
+    /// result, read later like a query's) is non-zero only if `predicate` counted a sample and
+    /// `boxes` may be visible against the depth drawn so far; the test may be coarser than a
+    /// query (more parts drawn) but must never fail a box that owns a pixel. It is decided at
+    /// the next [`OcclusionBackend::resolve_predicates`]; its result is 1 or 0, not a pixel
+    /// count. `Ok(None)`: no such test now (the part is then queried). Default: `Ok(None)`.
+    fn test_part_if(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
+        let _ = (predicate, boxes);
+        Ok(None)
+    }
 }
 
 /// The error of a backend without predicated draws.

@@ -73,6 +73,8 @@ pub struct FrameRecord {
     pub visible_leaf_queries: u32,
     /// Of the queries, queries whose boxes were drawn under another query's predicate.
     pub predicated_queries: u32,
+    /// Parts of split nodes decided by the Hi-Z part test instead of a query (not queries).
+    pub tested_parts: u32,
 }
 
 impl FrameRecord {
@@ -108,12 +110,13 @@ impl FrameRecord {
             multiqueries: r.counts.multiqueries,
             visible_leaf_queries: r.counts.visible_leaf_queries,
             predicated_queries: r.counts.predicated_queries,
+            tested_parts: r.counts.tested_parts,
         }
     }
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 26] = [
+pub const CSV_HEADER: [&str; 27] = [
     "algorithm",
     "frame",
     "repeat",
@@ -139,6 +142,7 @@ pub const CSV_HEADER: [&str; 26] = [
     "multiqueries",
     "visible_leaf_queries",
     "predicated_queries",
+    "tested_parts",
     "cpu_ms",
 ];
 
@@ -163,7 +167,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.repeat,
@@ -189,6 +193,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             r.multiqueries,
             r.visible_leaf_queries,
             r.predicated_queries,
+            r.tested_parts,
             r.cpu_ms
         )?;
     }
@@ -257,7 +262,7 @@ mod tests {
             "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
              pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,\
              missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,\
-             predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,cpu_ms"
+             predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,cpu_ms"
         );
         assert_eq!(lines.len(), 1 + records.len());
         assert_eq!(

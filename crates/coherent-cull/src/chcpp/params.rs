@@ -65,6 +65,11 @@ pub struct ChcppParams {
     /// predicate discards (the begin and end of every split query are recorded, and paid,
     /// whatever the predicate). 0 (the default) splits by size alone.
     pub predicated_split_ratio: f32,
+    /// Predicated mode: let the backend decide the parts of split nodes by a test of its own
+    /// ([`crate::OcclusionBackend::test_part_if`], e.g. a Hi-Z test on the device) instead of
+    /// one query each, where it offers one (default true). A backend without such a test
+    /// queries the parts.
+    pub predicated_tested_parts: bool,
 }
 
 impl Default for ChcppParams {
@@ -88,6 +93,7 @@ impl Default for ChcppParams {
             predicated_refine_objects: 4,
             predicated_split_multiqueries: true,
             predicated_split_ratio: 0.0,
+            predicated_tested_parts: true,
         }
     }
 }

@@ -392,11 +392,21 @@ impl Chcpp {
         let mut boxes = std::mem::take(&mut self.boxes);
         boxes.clear();
         self.query_boxes(bvh, part, &mut boxes);
-        let id = backend.issue_query_if(predicate, &boxes, crate::QueryPurpose::Node);
+        let tested = match self.params.predicated_tested_parts {
+            true => backend.test_part_if(predicate, &boxes),
+            false => Ok(None),
+        };
+        let id = match tested {
+            Ok(Some(id)) => Ok(id),
+            Ok(None) => {
+                stats.queries += 1;
+                stats.predicated_queries += 1;
+                backend.issue_query_if(predicate, &boxes, crate::QueryPurpose::Node)
+            }
+            Err(e) => Err(e),
+        };
         self.boxes = boxes;
         let id = id?;
-        stats.queries += 1;
-        stats.predicated_queries += 1;
         let first = self.query_nodes.len() as u32;
         self.query_nodes.push(part);
         self.query_queue.push_back(Pending {
