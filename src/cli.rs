@@ -140,7 +140,7 @@ pub struct ViewArgs {
     /// screenshot (interactive).
     #[arg(long)]
     pub screenshot: Option<PathBuf>,
-    /// Write one CSV row per presented frame (frame,algorithm,frame_ms,pipeline_binds,draws,..).
+    /// Write one CSV row per presented frame (frame,algorithm,frame_ms,pipeline_binds,compute_binds,draws,..).
     #[arg(long)]
     pub stats: Option<PathBuf>,
     /// Turn the validation layer on (any message makes the run fail).

@@ -285,7 +285,7 @@ impl App {
                 let mut w = std::io::BufWriter::new(std::fs::File::create(p)?);
                 writeln!(
                     w,
-                    "frame,algorithm,frame_ms,pipeline_binds,draws,queries,wasted_queries,state_changes,triangles,submits"
+                    "frame,algorithm,frame_ms,pipeline_binds,compute_binds,draws,queries,wasted_queries,state_changes,triangles,submits"
                 )?;
                 Some(w)
             }
@@ -331,6 +331,7 @@ impl App {
 
 fn add_counts(a: &mut CommandCounts, b: &CommandCounts) {
     a.pipeline_binds += b.pipeline_binds;
+    a.compute_binds += b.compute_binds;
     a.state_changes += b.state_changes;
     a.draw_calls += b.draw_calls;
     a.triangles += b.triangles;
@@ -662,11 +663,12 @@ impl Running {
         if let Some(w) = self.stats.as_mut() {
             writeln!(
                 w,
-                "{},{},{:.3},{},{},{},{},{},{},{}",
+                "{},{},{:.3},{},{},{},{},{},{},{},{}",
                 presented,
                 name,
                 frame_ms,
                 total.pipeline_binds,
+                total.compute_binds,
                 total.draw_calls,
                 total.queries_begun,
                 total.queries_visible,

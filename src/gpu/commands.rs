@@ -19,6 +19,8 @@ use crate::error::{Error, Result, VkContext};
 pub struct CommandCounts {
     /// `vkCmdBindPipeline` calls.
     pub pipeline_binds: u32,
+    /// Of those, binds of compute pipelines.
+    pub compute_binds: u32,
     /// Switches between render and query state (a bind whose kind differs from the last one).
     pub state_changes: u32,
     /// Draw calls (object draws, query draws and any other).
@@ -379,6 +381,7 @@ impl Recorder {
                 .cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, p.handle)
         };
         self.counts.pipeline_binds += 1;
+        self.counts.compute_binds += 1;
     }
 
     /// Binds `set` as set 0 of `layout` for graphics pipelines.

@@ -98,6 +98,7 @@ fn walk_writes_csv_json_and_plots() {
         "predicated_taken_median",
         "predicated_taken_max",
         "predicate_resolves_median",
+        "tested_parts_median",
     ];
     for (name, a) in algs {
         let mut got: Vec<&str> = a.as_object().unwrap().keys().map(|k| k.as_str()).collect();

@@ -267,7 +267,7 @@ mod tests {
         assert_eq!(lines.len(), 1 + records.len());
         assert_eq!(
             lines[1],
-            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,0,0,0,0,0,0,0"
+            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,0,0,0,0,0,0,0,0"
         );
         assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();

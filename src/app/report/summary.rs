@@ -62,6 +62,8 @@ pub struct AlgorithmSummary {
     pub predicated_taken_max: u32,
     /// Median predicate resolves (pass breaks) per frame.
     pub predicate_resolves_median: f64,
+    /// Median parts of split nodes decided by the Hi-Z part test per frame (not queries).
+    pub tested_parts_median: f64,
     /// Preprocessing figures of a precomputed algorithm (pvs).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub preprocess: Option<PreprocessSummary>,
@@ -126,6 +128,7 @@ impl AlgorithmSummary {
                 .max()
                 .unwrap_or(0),
             predicate_resolves_median: med(&|r| f64::from(r.predicate_resolves)),
+            tested_parts_median: med(&|r| f64::from(r.tested_parts)),
             preprocess: None,
         }
     }
@@ -467,16 +470,18 @@ impl WalkSummary {
                 if out.is_empty() {
                     out.push_str(
                         "\npredicated draws per frame (median): sent under predicates, drawn \
-                         (predicate true; most in a frame), pass breaks\n",
+                         (predicate true; most in a frame), pass breaks, parts tested by Hi-Z \
+                         (not queries)\n",
                     );
                 }
                 let _ = writeln!(
                     out,
-                    "  {name:<16} {} sent, {} drawn (max {}), {} pass breaks",
+                    "  {name:<16} {} sent, {} drawn (max {}), {} pass breaks, {} parts tested",
                     fmt_count(s.predicated_draws_median),
                     fmt_count(s.predicated_taken_median),
                     s.predicated_taken_max,
-                    fmt_count(s.predicate_resolves_median)
+                    fmt_count(s.predicate_resolves_median),
+                    fmt_count(s.tested_parts_median)
                 );
             }
         }
@@ -679,6 +684,7 @@ mod tests {
             "predicated_taken_median",
             "predicated_taken_max",
             "predicate_resolves_median",
+            "tested_parts_median",
         ]
         .map(String::from)
         .into();

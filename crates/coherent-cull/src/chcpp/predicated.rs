@@ -31,6 +31,10 @@
 //!    when it pays in expectation, `(1 - p) · objects · R > parts`, `1 - p` the chance that
 //!    its query's predicate is true (the multiqueries' estimate from the nodes' history): a
 //!    split query costs its begin and end even when a false predicate discards its boxes.
+//!    A backend with a test of its own ([`OcclusionBackend::test_part_if`]; the built-in
+//!    renderer's Hi-Z test of the parts against the depth drawn so far, one compute dispatch
+//!    at the second resolve) decides the parts instead of queries, unless
+//!    `predicated_tested_parts` is off: no query per part, a coarser test.
 //! 5. The results are read `k` frames later only to update the hierarchy: a queried node that
 //!    came back visible is opened `predicated_levels` levels deep (the nodes below are queried,
 //!    and drawn under their own predicates, from then on), a failed multiquery's nodes lose their
@@ -54,7 +58,10 @@
 //! cover the subtree's objects in the frustum); a part's query draws its boxes when the node's
 //! predicate is true, against depth that is still only real geometry of this frame, so the
 //! same argument holds for the part; when the node's predicate is false, the node's boxes,
-//! which cover every object of its parts, were hidden already. The CPU's results only steer which nodes land in which
+//! which cover every object of its parts, were hidden already. A part decided by the backend's
+//! own test is exact on the same terms: the test must pass every box that owns a pixel
+//! against that depth (a Hi-Z test is conservative: a box fails only behind the farthest
+//! depth under its screen rectangle), and a part of a node whose query counted nothing fails. The CPU's results only steer which nodes land in which
 //! case, so however old they are, the image is exact; they decide the cost.
 //!
 //! # What it costs
