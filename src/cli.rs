@@ -193,6 +193,10 @@ pub struct ChcppArgs {
     /// whose boxes a false predicate discards). 0: split by size alone.
     #[arg(long, default_value_t = 0.0)]
     pub split_ratio: f32,
+    /// Predicated mode: the renderer's Hi-Z test decides the parts of split nodes (instead
+    /// of a query each) in frames after one with at least this many parts (0: always).
+    #[arg(long, default_value_t = 2000)]
+    pub tested_parts_min: u32,
 }
 
 impl ChcppArgs {
@@ -204,6 +208,7 @@ impl ChcppArgs {
             predicated_refine_levels: self.refine_levels,
             predicated_refine_objects: self.refine_objects,
             predicated_split_ratio: self.split_ratio,
+            predicated_tested_parts_min: self.tested_parts_min,
             ..ChcppParams::default()
         };
         for d in &self.disable {
@@ -217,7 +222,7 @@ impl ChcppArgs {
                 "multiqueries" => p.multiqueries = false,
                 "tight" => p.tight_bounds = false,
                 "split-multiqueries" => p.predicated_split_multiqueries = false,
-                "tested-parts" => p.predicated_tested_parts = false,
+                "tested-parts" => p.predicated_tested_parts_min = u32::MAX,
                 other => bail!(
                     "unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight, \
                      split-multiqueries, tested-parts)"

@@ -44,7 +44,7 @@ fn poses(scene: &Scene, path: &str) -> Vec<CameraPose> {
 /// Walks `poses` with vfc and both predicated modes (with `params`): every frame of a
 /// predicated mode is one submission with no wait and two pass breaks at most (the second
 /// decides the parts of split nodes under their predicates: by the renderer's Hi-Z part
-/// test, or with `predicated_tested_parts` off by queries), draws every object that owns a pixel
+/// test, or with `predicated_tested_parts_min` at its maximum by queries), draws every object that owns a pixel
 /// of the exact ID pass (predicates read back: a draw under a false predicate did not draw),
 /// and its image equals vfc's but for at most `tie_pixels` pixels where surfaces tie in depth
 /// and draw order decides. Returns the objects drawn under true predicates in all.
@@ -108,7 +108,7 @@ fn matches_vfc(
             assert!(d <= tie_pixels, "{tag}: differs from vfc in {d} pixels");
         }
     }
-    if params.predicated_tested_parts {
+    if params.predicated_tested_parts_min == 0 {
         assert!(tested_parts > 0, "no part was decided by the Hi-Z test");
     } else {
         assert!(
@@ -126,11 +126,11 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
         for (name, scale, path) in [("city", 0.1, "street"), ("powerplant", 0.5, "difficult")] {
             let (scene, mut bvh) = common::scene(name, scale);
             let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
-            // The parts of split nodes decided by the Hi-Z part test (the default), then
-            // queried.
-            for tested in [true, false] {
+            // The parts of split nodes decided by the Hi-Z part test from the first frame on,
+            // then queried.
+            for tested_parts_min in [0, u32::MAX] {
                 let params = ChcppParams {
-                    predicated_tested_parts: tested,
+                    predicated_tested_parts_min: tested_parts_min,
                     ..ChcppParams::default()
                 };
                 let taken = matches_vfc(&mut r, &mut bvh, &poses(&scene, path), None, 0, &params);
@@ -163,7 +163,10 @@ fn predicated_images_equal_vfc_in_the_parking_with_100_movers() {
             &poses,
             Some(&movers),
             144,
-            &ChcppParams::default(),
+            &ChcppParams {
+                predicated_tested_parts_min: 0,
+                ..ChcppParams::default()
+            },
         );
     }
     common::assert_silent(&log);
@@ -191,8 +194,15 @@ fn predicates_without_their_barrier_are_refused() {
         assert!(res.counts.conditional_blocks > 0);
         // The same for the predicates of the Hi-Z part test: a walk that splits nodes reads
         // them, and without their barrier it is refused (the first frames may split none).
+        let tested = CullerSetup {
+            params: ChcppParams {
+                predicated_tested_parts_min: 0,
+                ..ChcppParams::default()
+            },
+            ..CullerSetup::default()
+        };
+        let mut c = culling::create_named("chcpp@predicated", &tested).unwrap();
         r.skip_part_barrier(true).unwrap();
-        c.reset();
         let path = scene.path("street").unwrap().clone();
         let refused = (0..30).find_map(|f| {
             let cam = r.camera(path.pose_at(f as f32), &bvh);

@@ -65,11 +65,13 @@ pub struct ChcppParams {
     /// predicate discards (the begin and end of every split query are recorded, and paid,
     /// whatever the predicate). 0 (the default) splits by size alone.
     pub predicated_split_ratio: f32,
-    /// Predicated mode: let the backend decide the parts of split nodes by a test of its own
-    /// ([`crate::OcclusionBackend::test_part_if`], e.g. a Hi-Z test on the device) instead of
-    /// one query each, where it offers one (default true). A backend without such a test
-    /// queries the parts.
-    pub predicated_tested_parts: bool,
+    /// Predicated mode: the backend's own test ([`crate::OcclusionBackend::test_part_if`],
+    /// e.g. a Hi-Z test on the device) decides the parts of split nodes instead of one query
+    /// each in a frame that follows one with at least this many parts (default 2,000; 0:
+    /// always; `u32::MAX`: never). Such a test has a fixed cost per frame (a depth pyramid,
+    /// as a query's begin and end, proportional to the image) and saves a query per part,
+    /// so it pays from some number of parts on. A backend without such a test queries them.
+    pub predicated_tested_parts_min: u32,
 }
 
 impl Default for ChcppParams {
@@ -93,7 +95,7 @@ impl Default for ChcppParams {
             predicated_refine_objects: 4,
             predicated_split_multiqueries: true,
             predicated_split_ratio: 0.0,
-            predicated_tested_parts: true,
+            predicated_tested_parts_min: 2000,
         }
     }
 }

@@ -33,8 +33,9 @@
 //!    split query costs its begin and end even when a false predicate discards its boxes.
 //!    A backend with a test of its own ([`OcclusionBackend::test_part_if`]; the built-in
 //!    renderer's Hi-Z test of the parts against the depth drawn so far, one compute dispatch
-//!    at the second resolve) decides the parts instead of queries, unless
-//!    `predicated_tested_parts` is off: no query per part, a coarser test.
+//!    at the second resolve) decides the parts instead of queries in a frame after one that
+//!    split at least `predicated_tested_parts_min` parts: no query per part, a coarser test
+//!    and a fixed cost per frame.
 //! 5. The results are read `k` frames later only to update the hierarchy: a queried node that
 //!    came back visible is opened `predicated_levels` levels deep (the nodes below are queried,
 //!    and drawn under their own predicates, from then on), a failed multiquery's nodes lose their
@@ -99,6 +100,8 @@ impl LatencyMode for Predicated {
         if c.predicated.order.update(bvh) {
             c.predicated.order_sent = false;
         }
+        let p = &mut c.predicated;
+        p.parts_last_frame = std::mem::take(&mut p.parts_this_frame);
     }
 
     /// A node held open: its children are visited.
@@ -173,6 +176,9 @@ pub(super) struct Scratch {
     order: SubtreeOrder,
     /// Whether the backend has `order` ([`OcclusionBackend::set_draw_order`]).
     order_sent: bool,
+    /// Parts split in the last frame and in this one (`predicated_tested_parts_min`).
+    parts_last_frame: u32,
+    parts_this_frame: u32,
 }
 
 impl Scratch {
@@ -288,13 +294,15 @@ impl Chcpp {
         // The parts, queried against the depth drawn so far (the unconditional draws and the
         // objects drawn under the first predicates).
         let parts = self.query_queue.len();
+        let tested = scratch.parts_last_frame >= self.params.predicated_tested_parts_min;
         for s in 0..scratch.split.len() {
             let (predicate, node) = scratch.split[s];
             scratch.parts.clear();
             self.parts_of(bvh, node, view, scratch);
             for p in 0..scratch.parts.len() {
                 let part = scratch.parts[p];
-                self.issue_part(bvh, predicate, part, backend, stats)?;
+                self.issue_part(bvh, predicate, part, tested, backend, stats)?;
+                scratch.parts_this_frame += 1;
             }
         }
         backend.resolve_predicates()?;
@@ -387,19 +395,21 @@ impl Chcpp {
         }
     }
 
-    /// Queries `part` under `predicate`'s predicate.
+    /// Queries `part` under `predicate`'s predicate (with `tested`, has the backend decide it
+    /// by its own test where it offers one).
     fn issue_part(
         &mut self,
         bvh: &ObjectBvh,
         predicate: crate::QueryId,
         part: u32,
+        tested: bool,
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
         let mut boxes = std::mem::take(&mut self.boxes);
         boxes.clear();
         self.query_boxes(bvh, part, &mut boxes);
-        let tested = match self.params.predicated_tested_parts {
+        let tested = match tested {
             true => backend.test_part_if(predicate, &boxes),
             false => Ok(None),
         };
