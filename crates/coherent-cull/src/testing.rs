@@ -88,6 +88,18 @@ pub enum MockEvent {
         /// Whether it saw pixels (false when the predicate was false).
         visible: bool,
     },
+    /// A part decided by the backend's own test ([`OcclusionBackend::test_part_if`]; only
+    /// with [`MockBackend::with_part_test`]).
+    PartTest {
+        /// The id handed out.
+        id: QueryId,
+        /// The query whose predicate decides.
+        predicate: QueryId,
+        /// Boxes tested.
+        boxes: usize,
+        /// The answer: the predicate held and a box was visible.
+        visible: bool,
+    },
     /// Objects drawn under a query's predicate.
     DrawIf {
         /// The query whose predicate decides.
@@ -126,6 +138,8 @@ pub struct MockCounts {
     pub predicated_objects_drawn: u32,
     /// Queries issued under a predicate ([`OcclusionBackend::issue_query_if`]).
     pub predicated_queries: u32,
+    /// Parts decided by the backend's own test ([`OcclusionBackend::test_part_if`]).
+    pub tested_parts: u32,
 }
 
 struct Issued {
@@ -151,6 +165,7 @@ pub struct MockBackend<'a> {
     early_reads: u64,
     predicates: bool,
     predicated_queries: bool,
+    part_test: bool,
     draw_order: Vec<u32>,
     draw_orders: u32,
 }
@@ -173,6 +188,7 @@ impl<'a> MockBackend<'a> {
             early_reads: 0,
             predicates: true,
             predicated_queries: true,
+            part_test: false,
             draw_order: Vec::new(),
             draw_orders: 0,
         }
@@ -189,6 +205,15 @@ impl<'a> MockBackend<'a> {
     /// mode keeps to one predicate level.
     pub fn without_predicated_queries(mut self) -> MockBackend<'a> {
         self.predicated_queries = false;
+        self
+    }
+
+    /// A backend that decides the parts of split nodes by a test of its own
+    /// ([`OcclusionBackend::test_part_if`]): a part is visible when its predicate holds and
+    /// the visibility function gives one of its boxes a pixel; its result is 1 or 0. Without
+    /// it (the default) parts are queried.
+    pub fn with_part_test(mut self) -> MockBackend<'a> {
+        self.part_test = true;
         self
     }
 
@@ -457,6 +482,29 @@ impl OcclusionBackend for MockBackend<'_> {
             visible,
         });
         Ok(id)
+    }
+
+    fn test_part_if(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
+        if !self.part_test || !self.supports_predicates() {
+            return Ok(None);
+        }
+        let taken = self.predicate(predicate)?.pixels > 0;
+        let visible = taken && boxes.iter().any(|b| (self.visibility)(b) > 0);
+        let id = self.queries.len() as QueryId;
+        self.queries.push(Issued {
+            pixels: u64::from(visible),
+            frame: self.frame,
+            complete: self.completion == Completion::Immediate,
+            resolved: false,
+        });
+        self.counts.tested_parts += 1;
+        self.events.push(MockEvent::PartTest {
+            id,
+            predicate,
+            boxes: boxes.len(),
+            visible,
+        });
+        Ok(Some(id))
     }
 
     fn set_draw_order(&mut self, order: &[u32]) -> Result<()> {

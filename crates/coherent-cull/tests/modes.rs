@@ -610,6 +610,54 @@ fn predicated_misses_nothing_along_a_walk_and_converges_to_the_visible_set() {
     }
 }
 
+/// A backend with a part test of its own gets the parts of split nodes in the frames after one
+/// with at least `predicated_tested_parts_min` parts, queries before; where its test answers as
+/// its queries would, the culler decides the same either way (and misses nothing).
+#[test]
+fn parts_go_to_the_backends_test_after_a_frame_with_enough_of_them() {
+    let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
+    let with_min = |min| {
+        let params = ChcppParams {
+            predicated_tested_parts_min: min,
+            ..ChcppParams::default()
+        };
+        Chcpp::new(params).with_latency(Latency::Predicated)
+    };
+    for min in [0, 40, u32::MAX] {
+        let (mut tested, mut queried) = (with_min(min), with_min(u32::MAX));
+        let mut a = MockBackend::new(|_| 0).with_part_test();
+        let mut b = MockBackend::new(|_| 0).with_part_test();
+        let (mut previous, mut frames_tested) = (0, 0);
+        for f in 1..=30 {
+            let cam = walk(f);
+            let fog = Fog::new(&cam, 35.0);
+            let want = fog.visible_objects(&bvh);
+            let f2 = fog.clone();
+            a.set_visibility(move |x| fog.pixels(x));
+            b.set_visibility(move |x| f2.pixels(x));
+            let t = run(&mut tested, &bvh, &cam, &mut a, f);
+            let q = run(&mut queried, &bvh, &cam, &mut b, f);
+            let tag = format!("min {min} frame {f}");
+            assert!(missing(&want, &t.drawn).is_empty(), "{tag}: missed");
+            assert_eq!(t.drawn, q.drawn, "{tag}: the same objects drawn");
+            let parts = t.counts.tested_parts + t.counts.predicated_queries;
+            assert_eq!(parts, q.counts.predicated_queries, "{tag}: the same parts");
+            assert_eq!(q.counts.tested_parts, 0, "{tag}");
+            if previous >= min {
+                assert_eq!(t.counts.predicated_queries, 0, "{tag}: parts tested");
+                frames_tested += u32::from(parts > 0);
+            } else {
+                assert_eq!(t.counts.tested_parts, 0, "{tag}: parts queried");
+            }
+            previous = parts;
+        }
+        match min {
+            u32::MAX => assert_eq!(frames_tested, 0),
+            _ => assert!(frames_tested > 0, "min {min}: no frame tested its parts"),
+        }
+    }
+}
+
 /// chc and chcpp, one and two frames in flight, on a backend with and without queries under
 /// predicates (nodes split into parts, or one predicate level).
 fn modes_with_split() -> Vec<(&'static str, u32, bool)> {
