@@ -355,20 +355,18 @@ fn digest_event(h: &mut Fnv, e: &MockEvent) {
             predicate,
             boxes,
             visible,
-        } => {
-            h.u32(9);
-            h.u32(*id);
-            h.u32(*predicate);
-            h.u64(*boxes as u64);
-            h.u32(u32::from(*visible));
         }
-        MockEvent::PartTest {
+        | MockEvent::PartTest {
             id,
             predicate,
             boxes,
             visible,
         } => {
-            h.u32(10);
+            h.u32(if matches!(e, MockEvent::QueryIf { .. }) {
+                9
+            } else {
+                10
+            });
             h.u32(*id);
             h.u32(*predicate);
             h.u64(*boxes as u64);
