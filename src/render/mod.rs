@@ -135,6 +135,8 @@ pub struct Renderer {
     scattered: Vec<u32>,
     /// The predicated mode's Hi-Z part tests ([`part_tests`]), made on first use.
     part_tests: Option<part_tests::PartTests>,
+    /// Why the device cannot run the part tests (its parts are then queried).
+    part_tests_unsupported: Option<String>,
 }
 
 impl Renderer {
@@ -224,6 +226,7 @@ impl Renderer {
             pieces: Vec::new(),
             scattered: Vec::new(),
             part_tests: None,
+            part_tests_unsupported: None,
         })
     }
 
@@ -1151,6 +1154,12 @@ impl Renderer {
         self.queries.skip_resolve_barrier(skip);
     }
 
+    /// Why the predicated mode's Hi-Z part test cannot run on this device (`None` when it can
+    /// or was not tried yet); its parts are then queried.
+    pub fn part_test_unsupported(&self) -> Option<&str> {
+        self.part_tests_unsupported.as_deref()
+    }
+
     /// Leaves out the barrier between the Hi-Z part test and the conditional blocks on its
     /// predicates (for the test that shows such a frame is refused).
     #[doc(hidden)]
@@ -1391,7 +1400,17 @@ impl Renderer {
         }
         let size = self.size();
         if self.part_tests.as_ref().is_none_or(|p| p.size() != size) {
-            self.part_tests = Some(part_tests::PartTests::new(&self.ctx, &self.target.depth)?);
+            if self.part_tests_unsupported.is_some() {
+                return Ok(None);
+            }
+            match part_tests::PartTests::new(&self.ctx, &self.target.depth) {
+                Ok(p) => self.part_tests = Some(p),
+                Err(Error::Unsupported { feature }) => {
+                    self.part_tests_unsupported = Some(feature);
+                    return Ok(None);
+                }
+                Err(e) => return Err(e),
+            }
         }
         let parts = self.part_tests.as_mut().expect("made above");
         if !parts.fits(boxes.len(), predicate) {

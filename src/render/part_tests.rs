@@ -92,7 +92,26 @@ pub struct PartTests {
 
 impl PartTests {
     /// The pipeline, pyramid and first buffers for a target whose depth image is `depth`.
+    /// [`Error::Unsupported`] names what the device lacks (sampled depth, R32F storage
+    /// images, workgroups of 64): the renderer then queries the parts.
     pub fn new(ctx: &Arc<GpuContext>, depth: &Image) -> Result<PartTests> {
+        let i = &ctx.info;
+        let mut missing = Vec::new();
+        if !i.optional.depth_sampled {
+            missing.push("SAMPLED_IMAGE on D32_SFLOAT");
+        }
+        if !i.optional.r32f_storage {
+            missing.push("STORAGE_IMAGE and SAMPLED_IMAGE on R32_SFLOAT");
+        }
+        if i.max_compute_work_group_size[0] < GROUP || i.max_compute_work_group_invocations < GROUP
+        {
+            missing.push("compute workgroups of 64");
+        }
+        if !missing.is_empty() {
+            return Err(Error::Unsupported {
+                feature: format!("Hi-Z part test: {}", missing.join(", ")),
+            });
+        }
         let layout = PipelineLayout::new(
             ctx,
             &[
@@ -167,6 +186,17 @@ impl PartTests {
     /// Whether a part of `boxes` boxes under `node_query` can be added: always before the
     /// frame's first dispatch (the buffers grow), afterwards only within their room.
     pub fn fits(&self, boxes: usize, node_query: QueryId) -> bool {
+        // The device's limits on one dispatch and one storage buffer.
+        let i = &self.ctx.info;
+        let parts = self.parts.len() as u64 + 1;
+        let boxes_after = (self.boxes.len() + boxes) as u64;
+        let range = u64::from(i.max_storage_buffer_range);
+        if parts.div_ceil(u64::from(GROUP)) > u64::from(i.max_compute_work_group_count[0])
+            || (parts * PART_BYTES as u64).next_power_of_two() > range
+            || (boxes_after * BOX_BYTES as u64).next_power_of_two() > range
+        {
+            return false;
+        }
         if self.tested == 0 {
             return true;
         }
