@@ -1164,13 +1164,13 @@ impl Renderer {
     /// predicates (for the test that shows such a frame is refused).
     #[doc(hidden)]
     pub fn skip_part_barrier(&mut self, skip: bool) -> Result<()> {
-        if self.part_tests.is_none() {
-            self.part_tests = Some(part_tests::PartTests::new(&self.ctx, &self.target.depth)?);
-        }
-        if let Some(p) = self.part_tests.as_mut() {
+        if let Some(p) = self.target_part_tests()? {
             p.skip_barrier = skip;
+            return Ok(());
         }
-        Ok(())
+        Err(Error::Unsupported {
+            feature: self.part_tests_unsupported.clone().unwrap_or_default(),
+        })
     }
 }
 
@@ -1315,22 +1315,14 @@ impl OcclusionBackend for Renderer {
     }
 
     fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
-        if query & part_tests::PART_BIT != 0 {
-            return Ok(self.part_result(query)?);
-        }
-        let seg = *self
-            .query_segment
-            .get(query as usize)
-            .ok_or_else(|| Error::Input(format!("query {query} was not issued this frame")))?
-            as usize;
         // Only a completed segment's queries are read: on some drivers (lavapipe) reading a
         // query of a pending submission waits for the whole device, so that read would be a
         // hidden, uncounted stall.
-        let Some(&value) = self.segment_values.get(seg) else {
-            return Ok(None); // still being recorded
-        };
-        if !self.timeline.is_complete(value)? {
+        if !self.segment_complete(self.segment_of(query)?)? {
             return Ok(None);
+        }
+        if query & part_tests::PART_BIT != 0 {
+            return Ok(self.part_result(query));
         }
         // The segment copied its results into host memory (never vkGetQueryPoolResults).
         let r = self.queries.copied_result(query).map(u64::from);
@@ -1347,15 +1339,7 @@ impl OcclusionBackend for Renderer {
         if let Some(v) = self.query_result(query)? {
             return Ok(v);
         }
-        let seg = match query & part_tests::PART_BIT {
-            0 => self.query_segment[query as usize] as usize,
-            _ => self
-                .part_tests
-                .as_ref()
-                .and_then(|p| p.segment_of(query))
-                .ok_or_else(|| Error::Input(format!("part {query:#x} was not tested")))?
-                as usize,
-        };
+        let seg = self.segment_of(query)?;
         if seg >= self.segment_values.len() {
             self.submit_segment()?;
         }
@@ -1398,6 +1382,53 @@ impl Renderer {
                 "query {predicate} is not a resolved predicate of this frame"
             )));
         }
+        match self.target_part_tests()? {
+            Some(parts) if parts.fits(boxes.len(), predicate) => {
+                parts.add(predicate, boxes).map(Some)
+            }
+            _ => Ok(None),
+        }
+    }
+
+    /// The segment that recorded query `query`, or the dispatch that tested part `query`.
+    fn segment_of(&self, query: QueryId) -> Result<usize> {
+        let seg = match query & part_tests::PART_BIT {
+            0 => self
+                .query_segment
+                .get(query as usize)
+                .copied()
+                .ok_or_else(|| Error::Input(format!("query {query} was not issued this frame")))?,
+            _ => self
+                .part_tests
+                .as_ref()
+                .and_then(|p| p.segment_of(query))
+                .ok_or_else(|| Error::Input(format!("part {query:#x} was not tested")))?,
+        };
+        Ok(seg as usize)
+    }
+
+    /// Whether segment `seg` was submitted and has completed on the device.
+    fn segment_complete(&self, seg: usize) -> Result<bool> {
+        match self.segment_values.get(seg) {
+            Some(&value) => self.timeline.is_complete(value),
+            None => Ok(false), // still being recorded
+        }
+    }
+
+    /// The result of a tested part (1 or 0), its segment completed.
+    fn part_result(&mut self, part: QueryId) -> Option<u64> {
+        let parts = self.part_tests.as_mut()?;
+        let r = parts.predicate(part).map(u64::from);
+        if r.is_some() {
+            parts.mark_read(part);
+        }
+        r
+    }
+
+    /// The part tests for the target, made on first use (again when the target's size
+    /// changed); `None` on a device that cannot run them (see
+    /// [`Renderer::part_test_unsupported`]).
+    fn target_part_tests(&mut self) -> Result<Option<&mut part_tests::PartTests>> {
         let size = self.size();
         if self.part_tests.as_ref().is_none_or(|p| p.size() != size) {
             if self.part_tests_unsupported.is_some() {
@@ -1412,36 +1443,7 @@ impl Renderer {
                 Err(e) => return Err(e),
             }
         }
-        let parts = self.part_tests.as_mut().expect("made above");
-        if !parts.fits(boxes.len(), predicate) {
-            return Ok(None);
-        }
-        parts.add(predicate, boxes).map(Some)
-    }
-
-    /// The result of a tested part (1 or 0) once its frame's segment completed.
-    fn part_result(&mut self, part: QueryId) -> Result<Option<u64>> {
-        let parts = self
-            .part_tests
-            .as_ref()
-            .ok_or_else(|| Error::Input(format!("part {part:#x} was not tested")))?;
-        let seg = parts
-            .segment_of(part)
-            .ok_or_else(|| Error::Input(format!("part {part:#x} was not tested")))?
-            as usize;
-        let Some(&value) = self.segment_values.get(seg) else {
-            return Ok(None);
-        };
-        if !self.timeline.is_complete(value)? {
-            return Ok(None);
-        }
-        let r = parts.predicate(part).map(u64::from);
-        if r.is_some() {
-            if let Some(p) = self.part_tests.as_mut() {
-                p.mark_read(part);
-            }
-        }
-        Ok(r)
+        Ok(self.part_tests.as_mut())
     }
 }
 

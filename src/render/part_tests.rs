@@ -252,11 +252,10 @@ impl PartTests {
         self.segment.get((part & !PART_BIT) as usize).copied()
     }
 
-    /// Marks `part`'s result read; returns whether it was the first read.
-    pub fn mark_read(&mut self, part: QueryId) -> bool {
-        match self.read.get_mut((part & !PART_BIT) as usize) {
-            Some(r) => !std::mem::replace(r, true),
-            None => false,
+    /// Marks `part`'s result read.
+    pub fn mark_read(&mut self, part: QueryId) {
+        if let Some(r) = self.read.get_mut((part & !PART_BIT) as usize) {
+            *r = true;
         }
     }
 

@@ -695,10 +695,24 @@ impl QuerySet {
     /// Records `vkCmdBeginConditionalRenderingEXT` on the predicate of `query` (checked).
     unsafe fn begin_conditional(&mut self, cmd: vk::CommandBuffer, query: u32) {
         let (chunk, slot) = self.location(query);
+        let buffer = self.pools[chunk].predicates.buffer;
+        // SAFETY: per the caller; the predicate buffer has CONDITIONAL_RENDERING_EXT usage
+        // and the offset is a multiple of 4 inside it.
+        unsafe { self.begin_conditional_at(cmd, buffer, u64::from(slot) * PREDICATE_BYTES) };
+    }
+
+    /// Records `vkCmdBeginConditionalRenderingEXT` on the 32-bit value at `offset` of
+    /// `buffer` (checked by the caller).
+    unsafe fn begin_conditional_at(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        buffer: vk::Buffer,
+        offset: u64,
+    ) {
         if let Some(fp) = self.conditional.as_ref() {
             let info = vk::ConditionalRenderingBeginInfoEXT::default()
-                .buffer(self.pools[chunk].predicates.buffer)
-                .offset(u64::from(slot) * PREDICATE_BYTES);
+                .buffer(buffer)
+                .offset(offset);
             // SAFETY: the caller checked the block; the buffer has CONDITIONAL_RENDERING_EXT
             // usage and the offset is a multiple of 4 inside it.
             unsafe { (fp.cmd_begin_conditional_rendering_ext)(cmd, &info) };
@@ -735,9 +749,9 @@ impl QuerySet {
         buffer: vk::Buffer,
         offset: u64,
     ) -> Result<()> {
-        let Some(fp) = self.conditional.as_ref() else {
+        if self.conditional.is_none() {
             return Err(coherent_cull::predicates_unsupported());
-        };
+        }
         if self.open_block {
             return Err(Error::Input("conditional blocks cannot nest".into()));
         }
@@ -746,13 +760,8 @@ impl QuerySet {
                 "a predicate's offset ({offset}) must be a multiple of 4"
             )));
         }
-        let info = vk::ConditionalRenderingBeginInfoEXT::default()
-            .buffer(buffer)
-            .offset(offset);
         // SAFETY: per the caller; checked above.
-        unsafe { (fp.cmd_begin_conditional_rendering_ext)(cmd, &info) };
-        self.open_block = true;
-        self.counts.conditional_blocks += 1;
+        unsafe { self.begin_conditional_at(cmd, buffer, offset) };
         Ok(())
     }
 

@@ -409,19 +409,18 @@ impl Chcpp {
         let mut boxes = std::mem::take(&mut self.boxes);
         boxes.clear();
         self.query_boxes(bvh, part, &mut boxes);
-        let tested = match tested {
+        let decided = match tested {
             true => backend.test_part_if(predicate, &boxes),
             false => Ok(None),
         };
-        let id = match tested {
-            Ok(Some(id)) => Ok(id),
-            Ok(None) => {
+        let id = decided.and_then(|id| match id {
+            Some(id) => Ok(id),
+            None => {
                 stats.queries += 1;
                 stats.predicated_queries += 1;
                 backend.issue_query_if(predicate, &boxes, crate::QueryPurpose::Node)
             }
-            Err(e) => Err(e),
-        };
+        });
         self.boxes = boxes;
         let id = id?;
         let first = self.query_nodes.len() as u32;
