@@ -308,6 +308,14 @@ impl<'a> MockBackend<'a> {
         } else {
             0
         };
+        let id = self.issue(pixels);
+        self.counts.queries += 1;
+        self.counts.query_boxes += boxes.len() as u32;
+        (id, pixels)
+    }
+
+    /// A new result of this frame (a query's or a tested part's) seeing `pixels`; its id.
+    fn issue(&mut self, pixels: u64) -> QueryId {
         let id = self.queries.len() as QueryId;
         self.queries.push(Issued {
             pixels,
@@ -315,9 +323,7 @@ impl<'a> MockBackend<'a> {
             complete: self.completion == Completion::Immediate,
             resolved: false,
         });
-        self.counts.queries += 1;
-        self.counts.query_boxes += boxes.len() as u32;
-        (id, pixels)
+        id
     }
 
     /// Query `query` as a predicate: issued in this frame and resolved since.
@@ -490,13 +496,7 @@ impl OcclusionBackend for MockBackend<'_> {
         }
         let taken = self.predicate(predicate)?.pixels > 0;
         let visible = taken && boxes.iter().any(|b| (self.visibility)(b) > 0);
-        let id = self.queries.len() as QueryId;
-        self.queries.push(Issued {
-            pixels: u64::from(visible),
-            frame: self.frame,
-            complete: self.completion == Completion::Immediate,
-            resolved: false,
-        });
+        let id = self.issue(u64::from(visible));
         self.counts.tested_parts += 1;
         self.events.push(MockEvent::PartTest {
             id,
