@@ -456,7 +456,8 @@ fn recorder_splits_draws_and_counts_stalls() {
 }
 
 /// A query of a segment that is still being recorded (or has not completed) is not read: the
-/// poll says "not ready" without waiting; waiting for it is counted as stall.
+/// poll says "not ready" without waiting; waiting for it is counted as stall, and a wait for a
+/// segment that already completed (a small one on a fast GPU) returns at once without stall.
 #[test]
 fn polls_never_read_pending_segments() {
     use coherent::culling::OcclusionBackend;
@@ -468,6 +469,7 @@ fn polls_never_read_pending_segments() {
         // A frame through a probe culler that polls before and after flushing.
         struct Probe {
             before_flush: Option<Option<u64>>,
+            after_flush: Option<Option<u64>>,
             waited: Option<u64>,
         }
         impl Culler for Probe {
@@ -485,6 +487,7 @@ fn polls_never_read_pending_segments() {
                 let q = backend.issue_query(&[Aabb::new(b.min, b.max)])?;
                 self.before_flush = Some(backend.query_result(q)?);
                 backend.flush()?;
+                self.after_flush = Some(backend.query_result(q)?);
                 self.waited = Some(backend.wait_query(q)?);
                 backend.finish()?;
                 Ok(Default::default())
@@ -493,6 +496,7 @@ fn polls_never_read_pending_segments() {
         }
         let mut probe = Probe {
             before_flush: None,
+            after_flush: None,
             waited: None,
         };
         let b = bvh.nodes[0].bounds;
@@ -508,7 +512,17 @@ fn polls_never_read_pending_segments() {
             "recording segment: not ready"
         );
         assert!(probe.waited.is_some());
-        assert!(res.stall_ms > 0.0, "the wait is stall time");
+        if probe.after_flush == Some(None) {
+            // Lavapipe always lands here: the segment is still running right after its submit.
+            assert!(res.stall_ms > 0.0, "the wait is stall time");
+        } else {
+            assert_eq!(
+                probe.after_flush,
+                Some(probe.waited),
+                "the poll read the result"
+            );
+            assert_eq!(res.stall_ms, 0.0, "a completed segment is not waited for");
+        }
         assert_eq!(res.counts.queries_read, 1);
     }
     drop(ctx);
