@@ -22,6 +22,7 @@ fn main() -> Result<()> {
         height: 720,
         algorithm: "chcpp".into(),
         params: ChcppParams::default(),
+        gpu_params: Some(ChcppParams::for_gpu()),
         frames: None,
         screenshot: None,
         stats: None,

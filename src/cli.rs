@@ -182,8 +182,10 @@ pub struct ChcppArgs {
     pub disable: Vec<String>,
     /// Predicated mode: levels below a queried node whose parts are queried under its
     /// predicate in the same frame (0: the node's objects all drawn under its own predicate).
-    #[arg(long, default_value_t = 2)]
-    pub refine_levels: u32,
+    /// Default: 2 on a CPU device (lavapipe), 0 on a GPU, where recording the parts costs more
+    /// than the extra objects drawn.
+    #[arg(long)]
+    pub refine_levels: Option<u32>,
     /// Predicated mode: a node is split into parts only while it holds more than this many
     /// objects in the frustum.
     #[arg(long, default_value_t = 4)]
@@ -200,12 +202,41 @@ pub struct ChcppArgs {
 }
 
 impl ChcppArgs {
+    /// `params` for a GPU: unless `--refine-levels` was given, the predicated mode uses one
+    /// predicate level there ([`ChcppParams::for_gpu`]).
+    fn on_gpu(&self, params: &ChcppParams) -> ChcppParams {
+        let mut p = params.clone();
+        if self.refine_levels.is_none() {
+            p.predicated_refine_levels = ChcppParams::for_gpu().predicated_refine_levels;
+        }
+        p
+    }
+
+    /// `params` for the device of `ctx` ([`ChcppArgs::on_gpu`] on a GPU); says so when the
+    /// policy changed and `predicated` is among `latencies`.
+    fn adapt_to_device(&self, params: &mut ChcppParams, ctx: &GpuContext, latencies: &[String]) {
+        if ctx.info.device_type == "CPU" {
+            return;
+        }
+        let gpu = self.on_gpu(params);
+        if gpu != *params && latencies.iter().any(|l| l.starts_with("predicated")) {
+            println!(
+                "predicated mode on a GPU: one predicate level (--refine-levels {}; \
+                 --refine-levels 2 splits nodes as on a CPU device)",
+                gpu.predicated_refine_levels
+            );
+        }
+        *params = gpu;
+    }
+
     fn params(&self) -> Result<ChcppParams> {
         let mut p = ChcppParams {
             batch_size: self.batch_size.max(1),
             visible_interval: self.visible_interval.max(1),
             pixel_threshold: self.pixel_threshold,
-            predicated_refine_levels: self.refine_levels,
+            predicated_refine_levels: self
+                .refine_levels
+                .unwrap_or(ChcppParams::default().predicated_refine_levels),
             predicated_refine_objects: self.refine_objects,
             predicated_split_ratio: self.split_ratio,
             predicated_tested_parts_min: self.tested_parts_min,
@@ -383,12 +414,15 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
     if a.repeat == 0 {
         bail!("--repeat must be at least 1");
     }
-    let params = a.chcpp.params()?;
+    let mut params = a.chcpp.params()?;
     for alg in &a.algorithms {
         check_algorithm(alg, &params)?;
     }
+    let algorithms = culling::with_latency_names(&a.algorithms, &a.latency)?;
+    let ctx = context(a.validation)?;
+    a.chcpp.adapt_to_device(&mut params, &ctx, &a.latency);
     let cfg = WalkConfig {
-        algorithms: culling::with_latency_names(&a.algorithms, &a.latency)?,
+        algorithms,
         frames: a.frames,
         warmup: a.warmup,
         params,
@@ -398,7 +432,6 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         pvs: None,
     };
     let scales = a.scene.scale.clone();
-    let ctx = context(a.validation)?;
     let mut summaries = Vec::new();
     for &scale in &scales {
         let dir = if scales.len() > 1 {
@@ -727,6 +760,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
         width: w,
         height: h,
         algorithm: a.algorithm.clone(),
+        gpu_params: Some(a.chcpp.on_gpu(&params)),
         params,
         frames: a.frames,
         screenshot: a.screenshot.clone(),
@@ -871,4 +905,32 @@ fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::app::gi_run::GiSetup>
         light_keys,
         movers: a.movers,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    /// On a GPU the predicated mode keeps one predicate level unless `--refine-levels` says
+    /// otherwise; every other parameter is the user's.
+    #[test]
+    fn the_gpu_policy_applies_only_without_refine_levels() {
+        let parse = |extra: &[&str]| {
+            let mut argv = vec!["coherent", "walk", "--scene", "city", "--batch-size", "7"];
+            argv.extend_from_slice(extra);
+            match crate::Cli::try_parse_from(argv).unwrap().command {
+                crate::Command::Walk(w) => w.chcpp,
+                _ => unreachable!(),
+            }
+        };
+        let auto = parse(&[]);
+        let cpu = auto.params().unwrap();
+        assert_eq!(cpu.predicated_refine_levels, 2);
+        let gpu = auto.on_gpu(&cpu);
+        assert_eq!(gpu.predicated_refine_levels, 0);
+        assert_eq!(gpu.batch_size, 7);
+        let given = parse(&["--refine-levels", "2"]);
+        let p = given.params().unwrap();
+        assert_eq!(given.on_gpu(&p), p);
+    }
 }

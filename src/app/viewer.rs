@@ -48,6 +48,9 @@ pub struct ViewerConfig {
     pub algorithm: String,
     /// CHC++ parameters (the keys B, I, M, T toggle its parts).
     pub params: ChcppParams,
+    /// The CHC++ parameters on a GPU device, if they differ from `params` (e.g.
+    /// [`ChcppParams::for_gpu`]'s predicated policy); `None`: `params` on every device.
+    pub gpu_params: Option<ChcppParams>,
     /// Non-interactive: present this many frames of the path, then exit.
     pub frames: Option<u32>,
     /// Where to save the last frame (non-interactive) or the F12 screenshot.
@@ -273,12 +276,16 @@ impl App {
         let size = window.inner_size();
         let swapchain = Swapchain::new(&ctx, display, handle, size.width, size.height, cfg.vsync)?;
         let mut renderer = Renderer::new(&ctx, &cfg.scene, cfg.width, cfg.height)?;
-        renderer.visibility_threshold = cfg.params.pixel_threshold;
+        let params = match &cfg.gpu_params {
+            Some(p) if ctx.info.device_type != "CPU" => p.clone(),
+            _ => cfg.params.clone(),
+        };
+        renderer.visibility_threshold = params.pixel_threshold;
         let (algorithm, latency) = split_latency(&cfg.algorithm)?;
         let hiz = hiz_for(&algorithm, &renderer)?;
         let culler = match hiz {
-            Some(_) => culling::create("vfc", &cfg.params)?,
-            None => viewer_culler(&algorithm, latency, &cfg.params)?,
+            Some(_) => culling::create("vfc", &params)?,
+            None => viewer_culler(&algorithm, latency, &params)?,
         };
         let stats = match &cfg.stats {
             Some(p) => {
@@ -301,7 +308,7 @@ impl App {
             hiz,
             algorithm,
             latency,
-            params: cfg.params.clone(),
+            params,
             stats,
             pending: CommandCounts::default(),
             frame: 0,

@@ -658,6 +658,46 @@ fn parts_go_to_the_backends_test_after_a_frame_with_enough_of_them() {
     }
 }
 
+/// `ChcppParams::for_gpu` is the defaults with one predicate level: on a backend that could
+/// query parts under predicates it queries none, resolves once a frame and misses nothing,
+/// where the defaults split.
+#[test]
+fn the_gpu_parameters_keep_one_predicate_level_and_stay_exact() {
+    let gpu = ChcppParams::for_gpu();
+    assert_eq!(
+        ChcppParams {
+            predicated_refine_levels: ChcppParams::default().predicated_refine_levels,
+            ..gpu.clone()
+        },
+        ChcppParams::default(),
+        "only the split policy differs"
+    );
+    let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
+    let mut parts = [0, 0];
+    for (i, params) in [gpu, ChcppParams::default()].into_iter().enumerate() {
+        let mut c = Chcpp::new(params).with_latency(Latency::Predicated);
+        let mut backend = MockBackend::new(|_| 0);
+        for f in 1..=30 {
+            let cam = walk(f);
+            let fog = Fog::new(&cam, 35.0);
+            let want = fog.visible_objects(&bvh);
+            backend.set_visibility(move |b| fog.pixels(b));
+            let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+            assert!(
+                missing(&want, &fr.drawn).is_empty(),
+                "params {i} frame {f}: missed"
+            );
+            assert_eq!((fr.counts.submits, fr.counts.waits), (1, 0));
+            if i == 0 {
+                assert!(fr.counts.resolves <= 1, "frame {f}: one predicate level");
+            }
+            parts[i] += fr.counts.predicated_queries;
+        }
+    }
+    assert_eq!(parts[0], 0, "for_gpu queries no parts");
+    assert!(parts[1] > 0, "the defaults split nodes on this walk");
+}
+
 /// chc and chcpp, one and two frames in flight, on a backend with and without queries under
 /// predicates (nodes split into parts, or one predicate level).
 fn modes_with_split() -> Vec<(&'static str, u32, bool)> {
