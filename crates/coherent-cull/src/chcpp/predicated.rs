@@ -72,6 +72,12 @@
 //! the results come back and the node is opened (`k` frames). [`CullStats::predicated_objects`] counts the objects sent under
 //! predicates; the built-in renderer reads the predicates back after the frame to count those
 //! the device really drew.
+//!
+//! Which split pays depends on the device: on a CPU rasterizer (lavapipe) every object drawn
+//! costs rasterization, so nodes are split into parts (the defaults); on a GPU the extra
+//! objects cost little and recording the parts' queries, tight boxes and conditional blocks is
+//! the frame's cost, so [`ChcppParams::for_gpu`] keeps one predicate level (each queried
+//! node's objects under its own predicate, one pass break).
 
 use super::latency::LatencyMode;
 use super::{Chcpp, ChcppParams, Pending, QueryKind};
