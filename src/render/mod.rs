@@ -1119,10 +1119,7 @@ impl Renderer {
     fn record_run(&mut self, run: &[u32], position: u32, predicate: Option<QueryId>) -> Result<()> {
         self.use_render_pipeline();
         self.bind_scene_buffers();
-        let mut triangles = 0;
-        for &o in run {
-            triangles += u64::from(self.object_draw(o)?.index_count / 3);
-        }
+        let triangles = self.ordered.run_triangles(position, run.len());
         if let Some(buffer) = self.ordered.buffer() {
             let offset = u64::from(position) * DRAW_BYTES as u64;
             self.recorder
