@@ -215,7 +215,7 @@ impl ChcppArgs {
     /// `params` for the device of `ctx` ([`ChcppArgs::on_gpu`] on a GPU); says so when the
     /// policy changed and `predicated` is among `latencies`.
     fn adapt_to_device(&self, params: &mut ChcppParams, ctx: &GpuContext, latencies: &[String]) {
-        if ctx.info.device_type == "CPU" {
+        if ctx.info.is_cpu() {
             return;
         }
         let gpu = self.on_gpu(params);

@@ -277,7 +277,7 @@ impl App {
         let swapchain = Swapchain::new(&ctx, display, handle, size.width, size.height, cfg.vsync)?;
         let mut renderer = Renderer::new(&ctx, &cfg.scene, cfg.width, cfg.height)?;
         let params = match &cfg.gpu_params {
-            Some(p) if ctx.info.device_type != "CPU" => p.clone(),
+            Some(p) if !ctx.info.is_cpu() => p.clone(),
             _ => cfg.params.clone(),
         };
         renderer.visibility_threshold = params.pixel_threshold;

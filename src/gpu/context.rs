@@ -264,6 +264,13 @@ pub struct DeviceInfo {
 }
 
 impl DeviceInfo {
+    /// Whether the device is a CPU implementation (lavapipe) rather than a GPU: rasterization
+    /// then costs CPU time, which changes what pays in the predicated mode
+    /// ([`crate::culling::ChcppParams::for_gpu`]).
+    pub fn is_cpu(&self) -> bool {
+        self.device_type == format!("{:?}", vk::PhysicalDeviceType::CPU)
+    }
+
     /// [`Error::Limit`] unless `value <= max`.
     fn within(what: &str, limit: &'static str, value: u64, max: u64) -> Result<()> {
         if value <= max {

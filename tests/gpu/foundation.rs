@@ -24,6 +24,14 @@ fn context_create_and_destroy_is_silent() {
         "Vulkan 1.3 or newer, got {}",
         ctx.info.api_version
     );
+    // Lavapipe is a CPU device (the predicated mode keeps its split policy there); a GPU not.
+    assert_eq!(
+        ctx.info.is_cpu(),
+        ctx.info.name.contains("llvmpipe"),
+        "{} ({})",
+        ctx.info.name,
+        ctx.info.device_type
+    );
     drop(ctx);
     common::assert_silent(&log);
 }
