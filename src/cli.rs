@@ -352,6 +352,10 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     {
         let scale = single_scale(&a.scene)?;
         let mut setup = coherent::culling::CullerSetup::default();
+        if !ctx.info.is_cpu() {
+            // As walk and view do on a GPU (render has no CHC++ flags).
+            setup.params = ChcppParams::for_gpu();
+        }
         if a.algorithm == "nohc" {
             setup.nohc = Some(cli_setup::nohc_params(&ctx, &a.cache, &scene, (w, h))?);
         }
