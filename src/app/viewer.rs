@@ -860,6 +860,21 @@ impl OcclusionBackend for Probe<'_> {
         self.log.drawn.extend_from_slice(objects);
         self.inner.draw_objects_if(query, objects)
     }
+    fn set_draw_order(&mut self, order: &[u32]) -> coherent_cull::Result<()> {
+        self.inner.set_draw_order(order)
+    }
+    fn draw_order_ranges_if(
+        &mut self,
+        query: QueryId,
+        order: &[u32],
+        ranges: &[std::ops::Range<u32>],
+    ) -> coherent_cull::Result<()> {
+        for r in ranges {
+            let objects = coherent_cull::order_slice(order, r)?;
+            self.log.drawn.extend_from_slice(objects);
+        }
+        self.inner.draw_order_ranges_if(query, order, ranges)
+    }
     fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
         let r = self.inner.query_result(query)?;
         if let Some(v) = r {

@@ -130,6 +130,8 @@ pub struct Renderer {
     /// One command per object in the culler's subtree order (`set_draw_order`): a run of a
     /// predicate's objects that is a run of the order is one multi-draw of these.
     ordered: ordered::OrderedDraws,
+    /// Scratch of a draw of order ranges the commands do not follow: its objects.
+    range_objects: Vec<u32>,
     /// Scratch of one ordered draw: its pieces and its scattered objects.
     pieces: Vec<ordered::Piece>,
     scattered: Vec<u32>,
@@ -223,6 +225,7 @@ impl Renderer {
             draw_objects: Vec::new(),
             log: draw_log::DrawLog::default(),
             ordered: ordered::OrderedDraws::default(),
+            range_objects: Vec::new(),
             pieces: Vec::new(),
             scattered: Vec::new(),
             part_tests: None,
@@ -1129,6 +1132,114 @@ impl Renderer {
         Ok(())
     }
 
+    /// Refuses a predicate that is not a resolved query (or a tested part) of this frame.
+    fn check_predicate(&self, query: QueryId) -> Result<()> {
+        if query & part_tests::PART_BIT != 0 {
+            let tested = self.part_tests.as_ref().is_some_and(|p| p.is_tested(query));
+            if !tested {
+                return Err(Error::Input(format!(
+                    "part {} is not a tested predicate of this frame",
+                    query & !part_tests::PART_BIT
+                )));
+            }
+        } else if query >= self.queries.resolved() {
+            return Err(Error::Input(format!(
+                "query {query} is not a resolved predicate of this frame"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Begins a conditional block on `query` (checked by [`Renderer::check_predicate`]).
+    fn begin_predicated(&mut self, query: QueryId) -> Result<()> {
+        self.ensure_recording()?;
+        let cmd = self.recorder.command_buffer().0;
+        let part = query & part_tests::PART_BIT != 0;
+        match self.part_tests.as_ref().filter(|_| part) {
+            Some(parts) => {
+                let (buffer, offset) = parts.predicate_at(query)?;
+                // SAFETY: recording inside rendering, after the test that wrote the predicate
+                // and its barrier to conditional rendering, in this command buffer; the set
+                // checks that no block is open.
+                unsafe { self.queries.begin_block_at(cmd, buffer, offset)? };
+            }
+            // SAFETY: recording inside rendering, after the resolve in this command buffer;
+            // the set checks the predicate, its barrier and that no block is open.
+            None => unsafe { self.queries.begin_block(cmd, query)? },
+        }
+        self.recorder.note_conditional(Some(query));
+        Ok(())
+    }
+
+    /// Ends the block [`Renderer::begin_predicated`] began.
+    fn end_predicated(&mut self) {
+        let cmd = self.recorder.command_buffer().0;
+        // SAFETY: the block begun by `begin_predicated` is open in this rendering instance.
+        unsafe { self.queries.end_block(cmd) };
+        self.recorder.note_conditional(None);
+    }
+
+    /// Records the objects of `ranges` of `order`, the order of the ordered commands: a
+    /// range of at least [`ordered::MIN_RUN`] objects as multi-draws of those commands, the
+    /// short ones between them gathered into multi-draws written for this frame (as
+    /// [`Renderer::record_objects_ordered`] does with runs).
+    fn record_order_ranges(
+        &mut self,
+        order: &[u32],
+        ranges: &[std::ops::Range<u32>],
+        predicate: Option<QueryId>,
+    ) -> Result<()> {
+        let max = self.ctx.info.max_draw_indirect_count.max(1);
+        let mut scattered = std::mem::take(&mut self.scattered);
+        scattered.clear();
+        let mut drawn = Ok(());
+        for r in ranges {
+            if r.len() < ordered::MIN_RUN {
+                scattered.extend_from_slice(&order[r.start as usize..r.end as usize]);
+                continue;
+            }
+            if !scattered.is_empty() {
+                drawn = self.record_objects_indirect(&scattered, predicate);
+                scattered.clear();
+            }
+            let mut start = r.start;
+            while start < r.end && drawn.is_ok() {
+                let len = (r.end - start).min(max);
+                drawn = self.record_order_range(start, len, predicate);
+                start += len;
+            }
+            if drawn.is_err() {
+                break;
+            }
+        }
+        if drawn.is_ok() && !scattered.is_empty() {
+            drawn = self.record_objects_indirect(&scattered, predicate);
+        }
+        self.scattered = scattered;
+        drawn
+    }
+
+    /// One multi-draw of the ordered commands `position..position + len` (at most
+    /// `maxDrawIndirectCount`).
+    fn record_order_range(
+        &mut self,
+        position: u32,
+        len: u32,
+        predicate: Option<QueryId>,
+    ) -> Result<()> {
+        self.use_render_pipeline();
+        self.bind_scene_buffers();
+        let triangles = self.ordered.run_triangles(position, len as usize);
+        if let Some(buffer) = self.ordered.buffer() {
+            let offset = u64::from(position) * DRAW_BYTES as u64;
+            self.recorder
+                .draw_objects_indirect(buffer, offset, len, triangles);
+            let run = &self.ordered.order()[position as usize..(position + len) as usize];
+            self.log.drew(run, predicate);
+        }
+        Ok(())
+    }
+
     /// After the frame: reads the predicates back, so objects drawn under a false predicate
     /// do not count as drawn (`walk --check`) and `counts.predicated_objects_taken` says how
     /// many were; adds the mover draws.
@@ -1211,48 +1322,47 @@ impl OcclusionBackend for Renderer {
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
-        let part = query & part_tests::PART_BIT != 0;
-        if part {
-            let tested = self.part_tests.as_ref().is_some_and(|p| p.is_tested(query));
-            if !tested {
-                return Err(Error::Input(format!(
-                    "part {} is not a tested predicate of this frame",
-                    query & !part_tests::PART_BIT
-                ))
-                .into());
-            }
-        } else if query >= self.queries.resolved() {
-            return Err(Error::Input(format!(
-                "query {query} is not a resolved predicate of this frame"
-            ))
-            .into());
-        }
+        self.check_predicate(query)?;
         if objects.is_empty() {
             return Ok(());
         }
-        self.ensure_recording()?;
-        let cmd = self.recorder.command_buffer().0;
-        match self.part_tests.as_ref().filter(|_| part) {
-            Some(parts) => {
-                let (buffer, offset) = parts.predicate_at(query)?;
-                // SAFETY: recording inside rendering, after the test that wrote the predicate
-                // and its barrier to conditional rendering, in this command buffer; the set
-                // checks that no block is open.
-                unsafe { self.queries.begin_block_at(cmd, buffer, offset)? };
-            }
-            // SAFETY: recording inside rendering, after the resolve in this command buffer;
-            // the set checks the predicate, its barrier and that no block is open.
-            None => unsafe { self.queries.begin_block(cmd, query)? },
-        }
-        self.recorder.note_conditional(Some(query));
+        self.begin_predicated(query)?;
         let drawn = if self.multi_draws() {
             self.record_objects_ordered(objects, Some(query))
         } else {
             self.record_objects(objects, Some(query))
         };
-        // SAFETY: the block begun above is open in this rendering instance.
-        unsafe { self.queries.end_block(cmd) };
-        self.recorder.note_conditional(None);
+        self.end_predicated();
+        Ok(drawn?)
+    }
+
+    fn draw_order_ranges_if(
+        &mut self,
+        query: QueryId,
+        order: &[u32],
+        ranges: &[std::ops::Range<u32>],
+    ) -> coherent_cull::Result<()> {
+        for r in ranges {
+            coherent_cull::order_slice(order, r)?;
+        }
+        if !self.multi_draws() || !self.ordered.holds(order) {
+            // Not the order of the commands held: the objects one by one.
+            let mut objects = std::mem::take(&mut self.range_objects);
+            objects.clear();
+            for r in ranges {
+                objects.extend_from_slice(&order[r.start as usize..r.end as usize]);
+            }
+            let drawn = self.draw_objects_if(query, &objects);
+            self.range_objects = objects;
+            return drawn;
+        }
+        self.check_predicate(query)?;
+        if coherent_cull::ranges_len(ranges) == 0 {
+            return Ok(());
+        }
+        self.begin_predicated(query)?;
+        let drawn = self.record_order_ranges(order, ranges, Some(query));
+        self.end_predicated();
         Ok(drawn?)
     }
 

@@ -105,6 +105,17 @@ impl OrderedDraws {
         Ok(())
     }
 
+    /// The objects in command order.
+    pub(super) fn order(&self) -> &[u32] {
+        &self.order
+    }
+
+    /// Whether the commands follow `order` (checked by length: a draw order handed back
+    /// with ranges is the one last set, so a different length means another order).
+    pub(super) fn holds(&self, order: &[u32]) -> bool {
+        self.buffer.is_some() && order.len() == self.order.len()
+    }
+
     /// Triangles drawn by the commands `position..position + len`.
     pub(super) fn run_triangles(&mut self, position: u32, len: usize) -> u64 {
         self.triangles.sum(position as usize, len)

@@ -291,3 +291,33 @@ fn render_takes_the_predicated_latency() {
     assert_eq!(common::diff_pixels(&read("v.png"), &read("p.png")), 0);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Ranges of the draw order that do not lie in it, and predicates that are not resolved
+/// queries of the frame, are refused with an error, not a panic or a draw.
+#[test]
+fn draw_order_ranges_outside_the_order_are_refused() {
+    use coherent::culling::OcclusionBackend;
+    let (ctx, log) = common::context();
+    {
+        let (scene, _) = common::scene("city", 0.05);
+        let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+        let order: Vec<u32> = (0..scene.objects.len() as u32).collect();
+        r.set_draw_order(&order).unwrap();
+        let n = order.len() as u32;
+        // Past the end, reversed, starting at the end.
+        for (start, end) in [(n - 1, n + 1), (3, 2), (n, u32::MAX)] {
+            let err = r
+                .draw_order_ranges_if(0, &order, std::slice::from_ref(&(start..end)))
+                .unwrap_err();
+            assert!(err.to_string().contains("outside the order"), "{err}");
+        }
+        let err = r
+            .draw_order_ranges_if(0, &order, std::slice::from_ref(&(0..4)))
+            .unwrap_err();
+        assert!(
+            err.to_string().contains("not a resolved predicate"),
+            "{err}"
+        );
+    }
+    common::assert_silent(&log);
+}

@@ -127,6 +127,8 @@ mod pipeline;
 mod set;
 mod slots;
 
+use std::ops::Range;
+
 use ash::vk;
 use coherent_cull::{
     Aabb, DepthConvention, Error, OcclusionBackend, QueryId, QueryPurpose, Result,
@@ -203,7 +205,8 @@ pub struct QueryCounts {
     pub buffer_binds: u32,
     /// Switches between the host's render state and the query state, either way.
     pub state_changes: u32,
-    /// Calls of the host's draw callback with at least one object.
+    /// Calls of the host's draw callback ([`DrawObjects::draw`], or [`DrawObjects::draw_ranges`]
+    /// for one conditional block) with at least one object.
     pub object_draw_calls: u32,
     /// Objects handed to the host's draw callback.
     pub objects_drawn: u32,
@@ -240,6 +243,30 @@ pub trait DrawObjects {
     /// leaves change. Default: ignored.
     fn set_order(&mut self, order: &[u32]) -> Result<()> {
         let _ = order;
+        Ok(())
+    }
+
+    /// Records the draws of the objects `order[r]` of each range `r` of `ranges`, in that
+    /// order: `order` is the draw order last given to [`DrawObjects::set_order`] (see
+    /// [`coherent_cull::OcclusionBackend::draw_order_ranges_if`]). A host that keeps one
+    /// indexed indirect command per object in that order records each range as one
+    /// `vkCmdDrawIndexedIndirect` (at most `maxDrawIndirectCount` commands each) without
+    /// looking at its objects. `rebind` as in [`DrawObjects::draw`]. Default: each range's
+    /// objects through [`DrawObjects::draw`].
+    fn draw_ranges(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        order: &[u32],
+        ranges: &[Range<u32>],
+        rebind: bool,
+    ) -> Result<()> {
+        let mut rebind = rebind;
+        for r in ranges {
+            let objects = coherent_cull::order_slice(order, r)?;
+            if !objects.is_empty() {
+                self.draw(cmd, objects, std::mem::take(&mut rebind))?;
+            }
+        }
         Ok(())
     }
 }
@@ -541,6 +568,23 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
         Ok(slot + self.backend.desc.frames_in_flight * index)
     }
 
+    /// Back to render state before the host's draws: counts the state change, and returns
+    /// whether the host must bind its state again (the box pipeline was bound since).
+    fn enter_render_state(&mut self) -> Result<bool> {
+        if std::mem::take(&mut self.in_query_state) {
+            self.set()?.counts_mut().state_changes += 1;
+        }
+        Ok(std::mem::take(&mut self.box_bound_since_draw))
+    }
+
+    /// Counts one draw call of the culler's with `objects` objects.
+    fn count_draw(&mut self, objects: usize) -> Result<()> {
+        let c = self.set()?.counts_mut();
+        c.object_draw_calls += 1;
+        c.objects_drawn += objects as u32;
+        Ok(())
+    }
+
     /// The index in this frame's slot of `query`, a resolved predicate of this frame.
     fn resolved_predicate(&self, query: QueryId) -> Result<u32> {
         let current = self.slot()?;
@@ -562,15 +606,9 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         if objects.is_empty() {
             return Ok(());
         }
-        if std::mem::take(&mut self.in_query_state) {
-            self.set()?.counts_mut().state_changes += 1;
-        }
-        let rebind = std::mem::take(&mut self.box_bound_since_draw);
+        let rebind = self.enter_render_state()?;
         self.draw.draw(self.cmd, objects, rebind)?;
-        let c = self.set()?.counts_mut();
-        c.object_draw_calls += 1;
-        c.objects_drawn += objects.len() as u32;
-        Ok(())
+        self.count_draw(objects.len())
     }
 
     fn issue_query(&mut self, boxes: &[Aabb]) -> Result<QueryId> {
@@ -696,6 +734,34 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         unsafe { self.set()?.end_block(cmd) };
         drawn?;
         self.set()?.counts_mut().predicated_objects += objects.len() as u32;
+        Ok(())
+    }
+
+    fn draw_order_ranges_if(
+        &mut self,
+        query: QueryId,
+        order: &[u32],
+        ranges: &[Range<u32>],
+    ) -> Result<()> {
+        let index = self.resolved_predicate(query)?;
+        for r in ranges {
+            coherent_cull::order_slice(order, r)?;
+        }
+        let objects = coherent_cull::ranges_len(ranges);
+        if objects == 0 {
+            return Ok(());
+        }
+        let cmd = self.cmd;
+        // SAFETY: as in draw_objects_if.
+        unsafe { self.set()?.begin_block(cmd, index)? };
+        let drawn = self.enter_render_state().and_then(|rebind| {
+            self.draw.draw_ranges(cmd, order, ranges, rebind)?;
+            self.count_draw(objects)
+        });
+        // SAFETY: the block begun above is open in this rendering instance.
+        unsafe { self.set()?.end_block(cmd) };
+        drawn?;
+        self.set()?.counts_mut().predicated_objects += objects as u32;
         Ok(())
     }
 }

@@ -271,6 +271,20 @@ impl OcclusionBackend for SlotBackend<'_> {
         self.inner.draw_objects_if(inner, objects)
     }
 
+    fn set_draw_order(&mut self, order: &[u32]) -> Result<()> {
+        self.inner.set_draw_order(order)
+    }
+
+    fn draw_order_ranges_if(
+        &mut self,
+        query: QueryId,
+        order: &[u32],
+        ranges: &[std::ops::Range<u32>],
+    ) -> Result<()> {
+        let inner = self.this_frames_query(query)?;
+        self.inner.draw_order_ranges_if(inner, order, ranges)
+    }
+
     fn submit_frame(&mut self) -> Result<()> {
         // The wrapped backend completes each frame; the slot hides the results for k frames.
         self.inner.finish()?;

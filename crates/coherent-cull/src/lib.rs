@@ -267,6 +267,27 @@ pub trait OcclusionBackend {
         let _ = order;
         Ok(())
     }
+    /// [`OcclusionBackend::draw_objects_if`] for the objects `order[r]` of each range `r` of
+    /// `ranges`, in that order: `order` is the draw order last given to
+    /// [`OcclusionBackend::set_draw_order`], passed again so that a backend can ignore the
+    /// ranges. The predicated mode hands over whole subtrees this way (a subtree is one range
+    /// of the order, adjacent ranges merged), so a backend that keeps one draw command per
+    /// object in the order records a range as one multi-draw without looking at its objects:
+    /// at the city's x16 scale that is about 100,000 objects a frame under predicates.
+    /// Ranges past the end of `order` are refused with [`Error::Input`]. Default: the objects
+    /// gathered into one list for [`OcclusionBackend::draw_objects_if`].
+    fn draw_order_ranges_if(
+        &mut self,
+        query: QueryId,
+        order: &[u32],
+        ranges: &[std::ops::Range<u32>],
+    ) -> Result<()> {
+        let mut objects = Vec::with_capacity(ranges_len(ranges));
+        for r in ranges {
+            objects.extend_from_slice(order_slice(order, r)?);
+        }
+        self.draw_objects_if(query, &objects)
+    }
     /// Whether the backend can issue a query under another query's predicate
     /// ([`OcclusionBackend::issue_query_if`]): the predicated mode then tests the parts of a
     /// queried node in the same frame, behind a second predicate resolve, instead of drawing
@@ -300,6 +321,26 @@ pub trait OcclusionBackend {
         let _ = (predicate, boxes);
         Ok(None)
     }
+}
+
+/// How many objects `ranges` of a draw order hold
+/// ([`OcclusionBackend::draw_order_ranges_if`]).
+pub fn ranges_len(ranges: &[std::ops::Range<u32>]) -> usize {
+    ranges.iter().map(|r| r.len()).sum()
+}
+
+/// The objects `order[range]`, or [`Error::Input`] when the range does not lie in `order`.
+pub fn order_slice<'a>(order: &'a [u32], range: &std::ops::Range<u32>) -> Result<&'a [u32]> {
+    order
+        .get(range.start as usize..range.end as usize)
+        .ok_or_else(|| {
+            Error::Input(format!(
+                "draw order range {}..{} outside the order of {} objects",
+                range.start,
+                range.end,
+                order.len()
+            ))
+        })
 }
 
 /// The error of a backend without predicated draws.

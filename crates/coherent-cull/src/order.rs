@@ -84,6 +84,15 @@ impl SubtreeOrder {
         }
     }
 
+    /// Where the objects below `node` lie in [`SubtreeOrder::objects`] (empty for a node the
+    /// hierarchy does not have).
+    pub fn range(&self, node: u32) -> std::ops::Range<u32> {
+        match self.ranges.get(node as usize) {
+            Some(&(first, count)) => first..first + count,
+            None => 0..0,
+        }
+    }
+
     /// How many objects lie below `node` (0 for a node the hierarchy does not have).
     pub fn count_below(&self, node: u32) -> u32 {
         self.ranges.get(node as usize).map_or(0, |r| r.1)
@@ -127,8 +136,14 @@ mod tests {
             for n in 0..bvh.nodes.len() as u32 {
                 assert_eq!(order.subtree(n), below(&bvh, n).as_slice(), "node {n}");
                 assert_eq!(order.count_below(n) as usize, order.subtree(n).len());
+                let r = order.range(n);
+                assert_eq!(
+                    &order.objects()[r.start as usize..r.end as usize],
+                    order.subtree(n)
+                );
             }
             assert!(order.subtree(bvh.nodes.len() as u32).is_empty());
+            assert!(order.range(bvh.nodes.len() as u32).is_empty());
         }
     }
 

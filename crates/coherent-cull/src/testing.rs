@@ -140,6 +140,11 @@ pub struct MockCounts {
     pub predicated_queries: u32,
     /// Parts decided by the backend's own test ([`OcclusionBackend::test_part_if`]).
     pub tested_parts: u32,
+    /// Draws under a predicate handed over as ranges of the draw order
+    /// ([`OcclusionBackend::draw_order_ranges_if`]; also counted in `predicated_draws`).
+    pub order_range_draws: u32,
+    /// The ranges of those draws.
+    pub order_ranges: u32,
 }
 
 struct Issued {
@@ -510,6 +515,33 @@ impl OcclusionBackend for MockBackend<'_> {
     fn set_draw_order(&mut self, order: &[u32]) -> Result<()> {
         self.draw_order = order.to_vec();
         self.draw_orders += 1;
+        Ok(())
+    }
+
+    /// Checks that `order` is the draw order set last (the contract), then draws the objects
+    /// of `ranges` as [`OcclusionBackend::draw_objects_if`] does.
+    fn draw_order_ranges_if(
+        &mut self,
+        query: QueryId,
+        order: &[u32],
+        ranges: &[std::ops::Range<u32>],
+    ) -> Result<()> {
+        if order != self.draw_order.as_slice() {
+            return Err(crate::Error::Input(format!(
+                "ranges of a draw order of {} objects, not the one set ({} objects)",
+                order.len(),
+                self.draw_order.len()
+            )));
+        }
+        let mut objects = Vec::with_capacity(crate::ranges_len(ranges));
+        for r in ranges {
+            objects.extend_from_slice(crate::order_slice(order, r)?);
+        }
+        self.draw_objects_if(query, &objects)?;
+        if !objects.is_empty() {
+            self.counts.order_range_draws += 1;
+            self.counts.order_ranges += ranges.len() as u32;
+        }
         Ok(())
     }
 

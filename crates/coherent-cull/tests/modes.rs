@@ -773,48 +773,64 @@ fn predicated_refuses_a_backend_without_predicates() {
 
 #[test]
 fn predicated_hands_over_subtrees_in_the_draw_order_it_set() {
-    let mut bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
-    let mut c = predicated("chcpp", 1);
-    let mut backend = MockBackend::new(|_| 0).without_predicated_queries();
-    let (mut objects, mut runs) = (0, 0);
-    for f in 1..=30 {
-        let cam = walk(f);
-        let fog = Fog::new(&cam, 35.0);
-        backend.set_visibility(move |b| fog.pixels(b));
-        let fr = run(&mut c, &bvh, &cam, &mut backend, f);
-        let mut position = vec![usize::MAX; 600];
-        for (p, &o) in backend.draw_order().iter().enumerate() {
-            position[o as usize] = p;
-        }
-        for e in &fr.events {
-            if let MockEvent::DrawIf { objects: o, .. } = e {
-                objects += o.len();
-                // A run ends where the next object is not the next one of the order.
-                runs += 1 + o
-                    .windows(2)
-                    .filter(|w| position[w[1] as usize] != position[w[0] as usize].wrapping_add(1))
-                    .count();
+    // Directly, and through the wrapper that keeps k frames' query ids (which must pass the
+    // order on: the mock refuses ranges of an order it was not given).
+    let setup = CullerSetup::default();
+    for name in ["chcpp@predicated", "chcpp@predicated-k2"] {
+        let mut bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
+        let mut c = create_named(name, &setup).unwrap();
+        let mut backend = MockBackend::new(|_| 0).without_predicated_queries();
+        let (mut objects, mut runs, mut ranges, mut range_draws) = (0, 0, 0, 0);
+        for f in 1..=30 {
+            let cam = walk(f);
+            let fog = Fog::new(&cam, 35.0);
+            backend.set_visibility(move |b| fog.pixels(b));
+            let fr = run(c.as_mut(), &bvh, &cam, &mut backend, f);
+            let mut position = vec![usize::MAX; 600];
+            for (p, &o) in backend.draw_order().iter().enumerate() {
+                position[o as usize] = p;
             }
+            for e in &fr.events {
+                if let MockEvent::DrawIf { objects: o, .. } = e {
+                    objects += o.len();
+                    // A run ends where the next object is not the next one of the order.
+                    runs += 1 + o
+                        .windows(2)
+                        .filter(|w| {
+                            position[w[1] as usize] != position[w[0] as usize].wrapping_add(1)
+                        })
+                        .count();
+                }
+            }
+            // Every draw under a predicate came as ranges, as many as the draw has runs.
+            assert_eq!(
+                fr.counts.order_range_draws, fr.counts.predicated_draws,
+                "{name}"
+            );
+            ranges += fr.counts.order_ranges as usize;
+            range_draws += fr.counts.order_range_draws;
         }
+        assert!(range_draws > 0, "{name}");
+        assert_eq!(ranges, runs, "{name}: adjacent ranges merged");
+        // Set once for a hierarchy whose leaves do not change, holding every object once.
+        assert_eq!(backend.draw_orders_set(), 1, "{name}");
+        let mut all = backend.draw_order().to_vec();
+        all.sort_unstable();
+        assert_eq!(all, (0..600).collect::<Vec<_>>());
+        // Whole subtrees come as runs of the order (only the frustum's edge cuts them).
+        eprintln!("{name}: {objects} objects under predicates in {runs} runs of the draw order");
+        assert!(
+            objects > 0 && runs * 4 < objects,
+            "{name}: {objects} objects in {runs} runs"
+        );
+        // A removed object leaves the order, which is set again.
+        bvh.remove(7).unwrap();
+        bvh.update();
+        run(c.as_mut(), &bvh, &walk(31), &mut backend, 31);
+        assert_eq!(backend.draw_orders_set(), 2, "{name}");
+        assert_eq!(backend.draw_order().len(), 599);
+        assert!(!backend.draw_order().contains(&7));
     }
-    // Set once for a hierarchy whose leaves do not change, holding every object once.
-    assert_eq!(backend.draw_orders_set(), 1);
-    let mut all = backend.draw_order().to_vec();
-    all.sort_unstable();
-    assert_eq!(all, (0..600).collect::<Vec<_>>());
-    // Whole subtrees come as runs of the order (only the frustum's edge cuts them).
-    eprintln!("{objects} objects under predicates in {runs} runs of the draw order");
-    assert!(
-        objects > 0 && runs * 4 < objects,
-        "{objects} objects in {runs} runs"
-    );
-    // A removed object leaves the order, which is set again.
-    bvh.remove(7).unwrap();
-    bvh.update();
-    run(&mut c, &bvh, &walk(31), &mut backend, 31);
-    assert_eq!(backend.draw_orders_set(), 2);
-    assert_eq!(backend.draw_order().len(), 599);
-    assert!(!backend.draw_order().contains(&7));
 }
 
 #[test]

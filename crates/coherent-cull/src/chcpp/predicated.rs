@@ -84,6 +84,7 @@ use super::{Chcpp, ChcppParams, Pending, QueryKind};
 use crate::bvh::ObjectBvh;
 use crate::error::Result;
 use crate::{CullStats, Latency, OcclusionBackend, SubtreeOrder, View};
+use std::ops::Range;
 
 /// The predicated mode's policy: the traversal's decision points as the steps above say.
 pub(super) struct Predicated;
@@ -168,8 +169,8 @@ impl LatencyMode for Predicated {
 /// Scratch of the predicated mode, kept so that steady frames do not allocate.
 #[derive(Default)]
 pub(super) struct Scratch {
-    /// The objects of one conditional draw.
-    objects: Vec<u32>,
+    /// The objects of one conditional draw: ranges of `order`, adjacent ones merged.
+    ranges: Vec<Range<u32>>,
     /// A subtree walk: nodes, or nodes with their depth below the opened node.
     stack: Vec<(u32, u32)>,
     /// Nodes held open whose hold runs out: probed in this frame's query batch.
@@ -193,23 +194,56 @@ impl Scratch {
         self.order.count_below(node)
     }
 
-    /// Appends the objects of `node`'s subtree whose leaves lie in the frustum.
+    /// Appends the objects of `node`'s subtree whose leaves lie in the frustum to `ranges`.
     fn collect(&mut self, bvh: &ObjectBvh, node: u32, view: &View) {
-        self.stack.clear();
-        self.stack.push((node, 0));
-        while let Some((n, _)) = self.stack.pop() {
-            let b = &bvh.nodes[n as usize];
-            if !b.bounds.is_valid() || !view.frustum.intersects(&b.bounds) {
-                continue;
+        let (order, ranges) = (&self.order, &mut self.ranges);
+        walk_in_frustum(bvh, order, &mut self.stack, node, view, |r| {
+            match ranges.last_mut() {
+                Some(last) if last.end == r.start => last.end = r.end,
+                _ => ranges.push(r),
             }
-            if b.is_leaf() {
-                self.objects.extend_from_slice(bvh.objects(n));
-            } else if view.frustum.contains(&b.bounds) {
-                // Every leaf below lies in the frustum: the subtree's objects in walk order.
-                self.objects.extend_from_slice(self.order.subtree(n));
-            } else {
-                self.stack.extend(b.children.iter().map(|&c| (c, 0)));
+        });
+    }
+
+    /// How many objects of `node`'s subtree lie in leaves in the frustum.
+    fn count_in_frustum(&mut self, bvh: &ObjectBvh, node: u32, view: &View) -> u32 {
+        let mut count = 0;
+        walk_in_frustum(bvh, &self.order, &mut self.stack, node, view, |r| {
+            count += r.len() as u32
+        });
+        count
+    }
+
+    /// How many objects `ranges` holds.
+    fn objects(&self) -> u32 {
+        crate::ranges_len(&self.ranges) as u32
+    }
+}
+
+/// Hands `found` the ranges of `order` of the leaves below `node` that lie in the frustum, in
+/// walk order: a subtree wholly in the frustum as its one range.
+fn walk_in_frustum(
+    bvh: &ObjectBvh,
+    order: &SubtreeOrder,
+    stack: &mut Vec<(u32, u32)>,
+    node: u32,
+    view: &View,
+    mut found: impl FnMut(Range<u32>),
+) {
+    stack.clear();
+    stack.push((node, 0));
+    while let Some((n, _)) = stack.pop() {
+        let b = &bvh.nodes[n as usize];
+        if !b.bounds.is_valid() || !view.frustum.intersects(&b.bounds) {
+            continue;
+        }
+        if b.is_leaf() || view.frustum.contains(&b.bounds) {
+            let r = order.range(n);
+            if !r.is_empty() {
+                found(r);
             }
+        } else {
+            stack.extend(b.children.iter().map(|&c| (c, 0)));
         }
     }
 }
@@ -269,7 +303,7 @@ impl Chcpp {
             if q.kind != QueryKind::Invisible {
                 continue;
             }
-            scratch.objects.clear();
+            scratch.ranges.clear();
             let nodes = q.first as usize..(q.first + q.count) as usize;
             let multiquery = q.count > 1;
             let p_true = if self.params.predicated_split_ratio > 0.0 {
@@ -315,14 +349,15 @@ impl Chcpp {
         stats.predicate_resolves += 1;
         for i in parts..self.query_queue.len() {
             let q: Pending = self.query_queue[i];
-            scratch.objects.clear();
+            scratch.ranges.clear();
             scratch.collect(bvh, self.query_nodes[q.first as usize], view);
             self.draw_if(q.id, scratch, backend, stats)?;
         }
         Ok(())
     }
 
-    /// Draws `scratch.objects` under `query`'s predicate (nothing when there are none).
+    /// Draws the objects of `scratch.ranges` under `query`'s predicate (nothing when there
+    /// are none).
     fn draw_if(
         &self,
         query: crate::QueryId,
@@ -330,12 +365,12 @@ impl Chcpp {
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
-        if scratch.objects.is_empty() {
+        if scratch.ranges.is_empty() {
             return Ok(());
         }
         stats.predicated_draws += 1;
-        stats.predicated_objects += scratch.objects.len() as u32;
-        backend.draw_objects_if(query, &scratch.objects)
+        stats.predicated_objects += scratch.objects();
+        backend.draw_order_ranges_if(query, scratch.order.objects(), &scratch.ranges)
     }
 
     /// Whether a queried node is split into parts: an interior node with more than
@@ -346,11 +381,7 @@ impl Chcpp {
         {
             return false;
         }
-        let before = scratch.objects.len();
-        scratch.collect(bvh, node, view);
-        let in_frustum = scratch.objects.len() - before;
-        scratch.objects.truncate(before);
-        in_frustum > self.params.predicated_refine_objects as usize
+        scratch.count_in_frustum(bvh, node, view) > self.params.predicated_refine_objects
     }
 
     /// Whether splitting `node`, queried under a predicate that is true with probability
@@ -367,10 +398,7 @@ impl Chcpp {
         if ratio <= 0.0 {
             return true;
         }
-        let before = scratch.objects.len();
-        scratch.collect(bvh, node, view);
-        let objects = scratch.objects.len() - before;
-        scratch.objects.truncate(before);
+        let objects = scratch.count_in_frustum(bvh, node, view);
         scratch.parts.clear();
         self.parts_of(bvh, node, view, scratch);
         let parts = scratch.parts.len();
