@@ -199,6 +199,11 @@ pub struct ChcppArgs {
     /// of a query each) in frames after one with at least this many parts (0: always).
     #[arg(long, default_value_t = 2000)]
     pub tested_parts_min: u32,
+    /// Predicated mode: the most objects a previously invisible node may put under one
+    /// predicate in expectation, (1 - p) * objects; a node above it is opened and its
+    /// children queried instead (more queries, fewer extra draws).
+    #[arg(long, default_value_t = 8.0)]
+    pub predicate_budget: f32,
 }
 
 impl ChcppArgs {
@@ -240,6 +245,7 @@ impl ChcppArgs {
             predicated_refine_objects: self.refine_objects,
             predicated_split_ratio: self.split_ratio,
             predicated_tested_parts_min: self.tested_parts_min,
+            predicated_budget: self.predicate_budget,
             ..ChcppParams::default()
         };
         for d in &self.disable {
@@ -264,6 +270,12 @@ impl ChcppArgs {
             bail!(
                 "--split-ratio {} must be a finite number at least 0",
                 p.predicated_split_ratio
+            );
+        }
+        if !(p.predicated_budget >= 0.0 && p.predicated_budget.is_finite()) {
+            bail!(
+                "--predicate-budget {} must be a finite number at least 0",
+                p.predicated_budget
             );
         }
         if p.multiqueries && !p.batching {
@@ -936,5 +948,17 @@ mod tests {
         let given = parse(&["--refine-levels", "2"]);
         let p = given.params().unwrap();
         assert_eq!(given.on_gpu(&p), p);
+        // The predicate budget: taken as given, refused when not a finite number >= 0.
+        let p = parse(&["--predicate-budget", "32"]).params().unwrap();
+        assert_eq!(p.predicated_budget, 32.0);
+        assert_eq!(cpu.predicated_budget, 8.0);
+        for bad in [
+            "--predicate-budget=-1",
+            "--predicate-budget=inf",
+            "--predicate-budget=NaN",
+        ] {
+            let err = parse(&[bad]).params().unwrap_err();
+            assert!(err.to_string().contains("--predicate-budget"), "{err}");
+        }
     }
 }
