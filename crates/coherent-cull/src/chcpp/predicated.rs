@@ -14,8 +14,9 @@
 //!    batch (multiqueries, tight bounds) together with the v-queue.
 //! 3. The backend resolves the predicates ([`OcclusionBackend::resolve_predicates`]: on Vulkan
 //!    one pass break, a copy and a barrier), and the objects under each i-queue query's nodes
-//!    that lie in the frustum are drawn under that query's predicate
-//!    ([`OcclusionBackend::draw_objects_if`]).
+//!    that lie in the frustum are drawn under that query's predicate, handed over as ranges of
+//!    the subtree order ([`OcclusionBackend::draw_order_ranges_if`]: a subtree wholly in the
+//!    frustum is one range).
 //! 4. On a backend that can issue queries under a predicate
 //!    ([`OcclusionBackend::supports_predicated_queries`]), a queried node with more than
 //!    `predicated_refine_objects` objects in the frustum, and every node of a multiquery
