@@ -102,6 +102,32 @@ impl Frustum {
             n.dot(v) + p.w >= 0.0
         })
     }
+    /// Every plane, as a mask for [`Frustum::cut_planes`].
+    pub const ALL_PLANES: u8 = 0b11_1111;
+
+    /// The box against the planes of `mask` (bit `i`: `planes[i]`): `None` when it lies
+    /// entirely outside one of them, else the mask of those that cut it (0: inside them all).
+    /// With [`Frustum::ALL_PLANES`], `None` is `!intersects` and `Some(0)` is `contains`; a
+    /// box inside another needs testing only against the planes that cut the outer one.
+    pub fn cut_planes(&self, b: &Aabb, mask: u8) -> Option<u8> {
+        let mut cut = 0;
+        for (i, p) in self.planes.iter().enumerate() {
+            let bit = 1u8 << i;
+            if mask & bit == 0 {
+                continue;
+            }
+            let n = p.truncate();
+            let positive = n.cmpge(Vec3::ZERO);
+            if n.dot(Vec3::select(positive, b.max, b.min)) + p.w < 0.0 {
+                return None;
+            }
+            if n.dot(Vec3::select(positive, b.min, b.max)) + p.w < 0.0 {
+                cut |= bit;
+            }
+        }
+        Some(cut)
+    }
+
     /// Conservative box test: false only if the box is entirely outside one plane.
     pub fn intersects(&self, b: &Aabb) -> bool {
         self.planes.iter().all(|p| {
@@ -312,4 +338,47 @@ pub fn orthographic_rh(left: f32, right: f32, bottom: f32, top: f32, near: f32, 
         Vec4::new(0.0, 0.0, -1.0 / d, 0.0),
         Vec4::new(-(right + left) / w, -(top + bottom) / h, -near / d, 1.0),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    /// `cut_planes` with every plane agrees with `intersects` and `contains`; with the planes
+    /// that cut an enclosing box it gives a box inside it the same answer as with all planes.
+    #[test]
+    fn cut_planes_agree_with_intersects_and_contains() {
+        let view = look_to_rh(Vec3::ZERO, Vec3::new(0.3, -0.1, -1.0), Vec3::Y);
+        let f = Frustum::from_matrix(&(perspective_infinite_reverse_rh(1.0, 1.5, 0.1) * view));
+        let mut rng = Rng::new(7);
+        let mut v = |scale: f32| {
+            Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 * scale - Vec3::splat(scale)
+        };
+        let (mut outside, mut inside, mut cut) = (0, 0, 0);
+        for _ in 0..2000 {
+            let c = v(40.0);
+            let outer = Aabb::new(c - v(6.0).abs(), c + v(6.0).abs());
+            let all = f.cut_planes(&outer, Frustum::ALL_PLANES);
+            assert_eq!(all.is_some(), f.intersects(&outer));
+            assert_eq!(all == Some(0), f.contains(&outer));
+            match all {
+                None => outside += 1,
+                Some(0) => inside += 1,
+                Some(mask) => {
+                    cut += 1;
+                    let a = outer.min + (outer.max - outer.min) * 0.25;
+                    let inner = Aabb::new(a, a + (outer.max - outer.min) * 0.5);
+                    let masked = f.cut_planes(&inner, mask);
+                    let full = f.cut_planes(&inner, Frustum::ALL_PLANES);
+                    assert_eq!(masked.is_some(), full.is_some());
+                    assert_eq!(masked == Some(0), full == Some(0));
+                }
+            }
+        }
+        assert!(
+            outside > 0 && inside > 0 && cut > 0,
+            "{outside} {inside} {cut}"
+        );
+    }
 }

@@ -457,6 +457,8 @@ pub struct Chcpp {
     query_nodes: Vec<u32>,
     /// A batch being issued (taken out of the queues so they can refill meanwhile).
     batch: Vec<u32>,
+    /// A batch's nodes with their probability of staying invisible, for sorting it.
+    batch_order: Vec<(f32, u32)>,
     /// Which nodes are queried: CHC++'s rules, or NOHC's cost rule (`rules.rs`).
     rule: Box<dyn QueryRule>,
     /// The eye of the current frame.

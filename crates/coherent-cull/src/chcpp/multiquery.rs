@@ -18,11 +18,14 @@ impl Chcpp {
         stats: &mut CullStats,
     ) -> Result<()> {
         let mut nodes = std::mem::take(&mut self.batch);
-        nodes.sort_by(|a, b| {
-            self.stays_invisible(*b)
-                .total_cmp(&self.stays_invisible(*a))
-                .then(a.cmp(b))
-        });
+        // Highest p first, ties by node id; p computed once per node, not per comparison.
+        let mut order = std::mem::take(&mut self.batch_order);
+        order.clear();
+        order.extend(nodes.iter().map(|&n| (self.stays_invisible(n), n)));
+        order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        nodes.clear();
+        nodes.extend(order.iter().map(|&(_, n)| n));
+        self.batch_order = order;
         let mut i = 0;
         let mut result = Ok(());
         while i < nodes.len() && result.is_ok() {

@@ -222,7 +222,8 @@ impl Scratch {
 }
 
 /// Hands `found` the ranges of `order` of the leaves below `node` that lie in the frustum, in
-/// walk order: a subtree wholly in the frustum as its one range.
+/// walk order: a subtree wholly in the frustum as its one range. A child is tested only
+/// against the planes that cut its parent (a node's box holds its children's).
 fn walk_in_frustum(
     bvh: &ObjectBvh,
     order: &SubtreeOrder,
@@ -232,19 +233,22 @@ fn walk_in_frustum(
     mut found: impl FnMut(Range<u32>),
 ) {
     stack.clear();
-    stack.push((node, 0));
-    while let Some((n, _)) = stack.pop() {
+    stack.push((node, u32::from(crate::Frustum::ALL_PLANES)));
+    while let Some((n, planes)) = stack.pop() {
         let b = &bvh.nodes[n as usize];
-        if !b.bounds.is_valid() || !view.frustum.intersects(&b.bounds) {
+        if !b.bounds.is_valid() {
             continue;
         }
-        if b.is_leaf() || view.frustum.contains(&b.bounds) {
+        let Some(cut) = view.frustum.cut_planes(&b.bounds, planes as u8) else {
+            continue;
+        };
+        if b.is_leaf() || cut == 0 {
             let r = order.range(n);
             if !r.is_empty() {
                 found(r);
             }
         } else {
-            stack.extend(b.children.iter().map(|&c| (c, 0)));
+            stack.extend(b.children.iter().map(|&c| (c, u32::from(cut))));
         }
     }
 }

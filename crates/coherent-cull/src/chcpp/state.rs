@@ -40,6 +40,7 @@ impl Chcpp {
             boxes: Vec::new(),
             query_nodes: Vec::new(),
             batch: Vec::new(),
+            batch_order: Vec::new(),
             rule: Box::new(PaperRule),
             eye: glam::Vec3::ZERO,
             mode: latency::mode(Latency::InFrame),
