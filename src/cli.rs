@@ -192,8 +192,9 @@ pub struct ChcppArgs {
     pub refine_objects: u32,
     /// Predicated mode: split a node only when (1 - p) * objects * RATIO exceeds its parts
     /// (p: the chance its query comes back hidden; RATIO: an object draw's cost over a query
-    /// whose boxes a false predicate discards). 0: split by size alone.
-    #[arg(long, default_value_t = 0.0)]
+    /// whose boxes a false predicate discards; not applied while the renderer's Hi-Z test
+    /// decides the parts). 0: split by size alone.
+    #[arg(long, default_value_t = 4.0)]
     pub split_ratio: f32,
     /// Predicated mode: the renderer's Hi-Z test decides the parts of split nodes (instead
     /// of a query each) in frames after one with at least this many parts (0: always).

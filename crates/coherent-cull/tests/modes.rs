@@ -833,6 +833,46 @@ fn predicated_hands_over_subtrees_in_the_draw_order_it_set() {
     }
 }
 
+/// Parts that the backend decides by its own test cost no query, so the split ratio (a query's
+/// cost against the objects a split saves) does not hold them back: with the test, ratio 4
+/// splits as many parts as the size rule.
+#[test]
+fn a_split_ratio_leaves_parts_alone_that_the_backend_tests() {
+    let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
+    let mut tested_by_ratio = Vec::new();
+    for ratio in [0.0, 4.0] {
+        let params = ChcppParams {
+            predicated_split_ratio: ratio,
+            predicated_tested_parts_min: 0,
+            ..ChcppParams::default()
+        };
+        let mut c = Chcpp::new(params)
+            .with_latency(Latency::Predicated)
+            .with_frames_in_flight(1);
+        let mut backend = MockBackend::new(|_| 0).with_part_test();
+        let mut tested = 0;
+        for f in 1..=40 {
+            let cam = walk(f.min(20));
+            let fog = Fog::new(&cam, 35.0);
+            let want = fog.visible_objects(&bvh);
+            backend.set_visibility(move |b| fog.pixels(b));
+            let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+            let lost = missing(&want, &fr.drawn);
+            assert!(lost.is_empty(), "ratio {ratio} frame {f}: {lost:?} missed");
+            if f > 25 {
+                tested += fr.counts.tested_parts;
+                assert_eq!(fr.counts.predicated_queries, 0, "ratio {ratio} frame {f}");
+            }
+        }
+        tested_by_ratio.push(tested);
+    }
+    assert!(tested_by_ratio[0] > 0, "{tested_by_ratio:?}");
+    assert_eq!(
+        tested_by_ratio[0], tested_by_ratio[1],
+        "{tested_by_ratio:?}"
+    );
+}
+
 #[test]
 fn a_split_ratio_queries_fewer_parts_of_long_hidden_nodes_and_stays_exact() {
     let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);

@@ -28,10 +28,12 @@
 //!    drawn so far. A second resolve follows, and each part's objects are drawn under the
 //!    part's own predicate: a node that turns visible draws the parts that show, not its
 //!    whole subtree. Blocks do not nest, and none has to: a part's query lies in its node's
-//!    block, its draws in its own. With `predicated_split_ratio` R > 0 a node is split only
-//!    when it pays in expectation, `(1 - p) · objects · R > parts`, `1 - p` the chance that
-//!    its query's predicate is true (the multiqueries' estimate from the nodes' history): a
-//!    split query costs its begin and end even when a false predicate discards its boxes.
+//!    block, its draws in its own. With `predicated_split_ratio` R > 0 (default 4) a node is
+//!    split only when it pays in expectation, `(1 - p) · objects · R > parts`, `1 - p` the
+//!    chance that its query's predicate is true (the multiqueries' estimate from the nodes'
+//!    history): a split query costs its begin and end even when a false predicate discards
+//!    its boxes (a part decided by the backend's test, below, costs no query, so while the
+//!    backend tests parts the rule is off).
 //!    A backend with a test of its own ([`OcclusionBackend::test_part_if`]; the built-in
 //!    renderer's Hi-Z test of the parts against the depth drawn so far, one compute dispatch
 //!    at the second resolve) decides the parts instead of queries in a frame after one that
@@ -110,6 +112,7 @@ impl LatencyMode for Predicated {
         }
         let p = &mut c.predicated;
         p.parts_last_frame = std::mem::take(&mut p.parts_this_frame);
+        p.tested_last_frame = std::mem::take(&mut p.tested_this_frame);
     }
 
     /// A node held open: its children are visited.
@@ -187,6 +190,10 @@ pub(super) struct Scratch {
     /// Parts split in the last frame and in this one (`predicated_tested_parts_min`).
     parts_last_frame: u32,
     parts_this_frame: u32,
+    /// Whether the backend decided parts by its own test in the last frame and in this one
+    /// (`predicated_split_ratio` applies only to parts that cost a query).
+    tested_last_frame: bool,
+    tested_this_frame: bool,
 }
 
 impl Scratch {
@@ -346,7 +353,8 @@ impl Chcpp {
             self.parts_of(bvh, node, view, scratch);
             for p in 0..scratch.parts.len() {
                 let part = scratch.parts[p];
-                self.issue_part(bvh, predicate, part, tested, backend, stats)?;
+                scratch.tested_this_frame |=
+                    self.issue_part(bvh, predicate, part, tested, backend, stats)?;
                 scratch.parts_this_frame += 1;
             }
         }
@@ -390,7 +398,8 @@ impl Chcpp {
     }
 
     /// Whether splitting `node`, queried under a predicate that is true with probability
-    /// `p_true`, pays in expectation (`predicated_split_ratio`; always with a ratio of 0).
+    /// `p_true`, pays in expectation (`predicated_split_ratio`; always with a ratio of 0, and
+    /// while the backend decides parts by its own test, which costs no query per part).
     fn split_pays(
         &self,
         bvh: &ObjectBvh,
@@ -400,7 +409,7 @@ impl Chcpp {
         scratch: &mut Scratch,
     ) -> bool {
         let ratio = self.params.predicated_split_ratio;
-        if ratio <= 0.0 {
+        if ratio <= 0.0 || scratch.tested_last_frame {
             return true;
         }
         let objects = scratch.count_in_frustum(bvh, node, view);
@@ -435,7 +444,7 @@ impl Chcpp {
     }
 
     /// Queries `part` under `predicate`'s predicate (with `tested`, has the backend decide it
-    /// by its own test where it offers one).
+    /// by its own test where it offers one). Returns whether the backend's test decided it.
     fn issue_part(
         &mut self,
         bvh: &ObjectBvh,
@@ -444,7 +453,7 @@ impl Chcpp {
         tested: bool,
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
-    ) -> Result<()> {
+    ) -> Result<bool> {
         let mut boxes = std::mem::take(&mut self.boxes);
         boxes.clear();
         self.query_boxes(bvh, part, &mut boxes);
@@ -452,8 +461,12 @@ impl Chcpp {
             true => backend.test_part_if(predicate, &boxes),
             false => Ok(None),
         };
+        let mut decided_here = false;
         let id = decided.and_then(|id| match id {
-            Some(id) => Ok(id),
+            Some(id) => {
+                decided_here = true;
+                Ok(id)
+            }
             None => {
                 stats.queries += 1;
                 stats.predicated_queries += 1;
@@ -471,7 +484,7 @@ impl Chcpp {
             kind: QueryKind::Part,
             split: false,
         });
-        Ok(())
+        Ok(decided_here)
     }
 
     /// A result of the predicated mode, read `k` frames after its frame: it only steers the
