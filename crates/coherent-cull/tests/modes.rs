@@ -833,6 +833,30 @@ fn predicated_hands_over_subtrees_in_the_draw_order_it_set() {
     }
 }
 
+/// The predicated walk of the split-ratio tests with `params`: 20 frames along the walk, then
+/// 20 standing still (nodes stay hidden, and their history says they will). Every frame must
+/// draw every visible object; returns the frames after the 25th.
+fn split_walk(bvh: &ObjectBvh, params: ChcppParams, backend: &mut MockBackend) -> Vec<Frame> {
+    let ratio = params.predicated_split_ratio;
+    let mut c = Chcpp::new(params)
+        .with_latency(Latency::Predicated)
+        .with_frames_in_flight(1);
+    let mut late = Vec::new();
+    for f in 1..=40 {
+        let cam = walk(f.min(20));
+        let fog = Fog::new(&cam, 35.0);
+        let want = fog.visible_objects(bvh);
+        backend.set_visibility(move |b| fog.pixels(b));
+        let fr = run(&mut c, bvh, &cam, backend, f);
+        let lost = missing(&want, &fr.drawn);
+        assert!(lost.is_empty(), "ratio {ratio} frame {f}: {lost:?} missed");
+        if f > 25 {
+            late.push(fr);
+        }
+    }
+    late
+}
+
 /// Parts that the backend decides by its own test cost no query, so the split ratio (a query's
 /// cost against the objects a split saves) does not hold them back: with the test, ratio 4
 /// splits as many parts as the size rule.
@@ -846,25 +870,10 @@ fn a_split_ratio_leaves_parts_alone_that_the_backend_tests() {
             predicated_tested_parts_min: 0,
             ..ChcppParams::default()
         };
-        let mut c = Chcpp::new(params)
-            .with_latency(Latency::Predicated)
-            .with_frames_in_flight(1);
         let mut backend = MockBackend::new(|_| 0).with_part_test();
-        let mut tested = 0;
-        for f in 1..=40 {
-            let cam = walk(f.min(20));
-            let fog = Fog::new(&cam, 35.0);
-            let want = fog.visible_objects(&bvh);
-            backend.set_visibility(move |b| fog.pixels(b));
-            let fr = run(&mut c, &bvh, &cam, &mut backend, f);
-            let lost = missing(&want, &fr.drawn);
-            assert!(lost.is_empty(), "ratio {ratio} frame {f}: {lost:?} missed");
-            if f > 25 {
-                tested += fr.counts.tested_parts;
-                assert_eq!(fr.counts.predicated_queries, 0, "ratio {ratio} frame {f}");
-            }
-        }
-        tested_by_ratio.push(tested);
+        let late = split_walk(&bvh, params, &mut backend);
+        assert!(late.iter().all(|fr| fr.counts.predicated_queries == 0));
+        tested_by_ratio.push(late.iter().map(|fr| fr.counts.tested_parts).sum::<u32>());
     }
     assert!(tested_by_ratio[0] > 0, "{tested_by_ratio:?}");
     assert_eq!(
@@ -882,26 +891,10 @@ fn a_split_ratio_queries_fewer_parts_of_long_hidden_nodes_and_stays_exact() {
             predicated_split_ratio: ratio,
             ..ChcppParams::default()
         };
-        let mut c = Chcpp::new(params)
-            .with_latency(Latency::Predicated)
-            .with_frames_in_flight(1);
         let mut backend = MockBackend::new(|_| 0);
-        let (mut parts, mut sent) = (0, 0);
-        for f in 1..=40 {
-            // The walk, then twenty frames standing still: nodes stay hidden, and their
-            // history says they will.
-            let cam = walk(f.min(20));
-            let fog = Fog::new(&cam, 35.0);
-            let want = fog.visible_objects(&bvh);
-            backend.set_visibility(move |b| fog.pixels(b));
-            let fr = run(&mut c, &bvh, &cam, &mut backend, f);
-            let lost = missing(&want, &fr.drawn);
-            assert!(lost.is_empty(), "ratio {ratio} frame {f}: {lost:?} missed");
-            if f > 25 {
-                parts += fr.counts.predicated_queries;
-                sent += fr.stats.predicated_objects;
-            }
-        }
+        let late = split_walk(&bvh, params, &mut backend);
+        let parts: u32 = late.iter().map(|fr| fr.counts.predicated_queries).sum();
+        let sent: u32 = late.iter().map(|fr| fr.stats.predicated_objects).sum();
         eprintln!("ratio {ratio}: {parts} parts queried, {sent} objects under predicates");
         parts_by_ratio.push(parts);
     }
