@@ -194,7 +194,7 @@ pub struct ChcppArgs {
     /// (p: the chance its query comes back hidden; RATIO: an object draw's cost over a query
     /// whose boxes a false predicate discards; not applied while the renderer's Hi-Z test
     /// decides the parts). 0: split by size alone.
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = 0.0)]
     pub split_ratio: f32,
     /// Predicated mode: the renderer's Hi-Z test decides the parts of split nodes (instead
     /// of a query each) in frames after one with at least this many parts (0: always).

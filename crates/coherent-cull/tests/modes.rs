@@ -617,8 +617,11 @@ fn predicated_misses_nothing_along_a_walk_and_converges_to_the_visible_set() {
 fn parts_go_to_the_backends_test_after_a_frame_with_enough_of_them() {
     let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
     let with_min = |min| {
+        // Splitting by size alone, so that tested and queried parts come from the same
+        // splits (a split ratio holds back only queried ones).
         let params = ChcppParams {
             predicated_tested_parts_min: min,
+            predicated_split_ratio: 0.0,
             ..ChcppParams::default()
         };
         Chcpp::new(params).with_latency(Latency::Predicated)

@@ -28,7 +28,7 @@
 //!    drawn so far. A second resolve follows, and each part's objects are drawn under the
 //!    part's own predicate: a node that turns visible draws the parts that show, not its
 //!    whole subtree. Blocks do not nest, and none has to: a part's query lies in its node's
-//!    block, its draws in its own. With `predicated_split_ratio` R > 0 (default 4) a node is
+//!    block, its draws in its own. With `predicated_split_ratio` R > 0 a node is
 //!    split only when it pays in expectation, `(1 - p) · objects · R > parts`, `1 - p` the
 //!    chance that its query's predicate is true (the multiqueries' estimate from the nodes'
 //!    history): a split query costs its begin and end even when a false predicate discards
