@@ -914,3 +914,38 @@ fn a_split_ratio_queries_fewer_parts_of_long_hidden_nodes_and_stays_exact() {
     );
     assert_eq!(parts_by_ratio[3], 0, "{parts_by_ratio:?}");
 }
+
+/// With a split ratio some nodes of a frame are split and others not; standing still, the
+/// extra draws still die out (a multiquery is split as a whole or not at all, so a node drawn
+/// under a failed multiquery's predicate is queried on its own afterwards).
+#[test]
+fn a_split_ratio_converges_while_standing() {
+    let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
+    for k in [1, 2] {
+        let params = ChcppParams {
+            predicated_split_ratio: 4.0,
+            ..ChcppParams::default()
+        };
+        let mut c = Chcpp::new(params)
+            .with_latency(Latency::Predicated)
+            .with_frames_in_flight(k);
+        let mut backend = MockBackend::new(|_| 0).with_frames_in_flight(k);
+        let (mut extra, mut steady, mut parts) = (0, 0, 0);
+        for f in 1..=50 {
+            let cam = walk(f.min(30));
+            let fog = Fog::new(&cam, 35.0);
+            let want = fog.visible_objects(&bvh);
+            backend.set_visibility(move |b| fog.pixels(b));
+            let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+            let lost = missing(&want, &fr.drawn);
+            assert!(lost.is_empty(), "k={k} frame {f}: {lost:?} missed");
+            parts += fr.counts.predicated_queries;
+            if f > 40 {
+                extra += fr.drawn.len() - want.len();
+                steady += want.len();
+            }
+        }
+        assert!(parts > 0, "k={k}: some nodes split");
+        assert!(extra * 10 < steady, "k={k}: {extra} extra of {steady}");
+    }
+}

@@ -64,11 +64,11 @@ pub struct ChcppParams {
     /// `objects` its objects in the frustum, `parts` the queries splitting costs, and `ratio`
     /// this value: the cost of drawing an object over that of a query whose boxes a false
     /// predicate discards (the begin and end of every split query are recorded, and paid,
-    /// whatever the predicate). 0 (the default) splits by size alone (4 was faster in
-    /// 100-frame street walks on lavapipe, not in the 300-frame one, and with two frames in
-    /// flight it kept drawing hidden objects of nodes it did not split: docs/measurements.md).
-    /// Parts that the backend decides by its own test (`predicated_tested_parts_min`) cost no
-    /// query: while it does, every node the size rule picks is split.
+    /// whatever the predicate). The nodes of a multiquery are split all or none, by their
+    /// sums. 0 (the default) splits by size alone (4 was faster in 100-frame street walks on
+    /// lavapipe, not beyond the spread of the 300-frame one: docs/measurements.md). Parts that
+    /// the backend decides by its own test (`predicated_tested_parts_min`) cost no query:
+    /// while it does, every node the size rule picks is split.
     pub predicated_split_ratio: f32,
     /// Predicated mode: the backend's own test ([`crate::OcclusionBackend::test_part_if`],
     /// e.g. a Hi-Z test on the device) decides the parts of split nodes instead of one query

@@ -326,11 +326,19 @@ impl Chcpp {
             } else {
                 1.0
             };
+            // A multiquery is split as a whole or not at all, so that its result is handled
+            // one way for all its nodes (a split query's nodes wait for their parts' results;
+            // an unsplit one's are queried one by one after it failed).
+            let split_group = split
+                && multiquery
+                && self.params.predicated_split_multiqueries
+                && self.split_pays(bvh, &self.query_nodes[nodes.clone()], view, p_true, scratch);
             for &n in &self.query_nodes[nodes] {
-                if split
-                    && ((multiquery && self.params.predicated_split_multiqueries)
-                        || (!multiquery && self.split_node(bvh, n, view, scratch)))
-                    && self.split_pays(bvh, n, view, p_true, scratch)
+                if split_group
+                    || (split
+                        && !multiquery
+                        && self.split_node(bvh, n, view, scratch)
+                        && self.split_pays(bvh, &[n], view, p_true, scratch))
                 {
                     scratch.split.push((q.id, n));
                     self.query_queue[i].split = true;
@@ -397,13 +405,14 @@ impl Chcpp {
         scratch.count_in_frustum(bvh, node, view) > self.params.predicated_refine_objects
     }
 
-    /// Whether splitting `node`, queried under a predicate that is true with probability
-    /// `p_true`, pays in expectation (`predicated_split_ratio`; always with a ratio of 0, and
-    /// while the backend decides parts by its own test, which costs no query per part).
+    /// Whether splitting `nodes` (one node, or the nodes of a multiquery), queried under a
+    /// predicate that is true with probability `p_true`, pays in expectation
+    /// (`predicated_split_ratio`; always with a ratio of 0, and while the backend decides
+    /// parts by its own test, which costs no query per part).
     fn split_pays(
         &self,
         bvh: &ObjectBvh,
-        node: u32,
+        nodes: &[u32],
         view: &View,
         p_true: f32,
         scratch: &mut Scratch,
@@ -412,10 +421,13 @@ impl Chcpp {
         if ratio <= 0.0 || scratch.tested_last_frame {
             return true;
         }
-        let objects = scratch.count_in_frustum(bvh, node, view);
-        scratch.parts.clear();
-        self.parts_of(bvh, node, view, scratch);
-        let parts = scratch.parts.len();
+        let (mut objects, mut parts) = (0, 0);
+        for &node in nodes {
+            objects += scratch.count_in_frustum(bvh, node, view);
+            scratch.parts.clear();
+            self.parts_of(bvh, node, view, scratch);
+            parts += scratch.parts.len();
+        }
         scratch.parts.clear();
         p_true * objects as f32 * ratio > parts as f32
     }
