@@ -836,25 +836,35 @@ fn predicated_hands_over_subtrees_in_the_draw_order_it_set() {
     }
 }
 
-/// The predicated walk of the split-ratio tests with `params`: 20 frames along the walk, then
-/// 20 standing still (nodes stay hidden, and their history says they will). Every frame must
-/// draw every visible object; returns the frames after the 25th.
-fn split_walk(bvh: &ObjectBvh, params: ChcppParams, backend: &mut MockBackend) -> Vec<Frame> {
+/// The predicated walk of the split-ratio tests with `params` and `k` frames in flight: `moving`
+/// frames along the walk, then standing still until frame `frames` (nodes stay hidden, and
+/// their history says they will). Every frame must draw every visible object; returns the
+/// frames after `keep_after` with the objects visible in each.
+fn split_walk(
+    bvh: &ObjectBvh,
+    params: ChcppParams,
+    k: u32,
+    backend: &mut MockBackend,
+    (moving, frames, keep_after): (u64, u64, u64),
+) -> Vec<(Frame, usize)> {
     let ratio = params.predicated_split_ratio;
     let mut c = Chcpp::new(params)
         .with_latency(Latency::Predicated)
-        .with_frames_in_flight(1);
+        .with_frames_in_flight(k);
     let mut late = Vec::new();
-    for f in 1..=40 {
-        let cam = walk(f.min(20));
+    for f in 1..=frames {
+        let cam = walk(f.min(moving));
         let fog = Fog::new(&cam, 35.0);
         let want = fog.visible_objects(bvh);
         backend.set_visibility(move |b| fog.pixels(b));
         let fr = run(&mut c, bvh, &cam, backend, f);
         let lost = missing(&want, &fr.drawn);
-        assert!(lost.is_empty(), "ratio {ratio} frame {f}: {lost:?} missed");
-        if f > 25 {
-            late.push(fr);
+        assert!(
+            lost.is_empty(),
+            "ratio {ratio} k={k} frame {f}: {lost:?} missed"
+        );
+        if f > keep_after {
+            late.push((fr, want.len()));
         }
     }
     late
@@ -874,9 +884,13 @@ fn a_split_ratio_leaves_parts_alone_that_the_backend_tests() {
             ..ChcppParams::default()
         };
         let mut backend = MockBackend::new(|_| 0).with_part_test();
-        let late = split_walk(&bvh, params, &mut backend);
-        assert!(late.iter().all(|fr| fr.counts.predicated_queries == 0));
-        tested_by_ratio.push(late.iter().map(|fr| fr.counts.tested_parts).sum::<u32>());
+        let late = split_walk(&bvh, params, 1, &mut backend, (20, 40, 25));
+        assert!(late.iter().all(|(fr, _)| fr.counts.predicated_queries == 0));
+        tested_by_ratio.push(
+            late.iter()
+                .map(|(fr, _)| fr.counts.tested_parts)
+                .sum::<u32>(),
+        );
     }
     assert!(tested_by_ratio[0] > 0, "{tested_by_ratio:?}");
     assert_eq!(
@@ -895,9 +909,12 @@ fn a_split_ratio_queries_fewer_parts_of_long_hidden_nodes_and_stays_exact() {
             ..ChcppParams::default()
         };
         let mut backend = MockBackend::new(|_| 0);
-        let late = split_walk(&bvh, params, &mut backend);
-        let parts: u32 = late.iter().map(|fr| fr.counts.predicated_queries).sum();
-        let sent: u32 = late.iter().map(|fr| fr.stats.predicated_objects).sum();
+        let late = split_walk(&bvh, params, 1, &mut backend, (20, 40, 25));
+        let parts: u32 = late
+            .iter()
+            .map(|(fr, _)| fr.counts.predicated_queries)
+            .sum();
+        let sent: u32 = late.iter().map(|(fr, _)| fr.stats.predicated_objects).sum();
         eprintln!("ratio {ratio}: {parts} parts queried, {sent} objects under predicates");
         parts_by_ratio.push(parts);
     }
@@ -926,26 +943,16 @@ fn a_split_ratio_converges_while_standing() {
             predicated_split_ratio: 4.0,
             ..ChcppParams::default()
         };
-        let mut c = Chcpp::new(params)
-            .with_latency(Latency::Predicated)
-            .with_frames_in_flight(k);
         let mut backend = MockBackend::new(|_| 0).with_frames_in_flight(k);
-        let (mut extra, mut steady, mut parts) = (0, 0, 0);
-        for f in 1..=50 {
-            let cam = walk(f.min(30));
-            let fog = Fog::new(&cam, 35.0);
-            let want = fog.visible_objects(&bvh);
-            backend.set_visibility(move |b| fog.pixels(b));
-            let fr = run(&mut c, &bvh, &cam, &mut backend, f);
-            let lost = missing(&want, &fr.drawn);
-            assert!(lost.is_empty(), "k={k} frame {f}: {lost:?} missed");
-            parts += fr.counts.predicated_queries;
-            if f > 40 {
-                extra += fr.drawn.len() - want.len();
-                steady += want.len();
-            }
-        }
+        let all = split_walk(&bvh, params, k, &mut backend, (30, 50, 0));
+        let parts: u32 = all.iter().map(|(fr, _)| fr.counts.predicated_queries).sum();
         assert!(parts > 0, "k={k}: some nodes split");
+        let standing = &all[40..];
+        let extra: usize = standing
+            .iter()
+            .map(|(fr, want)| fr.drawn.len() - want)
+            .sum();
+        let steady: usize = standing.iter().map(|(_, want)| want).sum();
         assert!(extra * 10 < steady, "k={k}: {extra} extra of {steady}");
     }
 }
