@@ -869,10 +869,7 @@ impl OcclusionBackend for Probe<'_> {
         order: &[u32],
         ranges: &[std::ops::Range<u32>],
     ) -> coherent_cull::Result<()> {
-        for r in ranges {
-            let objects = coherent_cull::order_slice(order, r)?;
-            self.log.drawn.extend_from_slice(objects);
-        }
+        coherent_cull::extend_order_objects(&mut self.log.drawn, order, ranges)?;
         self.inner.draw_order_ranges_if(query, order, ranges)
     }
     fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {

@@ -1103,8 +1103,8 @@ impl Renderer {
                 scattered.clear();
             }
             if result.is_ok() {
-                let run = &objects[p.start..p.start + p.len];
-                result = self.record_run(run, position, predicate);
+                // The run's objects are the order's from `position` on.
+                result = self.record_order_range(position, p.len as u32, predicate);
             }
             if result.is_err() {
                 break;
@@ -1116,20 +1116,6 @@ impl Renderer {
         self.pieces = pieces;
         self.scattered = scattered;
         result
-    }
-
-    /// One multi-draw of the ordered commands `position..` that draw `run`.
-    fn record_run(&mut self, run: &[u32], position: u32, predicate: Option<QueryId>) -> Result<()> {
-        self.use_render_pipeline();
-        self.bind_scene_buffers();
-        let triangles = self.ordered.run_triangles(position, run.len());
-        if let Some(buffer) = self.ordered.buffer() {
-            let offset = u64::from(position) * DRAW_BYTES as u64;
-            self.recorder
-                .draw_objects_indirect(buffer, offset, run.len() as u32, triangles);
-            self.log.drew(run, predicate);
-        }
-        Ok(())
     }
 
     /// Refuses a predicate that is not a resolved query (or a tested part) of this frame.
@@ -1342,22 +1328,18 @@ impl OcclusionBackend for Renderer {
         order: &[u32],
         ranges: &[std::ops::Range<u32>],
     ) -> coherent_cull::Result<()> {
-        for r in ranges {
-            coherent_cull::order_slice(order, r)?;
-        }
+        let objects = coherent_cull::order_ranges_len(order, ranges)?;
         if !self.multi_draws() || !self.ordered.holds(order) {
             // Not the order of the commands held: the objects one by one.
-            let mut objects = std::mem::take(&mut self.range_objects);
-            objects.clear();
-            for r in ranges {
-                objects.extend_from_slice(&order[r.start as usize..r.end as usize]);
-            }
-            let drawn = self.draw_objects_if(query, &objects);
-            self.range_objects = objects;
+            let mut list = std::mem::take(&mut self.range_objects);
+            list.clear();
+            let drawn = coherent_cull::extend_order_objects(&mut list, order, ranges)
+                .and_then(|()| self.draw_objects_if(query, &list));
+            self.range_objects = list;
             return drawn;
         }
         self.check_predicate(query)?;
-        if coherent_cull::ranges_len(ranges) == 0 {
+        if objects == 0 {
             return Ok(());
         }
         self.begin_predicated(query)?;

@@ -587,6 +587,30 @@ impl<D: DrawObjects> FrameBackend<'_, D> {
         Ok(())
     }
 
+    /// Records `draw` (the host's draws of `objects` objects) inside a conditional block on
+    /// `query`'s predicate, and counts the objects as predicated; nothing for no objects.
+    fn draw_in_block(
+        &mut self,
+        query: QueryId,
+        objects: usize,
+        draw: impl FnOnce(&mut Self) -> Result<()>,
+    ) -> Result<()> {
+        let index = self.resolved_predicate(query)?;
+        if objects == 0 {
+            return Ok(());
+        }
+        let cmd = self.cmd;
+        // SAFETY: recording inside the host's rendering, after the resolve in this command
+        // buffer; the set checks the predicate and that no block is open.
+        unsafe { self.set()?.begin_block(cmd, index)? };
+        let drawn = draw(self);
+        // SAFETY: the block begun above is open in this rendering instance.
+        unsafe { self.set()?.end_block(cmd) };
+        drawn?;
+        self.set()?.counts_mut().predicated_objects += objects as u32;
+        Ok(())
+    }
+
     /// The index in this frame's slot of `query`, a resolved predicate of this frame.
     fn resolved_predicate(&self, query: QueryId) -> Result<u32> {
         let current = self.slot()?;
@@ -723,20 +747,7 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
-        let index = self.resolved_predicate(query)?;
-        if objects.is_empty() {
-            return Ok(());
-        }
-        let cmd = self.cmd;
-        // SAFETY: recording inside the host's rendering, after the resolve in this command
-        // buffer; the set checks the predicate and that no block is open.
-        unsafe { self.set()?.begin_block(cmd, index)? };
-        let drawn = self.draw_objects(objects);
-        // SAFETY: the block begun above is open in this rendering instance.
-        unsafe { self.set()?.end_block(cmd) };
-        drawn?;
-        self.set()?.counts_mut().predicated_objects += objects.len() as u32;
-        Ok(())
+        self.draw_in_block(query, objects.len(), |b| b.draw_objects(objects))
     }
 
     fn draw_order_ranges_if(
@@ -745,26 +756,12 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         order: &[u32],
         ranges: &[Range<u32>],
     ) -> Result<()> {
-        let index = self.resolved_predicate(query)?;
-        for r in ranges {
-            coherent_cull::order_slice(order, r)?;
-        }
-        let objects = coherent_cull::ranges_len(ranges);
-        if objects == 0 {
-            return Ok(());
-        }
-        let cmd = self.cmd;
-        // SAFETY: as in draw_objects_if.
-        unsafe { self.set()?.begin_block(cmd, index)? };
-        let drawn = self.enter_render_state().and_then(|rebind| {
-            self.draw.draw_ranges(cmd, order, ranges, rebind)?;
-            self.count_draw(objects)
-        });
-        // SAFETY: the block begun above is open in this rendering instance.
-        unsafe { self.set()?.end_block(cmd) };
-        drawn?;
-        self.set()?.counts_mut().predicated_objects += objects as u32;
-        Ok(())
+        let objects = coherent_cull::order_ranges_len(order, ranges)?;
+        self.draw_in_block(query, objects, |b| {
+            let rebind = b.enter_render_state()?;
+            b.draw.draw_ranges(b.cmd, order, ranges, rebind)?;
+            b.count_draw(objects)
+        })
     }
 }
 

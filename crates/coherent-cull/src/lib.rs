@@ -283,9 +283,7 @@ pub trait OcclusionBackend {
         ranges: &[std::ops::Range<u32>],
     ) -> Result<()> {
         let mut objects = Vec::with_capacity(ranges_len(ranges));
-        for r in ranges {
-            objects.extend_from_slice(order_slice(order, r)?);
-        }
+        extend_order_objects(&mut objects, order, ranges)?;
         self.draw_objects_if(query, &objects)
     }
     /// Whether the backend can issue a query under another query's predicate
@@ -341,6 +339,28 @@ pub fn order_slice<'a>(order: &'a [u32], range: &std::ops::Range<u32>) -> Result
                 order.len()
             ))
         })
+}
+
+/// How many objects `ranges` of `order` hold, or [`Error::Input`] when one of them does not lie
+/// in `order` ([`OcclusionBackend::draw_order_ranges_if`]).
+pub fn order_ranges_len(order: &[u32], ranges: &[std::ops::Range<u32>]) -> Result<usize> {
+    for r in ranges {
+        order_slice(order, r)?;
+    }
+    Ok(ranges_len(ranges))
+}
+
+/// Appends the objects `order[r]` of each range `r` of `ranges` to `out`, or fails with
+/// [`Error::Input`] (appending nothing more) at a range that does not lie in `order`.
+pub fn extend_order_objects(
+    out: &mut Vec<u32>,
+    order: &[u32],
+    ranges: &[std::ops::Range<u32>],
+) -> Result<()> {
+    for r in ranges {
+        out.extend_from_slice(order_slice(order, r)?);
+    }
+    Ok(())
 }
 
 /// The error of a backend without predicated draws.

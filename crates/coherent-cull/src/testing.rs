@@ -534,9 +534,7 @@ impl OcclusionBackend for MockBackend<'_> {
             )));
         }
         let mut objects = Vec::with_capacity(crate::ranges_len(ranges));
-        for r in ranges {
-            objects.extend_from_slice(crate::order_slice(order, r)?);
-        }
+        crate::extend_order_objects(&mut objects, order, ranges)?;
         self.draw_objects_if(query, &objects)?;
         if !objects.is_empty() {
             self.counts.order_range_draws += 1;
