@@ -177,7 +177,7 @@ pub struct ChcppArgs {
     /// Turn CHC++ parts off: any of batching, interval, multiqueries, tight, and for the
     /// predicated mode split-multiqueries (draw a multiquery's objects under its own predicate
     /// instead of querying its nodes under it) and tested-parts (query the parts of split
-    /// nodes instead of the renderer's Hi-Z part test) (comma separated).
+    /// nodes instead of the renderer's depth part test) (comma separated).
     #[arg(long, value_delimiter = ',')]
     pub disable: Vec<String>,
     /// Predicated mode: levels below a queried node whose parts are queried under its
@@ -192,13 +192,14 @@ pub struct ChcppArgs {
     pub refine_objects: u32,
     /// Predicated mode: split a node only when (1 - p) * objects * RATIO exceeds its parts
     /// (p: the chance its query comes back hidden; RATIO: an object draw's cost over a query
-    /// whose boxes a false predicate discards; not applied while the renderer's Hi-Z test
+    /// whose boxes a false predicate discards; not applied while the renderer's depth test
     /// decides the parts). 0: split by size alone.
     #[arg(long, default_value_t = 0.0)]
     pub split_ratio: f32,
-    /// Predicated mode: the renderer's Hi-Z test decides the parts of split nodes (instead
-    /// of a query each) in frames after one with at least this many parts (0: always).
-    #[arg(long, default_value_t = 2000)]
+    /// Predicated mode: the renderer's depth test decides the parts of split nodes (instead
+    /// of a query each) in frames after one with at least this many parts (0: always;
+    /// `--disable tested-parts`: never).
+    #[arg(long, default_value_t = 0)]
     pub tested_parts_min: u32,
     /// Predicated mode: the most objects a previously invisible node may put under one
     /// predicate in expectation, (1 - p) * objects; a node above it is opened and its

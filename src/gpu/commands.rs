@@ -79,7 +79,7 @@ pub struct CommandCounts {
     /// indirect multi-draw of several objects ([`Recorder::draw_objects_indirect`]); also in
     /// `object_draws`.
     pub predicated_calls: u32,
-    /// Parts of split nodes decided by the Hi-Z part test instead of a query (predicated
+    /// Parts of split nodes decided by the depth part test instead of a query (predicated
     /// mode, built-in renderer); not in `queries_begun`.
     pub tested_parts: u32,
     /// Objects those draw calls draw when their predicate is true (an object drawn by its own

@@ -70,7 +70,7 @@ pub const GI_ISM_PULL_PUSH_COMP: &[u8] = spirv!("gi_ism_pull_push.comp");
 pub const HIZ_REDUCE_COMP: &[u8] = spirv!("hiz_reduce.comp");
 /// Hi-Z: frustum and pyramid test of every object, writing indirect draws (compute).
 pub const HIZ_CULL_COMP: &[u8] = spirv!("hiz_cull.comp");
-/// Predicated mode: the Hi-Z test of split nodes' parts, writing their predicates (compute).
+/// Predicated mode: the depth test of split nodes' parts, writing their predicates (compute).
 pub const PART_TEST_COMP: &[u8] = spirv!("part_test.comp");
 
 /// Creates a shader module from SPIR-V bytes.

@@ -135,7 +135,7 @@ pub struct Renderer {
     /// Scratch of one ordered draw: its pieces and its scattered objects.
     pieces: Vec<ordered::Piece>,
     scattered: Vec<u32>,
-    /// The predicated mode's Hi-Z part tests ([`part_tests`]), made on first use.
+    /// The predicated mode's depth part tests ([`part_tests`]), made on first use.
     part_tests: Option<part_tests::PartTests>,
     /// Why the device cannot run the part tests (its parts are then queried).
     part_tests_unsupported: Option<String>,
@@ -1248,13 +1248,13 @@ impl Renderer {
         self.queries.skip_resolve_barrier(skip);
     }
 
-    /// Why the predicated mode's Hi-Z part test cannot run on this device (`None` when it can
+    /// Why the predicated mode's depth part test cannot run on this device (`None` when it can
     /// or was not tried yet); its parts are then queried.
     pub fn part_test_unsupported(&self) -> Option<&str> {
         self.part_tests_unsupported.as_deref()
     }
 
-    /// Leaves out the barrier between the Hi-Z part test and the conditional blocks on its
+    /// Leaves out the barrier between the depth part test and the conditional blocks on its
     /// predicates (for the test that shows such a frame is refused).
     #[doc(hidden)]
     pub fn skip_part_barrier(&mut self, skip: bool) -> Result<()> {
@@ -1455,7 +1455,7 @@ impl OcclusionBackend for Renderer {
 }
 
 impl Renderer {
-    /// A part of a split node under `predicate`, as a Hi-Z part test ([`part_tests`]) when it
+    /// A part of a split node under `predicate`, as a depth part test ([`part_tests`]) when it
     /// can be: the visibility threshold is 0 (the test says visible or not, not how many
     /// pixels), the device has conditional rendering, and this frame has room; `None` when
     /// it is to be queried.

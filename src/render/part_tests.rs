@@ -1,4 +1,4 @@
-//! The predicated mode's part tests: the parts of split nodes decided by a Hi-Z test on the
+//! The predicated mode's part tests: the parts of split nodes decided by a depth test on the
 //! device instead of one occlusion query each.
 //!
 //! In the predicated mode a queried node that may turn visible is split into parts, each
@@ -7,19 +7,25 @@
 //! begun and ended in every tile even when a false predicate discards its boxes (lavapipe:
 //! about 4 us a query at 1280x720), and a split frame issues hundreds of them (thousands in
 //! larger scenes). Here the renderer answers those part queries itself: at the resolve that
-//! follows them it ends rendering, copies the node queries' values, reduces the depth drawn so
-//! far into a farthest-depth pyramid (the `hiz` pyramid) and runs one compute dispatch that
-//! writes each part's predicate: 1 when its node's query counted a sample and one of its
-//! boxes may be visible against the pyramid, else 0. The part's objects are drawn under that
-//! predicate, and the culler reads it `k` frames later as the part's result (1 or 0).
+//! follows them it ends rendering, copies the node queries' values, and runs one compute
+//! dispatch that writes each part's predicate: 1 when its node's query
+//! counted a sample and one of its boxes may be visible against the depth drawn so far, else 0.
+//! The part's objects are drawn under that predicate, and the culler reads it `k` frames later
+//! as the part's result (1 or 0).
 //!
-//! Exact: the test is the conservative one of `hiz` (boxes reaching the near plane pass; a
-//! box fails only when its nearest depth, less a margin, lies behind the farthest depth of
-//! every pyramid texel under its screen rectangle), against depth of real geometry of this
-//! frame, which later draws only make nearer; and a node whose query counted nothing hides
-//! every part. It is coarser than a query (a screen rectangle against up to
-//! [`TEXELS_PER_SIDE`]² texels instead of the box's faces per pixel), so a part may pass
-//! that a query would have failed: more objects drawn, never fewer.
+//! The depth test reads the depth buffer itself, texel by texel over the box's screen
+//! rectangle, and only for parts whose node's query counted a sample: most queried nodes stay
+//! hidden, and their parts cost one read of the node's value. A box whose rectangle covers
+//! more than [`MOST_PIXELS`] pixels passes unread, which bounds a dispatch's cost. No pyramid
+//! is built: on lavapipe the `hiz` pyramid of a frame's depth costs as much as 1,500-2,000
+//! part queries.
+//!
+//! Exact: a box passes when it reaches the near plane, and fails only when every depth texel
+//! under its screen rectangle lies nearer than its nearest depth less a margin. The depth is
+//! of real geometry of this frame, which later draws only make nearer; and a node whose query
+//! counted nothing hides every part. It is coarser than a query (a rectangle at the box's
+//! nearest depth instead of the box's faces per pixel), so a part may pass that a query would
+//! have failed: more objects drawn, never fewer.
 
 use std::sync::Arc;
 
@@ -30,9 +36,8 @@ use gpu_allocator::MemoryLocation;
 use crate::error::{Error, Result};
 use crate::gpu::{
     bytes_of, shaders, Access, Binding, Buffer, ComputePipeline, DescriptorSets, GpuContext, Image,
-    PipelineLayout, Recorder,
+    ImageUse, PipelineLayout, Recorder, Sampler,
 };
-use crate::render::hiz::pyramid::DepthPyramid;
 
 /// Part ids carry this bit, so that they never collide with the query set's ids.
 pub const PART_BIT: QueryId = 1 << 31;
@@ -40,9 +45,9 @@ pub const PART_BIT: QueryId = 1 << 31;
 const GROUP: u32 = 64;
 /// Push constants of part_test.comp: view_proj, info, screen.
 const PUSH: u32 = 96;
-/// Most pyramid texels per side read for one box (a finer level than `hiz`'s 4: a few
-/// thousand boxes a frame at most, and a finer test draws fewer parts).
-pub const TEXELS_PER_SIDE: u32 = 8;
+/// Most pixels read for one box: a box whose screen rectangle covers more passes unread
+/// (256x256: at 1280x720, a part that covers a fifteenth of the image).
+pub const MOST_PIXELS: u32 = 256 * 256;
 /// Depth margin of the test (as `hiz`).
 const DEPTH_MARGIN: f32 = 1e-6;
 /// Bytes of one part record and of one box in their buffers.
@@ -70,7 +75,8 @@ pub struct PartTests {
     ctx: Arc<GpuContext>,
     pipeline: ComputePipeline,
     layout: PipelineLayout,
-    pyramid: DepthPyramid,
+    /// Nearest sampler for the depth texel fetches.
+    sampler: Sampler,
     size: (u32, u32),
     buffers: Buffers,
     /// Buffers replaced during a frame, kept until the frame has completed.
@@ -91,17 +97,14 @@ pub struct PartTests {
 }
 
 impl PartTests {
-    /// The pipeline, pyramid and first buffers for a target whose depth image is `depth`.
-    /// [`Error::Unsupported`] names what the device lacks (sampled depth, R32F storage
-    /// images, workgroups of 64): the renderer then queries the parts.
+    /// The pipeline and first buffers for a target whose depth image is `depth`.
+    /// [`Error::Unsupported`] names what the device lacks (sampled depth, workgroups of 64):
+    /// the renderer then queries the parts.
     pub fn new(ctx: &Arc<GpuContext>, depth: &Image) -> Result<PartTests> {
         let i = &ctx.info;
         let mut missing = Vec::new();
         if !i.optional.depth_sampled {
             missing.push("SAMPLED_IMAGE on D32_SFLOAT");
-        }
-        if !i.optional.r32f_storage {
-            missing.push("STORAGE_IMAGE and SAMPLED_IMAGE on R32_SFLOAT");
         }
         if i.max_compute_work_group_size[0] < GROUP || i.max_compute_work_group_invocations < GROUP
         {
@@ -109,7 +112,7 @@ impl PartTests {
         }
         if !missing.is_empty() {
             return Err(Error::Unsupported {
-                feature: format!("Hi-Z part test: {}", missing.join(", ")),
+                feature: format!("depth part test: {}", missing.join(", ")),
             });
         }
         let layout = PipelineLayout::new(
@@ -124,13 +127,13 @@ impl PartTests {
             PUSH,
         )?;
         let pipeline = ComputePipeline::new(ctx, &layout, "part test", shaders::PART_TEST_COMP)?;
-        let pyramid = DepthPyramid::new(ctx, depth)?;
-        let buffers = Buffers::new(ctx, &layout, &pyramid, (1024, 2048, 4096))?;
+        let sampler = Sampler::nearest_clamp(ctx)?;
+        let buffers = Buffers::new(ctx, &layout, depth, &sampler, (1024, 2048, 4096))?;
         Ok(PartTests {
             ctx: ctx.clone(),
             pipeline,
             layout,
-            pyramid,
+            sampler,
             size: depth.size(),
             buffers,
             retired: Vec::new(),
@@ -270,9 +273,10 @@ impl PartTests {
     }
 
     /// Records the tests of the parts added since the last call, outside rendering, after the
-    /// queries they name: the copy of the query values, the pyramid of `depth`, the dispatch,
-    /// and the barriers to conditional rendering and the host. `segment` is the segment being
-    /// recorded.
+    /// queries they name: the copy of the query values, `depth` made readable by compute, the
+    /// dispatch, and the barriers to conditional rendering and the host. Leaves `depth`
+    /// sampled by compute (the caller moves it back to an attachment). `segment` is the
+    /// segment being recorded.
     pub fn record(
         &mut self,
         rec: &mut Recorder,
@@ -287,7 +291,12 @@ impl PartTests {
         }
         // The values of the queries up to the last one a part names.
         let issued = self.parts.iter().map(|p| p[2] + 1).max().unwrap_or(0);
-        self.make_room(self.parts.len() as u32, self.boxes.len() as u32, issued)?;
+        self.make_room(
+            depth,
+            self.parts.len() as u32,
+            self.boxes.len() as u32,
+            issued,
+        )?;
         let b = &mut self.buffers;
         let parts = &self.parts[first as usize..];
         let first_box = parts[0][0] as usize;
@@ -309,11 +318,11 @@ impl PartTests {
             };
         }
         rec.memory_barrier(Access::TransferWrite, Access::ComputeReadWrite);
-        self.pyramid.record_build(rec, depth)?;
+        rec.transition(depth, ImageUse::SampledByCompute);
         rec.bind_compute_pipeline(&self.pipeline);
         rec.bind_compute_set(&self.layout, b.sets.get(0));
         let (w, h) = self.size;
-        let info = [n, first, self.pyramid.image.levels(), TEXELS_PER_SIDE];
+        let info = [n, first, MOST_PIXELS, 0];
         let screen = [w as f32, h as f32, DEPTH_MARGIN, 0.0];
         let mut push = [0u8; PUSH as usize];
         push[..64].copy_from_slice(bytes_of(view_proj));
@@ -337,7 +346,7 @@ impl PartTests {
     /// small are replaced by larger ones (the old ones kept until the frame has completed).
     /// Only before the frame's first dispatch, which names the buffers: later, a part that
     /// does not fit is refused by [`PartTests::fits`] and queried instead.
-    fn make_room(&mut self, parts: u32, boxes: u32, queries: u32) -> Result<()> {
+    fn make_room(&mut self, depth: &Image, parts: u32, boxes: u32, queries: u32) -> Result<()> {
         let (p, b, q) = self.buffers.room;
         if parts <= p && boxes <= b && queries <= q {
             return Ok(());
@@ -350,7 +359,7 @@ impl PartTests {
         }
         let grow = |need: u32, have: u32| need.max(have).next_power_of_two();
         let room = (grow(parts, p), grow(boxes, b), grow(queries, q));
-        let new = Buffers::new(&self.ctx, &self.layout, &self.pyramid, room)?;
+        let new = Buffers::new(&self.ctx, &self.layout, depth, &self.sampler, room)?;
         let old = std::mem::replace(&mut self.buffers, new);
         self.retired.push(old);
         Ok(())
@@ -361,7 +370,8 @@ impl Buffers {
     fn new(
         ctx: &Arc<GpuContext>,
         layout: &PipelineLayout,
-        pyramid: &DepthPyramid,
+        depth: &Image,
+        sampler: &Sampler,
         room: (u32, u32, u32),
     ) -> Result<Buffers> {
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
@@ -399,7 +409,7 @@ impl Buffers {
             Binding::StorageBuffer(&boxes),
             Binding::StorageBuffer(&node_values),
             Binding::StorageBuffer(&predicates),
-            Binding::SampledMips(&pyramid.image, None, &pyramid.sampler),
+            Binding::Sampled(depth, sampler),
         ];
         let sets = DescriptorSets::new(ctx, &[(layout, &bindings[..])])?;
         Ok(Buffers {

@@ -43,7 +43,7 @@ fn poses(scene: &Scene, path: &str) -> Vec<CameraPose> {
 
 /// Walks `poses` with vfc and both predicated modes (with `params`): every frame of a
 /// predicated mode is one submission with no wait and two pass breaks at most (the second
-/// decides the parts of split nodes under their predicates: by the renderer's Hi-Z part
+/// decides the parts of split nodes under their predicates: by the renderer's depth part
 /// test, or with `predicated_tested_parts_min` at its maximum by queries), draws every object that owns a pixel
 /// of the exact ID pass (predicates read back: a draw under a false predicate did not draw),
 /// and its image equals vfc's but for at most `tie_pixels` pixels where surfaces tie in depth
@@ -109,7 +109,7 @@ fn matches_vfc(
         }
     }
     if params.predicated_tested_parts_min == 0 {
-        assert!(tested_parts > 0, "no part was decided by the Hi-Z test");
+        assert!(tested_parts > 0, "no part was decided by the depth test");
     } else {
         assert!(
             split_queries > 0 && tested_parts == 0,
@@ -126,7 +126,7 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
         for (name, scale, path) in [("city", 0.1, "street"), ("powerplant", 0.5, "difficult")] {
             let (scene, mut bvh) = common::scene(name, scale);
             let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
-            // The parts of split nodes decided by the Hi-Z part test from the first frame on,
+            // The parts of split nodes decided by the depth part test from the first frame on,
             // then queried.
             for tested_parts_min in [0, u32::MAX] {
                 let params = ChcppParams {
@@ -192,7 +192,7 @@ fn predicates_without_their_barrier_are_refused() {
         c.reset();
         let res = r.render_frame(c.as_mut(), &bvh, &cam, 1).unwrap();
         assert!(res.counts.conditional_blocks > 0);
-        // The same for the predicates of the Hi-Z part test: a walk that splits nodes reads
+        // The same for the predicates of the depth part test: a walk that splits nodes reads
         // them, and without their barrier it is refused (the first frames may split none).
         let tested = CullerSetup {
             params: ChcppParams {

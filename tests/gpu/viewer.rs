@@ -236,7 +236,7 @@ fn overlay_cross_check(algorithm: &str) {
     );
     let ours = &rows[..frames as usize];
     // The overlay counts graphics pipeline binds; ours include compute binds (the predicated
-    // mode's Hi-Z part test).
+    // mode's depth part test).
     let our_binds: u64 = ours
         .iter()
         .map(|r| num(r, "pipeline_binds") - num(r, "compute_binds"))

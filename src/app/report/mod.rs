@@ -73,7 +73,7 @@ pub struct FrameRecord {
     pub visible_leaf_queries: u32,
     /// Of the queries, queries whose boxes were drawn under another query's predicate.
     pub predicated_queries: u32,
-    /// Parts of split nodes decided by the Hi-Z part test instead of a query (not queries).
+    /// Parts of split nodes decided by the depth part test instead of a query (not queries).
     pub tested_parts: u32,
 }
 

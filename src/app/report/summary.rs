@@ -62,7 +62,7 @@ pub struct AlgorithmSummary {
     pub predicated_taken_max: u32,
     /// Median predicate resolves (pass breaks) per frame.
     pub predicate_resolves_median: f64,
-    /// Median parts of split nodes decided by the Hi-Z part test per frame (not queries).
+    /// Median parts of split nodes decided by the depth part test per frame (not queries).
     pub tested_parts_median: f64,
     /// Preprocessing figures of a precomputed algorithm (pvs).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
@@ -470,7 +470,7 @@ impl WalkSummary {
                 if out.is_empty() {
                     out.push_str(
                         "\npredicated draws per frame (median): sent under predicates, drawn \
-                         (predicate true; most in a frame), pass breaks, parts tested by Hi-Z \
+                         (predicate true; most in a frame), pass breaks, parts tested on the device \
                          (not queries)\n",
                     );
                 }

@@ -71,11 +71,11 @@ pub struct ChcppParams {
     /// while it does, every node the size rule picks is split.
     pub predicated_split_ratio: f32,
     /// Predicated mode: the backend's own test ([`crate::OcclusionBackend::test_part_if`],
-    /// e.g. a Hi-Z test on the device) decides the parts of split nodes instead of one query
-    /// each in a frame that follows one with at least this many parts (default 2,000; 0:
-    /// always; `u32::MAX`: never). Such a test has a fixed cost per frame (a depth pyramid,
-    /// as a query's begin and end, proportional to the image) and saves a query per part,
-    /// so it pays from some number of parts on. A backend without such a test queries them.
+    /// e.g. a depth test on the device) decides the parts of split nodes instead of one
+    /// query each in a frame that follows one with at least this many parts (default 0:
+    /// always; `u32::MAX`: never). Set it above 0 for a backend whose test has a fixed cost
+    /// per frame that pays only from some number of parts on. A backend without such a test
+    /// queries the parts.
     pub predicated_tested_parts_min: u32,
 }
 
@@ -100,7 +100,7 @@ impl Default for ChcppParams {
             predicated_refine_objects: 4,
             predicated_split_multiqueries: true,
             predicated_split_ratio: 0.0,
-            predicated_tested_parts_min: 2000,
+            predicated_tested_parts_min: 0,
         }
     }
 }

@@ -35,10 +35,10 @@
 //!    its boxes (a part decided by the backend's test, below, costs no query, so while the
 //!    backend tests parts the rule is off).
 //!    A backend with a test of its own ([`OcclusionBackend::test_part_if`]; the built-in
-//!    renderer's Hi-Z test of the parts against the depth drawn so far, one compute dispatch
-//!    at the second resolve) decides the parts instead of queries in a frame after one that
-//!    split at least `predicated_tested_parts_min` parts: no query per part, a coarser test
-//!    and a fixed cost per frame.
+//!    renderer's test of the parts' screen rectangles against the depth drawn so far, one
+//!    compute dispatch at the second resolve) decides the parts instead of queries (in a
+//!    frame after one that split at least `predicated_tested_parts_min` parts, by default
+//!    always): no query per part, a coarser test.
 //! 5. The results are read `k` frames later only to update the hierarchy: a queried node that
 //!    came back visible is opened `predicated_levels` levels deep (the nodes below are queried,
 //!    and drawn under their own predicates, from then on), a failed multiquery's nodes lose their
@@ -64,9 +64,10 @@
 //! same argument holds for the part; when the node's predicate is false, the node's boxes,
 //! which cover every object of its parts, were hidden already. A part decided by the backend's
 //! own test is exact on the same terms: the test must pass every box that owns a pixel
-//! against that depth (a Hi-Z test is conservative: a box fails only behind the farthest
-//! depth under its screen rectangle), and a part of a node whose query counted nothing fails. The CPU's results only steer which nodes land in which
-//! case, so however old they are, the image is exact; they decide the cost.
+//! against that depth (the built-in renderer's is conservative: a box fails only when every
+//! depth texel under its screen rectangle lies nearer than the box's nearest point), and a
+//! part of a node whose query counted nothing fails. The CPU's results only steer which nodes
+//! land in which case, so however old they are, the image is exact; they decide the cost.
 //!
 //! # What it costs
 //!
