@@ -1466,9 +1466,9 @@ impl Renderer {
         {
             return Ok(None);
         }
-        if predicate >= self.queries.issued() {
+        if predicate >= self.queries.resolved() {
             return Err(Error::Input(format!(
-                "query {predicate} is not a query of this frame"
+                "query {predicate} is not a resolved predicate of this frame"
             )));
         }
         match self.target_part_tests()? {

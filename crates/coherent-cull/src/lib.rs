@@ -312,12 +312,9 @@ pub trait OcclusionBackend {
     /// a query: as [`OcclusionBackend::issue_query_if`], the returned id's predicate (and its
     /// result, read later like a query's) is non-zero only if `predicate` counted a sample and
     /// `boxes` may be visible against the depth drawn so far; the test may be coarser than a
-    /// query (more parts drawn) but must never fail a box that owns a pixel. `predicate` is a
-    /// query of this frame, resolved or not: the part is decided at the next
-    /// [`OcclusionBackend::resolve_predicates`], with that query's value (so the culler hands
-    /// its parts over before the resolve that makes the node queries predicates, and needs no
-    /// second one). Its result is 1 or 0, not a pixel count. `Ok(None)`: no such test now
-    /// (the part is then queried). Default: `Ok(None)`.
+    /// query (more parts drawn) but must never fail a box that owns a pixel. It is decided at
+    /// the next [`OcclusionBackend::resolve_predicates`]; its result is 1 or 0, not a pixel
+    /// count. `Ok(None)`: no such test now (the part is then queried). Default: `Ok(None)`.
     fn test_part_if(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
         let _ = (predicate, boxes);
         Ok(None)

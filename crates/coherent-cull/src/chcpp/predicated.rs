@@ -36,11 +36,9 @@
 //!    backend tests parts the rule is off).
 //!    A backend with a test of its own ([`OcclusionBackend::test_part_if`]; the built-in
 //!    renderer's test of the parts' screen rectangles against the depth drawn so far, one
-//!    compute dispatch) decides the parts instead of queries (in a frame after one that split
-//!    at least `predicated_tested_parts_min` parts, by default always): the parts are handed
-//!    to it before the first resolve, which decides them with the node queries against the
-//!    depth of the unconditional draws, so there is no second resolve (a part the backend
-//!    does not take is queried as above). No query per part, a coarser test.
+//!    compute dispatch at the second resolve) decides the parts instead of queries (in a
+//!    frame after one that split at least `predicated_tested_parts_min` parts, by default
+//!    always): no query per part, a coarser test.
 //! 5. The results are read `k` frames later only to update the hierarchy: a queried node that
 //!    came back visible is opened `predicated_levels` levels deep (the nodes below are queried,
 //!    and drawn under their own predicates, from then on), a failed multiquery's nodes lose their
@@ -73,8 +71,7 @@
 //!
 //! # What it costs
 //!
-//! One pass break per frame (two when nodes are split into parts that are queried), and extra
-//! draws: an object under a
+//! One pass break per frame (two when nodes are split), and extra draws: an object under a
 //! true predicate is drawn even when only another object of its node or part is visible, until
 //! the results come back and the node is opened (`k` frames). [`CullStats::predicated_objects`] counts the objects sent under
 //! predicates; the built-in renderer reads the predicates back after the frame to count those
@@ -185,12 +182,6 @@ pub(super) struct Scratch {
     pub(super) probes: Vec<u32>,
     /// Split nodes of this frame, with the query whose predicate decides their parts.
     split: Vec<(crate::QueryId, u32)>,
-    /// Queried nodes of this frame that are not split, with their query's index in the
-    /// query queue (in queue order).
-    unsplit: Vec<(u32, u32)>,
-    /// Parts of this frame that are queried (the backend's test did not take them), with
-    /// their node's query.
-    queried_parts: Vec<(crate::QueryId, u32)>,
     /// The parts of one split node.
     parts: Vec<u32>,
     /// The hierarchy's objects with every subtree contiguous (how many lie below a node).
@@ -293,6 +284,8 @@ impl Chcpp {
             backend.set_draw_order(self.predicated.order.objects())?;
             self.predicated.order_sent = true;
         }
+        backend.resolve_predicates()?;
+        stats.predicate_resolves += 1;
         let split =
             backend.supports_predicated_queries() && self.params.predicated_refine_levels > 0;
         let mut scratch = std::mem::take(&mut self.predicated);
@@ -302,12 +295,9 @@ impl Chcpp {
         result
     }
 
-    /// Resolves the predicates and draws the objects of the i-queue queries from `first` on
-    /// under them; with `split`, the nodes that [`Chcpp::split_node`] picks are split into
-    /// parts, each drawn under its own predicate. Parts the backend decides by its own test
-    /// are handed to it before the resolve (which decides them with the node queries: one
-    /// pass break); the others are queried under their node's predicate after it, and a
-    /// second resolve follows.
+    /// Draws the objects of the i-queue queries from `first` on under their predicates; with
+    /// `split`, queries the parts of the nodes that [`Chcpp::split_node`] picks under their
+    /// query's predicate and, after a second resolve, draws each part's objects under its own.
     #[allow(clippy::too_many_arguments)]
     fn draw_under_predicates(
         &mut self,
@@ -321,8 +311,6 @@ impl Chcpp {
     ) -> Result<()> {
         let last = self.query_queue.len();
         scratch.split.clear();
-        scratch.unsplit.clear();
-        // Which nodes are split needs no result: decided before the resolve.
         for i in first..last {
             let q: Pending = self.query_queue[i];
             if q.kind != QueryKind::Invisible {
@@ -331,7 +319,7 @@ impl Chcpp {
             scratch.ranges.clear();
             let nodes = q.first as usize..(q.first + q.count) as usize;
             let multiquery = q.count > 1;
-            let p_true = if split && self.params.predicated_split_ratio > 0.0 {
+            let p_true = if self.params.predicated_split_ratio > 0.0 {
                 1.0 - self.query_nodes[nodes.clone()]
                     .iter()
                     .map(|&n| self.stays_invisible(n).clamp(0.0, 1.0))
@@ -356,52 +344,31 @@ impl Chcpp {
                     scratch.split.push((q.id, n));
                     self.query_queue[i].split = true;
                 } else {
-                    scratch.unsplit.push((i as u32, n));
+                    scratch.collect(bvh, n, view);
                 }
             }
+            self.draw_if(q.id, scratch, backend, stats)?;
         }
-        // The parts the backend's own test takes, before the resolve (against the depth drawn
-        // so far: the unconditional draws).
+        if scratch.split.is_empty() {
+            return Ok(());
+        }
+        // The parts, queried against the depth drawn so far (the unconditional draws and the
+        // objects drawn under the first predicates).
         let parts = self.query_queue.len();
         let tested = scratch.parts_last_frame >= self.params.predicated_tested_parts_min;
-        scratch.queried_parts.clear();
         for s in 0..scratch.split.len() {
             let (predicate, node) = scratch.split[s];
             scratch.parts.clear();
             self.parts_of(bvh, node, view, scratch);
             for p in 0..scratch.parts.len() {
                 let part = scratch.parts[p];
+                scratch.tested_this_frame |=
+                    self.issue_part(bvh, predicate, part, tested, backend, stats)?;
                 scratch.parts_this_frame += 1;
-                if tested && self.test_part(bvh, predicate, part, backend)? {
-                    scratch.tested_this_frame = true;
-                } else {
-                    scratch.queried_parts.push((predicate, part));
-                }
             }
         }
         backend.resolve_predicates()?;
         stats.predicate_resolves += 1;
-        // The unsplit nodes' objects, under their query's predicate (one draw per query).
-        let mut u = 0;
-        while u < scratch.unsplit.len() {
-            let query = scratch.unsplit[u].0;
-            scratch.ranges.clear();
-            while u < scratch.unsplit.len() && scratch.unsplit[u].0 == query {
-                scratch.collect(bvh, scratch.unsplit[u].1, view);
-                u += 1;
-            }
-            self.draw_if(self.query_queue[query as usize].id, scratch, backend, stats)?;
-        }
-        // The other parts, queried under their node's predicate against the depth drawn so far
-        // (the unconditional draws and the objects drawn under the first predicates).
-        if !scratch.queried_parts.is_empty() {
-            for s in 0..scratch.queried_parts.len() {
-                let (predicate, part) = scratch.queried_parts[s];
-                self.query_part(bvh, predicate, part, backend, stats)?;
-            }
-            backend.resolve_predicates()?;
-            stats.predicate_resolves += 1;
-        }
         for i in parts..self.query_queue.len() {
             let q: Pending = self.query_queue[i];
             scratch.ranges.clear();
@@ -489,45 +456,38 @@ impl Chcpp {
         }
     }
 
-    /// Hands `part` to the backend's own test under `predicate` (a query of this frame, not
-    /// yet resolved): whether the backend took it (its id then waits in the query queue).
-    fn test_part(
+    /// Queries `part` under `predicate`'s predicate (with `tested`, has the backend decide it
+    /// by its own test where it offers one). Returns whether the backend's test decided it.
+    fn issue_part(
         &mut self,
         bvh: &ObjectBvh,
         predicate: crate::QueryId,
         part: u32,
+        tested: bool,
         backend: &mut dyn OcclusionBackend,
+        stats: &mut CullStats,
     ) -> Result<bool> {
         let mut boxes = std::mem::take(&mut self.boxes);
         boxes.clear();
         self.query_boxes(bvh, part, &mut boxes);
-        let id = backend.test_part_if(predicate, &boxes);
+        let decided = match tested {
+            true => backend.test_part_if(predicate, &boxes),
+            false => Ok(None),
+        };
+        let mut decided_here = false;
+        let id = decided.and_then(|id| match id {
+            Some(id) => {
+                decided_here = true;
+                Ok(id)
+            }
+            None => {
+                stats.queries += 1;
+                stats.predicated_queries += 1;
+                backend.issue_query_if(predicate, &boxes, crate::QueryPurpose::Node)
+            }
+        });
         self.boxes = boxes;
-        Ok(id?.map(|id| self.push_part(part, id)).is_some())
-    }
-
-    /// Queries `part` under `predicate`'s predicate (resolved).
-    fn query_part(
-        &mut self,
-        bvh: &ObjectBvh,
-        predicate: crate::QueryId,
-        part: u32,
-        backend: &mut dyn OcclusionBackend,
-        stats: &mut CullStats,
-    ) -> Result<()> {
-        let mut boxes = std::mem::take(&mut self.boxes);
-        boxes.clear();
-        self.query_boxes(bvh, part, &mut boxes);
-        stats.queries += 1;
-        stats.predicated_queries += 1;
-        let id = backend.issue_query_if(predicate, &boxes, crate::QueryPurpose::Node);
-        self.boxes = boxes;
-        self.push_part(part, id?);
-        Ok(())
-    }
-
-    /// Puts part `part`'s query (or test) `id` in the query queue.
-    fn push_part(&mut self, part: u32, id: crate::QueryId) {
+        let id = id?;
         let first = self.query_nodes.len() as u32;
         self.query_nodes.push(part);
         self.query_queue.push_back(Pending {
@@ -537,6 +497,7 @@ impl Chcpp {
             kind: QueryKind::Part,
             split: false,
         });
+        Ok(decided_here)
     }
 
     /// A result of the predicated mode, read `k` frames after its frame: it only steers the
