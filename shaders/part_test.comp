@@ -2,11 +2,11 @@
 #extension GL_GOOGLE_include_directive : require
 // The predicated mode's part tests (the built-in renderer): each workgroup decides 64 parts of
 // split nodes, one per invocation, and scans the depth under the boxes of those parts that
-// need it together, one part after another. Its predicate is 1 when its node's query counted a sample and one of its boxes
-// may be visible against the depth drawn so far in this frame, else 0. A box may be visible
-// when it reaches the near plane, when its screen rectangle covers more than info.z pixels (not
-// read: the scan's cost stays bounded), or when one depth texel in its rectangle lies at or
-// behind its nearest depth less a margin. The test is conservative (include/box_project.glsl),
+// need it together, one part after another. A part's predicate is 1 when its node's query
+// counted a sample and one of its boxes may be visible against the depth drawn so far in this
+// frame, else 0. A box may be visible when it reaches the near plane, when its screen
+// rectangle covers more than info.z pixels (not read: the scan's cost stays bounded), or when
+// one depth texel in its rectangle lies at or behind its nearest depth less a margin. The test is conservative (include/box_project.glsl),
 // so a part that owns a pixel of the final image is never 0: the depth it is tested against
 // only gets nearer as the frame goes on.
 layout(local_size_x = 64) in;

@@ -36,10 +36,10 @@ uint classify(vec3 bmin, vec3 bmax) {
     ivec2 phi;
     float nearest;
     uint c = project_box(bmin, bmax, plo, phi, nearest);
-    if (c == BOX_OUTSIDE || c == BOX_NEAR) {
-        return c;
+    if (c == BOX_OUTSIDE) {
+        return 0u;
     }
-    if (pc.info.z == 0u) {
+    if (c == BOX_NEAR || pc.info.z == 0u) {
         return 1u;
     }
     if (c == BOX_OFF_SCREEN) {

@@ -8,10 +8,10 @@
 //! about 4 us a query at 1280x720), and a split frame issues hundreds of them (thousands in
 //! larger scenes). Here the renderer answers those part queries itself: at the resolve that
 //! follows them it ends rendering, copies the node queries' values, and runs one compute
-//! dispatch that writes each part's predicate: 1 when its node's query
-//! counted a sample and one of its boxes may be visible against the depth drawn so far, else 0.
-//! The part's objects are drawn under that predicate, and the culler reads it `k` frames later
-//! as the part's result (1 or 0).
+//! dispatch that writes each part's predicate: 1 when its node's query counted a sample and
+//! one of its boxes may be visible against the depth drawn so far, else 0. The part's objects
+//! are drawn under that predicate, and the culler reads it `k` frames later as the part's
+//! result (1 or 0).
 //!
 //! The depth test reads the depth buffer itself, texel by texel over the box's screen
 //! rectangle, and only for parts whose node's query counted a sample: most queried nodes stay
