@@ -82,8 +82,12 @@ pub struct CommandCounts {
     /// Parts of split nodes decided by the depth part test instead of a query (predicated
     /// mode, built-in renderer); not in `queries_begun`.
     pub tested_parts: u32,
+    /// Tested parts whose draws were gathered on the device into one indirect draw with a
+    /// count ([`Recorder::count_gathered`]) instead of a conditional block each.
+    pub gathered_parts: u32,
     /// Objects those draw calls draw when their predicate is true (an object drawn by its own
-    /// draw, or by one command of a multi-draw).
+    /// draw, or by one command of a multi-draw), and the candidates of draws gathered on the
+    /// device from tested parts' predicates ([`Recorder::count_gathered`]).
     pub predicated_objects: u32,
     /// Of those, objects whose predicate was true, read back from the predicate buffer after
     /// the frame (added by the scene renderer); for reports only.
@@ -497,6 +501,17 @@ impl Recorder {
             self.counts.object_draws += 1;
             self.counts.render_triangles += tris;
         }
+    }
+
+    /// Counts the draw commands the device gathered for one
+    /// [`Recorder::draw_indexed_indirect_count`] from the draws of `parts` tested parts,
+    /// `objects` candidates of `tris` triangles in all, each drawn only where its predicate (a tested part's) is true: they count as
+    /// objects and triangles sent under predicates.
+    pub fn count_gathered(&mut self, parts: u32, objects: u32, tris: u64) {
+        self.counts.gathered_parts += parts;
+        self.counts.triangles += tris;
+        self.counts.render_triangles += tris;
+        self.counts.predicated_objects += objects;
     }
 
     /// Tags the query begun last: a multiquery and/or a visible-leaf query (so queries can be

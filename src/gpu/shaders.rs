@@ -72,6 +72,9 @@ pub const HIZ_REDUCE_COMP: &[u8] = spirv!("hiz_reduce.comp");
 pub const HIZ_CULL_COMP: &[u8] = spirv!("hiz_cull.comp");
 /// Predicated mode: the depth test of split nodes' parts, writing their predicates (compute).
 pub const PART_TEST_COMP: &[u8] = spirv!("part_test.comp");
+/// Predicated mode: the draws of the parts that passed their test, gathered for one indirect
+/// draw with a count (compute).
+pub const PART_DRAWS_COMP: &[u8] = spirv!("part_draws.comp");
 
 /// Creates a shader module from SPIR-V bytes.
 pub fn module(ctx: &GpuContext, name: &str, bytes: &[u8]) -> Result<vk::ShaderModule> {

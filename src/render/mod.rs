@@ -1293,6 +1293,8 @@ impl OcclusionBackend for Renderer {
             self.queries
                 .record_resolve(self.recorder.command_buffer().0)?
         };
+        let mut tested = false;
+        let multi_draws = self.multi_draws();
         if let Some(parts) = self.part_tests.as_mut().filter(|p| p.pending()) {
             let segment = self.segments.used().saturating_sub(1) as u32;
             parts.record(
@@ -1301,13 +1303,22 @@ impl OcclusionBackend for Renderer {
                 &mut self.queries,
                 &self.view_proj,
                 segment,
+                self.ordered.buffer_generation().filter(|_| multi_draws),
+                self.ctx.info.max_draw_indirect_count,
             )?;
+            tested = true;
         }
         self.begin_target_rendering(false)?;
+        if tested {
+            self.record_part_draws()?;
+        }
         Ok(())
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
+        if self.awaits_part_test(query) {
+            return Ok(self.defer_part_draw(query, objects)?);
+        }
         self.check_predicate(query)?;
         if objects.is_empty() {
             return Ok(());
@@ -1329,7 +1340,16 @@ impl OcclusionBackend for Renderer {
         ranges: &[std::ops::Range<u32>],
     ) -> coherent_cull::Result<()> {
         let objects = coherent_cull::order_ranges_len(order, ranges)?;
-        if !self.multi_draws() || !self.ordered.holds(order) {
+        let held = self.multi_draws() && self.ordered.holds(order);
+        if held && self.awaits_part_test(query) {
+            // A tested part's runs of the ordered commands, drawn after its test.
+            let parts = self.part_tests.as_mut().expect("the part awaits its test");
+            for r in ranges.iter().filter(|r| !r.is_empty()) {
+                parts.defer_run(query, r.clone())?;
+            }
+            return Ok(());
+        }
+        if !held || self.awaits_part_test(query) {
             // Not the order of the commands held: the objects one by one.
             let mut list = std::mem::take(&mut self.range_objects);
             list.clear();
@@ -1445,6 +1465,10 @@ impl OcclusionBackend for Renderer {
     }
 
     fn finish(&mut self) -> coherent_cull::Result<()> {
+        if self.part_tests.as_ref().is_some_and(|p| p.pending()) {
+            // Parts (and draws of theirs) handed over with no resolve after them: tested now.
+            self.resolve_predicates()?;
+        }
         if self.segments.used() == 0 {
             // Nothing was drawn: still clear the target.
             self.ensure_recording()?;
@@ -1477,6 +1501,105 @@ impl Renderer {
             }
             _ => Ok(None),
         }
+    }
+
+    /// Whether `query` is a part added in this frame and not tested yet: draws under it wait
+    /// for its test ([`Renderer::defer_part_draw`]).
+    fn awaits_part_test(&self, query: QueryId) -> bool {
+        self.part_tests
+            .as_ref()
+            .is_some_and(|p| p.awaits_test(query))
+    }
+
+    /// Keeps `objects` of a part that waits for its test, to be drawn after it
+    /// ([`Renderer::record_part_draws`]).
+    fn defer_part_draw(&mut self, part: QueryId, objects: &[u32]) -> Result<()> {
+        if objects.is_empty() {
+            return Ok(());
+        }
+        if let Some(&o) = objects.iter().find(|&&o| o as usize >= self.objects.len()) {
+            return Err(Error::Input(format!(
+                "draw names object {o} (scene has {})",
+                self.objects.len()
+            )));
+        }
+        match self.part_tests.as_mut() {
+            Some(parts) => parts.defer(part, objects),
+            None => Err(Error::Input(format!(
+                "{part:#x} is not a part of this frame"
+            ))),
+        }
+    }
+
+    /// Records the draws handed over for the parts that the last dispatch tested, inside
+    /// rendering after it: where the device gathered the passed parts' runs of the ordered
+    /// commands, one indirect draw with a count (no conditional block per part); the rest in
+    /// a conditional block on each part's predicate.
+    fn record_part_draws(&mut self) -> Result<()> {
+        let Some(parts) = self.part_tests.as_mut() else {
+            return Ok(());
+        };
+        let d = parts.take_recorded_draws();
+        let drawn = if d.is_empty() {
+            Ok(())
+        } else {
+            self.record_deferred(&d)
+        };
+        if let Some(parts) = self.part_tests.as_mut() {
+            parts.restore_deferred(d);
+        }
+        drawn
+    }
+
+    /// [`Renderer::record_part_draws`] of `d`. The log (`walk --check`) takes each part's
+    /// objects under its predicate either way.
+    fn record_deferred(&mut self, d: &part_tests::Deferred) -> Result<()> {
+        if d.gathered && !d.runs.is_empty() {
+            self.use_render_pipeline();
+            self.bind_scene_buffers();
+            let parts = self
+                .part_tests
+                .as_ref()
+                .expect("part tests recorded the draws");
+            let (drawn, count) = parts.gathered()?;
+            self.recorder
+                .draw_indexed_indirect_count(drawn, 0, count, 0, d.commands);
+            let (mut triangles, mut parts, mut last) = (0, 0, None);
+            for (part, run) in &d.runs {
+                parts += u32::from(last != Some(*part));
+                last = Some(*part);
+                triangles += self.ordered.run_triangles(run.start, run.len());
+                let objects = &self.ordered.order()[run.start as usize..run.end as usize];
+                self.log.drew(objects, Some(*part));
+            }
+            self.recorder.count_gathered(parts, d.commands, triangles);
+        } else {
+            let max = self.ctx.info.max_draw_indirect_count.max(1);
+            for (part, run) in &d.runs {
+                self.begin_predicated(*part)?;
+                let mut drawn = Ok(());
+                let mut start = run.start;
+                while start < run.end && drawn.is_ok() {
+                    let len = (run.end - start).min(max);
+                    drawn = self.record_order_range(start, len, Some(*part));
+                    start += len;
+                }
+                self.end_predicated();
+                drawn?;
+            }
+        }
+        for (part, range) in &d.lists {
+            let objects = &d.objects[range.clone()];
+            self.begin_predicated(*part)?;
+            let drawn = if self.multi_draws() {
+                self.record_objects_ordered(objects, Some(*part))
+            } else {
+                self.record_objects(objects, Some(*part))
+            };
+            self.end_predicated();
+            drawn?;
+        }
+        Ok(())
     }
 
     /// The segment that recorded query `query`, or the dispatch that tested part `query`.
@@ -1523,7 +1646,8 @@ impl Renderer {
             if self.part_tests_unsupported.is_some() {
                 return Ok(None);
             }
-            match part_tests::PartTests::new(&self.ctx, &self.target.depth) {
+            let gather = self.multi_draws() && self.ctx.info.optional.draw_indirect_count;
+            match part_tests::PartTests::new(&self.ctx, &self.target.depth, gather) {
                 Ok(p) => self.part_tests = Some(p),
                 Err(Error::Unsupported { feature }) => {
                     self.part_tests_unsupported = Some(feature);

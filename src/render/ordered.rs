@@ -30,6 +30,9 @@ pub(super) struct OrderedDraws {
     /// Buffers replaced in this frame, freed when the next frame starts (every frame has
     /// completed on the device by then).
     retired: Vec<Buffer>,
+    /// Counts the buffers made, so that a descriptor set naming one can tell it is current
+    /// (a handle may be reused after its buffer was freed).
+    generation: u64,
 }
 
 /// A piece of a conditional draw: `len` objects from `objects[start..]` whose commands lie at
@@ -62,6 +65,11 @@ impl OrderedDraws {
         self.buffer.as_ref()
     }
 
+    /// The command buffer with its generation (which changes whenever the buffer does).
+    pub(super) fn buffer_generation(&self) -> Option<(&Buffer, u64)> {
+        self.buffer.as_ref().map(|b| (b, self.generation))
+    }
+
     /// Keeps the commands of `order` (object ids into `draws`); nothing to do when it is the
     /// order already held. Ids the renderer has no object for are refused.
     pub(super) fn set(
@@ -92,13 +100,15 @@ impl OrderedDraws {
             ctx,
             "ordered draws",
             size,
-            vk::BufferUsageFlags::INDIRECT_BUFFER,
+            // Storage: the predicated mode's part draws are gathered from it on the device.
+            vk::BufferUsageFlags::INDIRECT_BUFFER | vk::BufferUsageFlags::STORAGE_BUFFER,
             MemoryLocation::CpuToGpu,
         )?;
         buffer.write(0, &bytes)?;
         if let Some(old) = self.buffer.replace(buffer) {
             self.retired.push(old);
         }
+        self.generation += 1;
         self.order = order.to_vec();
         self.position = position;
         self.triangles.set(triangles);

@@ -44,8 +44,8 @@ fn poses(scene: &Scene, path: &str) -> Vec<CameraPose> {
 /// Walks `poses` with vfc and both predicated modes (with `params`): every frame of a
 /// predicated mode is one submission with no wait and two pass breaks at most (the second
 /// decides the parts of split nodes under their predicates: by the renderer's depth part
-/// test, or with `predicated_tested_parts_min` at its maximum by queries), draws every object that owns a pixel
-/// of the exact ID pass (predicates read back: a draw under a false predicate did not draw),
+/// test, or with `predicated_tested_parts_min` at its maximum by queries), draws every object
+/// that owns a pixel of the exact ID pass (predicates read back: a draw under a false predicate did not draw),
 /// and its image equals vfc's but for at most `tie_pixels` pixels where surfaces tie in depth
 /// and draw order decides. Returns the objects drawn under true predicates in all.
 fn matches_vfc(
@@ -67,6 +67,7 @@ fn matches_vfc(
         .collect();
     r.log_drawn_objects(true);
     let (mut pixels, mut taken, mut split_queries, mut tested_parts) = (Vec::new(), 0, 0, 0);
+    let mut gathered = 0;
     for (f, &pose) in poses.iter().enumerate() {
         let f = f as u64;
         if let Some(m) = movers {
@@ -84,8 +85,10 @@ fn matches_vfc(
             assert_eq!(res.cull.blocking_waits, 0, "{tag}");
 
             assert!(res.counts.predicate_resolves <= 2, "{tag}: pass breaks");
+            // Every draw under a predicate is a block, except those of tested parts that the
+            // device gathered into one indirect draw.
             assert_eq!(
-                res.counts.conditional_blocks,
+                res.counts.conditional_blocks + res.counts.gathered_parts,
                 res.cull.predicated_draws + res.cull.predicated_queries,
                 "{tag}"
             );
@@ -95,6 +98,7 @@ fn matches_vfc(
             );
             split_queries += res.cull.predicated_queries;
             tested_parts += res.counts.tested_parts;
+            gathered += res.counts.gathered_parts;
             assert_eq!(
                 res.counts.predicated_objects, res.cull.predicated_objects,
                 "{tag}: objects under predicates"
@@ -110,6 +114,12 @@ fn matches_vfc(
     }
     if params.predicated_tested_parts_min == 0 {
         assert!(tested_parts > 0, "no part was decided by the depth test");
+        // Where the device can (lavapipe can), the passed parts' draws are gathered on the
+        // device into one indirect draw with a count, not drawn in a block each.
+        let o = &r.context().info.optional;
+        if o.draw_indirect_count && o.multi_draw_indirect && o.draw_indirect_first_instance {
+            assert!(gathered > 0, "no tested part's draws were gathered");
+        }
     } else {
         assert!(
             split_queries > 0 && tested_parts == 0,

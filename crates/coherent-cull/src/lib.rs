@@ -251,8 +251,9 @@ pub trait OcclusionBackend {
     }
     /// Records draws of `objects` (render state, as [`OcclusionBackend::draw_objects`]) that
     /// the device executes only if `query` counted at least one sample; `query` was issued in
-    /// this frame before the last [`OcclusionBackend::resolve_predicates`]. Default: refuses
-    /// with [`Error::Unsupported`].
+    /// this frame before the last [`OcclusionBackend::resolve_predicates`], or is a part that
+    /// [`OcclusionBackend::test_part_if`] took (drawn after its test). Default: refuses with
+    /// [`Error::Unsupported`].
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> Result<()> {
         let _ = (query, objects);
         Err(predicates_unsupported())
@@ -314,7 +315,11 @@ pub trait OcclusionBackend {
     /// `boxes` may be visible against the depth drawn so far; the test may be coarser than a
     /// query (more parts drawn) but must never fail a box that owns a pixel. It is decided at
     /// the next [`OcclusionBackend::resolve_predicates`]; its result is 1 or 0, not a pixel
-    /// count. `Ok(None)`: no such test now (the part is then queried). Default: `Ok(None)`.
+    /// count. The part's objects may be handed to [`OcclusionBackend::draw_order_ranges_if`]
+    /// or [`OcclusionBackend::draw_objects_if`] under the returned id before that resolve: a
+    /// backend that offers the test draws them after it, where the predicate is known (so it
+    /// may gather the draws of many parts into one). `Ok(None)`: no such test now (the part
+    /// is then queried). Default: `Ok(None)`.
     fn test_part_if(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
         let _ = (predicate, boxes);
         Ok(None)

@@ -38,7 +38,10 @@
 //!    renderer's test of the parts' screen rectangles against the depth drawn so far, one
 //!    compute dispatch at the second resolve) decides the parts instead of queries (in a
 //!    frame after one that split at least `predicated_tested_parts_min` parts, by default
-//!    always): no query per part, a coarser test.
+//!    always): no query per part, a coarser test. A tested part's objects are handed over
+//!    as soon as the part is, before the resolve that tests it; the backend draws them after
+//!    the test (the built-in renderer: the draws of the parts that passed, gathered on the
+//!    device into one indirect draw, with no conditional block per part).
 //! 5. The results are read `k` frames later only to update the hierarchy: a queried node that
 //!    came back visible is opened `predicated_levels` levels deep (the nodes below are queried,
 //!    and drawn under their own predicates, from then on), a failed multiquery's nodes lose their
@@ -184,6 +187,9 @@ pub(super) struct Scratch {
     split: Vec<(crate::QueryId, u32)>,
     /// The parts of one split node.
     parts: Vec<u32>,
+    /// Where the frame's queried parts (not decided by the backend's test) lie in the query
+    /// queue: drawn after the second resolve.
+    queried: Vec<usize>,
     /// The hierarchy's objects with every subtree contiguous (how many lie below a node).
     order: SubtreeOrder,
     /// Whether the backend has `order` ([`OcclusionBackend::set_draw_order`]).
@@ -354,23 +360,34 @@ impl Chcpp {
         }
         // The parts, queried against the depth drawn so far (the unconditional draws and the
         // objects drawn under the first predicates).
-        let parts = self.query_queue.len();
+        // A part decided by the backend's test has its objects handed over at once (the
+        // backend draws them after the test, at the resolve); a queried part's after the
+        // resolve, under its query's predicate.
         let tested = scratch.parts_last_frame >= self.params.predicated_tested_parts_min;
+        scratch.queried.clear();
         for s in 0..scratch.split.len() {
             let (predicate, node) = scratch.split[s];
             scratch.parts.clear();
             self.parts_of(bvh, node, view, scratch);
             for p in 0..scratch.parts.len() {
                 let part = scratch.parts[p];
-                scratch.tested_this_frame |=
-                    self.issue_part(bvh, predicate, part, tested, backend, stats)?;
+                let decided = self.issue_part(bvh, predicate, part, tested, backend, stats)?;
+                scratch.tested_this_frame |= decided;
                 scratch.parts_this_frame += 1;
+                let issued = self.query_queue.len() - 1;
+                if decided {
+                    scratch.ranges.clear();
+                    scratch.collect(bvh, part, view);
+                    self.draw_if(self.query_queue[issued].id, scratch, backend, stats)?;
+                } else {
+                    scratch.queried.push(issued);
+                }
             }
         }
         backend.resolve_predicates()?;
         stats.predicate_resolves += 1;
-        for i in parts..self.query_queue.len() {
-            let q: Pending = self.query_queue[i];
+        for k in 0..scratch.queried.len() {
+            let q: Pending = self.query_queue[scratch.queried[k]];
             scratch.ranges.clear();
             scratch.collect(bvh, self.query_nodes[q.first as usize], view);
             self.draw_if(q.id, scratch, backend, stats)?;
