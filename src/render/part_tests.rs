@@ -159,6 +159,8 @@ pub struct PartTests {
     /// The gathering's descriptor set, made for the renderer's ordered commands it names
     /// (their buffer's generation) and these buffers.
     gather_set: Option<(u64, DescriptorSets)>,
+    /// The groups' words as written (kept so that steady frames do not allocate).
+    group_words: Vec<u32>,
     /// Nearest sampler for the depth texel fetches.
     sampler: Sampler,
     size: (u32, u32),
@@ -243,6 +245,7 @@ impl PartTests {
             layout,
             gather,
             gather_set: None,
+            group_words: Vec::new(),
             sampler,
             size: depth.size(),
             buffers,
@@ -560,7 +563,8 @@ impl PartTests {
             return Ok(());
         };
         let d = &self.deferred;
-        let mut words = Vec::with_capacity(d.runs.len() * 4);
+        let words = &mut self.group_words;
+        words.clear();
         for (part, run) in &d.runs {
             words.extend_from_slice(&[part & !PART_BIT, run.start, run.len() as u32, 0]);
         }

@@ -189,7 +189,7 @@ fn overlay_cross_check(algorithm: &str) {
     let overlay = dir.join("overlay.csv");
     let stats = dir.join("stats.csv");
     let config = format!(
-        "output_file={},fps_sampling_period=50,pipeline_graphics,draw,draw_indexed,draw_indexed_indirect,frame,no_display",
+        "output_file={},fps_sampling_period=50,pipeline_graphics,draw,draw_indexed,draw_indexed_indirect,draw_indexed_indirect_count,frame,no_display",
         overlay.display()
     );
     let out = run_viewer(
@@ -226,7 +226,10 @@ fn overlay_cross_check(algorithm: &str) {
     for p in &periods {
         frames += num(p, "frame");
         binds += num(p, "pipeline_graphics");
-        draws += num(p, "draw") + num(p, "draw_indexed") + num(p, "draw_indexed_indirect");
+        draws += num(p, "draw")
+            + num(p, "draw_indexed")
+            + num(p, "draw_indexed_indirect")
+            + num(p, "draw_indexed_indirect_count");
     }
     let rows = read_csv(&stats, ',');
     assert_eq!(rows.len(), 30);
