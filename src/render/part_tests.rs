@@ -465,7 +465,7 @@ impl PartTests {
     /// records the draws ([`PartTests::take_recorded_draws`]). Leaves `depth` sampled by compute (the caller
     /// moves it back to an attachment). `segment` is the segment being recorded.
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn record(
+    pub fn record(
         &mut self,
         rec: &mut Recorder,
         depth: &Image,
