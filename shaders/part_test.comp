@@ -6,9 +6,9 @@
 // counted a sample and one of its boxes may be visible against the depth drawn so far in this
 // frame, else 0. A box may be visible when it reaches the near plane, when its screen
 // rectangle covers more than info.z pixels (not read: the scan's cost stays bounded), or when
-// one depth texel in its rectangle lies at or behind its nearest depth less a margin. The test is conservative (include/box_project.glsl),
-// so a part that owns a pixel of the final image is never 0: the depth it is tested against
-// only gets nearer as the frame goes on.
+// one depth texel in its rectangle lies at or behind its nearest depth less a margin. The test
+// is conservative (include/box_project.glsl), so a part that owns a pixel of the final image
+// is never 0: the depth it is tested against only gets nearer as the frame goes on.
 layout(local_size_x = 64) in;
 
 struct Part {

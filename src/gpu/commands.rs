@@ -504,9 +504,9 @@ impl Recorder {
     }
 
     /// Counts the draw commands the device gathered for one
-    /// [`Recorder::draw_indexed_indirect_count`] from the draws of `parts` tested parts,
-    /// `objects` candidates of `tris` triangles in all, each drawn only where its predicate (a tested part's) is true: they count as
-    /// objects and triangles sent under predicates.
+    /// [`Recorder::draw_indexed_indirect_count`] from the draws of `parts` tested parts:
+    /// `objects` candidates of `tris` triangles in all, each drawn only where its part's
+    /// predicate is true, counted as objects and triangles sent under predicates.
     pub fn count_gathered(&mut self, parts: u32, objects: u32, tris: u64) {
         self.counts.gathered_parts += parts;
         self.counts.triangles += tris;

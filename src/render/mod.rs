@@ -1175,7 +1175,6 @@ impl Renderer {
         ranges: &[std::ops::Range<u32>],
         predicate: Option<QueryId>,
     ) -> Result<()> {
-        let max = self.ctx.info.max_draw_indirect_count.max(1);
         let mut scattered = std::mem::take(&mut self.scattered);
         scattered.clear();
         let mut drawn = Ok(());
@@ -1188,11 +1187,8 @@ impl Renderer {
                 drawn = self.record_objects_indirect(&scattered, predicate);
                 scattered.clear();
             }
-            let mut start = r.start;
-            while start < r.end && drawn.is_ok() {
-                let len = (r.end - start).min(max);
-                drawn = self.record_order_range(start, len, predicate);
-                start += len;
+            if drawn.is_ok() {
+                drawn = self.record_order_run(r.clone(), predicate);
             }
             if drawn.is_err() {
                 break;
@@ -1203,6 +1199,22 @@ impl Renderer {
         }
         self.scattered = scattered;
         drawn
+    }
+
+    /// The ordered commands of `run` as multi-draws of at most `maxDrawIndirectCount` each.
+    fn record_order_run(
+        &mut self,
+        run: std::ops::Range<u32>,
+        predicate: Option<QueryId>,
+    ) -> Result<()> {
+        let max = self.ctx.info.max_draw_indirect_count.max(1);
+        let mut start = run.start;
+        while start < run.end {
+            let len = (run.end - start).min(max);
+            self.record_order_range(start, len, predicate)?;
+            start += len;
+        }
+        Ok(())
     }
 
     /// One multi-draw of the ordered commands `position..position + len` (at most
@@ -1341,7 +1353,8 @@ impl OcclusionBackend for Renderer {
     ) -> coherent_cull::Result<()> {
         let objects = coherent_cull::order_ranges_len(order, ranges)?;
         let held = self.multi_draws() && self.ordered.holds(order);
-        if held && self.awaits_part_test(query) {
+        let awaits_test = self.awaits_part_test(query);
+        if held && awaits_test {
             // A tested part's runs of the ordered commands, drawn after its test.
             let parts = self.part_tests.as_mut().expect("the part awaits its test");
             for r in ranges.iter().filter(|r| !r.is_empty()) {
@@ -1349,7 +1362,7 @@ impl OcclusionBackend for Renderer {
             }
             return Ok(());
         }
-        if !held || self.awaits_part_test(query) {
+        if !held || awaits_test {
             // Not the order of the commands held: the objects one by one.
             let mut list = std::mem::take(&mut self.range_objects);
             list.clear();
@@ -1554,7 +1567,7 @@ impl Renderer {
     /// [`Renderer::record_part_draws`] of `d`. The log (`walk --check`) takes each part's
     /// objects under its predicate either way.
     fn record_deferred(&mut self, d: &part_tests::Deferred) -> Result<()> {
-        if d.gathered && !d.runs.is_empty() {
+        if d.gathered {
             self.use_render_pipeline();
             self.bind_scene_buffers();
             let parts = self
@@ -1574,16 +1587,9 @@ impl Renderer {
             }
             self.recorder.count_gathered(parts, d.commands, triangles);
         } else {
-            let max = self.ctx.info.max_draw_indirect_count.max(1);
             for (part, run) in &d.runs {
                 self.begin_predicated(*part)?;
-                let mut drawn = Ok(());
-                let mut start = run.start;
-                while start < run.end && drawn.is_ok() {
-                    let len = (run.end - start).min(max);
-                    drawn = self.record_order_range(start, len, Some(*part));
-                    start += len;
-                }
+                let drawn = self.record_order_run(run.clone(), Some(*part));
                 self.end_predicated();
                 drawn?;
             }
