@@ -170,6 +170,39 @@ fn non_interactive_view_under_xvfb_with_validation() {
 /// `vkCmdDraw`, `draw_indexed` `vkCmdDrawIndexed` and `draw_indexed_indirect`
 /// `vkCmdDrawIndexedIndirect` (predicated CHC++ draws the objects of one predicate with one);
 /// our `draws` counts them all.
+/// `view` accepts `hiz` (validation on) and writes its screenshot.
+#[test]
+fn view_accepts_hiz() {
+    let dir = scratch("hiz");
+    let shot = dir.join("view.png");
+    let shot_arg = shot.to_str().expect("utf-8 temp path");
+    let out = run_viewer(
+        &[
+            "--scene",
+            "city",
+            "--scale",
+            "0.1",
+            "--size",
+            "160x120",
+            "--frames",
+            "8",
+            "--algorithm",
+            "hiz",
+            "--validation",
+            "--screenshot",
+            shot_arg,
+        ],
+        &[],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "view failed:\n{stderr}");
+    assert!(
+        !stderr.contains("validation"),
+        "validation messages were printed:\n{stderr}"
+    );
+    assert!(shot.exists(), "no screenshot");
+}
+
 #[test]
 fn stats_match_mesa_overlay_layer() {
     for algorithm in [
