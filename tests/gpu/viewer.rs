@@ -44,6 +44,24 @@ fn run_viewer(args: &[&str], env: &[(&str, &str)]) -> Output {
     out
 }
 
+/// `view` of the city at scale 0.1 with validation on and `args` after: asserts that it ran
+/// and printed no validation message.
+fn view_city_silently(args: &[&str]) {
+    let mut all = vec!["--scene", "city", "--scale", "0.1", "--validation"];
+    all.extend_from_slice(args);
+    let out = run_viewer(&all, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success(),
+        "viewer failed: {:?}\n{stderr}",
+        out.status
+    );
+    assert!(
+        !stderr.contains("validation"),
+        "validation messages were printed:\n{stderr}"
+    );
+}
+
 /// Rows of a CSV with a header, as maps from column name to value.
 fn read_csv(path: &Path, sep: char) -> Vec<HashMap<String, String>> {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
@@ -77,31 +95,17 @@ fn non_interactive_view_under_xvfb_with_validation() {
     let dir = scratch("shot");
     let shot = dir.join("v.png");
     let stats = dir.join("stats.csv");
-    let out = run_viewer(
-        &[
-            "--scene",
-            "city",
-            "--scale",
-            "0.1",
-            "--size",
-            "320x240",
-            "--frames",
-            "20",
-            "--validation",
-            "--visualize",
-            "--screenshot",
-            shot.to_str().expect("utf-8 path"),
-            "--stats",
-            stats.to_str().expect("utf-8 path"),
-        ],
-        &[],
-    );
-    assert!(out.status.success(), "viewer failed: {:?}", out.status);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        !stderr.contains("validation"),
-        "validation messages were printed:\n{stderr}"
-    );
+    view_city_silently(&[
+        "--size",
+        "320x240",
+        "--frames",
+        "20",
+        "--visualize",
+        "--screenshot",
+        shot.to_str().expect("utf-8 path"),
+        "--stats",
+        stats.to_str().expect("utf-8 path"),
+    ]);
 
     let img = image::open(&shot).expect("screenshot PNG").to_rgba8();
     assert_eq!(img.dimensions(), (320, 240));
@@ -175,31 +179,16 @@ fn non_interactive_view_under_xvfb_with_validation() {
 fn view_accepts_hiz() {
     let dir = scratch("hiz");
     let shot = dir.join("view.png");
-    let shot_arg = shot.to_str().expect("utf-8 temp path");
-    let out = run_viewer(
-        &[
-            "--scene",
-            "city",
-            "--scale",
-            "0.1",
-            "--size",
-            "160x120",
-            "--frames",
-            "8",
-            "--algorithm",
-            "hiz",
-            "--validation",
-            "--screenshot",
-            shot_arg,
-        ],
-        &[],
-    );
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "view failed:\n{stderr}");
-    assert!(
-        !stderr.contains("validation"),
-        "validation messages were printed:\n{stderr}"
-    );
+    view_city_silently(&[
+        "--size",
+        "160x120",
+        "--frames",
+        "8",
+        "--algorithm",
+        "hiz",
+        "--screenshot",
+        shot.to_str().expect("utf-8 path"),
+    ]);
     assert!(shot.exists(), "no screenshot");
 }
 
@@ -292,30 +281,16 @@ fn overlay_cross_check(algorithm: &str) {
 fn resize_recreates_the_swapchain_under_validation() {
     let dir = scratch("resize");
     let shot = dir.join("r.png");
-    let out = run_viewer(
-        &[
-            "--scene",
-            "city",
-            "--scale",
-            "0.1",
-            "--size",
-            "320x240",
-            "--frames",
-            "16",
-            "--validation",
-            "--resize-at",
-            "6:200x150",
-            "--screenshot",
-            shot.to_str().expect("utf-8 path"),
-        ],
-        &[],
-    );
-    assert!(out.status.success(), "viewer failed: {:?}", out.status);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        !stderr.contains("validation"),
-        "validation messages:\n{stderr}"
-    );
+    view_city_silently(&[
+        "--size",
+        "320x240",
+        "--frames",
+        "16",
+        "--resize-at",
+        "6:200x150",
+        "--screenshot",
+        shot.to_str().expect("utf-8 path"),
+    ]);
     let img = image::open(&shot).expect("screenshot PNG").to_rgba8();
     assert_eq!(img.dimensions(), (200, 150));
     let _ = std::fs::remove_dir_all(&dir);
