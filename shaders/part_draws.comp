@@ -1,17 +1,19 @@
 #version 450
-// The predicated mode's part draws (the built-in renderer), after the part test
-// (part_test.comp) in the same frame: the draw commands of the parts whose predicate is 1 are
-// copied, in the order the parts' draws were handed over, into one list that a single
-// vkCmdDrawIndexedIndirectCount draws; `count` receives its length. One workgroup walks the
+// The predicated mode's gathered draws (the built-in renderer), at a predicate resolve: the
+// draw commands of the groups whose predicate holds are copied, in the order the groups were
+// handed over, into one list that a single vkCmdDrawIndexedIndirectCount draws; `count`
+// receives its length. A group's predicate is a part's (written by part_test.comp just
+// before) or a queried node's value (the query's result, copied at the resolve: non-zero
+// where it counted a sample, as a conditional block on it reads it). One workgroup walks the
 // groups 64 at a time with a prefix sum in shared memory, so the list's order does not depend
 // on how invocations are scheduled (the image is the same from run to run).
 layout(local_size_x = 64) in;
 
 struct Group {
-    uint part;          // the part whose predicate decides the group: predicates[part]
+    uint id;            // the part or query whose predicate decides the group
     uint first_command; // its commands: candidates[first_command ..]
     uint commands;
-    uint unused;
+    uint source;        // 0: predicates[id] (a part); 1: node_values[id] (a query)
 };
 
 struct Command {
@@ -27,6 +29,7 @@ layout(std430, set = 0, binding = 1) readonly buffer Predicates { uint predicate
 layout(std430, set = 0, binding = 2) readonly buffer Candidates { Command candidates[]; };
 layout(std430, set = 0, binding = 3) writeonly buffer Drawn { Command drawn[]; };
 layout(std430, set = 0, binding = 4) writeonly buffer Count { uint count; };
+layout(std430, set = 0, binding = 5) readonly buffer NodeValues { uint node_values[]; };
 
 layout(push_constant) uniform Push {
     // first group, groups
@@ -45,7 +48,8 @@ void main() {
         uint n = 0u;
         if (i < pc.info.y) {
             g = groups[pc.info.x + i];
-            n = predicates[g.part] != 0u ? g.commands : 0u;
+            uint value = g.source != 0u ? node_values[g.id] : predicates[g.id];
+            n = value != 0u ? g.commands : 0u;
         }
         sums[lane] = n;
         barrier();

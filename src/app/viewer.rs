@@ -844,6 +844,9 @@ impl OcclusionBackend for Probe<'_> {
         self.log.queries.push((id, boxes.to_vec(), false));
         Ok(id)
     }
+    fn gathers_predicated_draws(&mut self) -> bool {
+        self.inner.gathers_predicated_draws()
+    }
     fn test_part_if(
         &mut self,
         predicate: QueryId,

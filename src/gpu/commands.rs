@@ -82,8 +82,9 @@ pub struct CommandCounts {
     /// Parts of split nodes decided by the depth part test instead of a query (predicated
     /// mode, built-in renderer); not in `queries_begun`.
     pub tested_parts: u32,
-    /// Tested parts whose draws were gathered on the device into one indirect draw with a
-    /// count ([`Recorder::count_gathered`]) instead of a conditional block each.
+    /// Predicates (tested parts, or queried nodes with one predicate level) whose draws were
+    /// gathered on the device into one indirect draw with a count
+    /// ([`Recorder::count_gathered`]) instead of a conditional block each.
     pub gathered_parts: u32,
     /// Objects those draw calls draw when their predicate is true (an object drawn by its own
     /// draw, or by one command of a multi-draw), and the candidates of draws gathered on the
@@ -504,9 +505,10 @@ impl Recorder {
     }
 
     /// Counts the draw commands the device gathered for one
-    /// [`Recorder::draw_indexed_indirect_count`] from the draws of `parts` tested parts:
-    /// `objects` candidates of `tris` triangles in all, each drawn only where its part's
-    /// predicate is true, counted as objects and triangles sent under predicates.
+    /// [`Recorder::draw_indexed_indirect_count`] from the draws of `parts` predicates (tested
+    /// parts or queried nodes): `objects` candidates of `tris` triangles in all, each drawn
+    /// only where its predicate is true, counted as objects and triangles sent under
+    /// predicates.
     pub fn count_gathered(&mut self, parts: u32, objects: u32, tris: u64) {
         self.counts.gathered_parts += parts;
         self.counts.triangles += tris;

@@ -1362,6 +1362,15 @@ impl OcclusionBackend for Renderer {
             }
             return Ok(());
         }
+        if held && self.awaits_resolve(query) {
+            // A queried node's runs before its resolve: gathered there with the others whose
+            // query counted a sample.
+            let parts = self.part_tests.as_mut().expect("gathering checked");
+            for r in ranges.iter().filter(|r| !r.is_empty()) {
+                parts.defer_node_run(query, r.clone())?;
+            }
+            return Ok(());
+        }
         if !held || awaits_test {
             // Not the order of the commands held: the objects one by one.
             let mut list = std::mem::take(&mut self.range_objects);
@@ -1390,6 +1399,13 @@ impl OcclusionBackend for Renderer {
 
     fn supports_predicated_queries(&self) -> bool {
         self.supports_predicates()
+    }
+
+    fn gathers_predicated_draws(&mut self) -> bool {
+        if self.visibility_threshold != 0 || !self.supports_predicates() || !self.multi_draws() {
+            return false;
+        }
+        matches!(self.target_part_tests(), Ok(Some(p)) if p.can_gather())
     }
 
     fn issue_query_if(
@@ -1514,6 +1530,15 @@ impl Renderer {
             }
             _ => Ok(None),
         }
+    }
+
+    /// Whether `query` is a query of this frame not resolved yet whose draws can be gathered
+    /// at its resolve ([`OcclusionBackend::gathers_predicated_draws`]).
+    fn awaits_resolve(&self, query: QueryId) -> bool {
+        query & part_tests::PART_BIT == 0
+            && query >= self.queries.resolved()
+            && query < self.queries.issued()
+            && self.part_tests.as_ref().is_some_and(|p| p.can_gather())
     }
 
     /// Whether `query` is a part added in this frame and not tested yet: draws under it wait

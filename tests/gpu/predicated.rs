@@ -44,7 +44,8 @@ fn poses(scene: &Scene, path: &str) -> Vec<CameraPose> {
 /// Walks `poses` with vfc and both predicated modes (with `params`): every frame of a
 /// predicated mode is one submission with no wait and two pass breaks at most (the second
 /// decides the parts of split nodes under their predicates: by the renderer's depth part
-/// test, or with `predicated_tested_parts_min` at its maximum by queries), draws every object
+/// test, or with `predicated_tested_parts_min` at its maximum by queries; with one
+/// predicate level there is one, where the queried nodes' draws are gathered), draws every object
 /// that owns a pixel of the exact ID pass (predicates read back: a draw under a false predicate did not draw),
 /// and its image equals vfc's but for at most `tie_pixels` pixels where surfaces tie in depth
 /// and draw order decides. Returns the objects drawn under true predicates in all.
@@ -112,12 +113,21 @@ fn matches_vfc(
             assert!(d <= tie_pixels, "{tag}: differs from vfc in {d} pixels");
         }
     }
-    if params.predicated_tested_parts_min == 0 {
+    let o = &r.context().info.optional;
+    let can_gather =
+        o.draw_indirect_count && o.multi_draw_indirect && o.draw_indirect_first_instance;
+    if params.predicated_refine_levels == 0 {
+        // One predicate level: the queried nodes' draws are handed over before the resolve
+        // and gathered there where the device can.
+        assert_eq!(split_queries + tested_parts, 0, "one level splits nothing");
+        if can_gather {
+            assert!(gathered > 0, "no queried node's draws were gathered");
+        }
+    } else if params.predicated_tested_parts_min == 0 {
         assert!(tested_parts > 0, "no part was decided by the depth test");
         // Where the device can (lavapipe can), the passed parts' draws are gathered on the
         // device into one indirect draw with a count, not drawn in a block each.
-        let o = &r.context().info.optional;
-        if o.draw_indirect_count && o.multi_draw_indirect && o.draw_indirect_first_instance {
+        if can_gather {
             assert!(gathered > 0, "no tested part's draws were gathered");
         }
     } else {
@@ -150,6 +160,14 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
                 );
                 taken
             });
+            // One predicate level (the GPU policy): each queried node's objects under its
+            // own predicate, gathered on the device where it can.
+            let gpu = ChcppParams::for_gpu();
+            let one_level = matches_vfc(&mut r, &mut bvh, &poses(&scene, path), None, 0, &gpu);
+            assert!(
+                one_level > 0,
+                "{name}: one level drew under a true predicate"
+            );
             // The test is coarser than a query but still hides parts: within a quarter of the
             // queries' objects under true predicates (city 4,730 against 4,695, powerplant
             // 1,839 against 1,904; a test that passes every part draws 1.8x).

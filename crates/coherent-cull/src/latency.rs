@@ -204,6 +204,10 @@ impl OcclusionBackend for SlotBackend<'_> {
         Ok(self.slot_query(inner))
     }
 
+    fn gathers_predicated_draws(&mut self) -> bool {
+        self.inner.gathers_predicated_draws()
+    }
+
     fn test_part_if(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
         let predicate = self.this_frames_query(predicate)?;
         let inner = self.inner.test_part_if(predicate, boxes)?;

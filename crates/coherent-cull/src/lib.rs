@@ -287,6 +287,16 @@ pub trait OcclusionBackend {
         extend_order_objects(&mut objects, order, ranges)?;
         self.draw_objects_if(query, &objects)
     }
+    /// Whether draws under a query of this frame that is not resolved yet may be handed over
+    /// ([`OcclusionBackend::draw_order_ranges_if`], with the draw order set): the backend
+    /// keeps them and draws them after the next [`OcclusionBackend::resolve_predicates`],
+    /// where their predicates are known (the built-in renderer gathers the passed ones on
+    /// the device into one indirect draw, with no conditional block per query). The
+    /// predicated mode then hands a frame's draws over before its one resolve when it splits
+    /// no node (one predicate level). Default: no.
+    fn gathers_predicated_draws(&mut self) -> bool {
+        false
+    }
     /// Whether the backend can issue a query under another query's predicate
     /// ([`OcclusionBackend::issue_query_if`]): the predicated mode then tests the parts of a
     /// queried node in the same frame, behind a second predicate resolve, instead of drawing

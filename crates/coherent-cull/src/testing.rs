@@ -171,6 +171,7 @@ pub struct MockBackend<'a> {
     predicates: bool,
     predicated_queries: bool,
     part_test: bool,
+    gathering: bool,
     draw_order: Vec<u32>,
     draw_orders: u32,
 }
@@ -194,6 +195,7 @@ impl<'a> MockBackend<'a> {
             predicates: true,
             predicated_queries: true,
             part_test: false,
+            gathering: false,
             draw_order: Vec::new(),
             draw_orders: 0,
         }
@@ -219,6 +221,15 @@ impl<'a> MockBackend<'a> {
     /// it (the default) parts are queried.
     pub fn with_part_test(mut self) -> MockBackend<'a> {
         self.part_test = true;
+        self
+    }
+
+    /// A backend that takes draws under queries of this frame before their resolve
+    /// ([`OcclusionBackend::gathers_predicated_draws`]), as the built-in renderer's gathering
+    /// does: on the mock a query's value is known when it is issued, so such a draw is
+    /// decided at once.
+    pub fn with_gathering(mut self) -> MockBackend<'a> {
+        self.gathering = true;
         self
     }
 
@@ -495,6 +506,10 @@ impl OcclusionBackend for MockBackend<'_> {
         Ok(id)
     }
 
+    fn gathers_predicated_draws(&mut self) -> bool {
+        self.predicates && self.gathering
+    }
+
     fn test_part_if(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
         if !self.part_test || !self.supports_predicates() {
             return Ok(None);
@@ -550,7 +565,17 @@ impl OcclusionBackend for MockBackend<'_> {
         if !self.predicates {
             return Err(crate::predicates_unsupported());
         }
-        let q = self.predicate(query)?;
+        let q = match self.gathering {
+            // Kept until the resolve on a real device: any query of this frame will do.
+            true => self
+                .issued(query)
+                .ok()
+                .filter(|q| q.frame == self.frame)
+                .ok_or_else(|| {
+                    crate::Error::Input(format!("query {query} is not a query of this frame"))
+                })?,
+            false => self.predicate(query)?,
+        };
         if objects.is_empty() {
             return Ok(());
         }

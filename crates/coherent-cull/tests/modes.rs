@@ -701,6 +701,58 @@ fn the_gpu_parameters_keep_one_predicate_level_and_stay_exact() {
     assert!(parts[1] > 0, "the defaults split nodes on this walk");
 }
 
+/// On a backend that keeps draws until the resolve (`gathers_predicated_draws`), one
+/// predicate level hands each frame's draws over before its one resolve, and draws what the
+/// same culler draws on a backend that takes them after it; with split nodes (the defaults)
+/// nothing changes.
+#[test]
+fn one_level_hands_its_draws_over_before_the_resolve_where_the_backend_gathers() {
+    let bvh = ObjectBvh::build(&random_boxes(600, 5), 1);
+    for (i, params) in [ChcppParams::for_gpu(), ChcppParams::default()]
+        .into_iter()
+        .enumerate()
+    {
+        let mut a = Chcpp::new(params.clone()).with_latency(Latency::Predicated);
+        let mut b = Chcpp::new(params).with_latency(Latency::Predicated);
+        let mut gathering = MockBackend::new(|_| 0).with_gathering();
+        let mut plain = MockBackend::new(|_| 0);
+        let mut early = 0;
+        for f in 1..=30 {
+            let cam = walk(f);
+            let fog = Fog::new(&cam, 35.0);
+            let want = fog.visible_objects(&bvh);
+            let f2 = fog.clone();
+            gathering.set_visibility(move |x| fog.pixels(x));
+            plain.set_visibility(move |x| f2.pixels(x));
+            let g = run(&mut a, &bvh, &cam, &mut gathering, f);
+            let p = run(&mut b, &bvh, &cam, &mut plain, f);
+            let tag = format!("params {i} frame {f}");
+            assert!(missing(&want, &g.drawn).is_empty(), "{tag}: missed");
+            assert_eq!(g.drawn, p.drawn, "{tag}: the same objects drawn");
+            assert_eq!(g.counts.resolves, p.counts.resolves, "{tag}: resolves");
+            // Where the first conditional draw lies against the frame's first resolve.
+            let first_draw = g
+                .events
+                .iter()
+                .position(|e| matches!(e, MockEvent::DrawIf { .. }));
+            let first_resolve = g
+                .events
+                .iter()
+                .position(|e| matches!(e, MockEvent::Resolve));
+            if let (Some(d), Some(r)) = (first_draw, first_resolve) {
+                early += u32::from(d < r);
+                if i == 1 {
+                    assert!(r < d, "{tag}: split frames draw after the resolve");
+                }
+            }
+        }
+        match i {
+            0 => assert!(early > 0, "one level: no frame handed its draws over early"),
+            _ => assert_eq!(early, 0),
+        }
+    }
+}
+
 /// chc and chcpp, one and two frames in flight, on a backend with and without queries under
 /// predicates (nodes split into parts, or one predicate level).
 fn modes_with_split() -> Vec<(&'static str, u32, bool)> {

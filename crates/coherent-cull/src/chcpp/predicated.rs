@@ -16,7 +16,9 @@
 //!    one pass break, a copy and a barrier), and the objects under each i-queue query's nodes
 //!    that lie in the frustum are drawn under that query's predicate, handed over as ranges of
 //!    the subtree order ([`OcclusionBackend::draw_order_ranges_if`]: a subtree wholly in the
-//!    frustum is one range).
+//!    frustum is one range). A backend that keeps such draws until the resolve
+//!    ([`OcclusionBackend::gathers_predicated_draws`]: the built-in renderer gathers the passed
+//!    ones on the device into one indirect draw) gets them before it when no node is split.
 //! 4. On a backend that can issue queries under a predicate
 //!    ([`OcclusionBackend::supports_predicated_queries`]), a queried node with more than
 //!    `predicated_refine_objects` objects in the frustum, and every node of a multiquery
@@ -290,15 +292,25 @@ impl Chcpp {
             backend.set_draw_order(self.predicated.order.objects())?;
             self.predicated.order_sent = true;
         }
-        backend.resolve_predicates()?;
-        stats.predicate_resolves += 1;
         let split =
             backend.supports_predicated_queries() && self.params.predicated_refine_levels > 0;
+        // With one predicate level a backend that keeps draws until the resolve gets them
+        // before it (it gathers the passed ones on the device): still one resolve.
+        let draws_first = !split && backend.gathers_predicated_draws();
+        if !draws_first {
+            backend.resolve_predicates()?;
+            stats.predicate_resolves += 1;
+        }
         let mut scratch = std::mem::take(&mut self.predicated);
         let result =
             self.draw_under_predicates(bvh, view, first, split, &mut scratch, backend, stats);
         self.predicated = scratch;
-        result
+        result?;
+        if draws_first {
+            backend.resolve_predicates()?;
+            stats.predicate_resolves += 1;
+        }
+        Ok(())
     }
 
     /// Draws the objects of the i-queue queries from `first` on under their predicates; with
