@@ -186,6 +186,8 @@ pub struct PartTests {
     /// Whether draws under queried nodes wait for the frame's first dispatch
     /// ([`PartTests::defer_node_run`]).
     node_runs: bool,
+    /// Whether this frame recorded a dispatch (its buffers and gathered list are in use).
+    dispatched: bool,
     /// The command-buffer segment of each dispatched part's dispatch.
     segment: Vec<u32>,
     /// Whether each part's result was read.
@@ -266,6 +268,7 @@ impl PartTests {
             deferred: Deferred::default(),
             tested: 0,
             node_runs: false,
+            dispatched: false,
             segment: Vec::new(),
             read: Vec::new(),
             skip_barrier: false,
@@ -287,6 +290,7 @@ impl PartTests {
         self.deferred.clear();
         self.tested = 0;
         self.node_runs = false;
+        self.dispatched = false;
         self.segment.clear();
         self.read.clear();
         self.unguarded = false;
@@ -329,7 +333,7 @@ impl PartTests {
         {
             return false;
         }
-        if self.tested == 0 {
+        if !self.dispatched {
             return true;
         }
         let room = self.buffers.room;
@@ -359,7 +363,7 @@ impl PartTests {
     /// ([`PartTests::defer_node_run`]): the device can gather and the frame's first dispatch
     /// is still to come.
     pub fn can_gather(&self) -> bool {
-        self.gather.is_some() && self.tested == 0
+        self.gather.is_some() && !self.dispatched
     }
 
     /// Hands over the objects of queried node `query` (a query of this frame, not resolved
@@ -539,13 +543,13 @@ impl PartTests {
             commands: if self.gather.is_some() { commands } else { 0 },
         };
         let ordered = ordered.filter(|_| self.gather.is_some());
-        if self.tested == 0 {
+        if !self.dispatched {
             self.make_room(depth, need)?;
         }
-        // Gathered on the device at the frame's first test (later ones would overwrite the
+        // Gathered on the device at the frame's first dispatch (later ones would overwrite the
         // list an earlier draw reads), when one indirect draw may draw them all.
         let gather =
-            ordered.is_some() && self.tested == 0 && groups > 0 && commands <= max_draw_count;
+            ordered.is_some() && !self.dispatched && groups > 0 && commands <= max_draw_count;
         self.deferred.gathered = gather;
         let b = &mut self.buffers;
         if n > 0 {
@@ -598,6 +602,7 @@ impl PartTests {
         }
         rec.memory_barrier(Access::ComputeReadWrite, Access::HostRead);
         self.tested = self.parts.len() as u32;
+        self.dispatched = true;
         self.segment.resize(self.parts.len(), segment);
         self.read.resize(self.parts.len(), false);
         Ok(())
@@ -661,7 +666,7 @@ impl PartTests {
         if have.holds(&need) {
             return Ok(());
         }
-        if self.tested > 0 {
+        if self.dispatched {
             return Err(Error::Input(format!(
                 "part tests: a second test in one frame needs room for {need:?} (there is \
                  room for {have:?})"
