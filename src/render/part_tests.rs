@@ -378,7 +378,7 @@ impl PartTests {
         if query & PART_BIT != 0 || !self.can_gather() {
             return Err(Error::Input(format!(
                 "draws under query {query:#x} cannot be gathered (not a query, or no gathering \
-                 before this frame's first part test)"
+                 after this frame's first dispatch)"
             )));
         }
         self.node_runs = true;
@@ -504,10 +504,13 @@ impl PartTests {
     /// queries they name: the copy of the query values, `depth` made readable by compute, the
     /// dispatch, and the barriers to conditional rendering and the host. With gathering, a
     /// second dispatch copies the runs handed over for these parts
-    /// ([`PartTests::defer_run`]) whose part passed from `ordered` (the renderer's ordered
-    /// draw commands, with their buffer's generation) into one list, with a barrier to indirect reads; the renderer then
-    /// records the draws ([`PartTests::take_recorded_draws`]). Leaves `depth` sampled by compute (the caller
-    /// moves it back to an attachment). `segment` is the segment being recorded.
+    /// ([`PartTests::defer_run`]) and for queried nodes ([`PartTests::defer_node_run`]; with
+    /// no parts, it is the only dispatch) whose predicate holds from `ordered` (the
+    /// renderer's ordered draw commands, with their buffer's generation) into one list, with
+    /// a barrier to indirect reads; the renderer then records the draws
+    /// ([`PartTests::take_recorded_draws`]). Leaves `depth` sampled by compute when parts were
+    /// tested (the caller moves it back to an attachment). `segment` is the segment being
+    /// recorded.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &mut self,

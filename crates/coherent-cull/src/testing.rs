@@ -342,10 +342,11 @@ impl<'a> MockBackend<'a> {
         id
     }
 
-    /// Query `query` as a predicate: issued in this frame and resolved since.
-    fn predicate(&self, query: QueryId) -> Result<&Issued> {
+    /// Query `query` as a predicate: issued in this frame and, unless the draws under it wait
+    /// for the resolve (`before_resolve`: a gathering backend), resolved since.
+    fn predicate(&self, query: QueryId, before_resolve: bool) -> Result<&Issued> {
         let q = self.issued(query)?;
-        if q.frame != self.frame || !q.resolved {
+        if q.frame != self.frame || !(q.resolved || before_resolve) {
             return Err(crate::Error::Input(format!(
                 "query {query} is not a resolved predicate of this frame"
             )));
@@ -493,7 +494,7 @@ impl OcclusionBackend for MockBackend<'_> {
         if !self.supports_predicated_queries() {
             return Err(crate::predicates_unsupported());
         }
-        let taken = self.predicate(predicate)?.pixels > 0;
+        let taken = self.predicate(predicate, false)?.pixels > 0;
         let (id, pixels) = self.record_query(boxes, taken);
         let visible = pixels > 0;
         self.counts.predicated_queries += 1;
@@ -514,7 +515,7 @@ impl OcclusionBackend for MockBackend<'_> {
         if !self.part_test || !self.supports_predicates() {
             return Ok(None);
         }
-        let taken = self.predicate(predicate)?.pixels > 0;
+        let taken = self.predicate(predicate, false)?.pixels > 0;
         let visible = taken && boxes.iter().any(|b| (self.visibility)(b) > 0);
         let id = self.issue(u64::from(visible));
         // Its objects may be drawn under it before the resolve that tests it (the backend
@@ -565,17 +566,8 @@ impl OcclusionBackend for MockBackend<'_> {
         if !self.predicates {
             return Err(crate::predicates_unsupported());
         }
-        let q = match self.gathering {
-            // Kept until the resolve on a real device: any query of this frame will do.
-            true => self
-                .issued(query)
-                .ok()
-                .filter(|q| q.frame == self.frame)
-                .ok_or_else(|| {
-                    crate::Error::Input(format!("query {query} is not a query of this frame"))
-                })?,
-            false => self.predicate(query)?,
-        };
+        // A gathering backend keeps the draws until the resolve: any query of this frame.
+        let q = self.predicate(query, self.gathering)?;
         if objects.is_empty() {
             return Ok(());
         }
