@@ -338,6 +338,10 @@ pub fn info() -> Result<()> {
         i.optional.shader_clip_distance
     );
     println!(
+        "oracle-box:      fragmentStoresAndAtomics {}",
+        i.optional.fragment_stores
+    );
+    println!(
         "features used:   {} (all present)",
         coherent::gpu::context::REQUIRED_FEATURES.join(", ")
     );

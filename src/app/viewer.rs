@@ -783,6 +783,9 @@ impl Culler for Observed<'_> {
     fn needs_exact_visibility(&self) -> bool {
         self.inner.needs_exact_visibility()
     }
+    fn needs_box_visibility(&self) -> bool {
+        self.inner.needs_box_visibility()
+    }
     fn cull_frame(
         &mut self,
         input: &FrameInput,

@@ -110,6 +110,8 @@ pub enum Access {
     HostRead,
     /// Read as a conditional-rendering predicate.
     ConditionalRead,
+    /// Written by fragment shaders (storage buffers).
+    FragmentWrite,
 }
 
 impl Access {
@@ -129,6 +131,7 @@ impl Access {
                 S::CONDITIONAL_RENDERING_EXT,
                 A::CONDITIONAL_RENDERING_READ_EXT,
             ),
+            Access::FragmentWrite => (S::FRAGMENT_SHADER, A::SHADER_STORAGE_WRITE),
         }
     }
 }

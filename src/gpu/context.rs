@@ -416,6 +416,9 @@ pub struct OptionalFeatures {
     /// `VK_EXT_conditional_rendering` with its `conditionalRendering` feature: draws under a
     /// query's predicate (the predicated latency mode).
     pub conditional_rendering: bool,
+    /// Storage-buffer writes from fragment shaders (`fragmentStoresAndAtomics`): the box
+    /// oracle (`oracle-box`) marks the objects whose box passed the depth test.
+    pub fragment_stores: bool,
 }
 
 /// The features `coherent` relies on, for `coherent info`.
@@ -785,7 +788,8 @@ fn create_device(
         .occlusion_query_precise(true)
         .multi_draw_indirect(optional.multi_draw_indirect)
         .draw_indirect_first_instance(optional.draw_indirect_first_instance)
-        .shader_clip_distance(optional.shader_clip_distance);
+        .shader_clip_distance(optional.shader_clip_distance)
+        .fragment_stores_and_atomics(optional.fragment_stores);
     let mut features12 = vk::PhysicalDeviceVulkan12Features::default()
         .host_query_reset(true)
         .shader_output_layer(true)
@@ -987,6 +991,7 @@ fn optional_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Option
         sampler_filter_minmax: f12.sampler_filter_minmax != 0,
         shader_clip_distance: f10.shader_clip_distance != 0,
         conditional_rendering: has_conditional && cr.conditional_rendering != 0,
+        fragment_stores: f10.fragment_stores_and_atomics != 0,
     }
 }
 

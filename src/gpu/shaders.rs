@@ -27,6 +27,10 @@ pub const SCENE_MAT_FRAG: &[u8] = spirv!("scene_mat.frag");
 pub const SCENE_MAT_MASKED_FRAG: &[u8] = spirv!("scene_mat_masked.frag");
 /// ID-pass fragment shader for alpha-masked materials.
 pub const ID_MASKED_FRAG: &[u8] = spirv!("id_masked.frag");
+/// The box oracle's vertex shader: one bounding box per instance, from a storage buffer.
+pub const BOX_VISIBLE_VERT: &[u8] = spirv!("box_visible.vert");
+/// The box oracle's fragment shader: marks the object of a box fragment that passed depth.
+pub const BOX_VISIBLE_FRAG: &[u8] = spirv!("box_visible.frag");
 /// coherent-ash's query-box vertex shader, compiled from shaders/query_box.vert (the crate ships
 /// its own copy of these words; a test fails when they differ).
 pub const QUERY_BOX_VERT: &[u8] = spirv!("query_box.vert");

@@ -2,6 +2,7 @@
 //! chain of segments (command buffers): when a culler needs query results the current segment is
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
+mod box_oracle;
 mod draw_log;
 pub mod frame;
 pub mod hiz;
@@ -22,8 +23,8 @@ use crate::error::{Error, Result};
 use crate::gpu::queries::QueryPools;
 use crate::gpu::targets::{self, Target, COLOR_FORMAT, DEPTH_FORMAT, ID_FORMAT};
 use crate::gpu::{
-    bytes_of, Attachment, Binding, Buffer, CommandCounts, CommandPool, DescriptorSets, GpuContext,
-    Image, ImageUse, Load, OneShot, PipelineKind, Recorder, Timeline,
+    bytes_of, Access, Attachment, Binding, Buffer, CommandCounts, CommandPool, DescriptorSets,
+    GpuContext, Image, ImageUse, Load, OneShot, PipelineKind, Recorder, Timeline,
 };
 use crate::scene::camera::{Camera, CameraView};
 use crate::scene::{Aabb, Scene};
@@ -139,6 +140,8 @@ pub struct Renderer {
     part_tests: Option<part_tests::PartTests>,
     /// Why the device cannot run the part tests (its parts are then queried).
     part_tests_unsupported: Option<String>,
+    /// The box oracle's pass ([`Renderer::box_visible`]), made on first use.
+    box_oracle: Option<box_oracle::BoxOracle>,
 }
 
 impl Renderer {
@@ -230,6 +233,7 @@ impl Renderer {
             scattered: Vec::new(),
             part_tests: None,
             part_tests_unsupported: None,
+            box_oracle: None,
         })
     }
 
@@ -338,7 +342,9 @@ impl Renderer {
         frame: u64,
     ) -> Result<FrameResult> {
         let view: CameraView = camera.into();
-        let exact = if culler.needs_exact_visibility() {
+        let exact = if culler.needs_box_visibility() {
+            Some(self.box_visible(bvh, view)?)
+        } else if culler.needs_exact_visibility() {
             Some(self.exact_visible(bvh, view)?)
         } else {
             None
@@ -572,6 +578,44 @@ impl Renderer {
             .collect())
     }
 
+    /// Finds the objects whose own bounding box shows against the exact depth (the box oracle,
+    /// `oracle-box`): the ID pass, then the frustum's boxes tested against its depth as query
+    /// boxes are. Not part of any frame's time or counts. Needs `fragmentStoresAndAtomics`.
+    pub fn box_visible(
+        &mut self,
+        bvh: &ObjectBvh,
+        camera: impl Into<CameraView>,
+    ) -> Result<Vec<u32>> {
+        let view = camera.into();
+        let candidates = frustum_candidates(bvh, &view);
+        if self
+            .box_oracle
+            .as_ref()
+            .is_none_or(|b| b.objects() != self.objects.len())
+        {
+            // Nothing is in flight: every pass that used the old one was waited for.
+            self.box_oracle = None;
+            self.box_oracle = Some(box_oracle::BoxOracle::new(&self.ctx, self.objects.len())?);
+        }
+        if let Some(b) = self.box_oracle.as_mut() {
+            b.write_boxes(&candidates, &self.objects)?;
+        }
+        let mut push = self.push;
+        push[..64].copy_from_slice(bytes_of(&raster_matrix(&view).to_cols_array()));
+        let pass = self.render_ids(&candidates, &push, true)?;
+        add_prepass(&mut self.prepass_counts, &pass);
+        let Some(b) = self.box_oracle.as_ref() else {
+            return Ok(candidates);
+        };
+        let mut visible = Vec::new();
+        for &o in &candidates {
+            if b.passed(o)? {
+                visible.push(o);
+            }
+        }
+        Ok(visible)
+    }
+
     /// The exact ID pass of `camera`: `pixels[o]` becomes the number of pixels object `o` owns
     /// (0 for hidden or culled objects). Not part of any frame's time or counts.
     pub fn object_pixels(
@@ -645,7 +689,7 @@ impl Renderer {
         let candidates = frustum_candidates(bvh, view);
         let mut push = self.push;
         push[..64].copy_from_slice(bytes_of(&raster_matrix(view).to_cols_array()));
-        let pass = self.render_ids(&candidates, &push)?;
+        let pass = self.render_ids(&candidates, &push, false)?;
         add_prepass(&mut self.prepass_counts, &pass);
         pixels.clear();
         pixels.resize(self.objects.len(), 0);
@@ -663,8 +707,15 @@ impl Renderer {
     }
 
     /// Draws `candidates` into the object-ID image (ID = object + 1; 0 is background) and
-    /// returns what the pass recorded; the pass and its readback are two submissions.
-    fn render_ids(&mut self, candidates: &[u32], push: &[u8]) -> Result<CommandCounts> {
+    /// returns what the pass recorded; the pass and its readback are two submissions. With
+    /// `boxes`, the box oracle's pass follows the draws in the same rendering (its boxes
+    /// written beforehand) and its flags are ready to read when this returns.
+    fn render_ids(
+        &mut self,
+        candidates: &[u32],
+        push: &[u8],
+        boxes: bool,
+    ) -> Result<CommandCounts> {
         if self.id_image.is_none() {
             self.id_image = Some(Image::new(
                 &self.ctx,
@@ -682,9 +733,14 @@ impl Renderer {
         let (pipelines, set) = (&self.pipelines, self.descriptors.get(0));
         let sets = &self.descriptors;
         let (vb, ib, objects) = (&self.vertex_buffer, &self.index_buffer, &self.objects);
+        let boxes = self.box_oracle.as_ref().filter(|_| boxes);
         let mut pass = CommandCounts::default();
         self.oneshot.run(&mut self.recorder, |rec| {
             let before = rec.counts;
+            if let Some(b) = boxes {
+                rec.fill_buffer(b.flags(), 0, vk::WHOLE_SIZE, 0);
+                rec.memory_barrier(Access::TransferWrite, Access::FragmentWrite);
+            }
             rec.discard(ids, ImageUse::ColorAttachment);
             rec.discard(depth, ImageUse::DepthAttachment);
             rec.begin_rendering(
@@ -714,7 +770,13 @@ impl Renderer {
                     rec.draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
                 }
             }
+            if let Some(b) = boxes {
+                b.record(rec, &push[..64]);
+            }
             rec.end_rendering();
+            if boxes.is_some() {
+                rec.memory_barrier(Access::FragmentWrite, Access::HostRead);
+            }
             pass.pipeline_binds = rec.counts.pipeline_binds - before.pipeline_binds;
             pass.draw_calls = rec.counts.draw_calls - before.draw_calls;
             pass.triangles = rec.counts.triangles - before.triangles;

@@ -15,7 +15,7 @@ const H: u32 = 90;
 
 fn algorithms() -> Vec<(String, Box<dyn Culler>)> {
     let mut v: Vec<(String, Box<dyn Culler>)> = Vec::new();
-    for name in ["stop-and-wait", "chc", "chcpp", "oracle"] {
+    for name in ["stop-and-wait", "chc", "chcpp", "oracle", "oracle-box"] {
         v.push((
             name.to_string(),
             culling::create(name, &ChcppParams::default()).unwrap(),
@@ -94,6 +94,37 @@ fn city_street_images_equal_vfc_for_30_frames() {
 #[test]
 fn parking_images_equal_vfc_for_30_frames() {
     exactness("parking", 0.3, "", 0, 30);
+}
+
+/// The box oracle's set lies between the exact visible set and the frustum's objects: it
+/// holds every object that owns a pixel (an object's box is at least as near as the object),
+/// and the street hides some boxes whole.
+#[test]
+fn box_oracle_set_holds_the_visible_objects_and_culls_hidden_boxes() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let path = scene.path("street").unwrap().clone();
+        let mut r = Renderer::new(&ctx, &scene, W, H).unwrap();
+        let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
+        let (mut above_exact, mut below_frustum) = (0, 0);
+        for f in (20..50).step_by(3) {
+            let cam = r.camera(path.pose_at(f as f32), &bvh);
+            let exact = r.exact_visible(&bvh, &cam).unwrap();
+            let boxes = r.box_visible(&bvh, &cam).unwrap();
+            let frustum = r.render_frame(vfc.as_mut(), &bvh, &cam, f).unwrap();
+            let in_boxes: std::collections::HashSet<u32> = boxes.iter().copied().collect();
+            let lost: Vec<&u32> = exact.iter().filter(|o| !in_boxes.contains(o)).collect();
+            assert!(lost.is_empty(), "frame {f}: visible objects {lost:?} lack a box");
+            assert!(boxes.len() as u32 <= frustum.cull.objects_drawn, "frame {f}");
+            above_exact += usize::from(boxes.len() > exact.len());
+            below_frustum += usize::from((boxes.len() as u32) < frustum.cull.objects_drawn);
+        }
+        assert!(above_exact > 0, "boxes show where their objects do not");
+        assert!(below_frustum > 0, "the street hides some boxes whole");
+    }
+    drop(ctx);
+    common::assert_silent(&log);
 }
 
 fn run(

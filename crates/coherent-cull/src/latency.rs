@@ -62,6 +62,10 @@ impl Culler for FramesInFlight {
         self.inner.needs_exact_visibility()
     }
 
+    fn needs_box_visibility(&self) -> bool {
+        self.inner.needs_box_visibility()
+    }
+
     fn cull_frame(
         &mut self,
         input: &FrameInput,

@@ -395,7 +395,9 @@ pub struct FrameInput<'a> {
     pub view: CameraView,
     /// Frame number (for temporal state).
     pub frame: u64,
-    /// The exact visible set (only for cullers whose [`Culler::needs_exact_visibility`]).
+    /// The exact visible set (only for cullers whose [`Culler::needs_exact_visibility`]);
+    /// for a culler whose [`Culler::needs_box_visibility`], the objects whose own bounding
+    /// box shows against the exact depth.
     pub exact_visible: Option<&'a [u32]>,
 }
 
@@ -621,6 +623,12 @@ pub trait Culler {
     fn needs_exact_visibility(&self) -> bool {
         false
     }
+    /// Whether [`FrameInput::exact_visible`] should instead hold the objects whose own
+    /// bounding box shows against the exact depth (the box oracle, `oracle-box`): what an
+    /// ideal culler that tests boxes would draw.
+    fn needs_box_visibility(&self) -> bool {
+        false
+    }
     /// Decides visibility and records draws and queries through `backend`; must read back every
     /// query it issued before returning (after [`OcclusionBackend::finish`] if need be).
     fn cull_frame(
@@ -639,6 +647,7 @@ pub const ALGORITHMS: &[&str] = &[
     "chc",
     "chcpp",
     "oracle",
+    "oracle-box",
     "nohc",
     "pvs",
 ];
@@ -702,7 +711,8 @@ pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
         }
         "chc" => Box::new(chc::Chc::default()),
         "chcpp" => Box::new(chcpp::Chcpp::new(params.clone())),
-        "oracle" => Box::new(oracle::Oracle),
+        "oracle" => Box::new(oracle::Oracle::default()),
+        "oracle-box" => Box::new(oracle::Oracle::boxes()),
         "nohc" | "pvs" => {
             return Err(Error::Input(format!(
                 "{name} needs more than CHC++'s parameters: use culling::create_with"

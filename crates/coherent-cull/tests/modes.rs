@@ -466,6 +466,22 @@ fn the_oracle_draws_exactly_the_visible_set() {
 }
 
 #[test]
+fn the_box_oracle_asks_for_the_box_visible_set_and_draws_it() {
+    let bvh = ObjectBvh::build(&random_boxes(100, 14), 1);
+    let mut c = create("oracle-box", &ChcppParams::default()).unwrap();
+    assert_eq!(c.name(), "oracle-box");
+    assert!(c.needs_exact_visibility() && c.needs_box_visibility());
+    assert!(!create("oracle", &ChcppParams::default())
+        .unwrap()
+        .needs_box_visibility());
+    let mut backend = MockBackend::new(|_| PIXELS);
+    let boxes = [3, 5, 17, 42, 99];
+    let fr = run_with(c.as_mut(), &bvh, &walk(0), &mut backend, 1, Some(&boxes));
+    assert_eq!(fr.drawn, boxes);
+    assert_eq!((fr.counts.queries, fr.counts.submits), (0, 1));
+}
+
+#[test]
 fn latency_names_parse_and_bad_ones_are_refused() {
     let ok = [
         ("in-frame", Latency::InFrame, 1),

@@ -1,0 +1,177 @@
+//! The box oracle (`oracle-box`): the objects whose own bounding box shows against the exact
+//! depth, what an ideal culler that tests boxes would draw.
+//!
+//! A culler that tests bounding boxes (CHC, CHC++ in any latency mode, stop-and-wait, NOHC,
+//! two-phase Hi-Z) tests them against the depth drawn so far, which is never nearer than the
+//! frame's final depth, and mostly tests boxes larger than one object's (a node's, a
+//! multiquery's, a tight bound's). The box oracle tests each object's own box against the final
+//! depth: after the untimed ID pass (which leaves the final depth of the frustum's objects), one
+//! instanced draw of the candidates' boxes (`shaders/box_visible.vert`: front faces, as the
+//! query boxes; the same depth test, with the same bias toward the eye; no writes) marks, in the
+//! fragment shader, each object a box fragment of which passed (`shaders/box_visible.frag`,
+//! early fragment tests). Its frame then draws those objects and nothing else: the time of the
+//! draws an ideal box culler cannot avoid, with no query and no pass break. Where it lies above
+//! the `oracle` (the objects that own a pixel) is the price of testing boxes rather than the
+//! objects themselves; where a culler lies above it is the price of its hierarchy, its
+//! history and its queries. (It is not a strict floor for every culler: the depth bias
+//! depends on a face's slope, so in a few objects a frame a larger box's face can fail where
+//! the object's own passed.)
+//!
+//! Needs `fragmentStoresAndAtomics`; a device without it gets [`Error::Unsupported`].
+
+use std::sync::Arc;
+
+use ash::vk;
+use gpu_allocator::MemoryLocation;
+
+use crate::error::{Error, Result};
+use crate::gpu::targets::{DEPTH_FORMAT, ID_FORMAT};
+use crate::gpu::{
+    as_bytes, shaders, Binding, Buffer, DescriptorSets, GpuContext, Pipeline, PipelineDesc,
+    PipelineKind, PipelineLayout,
+};
+
+use super::ObjectDraw;
+
+/// Bytes of one box record (`box_visible.vert` `ObjectBox`: two vec4).
+const BOX_BYTES: u64 = 32;
+/// Push constants: the ID pass's world-to-clip matrix.
+const PUSH: u32 = 64;
+
+/// The box pass's pipeline, its buffers and their descriptor set.
+pub(super) struct BoxOracle {
+    // The pipeline and the set go before the layout and the buffers they use.
+    pipeline: Pipeline,
+    sets: DescriptorSets,
+    layout: PipelineLayout,
+    /// One record per candidate of the pass (host-visible, written before it).
+    boxes: Buffer,
+    /// One word per object: 1 where a fragment of its box passed (read by the host after it).
+    visible: Buffer,
+    /// Objects the buffers are sized for.
+    objects: usize,
+    /// Candidates in the box buffer now.
+    count: u32,
+}
+
+impl BoxOracle {
+    /// The pass for a scene of `objects` objects.
+    pub(super) fn new(ctx: &Arc<GpuContext>, objects: usize) -> Result<BoxOracle> {
+        if !ctx.info.optional.fragment_stores {
+            return Err(Error::Unsupported {
+                feature: "fragmentStoresAndAtomics (oracle-box marks visible boxes from the \
+                          fragment shader)"
+                    .into(),
+            });
+        }
+        let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+        let n = objects.max(1) as u64;
+        let boxes = Buffer::new(
+            ctx,
+            "oracle-box boxes",
+            n * BOX_BYTES,
+            storage,
+            MemoryLocation::CpuToGpu,
+        )?;
+        let visible = Buffer::new(
+            ctx,
+            "oracle-box visible",
+            n * 4,
+            storage | vk::BufferUsageFlags::TRANSFER_DST,
+            MemoryLocation::GpuToCpu,
+        )?;
+        let layout = PipelineLayout::new(
+            ctx,
+            &[
+                vk::DescriptorType::STORAGE_BUFFER,
+                vk::DescriptorType::STORAGE_BUFFER,
+            ],
+            PUSH,
+        )?;
+        let desc = PipelineDesc {
+            name: "oracle-box",
+            vert: shaders::BOX_VISIBLE_VERT,
+            frag: Some(shaders::BOX_VISIBLE_FRAG),
+            vertex_stride: 0,
+            attributes: &[],
+            color_formats: &[ID_FORMAT],
+            color_write: false,
+            depth_format: DEPTH_FORMAT,
+            depth_compare: vk::CompareOp::LESS_OR_EQUAL,
+            depth_write: false,
+            // Front faces only, as the query boxes: the box of an object the eye is inside
+            // (or that reaches the near plane) may then show nothing, and exact cullers draw
+            // such objects without a test anyway.
+            cull: vk::CullModeFlags::BACK,
+            kind: PipelineKind::Other,
+            // As coherent-ash's query boxes: toward the eye, so a face lying on the surface
+            // it bounds passes.
+            depth_bias: (-4.0, -1.0),
+        };
+        let pipeline = Pipeline::graphics(ctx, &layout, &desc)?;
+        let bindings = [
+            Binding::StorageBuffer(&boxes),
+            Binding::StorageBuffer(&visible),
+        ];
+        let sets = DescriptorSets::new(ctx, &[(&layout, &bindings[..])])?;
+        Ok(BoxOracle {
+            pipeline,
+            sets,
+            layout,
+            boxes,
+            visible,
+            objects,
+            count: 0,
+        })
+    }
+
+    /// Objects the buffers hold.
+    pub(super) fn objects(&self) -> usize {
+        self.objects
+    }
+
+    /// Writes the boxes of `candidates` (current bounds from `draws`) for the next pass.
+    pub(super) fn write_boxes(&mut self, candidates: &[u32], draws: &[ObjectDraw]) -> Result<()> {
+        let mut words = Vec::with_capacity(candidates.len() * 8);
+        for &o in candidates {
+            let b = draws
+                .get(o as usize)
+                .ok_or_else(|| Error::Input(format!("oracle-box: no object {o}")))?
+                .bounds;
+            words.extend([b.min.x.to_bits(), b.min.y.to_bits(), b.min.z.to_bits(), o]);
+            words.extend([b.max.x.to_bits(), b.max.y.to_bits(), b.max.z.to_bits(), 0]);
+        }
+        self.boxes.write(0, &as_bytes(&words))?;
+        self.count = candidates.len() as u32;
+        Ok(())
+    }
+
+    /// Records the pass inside the ID pass's rendering, after its draws: one instanced draw of
+    /// the boxes written by [`BoxOracle::write_boxes`].
+    pub(super) fn record(&self, rec: &mut crate::gpu::Recorder, matrix: &[u8]) {
+        if self.count == 0 {
+            return;
+        }
+        rec.bind_pipeline(&self.pipeline);
+        rec.bind_graphics_set(&self.layout, self.sets.get(0));
+        rec.push_constants(&self.layout, matrix);
+        rec.draw(36, self.count);
+    }
+
+    /// The visible flags buffer, cleared before the pass and read after it.
+    pub(super) fn flags(&self) -> &Buffer {
+        &self.visible
+    }
+
+    /// Whether object `o`'s box passed in the last pass (after its submission completed).
+    pub(super) fn passed(&self, o: u32) -> Result<bool> {
+        let bytes = self
+            .visible
+            .mapped()
+            .ok_or_else(|| Error::Alloc("oracle-box flags are not mapped".into()))?;
+        let at = o as usize * 4;
+        Ok(bytes
+            .get(at..at + 4)
+            .is_some_and(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]) != 0))
+    }
+}
