@@ -29,7 +29,7 @@ pub struct RenderArgs {
     /// Image size WxH.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// Culling algorithm (vfc, stop-and-wait, chc, chcpp, oracle, hiz).
+    /// Culling algorithm (vfc, stop-and-wait, chc, chcpp, oracle, oracle-box, nohc, pvs, hiz).
     #[arg(long, default_value = "vfc")]
     pub algorithm: String,
     /// Latency mode of chc and chcpp: in-frame, predicated, next-frame,

@@ -115,8 +115,14 @@ fn box_oracle_set_holds_the_visible_objects_and_culls_hidden_boxes() {
             let frustum = r.render_frame(vfc.as_mut(), &bvh, &cam, f).unwrap();
             let in_boxes: std::collections::HashSet<u32> = boxes.iter().copied().collect();
             let lost: Vec<&u32> = exact.iter().filter(|o| !in_boxes.contains(o)).collect();
-            assert!(lost.is_empty(), "frame {f}: visible objects {lost:?} lack a box");
-            assert!(boxes.len() as u32 <= frustum.cull.objects_drawn, "frame {f}");
+            assert!(
+                lost.is_empty(),
+                "frame {f}: visible objects {lost:?} lack a box"
+            );
+            assert!(
+                boxes.len() as u32 <= frustum.cull.objects_drawn,
+                "frame {f}"
+            );
             above_exact += usize::from(boxes.len() > exact.len());
             below_frustum += usize::from((boxes.len() as u32) < frustum.cull.objects_drawn);
         }
