@@ -711,8 +711,8 @@ pub fn create(name: &str, params: &ChcppParams) -> Result<Box<dyn Culler>> {
         }
         "chc" => Box::new(chc::Chc::default()),
         "chcpp" => Box::new(chcpp::Chcpp::new(params.clone())),
-        "oracle" => Box::new(oracle::Oracle::default()),
-        "oracle-box" => Box::new(oracle::Oracle::boxes()),
+        "oracle" => Box::new(oracle::Oracle),
+        "oracle-box" => Box::new(oracle::BoxOracle),
         "nohc" | "pvs" => {
             return Err(Error::Input(format!(
                 "{name} needs more than CHC++'s parameters: use culling::create_with"
