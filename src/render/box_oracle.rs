@@ -163,15 +163,19 @@ impl BoxOracle {
         &self.visible
     }
 
-    /// Whether object `o`'s box passed in the last pass (after its submission completed).
-    pub(super) fn passed(&self, o: u32) -> Result<bool> {
+    /// The objects of `candidates` whose box passed in the last pass, in their order (after
+    /// its submission completed).
+    pub(super) fn passed_objects(&self, candidates: &[u32]) -> Result<Vec<u32>> {
         let bytes = self
             .visible
             .mapped()
             .ok_or_else(|| Error::Alloc("oracle-box flags are not mapped".into()))?;
-        let at = o as usize * 4;
-        Ok(bytes
-            .get(at..at + 4)
-            .is_some_and(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]) != 0))
+        let passed = |o: u32| {
+            let at = o as usize * 4;
+            bytes
+                .get(at..at + 4)
+                .is_some_and(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]) != 0)
+        };
+        Ok(candidates.iter().copied().filter(|&o| passed(o)).collect())
     }
 }

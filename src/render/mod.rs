@@ -588,32 +588,18 @@ impl Renderer {
     ) -> Result<Vec<u32>> {
         let view = camera.into();
         let candidates = frustum_candidates(bvh, &view);
-        if self
-            .box_oracle
-            .as_ref()
-            .is_none_or(|b| b.objects() != self.objects.len())
-        {
-            // Nothing is in flight: every pass that used the old one was waited for.
-            self.box_oracle = None;
-            self.box_oracle = Some(box_oracle::BoxOracle::new(&self.ctx, self.objects.len())?);
-        }
-        if let Some(b) = self.box_oracle.as_mut() {
-            b.write_boxes(&candidates, &self.objects)?;
-        }
-        let mut push = self.push;
-        push[..64].copy_from_slice(bytes_of(&raster_matrix(&view).to_cols_array()));
-        let pass = self.render_ids(&candidates, &push, true)?;
-        add_prepass(&mut self.prepass_counts, &pass);
-        let Some(b) = self.box_oracle.as_ref() else {
-            return Ok(candidates);
+        let n = self.objects.len();
+        let mut oracle = match self.box_oracle.take() {
+            Some(b) if b.objects() == n => b,
+            // Nothing is in flight: every pass that used an older one was waited for.
+            _ => box_oracle::BoxOracle::new(&self.ctx, n)?,
         };
-        let mut visible = Vec::new();
-        for &o in &candidates {
-            if b.passed(o)? {
-                visible.push(o);
-            }
-        }
-        Ok(visible)
+        oracle.write_boxes(&candidates, &self.objects)?;
+        let visible = self
+            .render_ids(&view, &candidates, Some(&oracle))
+            .and_then(|()| oracle.passed_objects(&candidates));
+        self.box_oracle = Some(oracle);
+        visible
     }
 
     /// The exact ID pass of `camera`: `pixels[o]` becomes the number of pixels object `o` owns
@@ -687,10 +673,7 @@ impl Renderer {
         pixels: &mut Vec<u32>,
     ) -> Result<Vec<u32>> {
         let candidates = frustum_candidates(bvh, view);
-        let mut push = self.push;
-        push[..64].copy_from_slice(bytes_of(&raster_matrix(view).to_cols_array()));
-        let pass = self.render_ids(&candidates, &push, false)?;
-        add_prepass(&mut self.prepass_counts, &pass);
+        self.render_ids(view, &candidates, None)?;
         pixels.clear();
         pixels.resize(self.objects.len(), 0);
         let Some(ids) = self.id_image.as_ref() else {
@@ -706,16 +689,20 @@ impl Renderer {
         Ok(candidates)
     }
 
-    /// Draws `candidates` into the object-ID image (ID = object + 1; 0 is background) and
-    /// returns what the pass recorded; the pass and its readback are two submissions. With
-    /// `boxes`, the box oracle's pass follows the draws in the same rendering (its boxes
-    /// written beforehand) and its flags are ready to read when this returns.
+    /// Draws `candidates` seen from `view` into the object-ID image (ID = object + 1; 0 is
+    /// background) and adds what the pass recorded to the pre-pass counts; the pass and its
+    /// readback are two submissions. With `boxes`, the box oracle's pass follows the draws in
+    /// the same rendering (its boxes written beforehand) and its flags are ready to read when
+    /// this returns.
     fn render_ids(
         &mut self,
+        view: &CameraView,
         candidates: &[u32],
-        push: &[u8],
-        boxes: bool,
-    ) -> Result<CommandCounts> {
+        boxes: Option<&box_oracle::BoxOracle>,
+    ) -> Result<()> {
+        let mut push = self.push;
+        push[..64].copy_from_slice(bytes_of(&raster_matrix(view).to_cols_array()));
+        let push = &push[..];
         if self.id_image.is_none() {
             self.id_image = Some(Image::new(
                 &self.ctx,
@@ -727,13 +714,12 @@ impl Renderer {
             )?);
         }
         let Some(ids) = self.id_image.as_ref() else {
-            return Ok(CommandCounts::default());
+            return Ok(());
         };
         let depth = &self.target.depth;
         let (pipelines, set) = (&self.pipelines, self.descriptors.get(0));
         let sets = &self.descriptors;
         let (vb, ib, objects) = (&self.vertex_buffer, &self.index_buffer, &self.objects);
-        let boxes = self.box_oracle.as_ref().filter(|_| boxes);
         let mut pass = CommandCounts::default();
         self.oneshot.run(&mut self.recorder, |rec| {
             let before = rec.counts;
@@ -783,7 +769,8 @@ impl Renderer {
             Ok(())
         })?;
         pass.submits = 2;
-        Ok(pass)
+        add_prepass(&mut self.prepass_counts, &pass);
+        Ok(())
     }
 }
 
