@@ -393,6 +393,13 @@ pub fn bytes_of<T: Pod>(data: &[T]) -> &[u8] {
     bytemuck::cast_slice(data)
 }
 
+/// The little-endian 32-bit word at index `i` of `bytes` (mapped buffer memory the device
+/// wrote: counters, flags, predicates); `None` past the end.
+pub fn word_at(bytes: &[u8], i: usize) -> Option<u32> {
+    let w = bytes.get(i.checked_mul(4)?..)?.get(..4)?;
+    Some(u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+}
+
 /// The bytes of a slice of plain data, copied.
 pub fn as_bytes<T: Pod>(data: &[T]) -> Vec<u8> {
     bytemuck::cast_slice(data).to_vec()
@@ -421,5 +428,19 @@ impl Drop for Image {
         if let Some(a) = self.allocation.take() {
             let _ = self.ctx.allocator().free(a);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::word_at;
+
+    #[test]
+    fn word_at_reads_little_endian_words_and_stops_at_the_end() {
+        let bytes = [1, 0, 0, 0, 0x78, 0x56, 0x34, 0x12, 9, 9];
+        assert_eq!(word_at(&bytes, 0), Some(1));
+        assert_eq!(word_at(&bytes, 1), Some(0x1234_5678));
+        assert_eq!(word_at(&bytes, 2), None);
+        assert_eq!(word_at(&bytes, usize::MAX), None);
     }
 }

@@ -25,7 +25,7 @@ pub use context::{
     Severity, ValidationLog, ValidationMessage,
 };
 pub use descriptors::{Binding, DescriptorSet, DescriptorSets, Sampler};
-pub use memory::{as_bytes, bytes_of, Buffer, Image, ImageUse, Pod};
+pub use memory::{as_bytes, bytes_of, word_at, Buffer, Image, ImageUse, Pod};
 pub use pipelines::{ComputePipeline, Pipeline, PipelineDesc, PipelineKind, PipelineLayout};
 pub use pyramid::MipImage;
 pub use sync::Timeline;

@@ -27,8 +27,8 @@ use gpu_allocator::MemoryLocation;
 use crate::error::{Error, Result};
 use crate::gpu::targets::{DEPTH_FORMAT, ID_FORMAT};
 use crate::gpu::{
-    as_bytes, shaders, Binding, Buffer, DescriptorSets, GpuContext, Pipeline, PipelineDesc,
-    PipelineKind, PipelineLayout,
+    as_bytes, shaders, word_at, Binding, Buffer, DescriptorSets, GpuContext, Pipeline,
+    PipelineDesc, PipelineKind, PipelineLayout,
 };
 
 use super::ObjectDraw;
@@ -170,12 +170,7 @@ impl BoxOracle {
             .visible
             .mapped()
             .ok_or_else(|| Error::Alloc("oracle-box flags are not mapped".into()))?;
-        let passed = |o: u32| {
-            let at = o as usize * 4;
-            bytes
-                .get(at..at + 4)
-                .is_some_and(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]) != 0)
-        };
+        let passed = |o: u32| word_at(bytes, o as usize).is_some_and(|w| w != 0);
         Ok(candidates.iter().copied().filter(|&o| passed(o)).collect())
     }
 }

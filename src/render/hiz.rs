@@ -38,7 +38,7 @@ use crate::bvh::ObjectBvh;
 use crate::culling::{self, ChcppParams, CullStats, Culler};
 use crate::error::{Error, Result};
 use crate::gpu::{
-    as_bytes, bytes_of, shaders, Access, Binding, Buffer, ComputePipeline, DescriptorSets,
+    as_bytes, bytes_of, shaders, word_at, Access, Binding, Buffer, ComputePipeline, DescriptorSets,
     GpuContext, PipelineLayout,
 };
 use crate::scene::camera::Camera;
@@ -401,15 +401,13 @@ impl HizCuller {
             .counters
             .mapped()
             .ok_or_else(|| Error::Alloc("hiz counters are not mapped".into()))?;
-        let word = |i: usize| {
-            u32::from_le_bytes([
-                bytes[4 * i],
-                bytes[4 * i + 1],
-                bytes[4 * i + 2],
-                bytes[4 * i + 3],
-            ])
+        let word = |i| {
+            word_at(bytes, i).ok_or_else(|| Error::Alloc("hiz counters buffer is too short".into()))
         };
-        Ok(([word(0), word(1)], word(2) as u64 + word(3) as u64))
+        Ok((
+            [word(0)?, word(1)?],
+            u64::from(word(2)?) + u64::from(word(3)?),
+        ))
     }
 
     /// Objects drawn by phase 1 (visible last frame) and phase 2 (newly visible) in the last

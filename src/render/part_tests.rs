@@ -52,8 +52,8 @@ use gpu_allocator::MemoryLocation;
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    bytes_of, shaders, Access, Binding, Buffer, ComputePipeline, DescriptorSets, GpuContext, Image,
-    ImageUse, PipelineLayout, Recorder, Sampler,
+    bytes_of, shaders, word_at, Access, Binding, Buffer, ComputePipeline, DescriptorSets,
+    GpuContext, Image, ImageUse, PipelineLayout, Recorder, Sampler,
 };
 
 /// Part ids carry this bit, so that they never collide with the query set's ids.
@@ -473,9 +473,10 @@ impl PartTests {
         if part & PART_BIT == 0 || !self.is_tested(part) {
             return None;
         }
-        let at = (part & !PART_BIT) as usize * 4;
-        let bytes = self.buffers.predicates.mapped()?.get(at..at + 4)?;
-        Some(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]))
+        word_at(
+            self.buffers.predicates.mapped()?,
+            (part & !PART_BIT) as usize,
+        )
     }
 
     /// The segment whose dispatch tested `part`.
