@@ -316,3 +316,50 @@ fn tight_bounds_descend_level_by_level() {
     };
     assert!(tight_boxes(&bvh, 0, &strict).is_none());
 }
+
+/// Four unit boxes in a row along z, two units apart.
+fn z_row() -> ObjectBvh {
+    let boxes: Vec<Aabb> = (0..4)
+        .map(|i| {
+            let z = -3.0 * i as f32;
+            Aabb::new(Vec3::new(0.0, 0.0, z - 1.0), Vec3::new(1.0, 1.0, z))
+        })
+        .collect();
+    ObjectBvh::build(&boxes, 1)
+}
+
+/// The boxes the root is queried with, seen from `eye` towards `target`.
+fn root_query_boxes(params: &ChcppParams, eye: Vec3, target: Vec3) -> usize {
+    let bvh = z_row();
+    let mut c = Chcpp::new(params.clone());
+    c.prepare(&bvh);
+    c.view_proj = Camera::from_pose(CameraPose { eye, target }, 1.0, 500.0).view_proj();
+    let mut out = Vec::new();
+    c.query_boxes(&bvh, 0, true, &mut out);
+    let own = bvh.nodes[0].bounds;
+    assert!(out
+        .iter()
+        .all(|b| own.contains(b.min) && own.contains(b.max)));
+    out.len()
+}
+
+#[test]
+fn tight_boxes_are_queried_only_where_they_cover_less_of_the_screen() {
+    let params = ChcppParams {
+        tight_area_factor: 10.0,
+        ..ChcppParams::default()
+    };
+    let end_on = (Vec3::new(0.5, 0.5, 10.0), Vec3::new(0.5, 0.5, 0.0));
+    let side_on = (Vec3::new(30.0, 0.5, -5.0), Vec3::new(0.5, 0.5, -5.0));
+    // Seen along the row the four boxes overlap on screen: the root's own box covers less.
+    assert_eq!(root_query_boxes(&params, end_on.0, end_on.1), 1);
+    // Seen from the side they lie apart, with gaps the own box would cover.
+    assert_eq!(root_query_boxes(&params, side_on.0, side_on.1), 4);
+    // The paper's rule: the tight boxes from every side.
+    let paper = ChcppParams {
+        tight_screen_area: false,
+        ..params
+    };
+    assert_eq!(root_query_boxes(&paper, end_on.0, end_on.1), 4);
+    assert_eq!(root_query_boxes(&paper, side_on.0, side_on.1), 4);
+}
