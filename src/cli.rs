@@ -174,9 +174,8 @@ pub struct ChcppArgs {
     /// Visibility threshold in pixels.
     #[arg(long, default_value_t = 0)]
     pub pixel_threshold: u64,
-    /// Turn CHC++ parts off: any of batching, interval, multiqueries, tight, tight-screen
-    /// (query with the tight boxes even where they cover more of the screen than the node's
-    /// own box, as the paper does), and for the predicated mode split-multiqueries (draw a multiquery's objects under its own predicate
+    /// Turn CHC++ parts off: any of batching, interval, multiqueries, tight, and for the
+    /// predicated mode split-multiqueries (draw a multiquery's objects under its own predicate
     /// instead of querying its nodes under it) and tested-parts (query the parts of split
     /// nodes instead of the renderer's depth part test) (comma separated).
     #[arg(long, value_delimiter = ',')]
@@ -261,12 +260,11 @@ impl ChcppArgs {
                 }
                 "multiqueries" => p.multiqueries = false,
                 "tight" => p.tight_bounds = false,
-                "tight-screen" => p.tight_screen_area = false,
                 "split-multiqueries" => p.predicated_split_multiqueries = false,
                 "tested-parts" => p.predicated_tested_parts_min = u32::MAX,
                 other => bail!(
                     "unknown CHC++ part \"{other}\" (batching, interval, multiqueries, tight, \
-                     tight-screen, split-multiqueries, tested-parts)"
+                     split-multiqueries, tested-parts)"
                 ),
             }
         }

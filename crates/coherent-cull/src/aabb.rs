@@ -51,32 +51,6 @@ impl Aabb {
         let e = self.extent().max(Vec3::ZERO);
         2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
     }
-    /// The area of the box's bounding rectangle on screen through `view_proj` (world to
-    /// clip), clipped to the screen, in normalized device units (the whole screen is 4).
-    /// `None` when a corner lies on or behind the eye plane (clip `w` not positive), where
-    /// the projection is unbounded.
-    pub fn screen_area(&self, view_proj: &Mat4) -> Option<f32> {
-        let mut lo = glam::Vec2::splat(f32::INFINITY);
-        let mut hi = glam::Vec2::splat(f32::NEG_INFINITY);
-        for i in 0..8 {
-            let c = *view_proj
-                * Vec3::new(
-                    if i & 1 == 0 { self.min.x } else { self.max.x },
-                    if i & 2 == 0 { self.min.y } else { self.max.y },
-                    if i & 4 == 0 { self.min.z } else { self.max.z },
-                )
-                .extend(1.0);
-            if !(c.w > 1e-6) {
-                return None;
-            }
-            let p = glam::Vec2::new(c.x, c.y) / c.w;
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
-        let size = (hi.min(glam::Vec2::ONE) - lo.max(glam::Vec2::NEG_ONE)).max(glam::Vec2::ZERO);
-        Some(size.x * size.y)
-    }
-
     /// Whether `p` is inside or on the boundary.
     pub fn contains(&self, p: Vec3) -> bool {
         p.cmpge(self.min).all() && p.cmple(self.max).all()
@@ -145,26 +119,6 @@ impl From<Aabb> for [[f32; 3]; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn screen_area_is_the_clipped_rectangle_and_none_behind_the_eye() {
-        let proj = crate::camera::perspective_rh(std::f32::consts::FRAC_PI_2, 1.0, 0.1, 100.0);
-        // A box spanning x, y in [-1, 1] at depth 2 (its near face) to 4 projects to [-0.5, 0.5]
-        // at its near face: that face bounds its rectangle.
-        let b = Aabb::new(Vec3::new(-1.0, -1.0, -4.0), Vec3::new(1.0, 1.0, -2.0));
-        let a = b.screen_area(&proj).expect("in front of the eye");
-        assert!((a - 1.0).abs() < 1e-4, "{a}");
-        // Its rectangle, x from 0.5 to 3, is clipped at the right edge, 1.
-        let wide = Aabb::new(Vec3::new(1.0, -1.0, -2.0), Vec3::new(3.0, 1.0, -1.0));
-        let w = wide.screen_area(&proj).unwrap();
-        assert!((w - 1.0).abs() < 1e-4, "{w}");
-        // Wholly off screen: no area.
-        let off = Aabb::new(Vec3::new(10.0, -1.0, -2.0), Vec3::new(12.0, 1.0, -1.0));
-        assert_eq!(off.screen_area(&proj), Some(0.0));
-        // Reaching behind the eye: unbounded.
-        let through = Aabb::new(Vec3::new(-1.0, -1.0, -2.0), Vec3::new(1.0, 1.0, 2.0));
-        assert_eq!(through.screen_area(&proj), None);
-    }
 
     #[test]
     fn boxes_overlap_when_they_share_a_point() {

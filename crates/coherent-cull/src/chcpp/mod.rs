@@ -62,7 +62,6 @@ impl Culler for Chcpp {
         self.read_frames_in_flight(bvh, backend, &mut stats)?;
         self.begin_frame(bvh, eye);
         self.eye = eye;
-        self.view_proj = input.view.view_proj;
         self.rule.begin_frame(bvh, input.view.view_proj);
         // In a latency mode queries are read after the frame: only the traversal drives it.
         let in_frame = self.mode.reads_in_frame();
@@ -464,8 +463,6 @@ pub struct Chcpp {
     rule: Box<dyn QueryRule>,
     /// The eye of the current frame.
     eye: glam::Vec3,
-    /// World to clip of the current frame (tight boxes against the own box, `tight.rs`).
-    view_proj: glam::Mat4,
     /// When query results are read and how they are applied: the latency mode's policy
     /// (`latency.rs`, see [`Latency`](crate::Latency)).
     mode: &'static dyn LatencyMode,

@@ -21,12 +21,6 @@ pub struct ChcppParams {
     /// Use the tight boxes only if their total surface area is at most this times the node's
     /// (default 1.4).
     pub tight_area_factor: f32,
-    /// Query a node with its tight boxes only in frames where they cover less of the screen
-    /// than the node's own box (their projected silhouettes summed, each rasterized on its
-    /// own): seen along a row of descendants, their boxes overlap on screen and rasterize
-    /// more fragments than the one box around them. Off: the tight boxes whenever the node
-    /// has them, as the paper does.
-    pub tight_screen_area: bool,
     /// A query counting more than this many pixels means visible (default 0).
     pub pixel_threshold: u64,
     /// Submit after this many queries have been recorded without a submit (for the
@@ -96,7 +90,6 @@ impl Default for ChcppParams {
             tight_bounds: true,
             tight_depth: 3,
             tight_area_factor: 1.4,
-            tight_screen_area: true,
             pixel_threshold: 0,
             flush_interval: 16,
             seed: 0x00C0_FFEE,

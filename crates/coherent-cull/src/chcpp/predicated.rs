@@ -498,7 +498,7 @@ impl Chcpp {
     ) -> Result<bool> {
         let mut boxes = std::mem::take(&mut self.boxes);
         boxes.clear();
-        self.query_boxes(bvh, part, !tested, &mut boxes);
+        self.query_boxes(bvh, part, &mut boxes);
         let decided = match tested {
             true => backend.test_part_if(predicate, &boxes),
             false => Ok(None),

@@ -146,7 +146,7 @@ impl Chcpp {
         let mut boxes = std::mem::take(&mut self.boxes);
         boxes.clear();
         for &n in nodes {
-            self.query_boxes(bvh, n, true, &mut boxes);
+            self.query_boxes(bvh, n, &mut boxes);
         }
         let purpose = match kind {
             QueryKind::Visible => QueryPurpose::VisibleLeaf,

@@ -43,7 +43,6 @@ impl Chcpp {
             batch_order: Vec::new(),
             rule: Box::new(PaperRule),
             eye: glam::Vec3::ZERO,
-            view_proj: glam::Mat4::IDENTITY,
             mode: latency::mode(Latency::InFrame),
             result_frame: Vec::new(),
             frames_in_flight: 1,

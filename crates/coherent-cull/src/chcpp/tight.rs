@@ -8,56 +8,17 @@ use crate::Aabb;
 
 impl Chcpp {
     /// The boxes a node is queried with: its tight volume's current boxes (empty leaves left
-    /// by removals skipped), or its own box: always when it has no tight volume, and with
-    /// `tight_screen_area`, for boxes that are rasterized (`rasterized`: a query's, not a
-    /// backend's own part test), when the tight boxes would cover at least as much of this
-    /// frame's screen as the own box.
-    pub(super) fn query_boxes(
-        &self,
-        bvh: &ObjectBvh,
-        node: u32,
-        rasterized: bool,
-        out: &mut Vec<Aabb>,
-    ) {
-        let own = bvh.nodes[node as usize].bounds;
+    /// by removals skipped), or its own box.
+    pub(super) fn query_boxes(&self, bvh: &ObjectBvh, node: u32, out: &mut Vec<Aabb>) {
         match &self.tight[node as usize] {
-            Some(t) if self.params.tight_bounds => {
-                let boxes = t
-                    .iter()
+            Some(t) if self.params.tight_bounds => out.extend(
+                t.iter()
                     .map(|&d| bvh.nodes[d as usize].bounds)
-                    .filter(Aabb::is_valid);
-                if rasterized
-                    && self.params.tight_screen_area
-                    && !covers_less(boxes.clone(), &own, &self.view_proj)
-                {
-                    out.push(own);
-                } else {
-                    out.extend(boxes);
-                }
-            }
-            _ => out.push(own),
+                    .filter(Aabb::is_valid),
+            ),
+            _ => out.push(bvh.nodes[node as usize].bounds),
         }
     }
-}
-
-/// Whether `boxes`, each rasterized on its own, cover less of the screen through `view_proj`
-/// than `own`, the box around them. When `own` reaches behind the eye plane its area is
-/// unbounded and the boxes count as less; when one of them does (and `own` does not), as more.
-fn covers_less(boxes: impl Iterator<Item = Aabb>, own: &Aabb, view_proj: &glam::Mat4) -> bool {
-    let Some(limit) = own.screen_area(view_proj) else {
-        return true;
-    };
-    let mut sum = 0.0;
-    for b in boxes {
-        match b.screen_area(view_proj) {
-            Some(a) => sum += a,
-            None => return false,
-        }
-        if sum >= limit {
-            return false;
-        }
-    }
-    true
 }
 
 /// Tight bounding volume of `node`: the boxes of its descendants one level further down at a
