@@ -209,10 +209,11 @@ pub struct ChcppArgs {
 }
 
 impl ChcppArgs {
-    /// `params` for a GPU: unless `--refine-levels` was given, the predicated mode uses one
-    /// predicate level there ([`ChcppParams::for_gpu`]).
+    /// `params` for a GPU: the predicated mode queries with tight bounds and, unless
+    /// `--refine-levels` was given, uses one predicate level there ([`ChcppParams::for_gpu`]).
     fn on_gpu(&self, params: &ChcppParams) -> ChcppParams {
         let mut p = params.clone();
+        p.predicated_tight_bounds = ChcppParams::for_gpu().predicated_tight_bounds;
         if self.refine_levels.is_none() {
             p.predicated_refine_levels = ChcppParams::for_gpu().predicated_refine_levels;
         }
@@ -228,7 +229,7 @@ impl ChcppArgs {
         let gpu = self.on_gpu(params);
         if gpu != *params && latencies.iter().any(|l| l.starts_with("predicated")) {
             println!(
-                "predicated mode on a GPU: one predicate level (--refine-levels {}; \
+                "predicated mode on a GPU: one predicate level, tight bounds (--refine-levels {}; \
                  --refine-levels 2 splits nodes as on a CPU device)",
                 gpu.predicated_refine_levels
             );

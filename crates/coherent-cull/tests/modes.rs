@@ -677,20 +677,23 @@ fn parts_go_to_the_backends_test_after_a_frame_with_enough_of_them() {
     }
 }
 
-/// `ChcppParams::for_gpu` is the defaults with one predicate level: on a backend that could
-/// query parts under predicates it queries none, resolves once a frame and misses nothing,
-/// where the defaults split.
+/// `ChcppParams::for_gpu` is the defaults with one predicate level and tight bounds in the
+/// predicated mode: on a backend that could query parts under predicates it queries none,
+/// resolves once a frame and misses nothing, where the defaults split.
 #[test]
 fn the_gpu_parameters_keep_one_predicate_level_and_stay_exact() {
     let gpu = ChcppParams::for_gpu();
+    let defaults = ChcppParams::default();
     assert_eq!(
         ChcppParams {
-            predicated_refine_levels: ChcppParams::default().predicated_refine_levels,
+            predicated_refine_levels: defaults.predicated_refine_levels,
+            predicated_tight_bounds: defaults.predicated_tight_bounds,
             ..gpu.clone()
         },
-        ChcppParams::default(),
-        "only the split policy differs"
+        defaults,
+        "only the split policy and the predicated mode's tight bounds differ"
     );
+    assert!(gpu.predicated_tight_bounds && !defaults.predicated_tight_bounds);
     let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
     let mut parts = [0, 0];
     for (i, params) in [gpu, ChcppParams::default()].into_iter().enumerate() {

@@ -77,6 +77,14 @@ pub struct ChcppParams {
     /// per frame that pays only from some number of parts on. A backend without such a test
     /// queries the parts.
     pub predicated_tested_parts_min: u32,
+    /// Predicated mode: query with tight bounding volumes (when `tight_bounds` is on). Off
+    /// by default: on a CPU rasterizer (lavapipe) every fragment of a query box is depth-tested,
+    /// and seen along a street a node's descendants overlap on screen, so its tight boxes
+    /// rasterize more than twice the fill of the own boxes; on the city street the predicated
+    /// frame was about 3% faster without them (interleaved runs in both orders,
+    /// docs/measurements.md). [`ChcppParams::for_gpu`] turns it on: a GPU's depth test rejects
+    /// hidden box fragments cheaply.
+    pub predicated_tight_bounds: bool,
 }
 
 impl Default for ChcppParams {
@@ -101,6 +109,7 @@ impl Default for ChcppParams {
             predicated_split_multiqueries: true,
             predicated_split_ratio: 0.0,
             predicated_tested_parts_min: 0,
+            predicated_tight_bounds: false,
         }
     }
 }
@@ -124,7 +133,7 @@ impl ChcppParams {
     /// CHC++ for a hardware GPU, where recording a frame's commands costs more than
     /// rasterizing a few extra objects: the defaults, but the predicated mode draws a queried
     /// node's objects all under its own predicate (`predicated_refine_levels` 0: no parts, one
-    /// predicate resolve a frame). The defaults split nodes into parts because on a CPU
+    /// predicate resolve a frame) and queries with tight bounding volumes, as the other modes. The defaults split nodes into parts because on a CPU
     /// rasterizer (lavapipe) every object drawn is rasterized on the CPU; on a GPU the parts'
     /// queries, tight boxes and conditional blocks are CPU time that the device does not give
     /// back. Measured on an NVIDIA H100 (docs/measurements.md): the city street at 1280x720,
@@ -132,6 +141,7 @@ impl ChcppParams {
     pub fn for_gpu() -> ChcppParams {
         ChcppParams {
             predicated_refine_levels: 0,
+            predicated_tight_bounds: true,
             ..ChcppParams::default()
         }
     }

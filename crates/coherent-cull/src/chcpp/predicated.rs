@@ -11,7 +11,8 @@
 //!    A node whose box holds the eye (or reaches the near plane where the view is) is opened
 //!    unconditionally, as in every mode.
 //! 2. When the traversal is done, the render queue is drawn, then the i-queue is queried in one
-//!    batch (multiqueries, tight bounds) together with the v-queue.
+//!    batch (multiqueries; the nodes' own boxes, or with `predicated_tight_bounds` their
+//!    tight volumes) together with the v-queue.
 //! 3. The backend resolves the predicates ([`OcclusionBackend::resolve_predicates`]: on Vulkan
 //!    one pass break, a copy and a barrier), and the objects under each i-queue query's nodes
 //!    that lie in the frustum are drawn under that query's predicate, handed over as ranges of

@@ -1,6 +1,10 @@
 //! Tight bounding volumes: a node is queried with the boxes of its descendants a few levels
 //! down instead of its own box, while their total surface area stays small. They are kept as
 //! descendant node ids, so a query always draws the current (refitted) boxes.
+//!
+//! The predicated mode queries with the nodes' own boxes unless `predicated_tight_bounds` is
+//! on (as [`ChcppParams::for_gpu`] has it): seen along a street, a node's descendants overlap
+//! on screen, and on a CPU rasterizer every fragment of every box is depth-tested.
 
 use super::{Chcpp, ChcppParams};
 use crate::bvh::ObjectBvh;
@@ -11,13 +15,23 @@ impl Chcpp {
     /// by removals skipped), or its own box.
     pub(super) fn query_boxes(&self, bvh: &ObjectBvh, node: u32, out: &mut Vec<Aabb>) {
         match &self.tight[node as usize] {
-            Some(t) if self.params.tight_bounds => out.extend(
+            Some(t) if self.uses_tight_bounds() => out.extend(
                 t.iter()
                     .map(|&d| bvh.nodes[d as usize].bounds)
                     .filter(Aabb::is_valid),
             ),
             _ => out.push(bvh.nodes[node as usize].bounds),
         }
+    }
+}
+
+impl Chcpp {
+    /// Whether queries use tight bounding volumes: `tight_bounds`, and in the predicated mode
+    /// also `predicated_tight_bounds`.
+    fn uses_tight_bounds(&self) -> bool {
+        self.params.tight_bounds
+            && (self.params.predicated_tight_bounds
+                || self.mode.latency() != crate::Latency::Predicated)
     }
 }
 
