@@ -932,10 +932,11 @@ fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::app::gi_run::GiSetup>
 
 #[cfg(test)]
 mod tests {
+    use super::ChcppParams;
     use clap::Parser;
 
     /// On a GPU the predicated mode keeps one predicate level unless `--refine-levels` says
-    /// otherwise; every other parameter is the user's.
+    /// otherwise, and queries with tight bounds; every other parameter is the user's.
     #[test]
     fn the_gpu_policy_applies_only_without_refine_levels() {
         let parse = |extra: &[&str]| {
@@ -952,9 +953,16 @@ mod tests {
         let gpu = auto.on_gpu(&cpu);
         assert_eq!(gpu.predicated_refine_levels, 0);
         assert_eq!(gpu.batch_size, 7);
+        assert!(gpu.predicated_tight_bounds && !cpu.predicated_tight_bounds);
         let given = parse(&["--refine-levels", "2"]);
         let p = given.params().unwrap();
-        assert_eq!(given.on_gpu(&p), p);
+        assert_eq!(
+            given.on_gpu(&p),
+            ChcppParams {
+                predicated_tight_bounds: true,
+                ..p
+            }
+        );
         // The predicate budget: taken as given, refused when not a finite number >= 0.
         let p = parse(&["--predicate-budget", "32"]).params().unwrap();
         assert_eq!(p.predicated_budget, 32.0);
