@@ -133,8 +133,9 @@ impl ChcppParams {
     /// CHC++ for a hardware GPU, where recording a frame's commands costs more than
     /// rasterizing a few extra objects: the defaults, but the predicated mode draws a queried
     /// node's objects all under its own predicate (`predicated_refine_levels` 0: no parts, one
-    /// predicate resolve a frame) and queries with tight bounding volumes, as the other modes. The defaults split nodes into parts because on a CPU
-    /// rasterizer (lavapipe) every object drawn is rasterized on the CPU; on a GPU the parts'
+    /// predicate resolve a frame) and queries with tight bounding volumes, as the other
+    /// modes do. The defaults split nodes into parts because on a CPU rasterizer (lavapipe)
+    /// every object drawn is rasterized on the CPU; on a GPU the parts'
     /// queries, tight boxes and conditional blocks are CPU time that the device does not give
     /// back. Measured on an NVIDIA H100 (docs/measurements.md): the city street at 1280x720,
     /// 2.12x the oracle against 3.09x with the defaults (in-frame CHC++ 2.06x).

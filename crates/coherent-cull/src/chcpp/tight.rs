@@ -23,9 +23,7 @@ impl Chcpp {
             _ => out.push(bvh.nodes[node as usize].bounds),
         }
     }
-}
 
-impl Chcpp {
     /// Whether queries use tight bounding volumes: `tight_bounds`, and in the predicated mode
     /// also `predicated_tight_bounds`.
     fn uses_tight_bounds(&self) -> bool {
