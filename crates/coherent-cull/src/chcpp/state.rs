@@ -85,6 +85,8 @@ impl Chcpp {
     /// The same culler reading its query results in `latency` mode.
     pub fn with_latency(mut self, latency: Latency) -> Chcpp {
         self.mode = latency::mode(latency);
+        // Whether tight volumes are used depends on the mode: fit them again at the next frame.
+        self.structure = u64::MAX;
         self
     }
 
@@ -115,7 +117,7 @@ impl Chcpp {
             self.carry_visibility(bvh);
         }
         self.tight = vec![None; bvh.nodes.len()];
-        if self.params.tight_bounds {
+        if self.uses_tight_bounds() {
             for id in 0..bvh.nodes.len() as u32 {
                 self.tight[id as usize] = tight_boxes(bvh, id, &self.params);
             }

@@ -26,7 +26,7 @@ impl Chcpp {
 
     /// Whether queries use tight bounding volumes: `tight_bounds`, and in the predicated mode
     /// also `predicated_tight_bounds`.
-    fn uses_tight_bounds(&self) -> bool {
+    pub(super) fn uses_tight_bounds(&self) -> bool {
         self.params.tight_bounds
             && (self.params.predicated_tight_bounds
                 || self.mode.latency() != crate::Latency::Predicated)
