@@ -32,23 +32,17 @@
 //!
 //! The depth test reads the depth buffer itself, texel by texel over the box's screen
 //! rectangle, and only for parts whose node's query counted a sample: most queried nodes stay
-//! hidden, and their parts cost one read of the node's value. A texel nearer than the box's
-//! nearest corner rejects at once; elsewhere the ray through the texel's pixel centre is
-//! clipped to the box, and the depth where it enters is what the texel is compared with: the
-//! box's own depth at that pixel, as a query's rasterized faces give it. (Comparing the whole
-//! rectangle with the nearest corner's depth instead passes a box on any texel of its
-//! rectangle behind that depth, beside its faces too: at the city's x16 scale the frame drew
-//! 872 objects instead of 720.5.) A box whose rectangle covers more than [`MOST_PIXELS`] pixels
-//! passes unread, which bounds a dispatch's cost. No pyramid is built: on lavapipe the `hiz`
-//! pyramid of a frame's depth costs as much as 1,500-2,000 part queries.
+//! hidden, and their parts cost one read of the node's value. A box whose rectangle covers
+//! more than [`MOST_PIXELS`] pixels passes unread, which bounds a dispatch's cost. No pyramid
+//! is built: on lavapipe the `hiz` pyramid of a frame's depth costs as much as 1,500-2,000
+//! part queries.
 //!
-//! Exact: a box passes when it reaches the near plane, and fails only when, at every pixel
-//! centre of its screen rectangle, the depth texel lies nearer than the box (grown a little
-//! for float rounding) less a margin, or the ray misses the box. An object's pixel centre lies
-//! on a ray that enters the object's box no later than it meets the object, the depth is of
-//! real geometry of this frame, which later draws only make nearer, and a node whose query
-//! counted nothing hides every part. Like a query it tests the box, not the objects in it, so
-//! a part may pass whose objects all stay hidden: more objects drawn, never fewer.
+//! Exact: a box passes when it reaches the near plane, and fails only when every depth texel
+//! under its screen rectangle lies nearer than its nearest depth less a margin. The depth is
+//! of real geometry of this frame, which later draws only make nearer; and a node whose query
+//! counted nothing hides every part. It is coarser than a query (a rectangle at the box's
+//! nearest depth instead of the box's faces per pixel), so a part may pass that a query would
+//! have failed: more objects drawn, never fewer.
 
 use std::sync::Arc;
 
