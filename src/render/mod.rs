@@ -1568,11 +1568,7 @@ impl Renderer {
         {
             return Ok(None);
         }
-        // A query not resolved yet will be at the resolve that tests the part, where its value
-        // is copied, when the draws under it can wait for that resolve (gathering).
-        let unresolved_ok = self.part_tests.as_ref().is_some_and(|p| p.can_gather())
-            && predicate < self.queries.issued();
-        if predicate >= self.queries.resolved() && !unresolved_ok {
+        if predicate >= self.queries.resolved() {
             return Err(Error::Input(format!(
                 "query {predicate} is not a resolved predicate of this frame"
             )));

@@ -328,10 +328,8 @@ pub trait OcclusionBackend {
     /// count. The part's objects may be handed to [`OcclusionBackend::draw_order_ranges_if`]
     /// or [`OcclusionBackend::draw_objects_if`] under the returned id before that resolve: a
     /// backend that offers the test draws them after it, where the predicate is known (so it
-    /// may gather the draws of many parts into one). On a backend that gathers predicated
-    /// draws ([`OcclusionBackend::gathers_predicated_draws`]) `predicate` need not be resolved
-    /// yet: the resolve that tests the part reads it (the predicated mode then resolves once a
-    /// frame). `Ok(None)`: no such test now (the part is then queried). Default: `Ok(None)`.
+    /// may gather the draws of many parts into one). `Ok(None)`: no such test now (the part
+    /// is then queried). Default: `Ok(None)`.
     fn test_part_if(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
         let _ = (predicate, boxes);
         Ok(None)

@@ -515,8 +515,7 @@ impl OcclusionBackend for MockBackend<'_> {
         if !self.part_test || !self.supports_predicates() {
             return Ok(None);
         }
-        // On a backend that gathers, `predicate` need not be resolved yet (the contract).
-        let taken = self.predicate(predicate, self.gathering)?.pixels > 0;
+        let taken = self.predicate(predicate, false)?.pixels > 0;
         let visible = taken && boxes.iter().any(|b| (self.visibility)(b) > 0);
         let id = self.issue(u64::from(visible));
         // Its objects may be drawn under it before the resolve that tests it (the backend

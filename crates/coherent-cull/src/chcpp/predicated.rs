@@ -28,9 +28,7 @@
 //!    small) are queried under the node's predicate
 //!    ([`OcclusionBackend::issue_query_if`]: when the node's query counted nothing, the parts'
 //!    boxes are not drawn and their queries count nothing), against the depth of everything
-//!    drawn so far. A second resolve follows (none where the backend gathers predicated draws
-//!    and tests every part itself: the parts are handed over before the frame's one resolve,
-//!    which tests them), and each part's objects are drawn under the
+//!    drawn so far. A second resolve follows, and each part's objects are drawn under the
 //!    part's own predicate: a node that turns visible draws the parts that show, not its
 //!    whole subtree. Blocks do not nest, and none has to: a part's query lies in its node's
 //!    block, its draws in its own. With `predicated_split_ratio` R > 0 a node is
@@ -79,7 +77,7 @@
 //!
 //! # What it costs
 //!
-//! One pass break per frame (two when nodes are split and parts are queried), and extra draws: an object under a
+//! One pass break per frame (two when nodes are split), and extra draws: an object under a
 //! true predicate is drawn even when only another object of its node or part is visible, until
 //! the results come back and the node is opened (`k` frames). [`CullStats::predicated_objects`] counts the objects sent under
 //! predicates; the built-in renderer reads the predicates back after the frame to count those
@@ -297,32 +295,19 @@ impl Chcpp {
         }
         let split =
             backend.supports_predicated_queries() && self.params.predicated_refine_levels > 0;
-        let tested =
-            split && self.predicated.parts_last_frame >= self.params.predicated_tested_parts_min;
-        // A backend that keeps draws until the resolve gets them before it (it gathers the
-        // passed ones on the device), and the parts it tests itself too (it tests them at that
-        // resolve, against the node queries' values it copies there): one resolve, unless a
-        // part has to be queried under its node's predicate.
-        let draws_first = (!split || tested) && backend.gathers_predicated_draws();
-        let mut resolved = false;
+        // With one predicate level a backend that keeps draws until the resolve gets them
+        // before it (it gathers the passed ones on the device): still one resolve.
+        let draws_first = !split && backend.gathers_predicated_draws();
         if !draws_first {
             backend.resolve_predicates()?;
             stats.predicate_resolves += 1;
-            resolved = true;
         }
         let mut scratch = std::mem::take(&mut self.predicated);
-        let result = self.draw_under_predicates(
-            bvh,
-            view,
-            (first, split, tested),
-            &mut resolved,
-            &mut scratch,
-            backend,
-            stats,
-        );
+        let result =
+            self.draw_under_predicates(bvh, view, first, split, &mut scratch, backend, stats);
         self.predicated = scratch;
         result?;
-        if !resolved {
+        if draws_first {
             backend.resolve_predicates()?;
             stats.predicate_resolves += 1;
         }
@@ -331,19 +316,14 @@ impl Chcpp {
 
     /// Draws the objects of the i-queue queries from `first` on under their predicates; with
     /// `split`, queries the parts of the nodes that [`Chcpp::split_node`] picks under their
-    /// query's predicate (with `tested`, has the backend test them where it can) and, after a
-    /// resolve, draws each part's objects under its own. `resolved` says whether the frame's
-    /// predicates were resolved before (else the backend keeps the draws until the resolve,
-    /// [`OcclusionBackend::gathers_predicated_draws`]); a part that must be queried under its
-    /// node's predicate resolves first. Left false when no resolve was needed here: the caller
-    /// resolves.
+    /// query's predicate and, after a second resolve, draws each part's objects under its own.
     #[allow(clippy::too_many_arguments)]
     fn draw_under_predicates(
         &mut self,
         bvh: &ObjectBvh,
         view: &View,
-        (first, split, tested): (usize, bool, bool),
-        resolved: &mut bool,
+        first: usize,
+        split: bool,
         scratch: &mut Scratch,
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
@@ -391,11 +371,12 @@ impl Chcpp {
         if scratch.split.is_empty() {
             return Ok(());
         }
-        // The parts, queried against the depth drawn so far (the unconditional draws, and the
-        // objects drawn under the first predicates where those were resolved first).
+        // The parts, queried against the depth drawn so far (the unconditional draws and the
+        // objects drawn under the first predicates).
         // A part decided by the backend's test has its objects handed over at once (the
         // backend draws them after the test, at the resolve); a queried part's after the
         // resolve, under its query's predicate.
+        let tested = scratch.parts_last_frame >= self.params.predicated_tested_parts_min;
         scratch.queried.clear();
         for s in 0..scratch.split.len() {
             let (predicate, node) = scratch.split[s];
@@ -403,8 +384,7 @@ impl Chcpp {
             self.parts_of(bvh, node, view, scratch);
             for p in 0..scratch.parts.len() {
                 let part = scratch.parts[p];
-                let decided =
-                    self.issue_part(bvh, predicate, part, tested, resolved, backend, stats)?;
+                let decided = self.issue_part(bvh, predicate, part, tested, backend, stats)?;
                 scratch.tested_this_frame |= decided;
                 scratch.parts_this_frame += 1;
                 let issued = self.query_queue.len() - 1;
@@ -416,10 +396,6 @@ impl Chcpp {
                     scratch.queried.push(issued);
                 }
             }
-        }
-        if !*resolved {
-            // Every part was tested by the backend: the caller's one resolve tests them.
-            return Ok(());
         }
         backend.resolve_predicates()?;
         stats.predicate_resolves += 1;
@@ -511,17 +487,13 @@ impl Chcpp {
     }
 
     /// Queries `part` under `predicate`'s predicate (with `tested`, has the backend decide it
-    /// by its own test where it offers one). Returns whether the backend's test decided it. A
-    /// query under a predicate needs it resolved: unless `resolved`, the predicates are
-    /// resolved first.
-    #[allow(clippy::too_many_arguments)]
+    /// by its own test where it offers one). Returns whether the backend's test decided it.
     fn issue_part(
         &mut self,
         bvh: &ObjectBvh,
         predicate: crate::QueryId,
         part: u32,
         tested: bool,
-        resolved: &mut bool,
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<bool> {
@@ -539,11 +511,6 @@ impl Chcpp {
                 Ok(id)
             }
             None => {
-                if !*resolved {
-                    backend.resolve_predicates()?;
-                    stats.predicate_resolves += 1;
-                    *resolved = true;
-                }
                 stats.queries += 1;
                 stats.predicated_queries += 1;
                 backend.issue_query_if(predicate, &boxes, crate::QueryPurpose::Node)
