@@ -171,6 +171,9 @@ pub struct ChcppArgs {
     /// CHC++ visible interval n_av.
     #[arg(long, default_value_t = 5)]
     pub visible_interval: u32,
+    /// Predicated mode: its visible interval n_av (in place of --visible-interval).
+    #[arg(long, default_value_t = ChcppParams::default().predicated_visible_interval)]
+    pub predicated_visible_interval: u32,
     /// Visibility threshold in pixels.
     #[arg(long, default_value_t = 0)]
     pub pixel_threshold: u64,
@@ -241,6 +244,7 @@ impl ChcppArgs {
         let mut p = ChcppParams {
             batch_size: self.batch_size.max(1),
             visible_interval: self.visible_interval.max(1),
+            predicated_visible_interval: self.predicated_visible_interval.max(1),
             pixel_threshold: self.pixel_threshold,
             predicated_refine_levels: self
                 .refine_levels
@@ -258,6 +262,7 @@ impl ChcppArgs {
                 "interval" => {
                     p.randomized_interval = false;
                     p.visible_interval = 1;
+                    p.predicated_visible_interval = 1;
                 }
                 "multiqueries" => p.multiqueries = false,
                 "tight" => p.tight_bounds = false,

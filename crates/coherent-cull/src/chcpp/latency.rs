@@ -240,11 +240,12 @@ impl Chcpp {
         stats: &mut CullStats,
     ) {
         self.traverse_node(bvh, node, eye, stats);
+        let interval = self.visible_interval();
         let s = &mut self.state[node as usize];
         s.last_visited = self.frame;
         s.tested = true;
         if bvh.nodes[node as usize].is_leaf() {
-            s.next_query = self.frame + self.params.visible_interval.max(1) as u64;
+            s.next_query = self.frame + interval;
             self.v_queue.push(node);
         }
     }

@@ -274,8 +274,7 @@ impl Chcpp {
             .query_visible_leaf(bvh, node, self.frame, interval_due);
         self.pull_up_visibility(bvh, node);
         if due {
-            self.state[node as usize].next_query =
-                self.frame + self.params.visible_interval.max(1) as u64;
+            self.state[node as usize].next_query = self.frame + self.visible_interval();
             if self.queues_queries() {
                 self.v_queue.push(node);
             } else {
@@ -391,9 +390,18 @@ impl Chcpp {
         Ok(())
     }
 
+    /// The visible interval `n_av` of this culler's latency mode (at least 1).
+    pub(super) fn visible_interval(&self) -> u64 {
+        let n = match self.mode.latency() {
+            crate::Latency::Predicated => self.params.predicated_visible_interval,
+            _ => self.params.visible_interval,
+        };
+        n.max(1) as u64
+    }
+
     /// A node that just turned visible gets its first re-test after a random delay.
     fn start_interval(&mut self, node: u32) {
-        let n = self.params.visible_interval.max(1) as u64;
+        let n = self.visible_interval();
         let delay = if self.params.randomized_interval && n > 1 {
             1 + self.rng.below(n as u32) as u64
         } else {
