@@ -7,8 +7,8 @@
 //! 1. The traversal runs on the hierarchy's state as of the newest results the CPU has (those
 //!    of frame N-k, read at the start of frame N). Previously visible leaves are drawn
 //!    unconditionally and, when their query is due, queried for later frames (the v-queue;
-//!    every [`ChcppParams::predicated_visible_interval`] frames, 10 by default, where the
-//!    other modes keep the paper's 5: here those queries cost more than they save).
+//!    every [`ChcppParams::predicated_visible_interval`] frames, 7 by default, where the
+//!    other modes keep the paper's 5: here those queries save fewer draws).
 //!    Previously invisible nodes go into the i-queue; no batch goes out during the traversal.
 //!    A node whose box holds the eye (or reaches the near plane where the view is) is opened
 //!    unconditionally, as in every mode.
