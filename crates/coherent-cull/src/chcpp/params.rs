@@ -33,6 +33,12 @@ pub struct ChcppParams {
     /// drawn under their own predicates, in the next frame (`u32::MAX`: open the whole subtree,
     /// as the next-frame modes do).
     pub predicated_levels: u32,
+    /// Predicated mode: the same for an interior part of a split node that passed its test or
+    /// its query (default 1). A part's test compares its screen rectangle with the depth drawn
+    /// so far, coarser than a query, and most leaves opened two levels under a passing part
+    /// failed their own query in the next frame; one level measured fewer objects and fewer
+    /// queries on the city's street, overhead and x16 walks (docs/measurements.md).
+    pub predicated_part_levels: u32,
     /// Predicated mode: frames an interior node whose own query came back visible stays open
     /// (its children queried one by one) before it is queried as a whole again (default 10). A
     /// box that shows while its contents are hidden would otherwise draw its whole subtree
@@ -112,6 +118,7 @@ impl Default for ChcppParams {
             flush_interval: 16,
             seed: 0x00C0_FFEE,
             predicated_levels: 2,
+            predicated_part_levels: 1,
             predicated_hold: 10,
             predicated_budget: 8.0,
             predicated_refine_levels: 2,

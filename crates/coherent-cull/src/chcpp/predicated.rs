@@ -48,10 +48,11 @@
 //!    the test (the built-in renderer: the draws of the parts that passed, gathered on the
 //!    device into one indirect draw, with no conditional block per part).
 //! 5. The results are read `k` frames later only to update the hierarchy: a queried node that
-//!    came back visible is opened `predicated_levels` levels deep (the nodes below are queried,
-//!    and drawn under their own predicates, from then on), a failed multiquery's nodes lose their
-//!    invisibility history (queried one by one next time), a visible leaf that came back hidden
-//!    is queried (and drawn under a predicate) from the next frame on.
+//!    came back visible is opened `predicated_levels` levels deep, a part that passed
+//!    `predicated_part_levels` (the nodes below are queried, and drawn under their own
+//!    predicates, from then on), a failed multiquery's nodes lose their invisibility history
+//!    (queried one by one next time), a visible leaf that came back hidden is queried (and
+//!    drawn under a predicate) from the next frame on.
 //!
 //! # Why nothing visible is culled
 //!
@@ -554,7 +555,7 @@ impl Chcpp {
                 if bvh.nodes[node as usize].is_leaf() {
                     self.start_interval(node);
                 } else {
-                    self.open_levels(bvh, node, self.params.predicated_levels);
+                    self.open_levels(bvh, node, self.params.predicated_part_levels);
                 }
             }
             return;
