@@ -166,16 +166,16 @@ pub struct ViewArgs {
 #[derive(Args, Debug, Clone)]
 pub struct ChcppArgs {
     /// CHC++ batch size b.
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = ChcppParams::default().batch_size)]
     pub batch_size: usize,
     /// CHC++ visible interval n_av.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = ChcppParams::default().visible_interval)]
     pub visible_interval: u32,
     /// Predicated mode: its visible interval n_av (in place of --visible-interval).
     #[arg(long, default_value_t = ChcppParams::default().predicated_visible_interval)]
     pub predicated_visible_interval: u32,
     /// Visibility threshold in pixels.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = ChcppParams::default().pixel_threshold)]
     pub pixel_threshold: u64,
     /// Turn CHC++ parts off: any of batching, interval, multiqueries, tight, and for the
     /// predicated mode split-multiqueries (draw a multiquery's objects under its own predicate
@@ -191,23 +191,23 @@ pub struct ChcppArgs {
     pub refine_levels: Option<u32>,
     /// Predicated mode: a node is split into parts only while it holds more than this many
     /// objects in the frustum.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = ChcppParams::default().predicated_refine_objects)]
     pub refine_objects: u32,
     /// Predicated mode: split a node only when (1 - p) * objects * RATIO exceeds its parts
     /// (p: the chance its query comes back hidden; RATIO: an object draw's cost over a query
     /// whose boxes a false predicate discards; not applied while the renderer's depth test
     /// decides the parts). 0: split by size alone.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = ChcppParams::default().predicated_split_ratio)]
     pub split_ratio: f32,
     /// Predicated mode: the renderer's depth test decides the parts of split nodes (instead
     /// of a query each) in frames after one with at least this many parts (0: always;
     /// `--disable tested-parts`: never).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = ChcppParams::default().predicated_tested_parts_min)]
     pub tested_parts_min: u32,
     /// Predicated mode: the most objects a previously invisible node may put under one
     /// predicate in expectation, (1 - p) * objects; a node above it is opened and its
     /// children queried instead (more queries, fewer extra draws).
-    #[arg(long, default_value_t = 8.0)]
+    #[arg(long, default_value_t = ChcppParams::default().predicated_budget)]
     pub predicate_budget: f32,
 }
 
