@@ -335,8 +335,9 @@ fn example_binary(name: &str) -> std::path::PathBuf {
 }
 
 /// `examples/engine.rs` (its own device, two frames in flight, one submit per frame,
-/// reverse-Z infinite matrices, chcpp@next-frame with k = 2) runs a few frames, submits once
-/// per frame, never waits, reads results from frame 2 on and has no validation message.
+/// reverse-Z infinite matrices, chcpp in the predicated mode with k = 2, next-frame on a
+/// device without conditional rendering) runs a few frames, submits once per frame, never
+/// waits, reads results from frame 2 on and has no validation message.
 #[test]
 fn engine_example_runs_with_two_frames_in_flight() {
     let exe = example_binary("engine");
