@@ -171,14 +171,14 @@ impl ChcppParams {
     /// turns batching on too.
     pub fn only(parts: &[&str]) -> ChcppParams {
         let mut p = ChcppParams::chc();
+        let d = ChcppParams::default();
         for part in parts {
             match *part {
                 "batching" => {
                     p.batching = true;
-                    p.batch_size = 50;
+                    p.batch_size = d.batch_size;
                 }
                 "interval" => {
-                    let d = ChcppParams::default();
                     p.randomized_interval = true;
                     p.visible_interval = d.visible_interval;
                     p.predicated_visible_interval = d.predicated_visible_interval;
@@ -187,7 +187,7 @@ impl ChcppParams {
                 "multiqueries" => {
                     p.multiqueries = true;
                     p.batching = true;
-                    p.batch_size = 50;
+                    p.batch_size = d.batch_size;
                 }
                 "tight" => p.tight_bounds = true,
                 _ => {}
