@@ -67,14 +67,26 @@ pub fn run(
         for c in cullers.iter_mut() {
             c.log_drawn_objects(renderer, cfg.check)?;
         }
+        // One exact pass per pose, before its first algorithm: the check and the oracle share
+        // it, and the oracle's timed frame follows the previous algorithm's frame, as every
+        // other algorithm's does, not an ID pass of its own (which slows the next frame).
+        let needs_exact = cfg.check || cullers.iter().any(|c| c.needs_exact_visibility());
         for i in 0..total {
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
-            if cfg.check {
-                renderer.object_pixels(bvh, &camera, &mut owned)?;
-            }
+            let exact = if needs_exact {
+                Some(renderer.exact_pass(bvh, &camera, &mut owned)?)
+            } else {
+                None
+            };
             for (k, (name, culler)) in cfg.algorithms.iter().zip(cullers.iter_mut()).enumerate() {
-                let mut r = culler.render_frame(renderer, bvh, &camera, i as u64)?;
+                let mut r = culler.render_frame_given(
+                    renderer,
+                    bvh,
+                    &camera,
+                    i as u64,
+                    exact.as_deref(),
+                )?;
                 if cfg.check {
                     r.check = Some(culler.check(renderer, &owned));
                 }
@@ -233,6 +245,8 @@ pub fn run_with_movers(
             c.log_drawn_objects(renderer, cfg.check)?;
             c.count_mover_draws(renderer, walk.movers.objects())?;
         }
+        // As in `run`: one exact pass per pose, shared by the check and the oracle.
+        let needs_exact = cfg.check || cullers.iter().any(|c| c.needs_exact_visibility());
         let mut base_cullers = match walk.baseline.as_mut() {
             Some((base, _)) => create_all(&walk.baseline_algorithms, cfg, base)?,
             None => Vec::new(),
@@ -244,12 +258,20 @@ pub fn run_with_movers(
             }
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
-            if cfg.check {
-                renderer.object_pixels(bvh, &camera, &mut owned)?;
-            }
+            let exact = if needs_exact {
+                Some(renderer.exact_pass(bvh, &camera, &mut owned)?)
+            } else {
+                None
+            };
             let mut k = 0u64;
             for (name, culler) in cfg.algorithms.iter().zip(cullers.iter_mut()) {
-                let mut r = culler.render_frame(renderer, bvh, &camera, i as u64)?;
+                let mut r = culler.render_frame_given(
+                    renderer,
+                    bvh,
+                    &camera,
+                    i as u64,
+                    exact.as_deref(),
+                )?;
                 if cfg.check {
                     r.check = Some(culler.check(renderer, &owned));
                 }

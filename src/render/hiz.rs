@@ -584,8 +584,23 @@ impl FrameAlgorithm {
         camera: &Camera,
         frame: u64,
     ) -> Result<FrameResult> {
+        self.render_frame_given(r, bvh, camera, frame, None)
+    }
+
+    /// Renders one frame, with the camera's exact visible set when it is known
+    /// ([`Renderer::render_frame_given`]).
+    pub fn render_frame_given(
+        &mut self,
+        r: &mut Renderer,
+        bvh: &ObjectBvh,
+        camera: &Camera,
+        frame: u64,
+        exact: Option<&[u32]>,
+    ) -> Result<FrameResult> {
         match self {
-            FrameAlgorithm::Culler(c) => r.render_frame(c.as_mut(), bvh, camera, frame),
+            FrameAlgorithm::Culler(c) => {
+                r.render_frame_given(c.as_mut(), bvh, camera, frame, exact)
+            }
             FrameAlgorithm::Hiz(h) => h.render_frame(r, camera),
         }
     }
