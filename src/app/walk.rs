@@ -68,8 +68,9 @@ pub fn run(
             c.log_drawn_objects(renderer, cfg.check)?;
         }
         // One exact pass per pose, before its first algorithm: the check and the oracle share
-        // it, and the oracle's timed frame follows the previous algorithm's frame, as every
-        // other algorithm's does, not an ID pass of its own (which slows the next frame).
+        // it, and the oracle's timed frame no longer follows an ID pass of its own (which
+        // slows the next frame); with the order turning a pose (`rotated`), every algorithm
+        // follows the exact pass equally often.
         let needs_exact = cfg.check || cullers.iter().any(|c| c.needs_exact_visibility());
         for i in 0..total {
             let pose = path.sample(i, total);
@@ -79,7 +80,11 @@ pub fn run(
             } else {
                 None
             };
-            for (k, (name, culler)) in cfg.algorithms.iter().zip(cullers.iter_mut()).enumerate() {
+            let n = cullers.len();
+            for k in 0..n {
+                // The order turns by one algorithm a pose (see `rotated`).
+                let a = rotated(k, i, n);
+                let (name, culler) = (&cfg.algorithms[a], &mut cullers[a]);
                 let mut r = culler.render_frame_given(
                     renderer,
                     bvh,
@@ -264,7 +269,10 @@ pub fn run_with_movers(
                 None
             };
             let mut k = 0u64;
-            for (name, culler) in cfg.algorithms.iter().zip(cullers.iter_mut()) {
+            let n = cullers.len();
+            for step in 0..n {
+                let a = rotated(step, i, n);
+                let (name, culler) = (&cfg.algorithms[a], &mut cullers[a]);
                 let mut r = culler.render_frame_given(
                     renderer,
                     bvh,
@@ -302,6 +310,15 @@ pub fn run_with_movers(
     }
     stats.rebuilds = bvh.rebuilds() - rebuilds_before;
     Ok((records, stats))
+}
+
+/// The algorithm that runs `step`-th at pose `pose` of `n`: the order turns by one algorithm
+/// a pose, so that each runs first (just after the pose's exact pass) and after each other
+/// algorithm equally often. On lavapipe a frame is slower after the exact pass, and slower or
+/// faster after some algorithms than after others; a fixed order gave those effects to the
+/// same algorithms in every pose.
+fn rotated(step: usize, pose: u32, n: usize) -> usize {
+    (step + pose as usize) % n.max(1)
 }
 
 /// A frame's record in a walk with movers: with the recorder's count of mover draws (0 on the
