@@ -8,6 +8,7 @@ use crate::bvh::ObjectBvh;
 use crate::culling;
 use crate::culling::ChcppParams;
 use crate::error::Result;
+use crate::scene::camera::Camera;
 use crate::scene::{CameraPath, Scene};
 
 use crate::render::hiz::FrameAlgorithm;
@@ -75,26 +76,14 @@ pub fn run(
         for i in 0..total {
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
-            let exact = if needs_exact {
-                Some(renderer.exact_pass(bvh, &camera, &mut owned)?)
-            } else {
-                None
-            };
+            let exact = pose_exact(needs_exact, renderer, bvh, &camera, &mut owned)?;
             let n = cullers.len();
             for k in 0..n {
                 // The order turns by one algorithm a pose (see `rotated`).
                 let a = rotated(k, i, n);
                 let (name, culler) = (&cfg.algorithms[a], &mut cullers[a]);
-                let mut r = culler.render_frame_given(
-                    renderer,
-                    bvh,
-                    &camera,
-                    i as u64,
-                    exact.as_deref(),
-                )?;
-                if cfg.check {
-                    r.check = Some(culler.check(renderer, &owned));
-                }
+                let checked = cfg.check.then_some(owned.as_slice());
+                let r = pose_frame(culler, renderer, bvh, &camera, i, exact.as_deref(), checked)?;
                 if i >= cfg.warmup {
                     records.push(FrameRecord::from_frame(&r, name, i - cfg.warmup, repeat));
                 }
@@ -263,26 +252,14 @@ pub fn run_with_movers(
             }
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
-            let exact = if needs_exact {
-                Some(renderer.exact_pass(bvh, &camera, &mut owned)?)
-            } else {
-                None
-            };
+            let exact = pose_exact(needs_exact, renderer, bvh, &camera, &mut owned)?;
             let mut k = 0u64;
             let n = cullers.len();
             for step in 0..n {
                 let a = rotated(step, i, n);
                 let (name, culler) = (&cfg.algorithms[a], &mut cullers[a]);
-                let mut r = culler.render_frame_given(
-                    renderer,
-                    bvh,
-                    &camera,
-                    i as u64,
-                    exact.as_deref(),
-                )?;
-                if cfg.check {
-                    r.check = Some(culler.check(renderer, &owned));
-                }
+                let checked = cfg.check.then_some(owned.as_slice());
+                let r = pose_frame(culler, renderer, bvh, &camera, i, exact.as_deref(), checked)?;
                 if i >= cfg.warmup {
                     records.push(mover_record(&r, name, i - cfg.warmup, repeat));
                 }
@@ -310,6 +287,40 @@ pub fn run_with_movers(
     }
     stats.rebuilds = bvh.rebuilds() - rebuilds_before;
     Ok((records, stats))
+}
+
+/// The pose's exact pass when the walk needs one (`--check` or the oracle): `owned` gets each
+/// object's pixels, and the visible objects come back front to back.
+fn pose_exact(
+    needs: bool,
+    renderer: &mut Renderer,
+    bvh: &ObjectBvh,
+    camera: &Camera,
+    owned: &mut Vec<u32>,
+) -> Result<Option<Vec<u32>>> {
+    if needs {
+        renderer.exact_pass(bvh, camera, owned).map(Some)
+    } else {
+        Ok(None)
+    }
+}
+
+/// `culler`'s frame of pose `pose`, with the pose's exact visible set where known, checked
+/// against the pose's pixels (`--check`) when given.
+fn pose_frame(
+    culler: &mut FrameAlgorithm,
+    renderer: &mut Renderer,
+    bvh: &ObjectBvh,
+    camera: &Camera,
+    pose: u32,
+    exact: Option<&[u32]>,
+    checked: Option<&[u32]>,
+) -> Result<crate::render::FrameResult> {
+    let mut r = culler.render_frame_given(renderer, bvh, camera, u64::from(pose), exact)?;
+    if let Some(pixels) = checked {
+        r.check = Some(culler.check(renderer, pixels));
+    }
+    Ok(r)
 }
 
 /// The algorithm that runs `step`-th at pose `pose` of `n`: the order turns by one algorithm
