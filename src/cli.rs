@@ -390,8 +390,11 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         let renderer_scene = Renderer::new(&ctx, &scene, w, h)?;
         let mut renderer = renderer_scene;
         let mut culler = FrameAlgorithm::create(&name, &setup, &renderer)?;
+        // Algorithms without state between frames start one frame early, so that the frame
+        // printed is not the renderer's first (on lavapipe the first draws of a pipeline
+        // compile its shader variants).
         let first = if culler.needs_exact_visibility() || a.algorithm == "vfc" {
-            a.frame
+            a.frame.saturating_sub(1)
         } else {
             0
         };
