@@ -308,7 +308,8 @@ impl Renderer {
     }
 
     /// Binds, draws, triangles and submits of the exact-visibility pre-pass
-    /// ([`Renderer::exact_visible`], the oracle's) since the last call. They are not in
+    /// ([`Renderer::exact_visible`], the oracle's, with the untimed frame that follows it in
+    /// [`Renderer::render_frame_given`]) since the last call. They are not in
     /// [`FrameResult::counts`] (the pass is a reference, not part of the algorithm) but are
     /// submitted all the same, so the viewer adds them to its per-frame totals.
     pub fn take_prepass_counts(&mut self) -> CommandCounts {
@@ -419,12 +420,15 @@ impl Renderer {
     /// An untimed frame that draws `objects`, between an untimed pre-pass (the ID pass or
     /// the box pass) and the timed frame that uses what the pass found: on lavapipe a frame
     /// right after the ID pass is slower (about 2.7 ms on the street at 1280x720), which
-    /// would be charged to the oracle. Its counts and draw log are dropped by the next
+    /// would be charged to the oracle. Its binds, draws, triangles and submits count as the
+    /// pre-pass's ([`Renderer::take_prepass_counts`]); its draw log is dropped by the next
     /// [`Renderer::begin_frame`].
     fn settle_after_pass(&mut self, view: &CameraView, objects: &[u32]) -> Result<()> {
         self.begin_frame(view)?;
         let drawn = OcclusionBackend::draw_objects(self, objects);
         let finished = self.finish();
+        let counts = self.recorder.take_counts();
+        add_prepass(&mut self.prepass_counts, &counts);
         drawn?;
         Ok(finished?)
     }
