@@ -583,3 +583,41 @@ fn empty_scene_renders_like_vfc() {
         }],
     );
 }
+
+/// The oracle's own ID pass is followed by an untimed frame that draws the set it found, so
+/// that the timed frame follows a frame and not the pass; the pass and that frame count as the
+/// pre-pass, not as the oracle's frame. Given the set (as `walk` gives it), neither runs.
+#[test]
+fn oracle_prepass_and_its_settling_frame_count_as_the_prepass() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let path = scene.path("street").unwrap().clone();
+        let mut r = Renderer::new(&ctx, &scene, W, H).unwrap();
+        let mut oracle = culling::create("oracle", &ChcppParams::default()).unwrap();
+        let cam = r.camera(path.pose_at(30.0), &bvh);
+        r.take_prepass_counts();
+        let own = r.render_frame(oracle.as_mut(), &bvh, &cam, 30).unwrap();
+        let with_settling = r.take_prepass_counts();
+        let exact = r.exact_visible(&bvh, &cam).unwrap();
+        let pass = r.take_prepass_counts();
+        assert!(own.counts.draw_calls > 0 && pass.draw_calls > 0);
+        assert_eq!(
+            (with_settling.draw_calls, with_settling.submits),
+            (
+                pass.draw_calls + own.counts.draw_calls,
+                pass.submits + own.counts.submits
+            ),
+            "the pre-pass counts the ID pass and one frame like the oracle's"
+        );
+        let given = r
+            .render_frame_given(oracle.as_mut(), &bvh, &cam, 30, Some(&exact))
+            .unwrap();
+        let none = r.take_prepass_counts();
+        assert_eq!((none.draw_calls, none.submits), (0, 0));
+        assert_eq!(given.counts.draw_calls, own.counts.draw_calls);
+        assert_eq!(given.cull.objects_drawn, exact.len() as u32);
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
