@@ -65,7 +65,8 @@ pub struct CommandCounts {
     pub indirect_triangles: u64,
     /// Object draws of moving objects, added after the frame by whoever knows which objects
     /// move (the scene renderer's draw log, and `hiz` for its GPU-generated draws, read
-    /// back); for reports only.
+    /// back); a draw under a predicate counts only where the predicate was true. For reports
+    /// only.
     pub mover_draws: u32,
     /// Predicate resolves: query results copied into the predicate buffer for conditional
     /// rendering (each a pass break: end rendering, copy, barrier, resume).

@@ -16,12 +16,14 @@ pub(super) struct DrawLog {
     /// With the log on: objects drawn under a predicate this frame, call by call; they join
     /// `drawn` once the predicates are read back, if theirs was true.
     predicated: Vec<u32>,
-    /// Per call under a predicate this frame: its query and how many objects it drew (log on
-    /// or off; with the log on, the next that many of `predicated`).
-    predicated_calls: Vec<(u32, u32)>,
+    /// Per call under a predicate this frame: its query, how many objects it drew (log on or
+    /// off; with the log on, the next that many of `predicated`) and how many of them are
+    /// movers.
+    predicated_calls: Vec<(u32, u32, u32)>,
     /// Objects whose draws count as mover draws.
     movers: Range<u32>,
-    /// Draws of those this frame (drawn or under a predicate).
+    /// Unconditional draws of those this frame (draws under a predicate count once it is
+    /// read back, if it was true).
     mover_draws: u32,
 }
 
@@ -52,35 +54,43 @@ impl DrawLog {
 
     /// `objects` were drawn in render state, under `predicate`'s query if given.
     pub(super) fn drew(&mut self, objects: &[u32], predicate: Option<u32>) {
-        if !self.movers.is_empty() {
-            let movers = objects.iter().filter(|o| self.movers.contains(o)).count();
-            self.mover_draws += movers as u32;
-        }
+        let movers = match self.movers.is_empty() {
+            true => 0,
+            false => objects.iter().filter(|o| self.movers.contains(o)).count() as u32,
+        };
         match predicate {
             Some(query) => {
-                self.predicated_calls.push((query, objects.len() as u32));
+                self.predicated_calls
+                    .push((query, objects.len() as u32, movers));
                 if self.on {
                     self.predicated.extend_from_slice(objects);
                 }
             }
-            None if self.on => self.drawn.extend_from_slice(objects),
-            None => {}
+            None => {
+                self.mover_draws += movers;
+                if self.on {
+                    self.drawn.extend_from_slice(objects);
+                }
+            }
         }
     }
 
     /// After the frame, with the predicates read back (`taken(query)`): adds the mover draws
-    /// and the objects drawn under true predicates to `counts`, and those objects to the log.
+    /// (those under a predicate only where it was true: a draw a predicate skipped did not
+    /// draw) and the objects drawn under true predicates to `counts`, and those objects to the
+    /// log.
     pub(super) fn end_frame(&mut self, counts: &mut CommandCounts, taken: impl Fn(u32) -> bool) {
         counts.mover_draws += self.mover_draws;
         self.mover_draws = 0;
         let mut first = 0;
-        for &(query, objects) in &self.predicated_calls {
+        for &(query, objects, movers) in &self.predicated_calls {
             let call = first..first + objects as usize;
             first = call.end;
             if !taken(query) {
                 continue;
             }
             counts.predicated_objects_taken += objects;
+            counts.mover_draws += movers;
             if self.on {
                 self.drawn.extend_from_slice(&self.predicated[call]);
             }

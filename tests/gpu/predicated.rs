@@ -67,6 +67,9 @@ fn matches_vfc(
         .map(|m| culling::create_named(m, &setup).expect(m))
         .collect();
     r.log_drawn_objects(true);
+    if let Some(m) = movers {
+        r.count_mover_draws(m.objects());
+    }
     let (mut pixels, mut taken, mut split_queries, mut tested_parts) = (Vec::new(), 0, 0, 0);
     let mut gathered = 0;
     for (f, &pose) in poses.iter().enumerate() {
@@ -105,6 +108,15 @@ fn matches_vfc(
                 "{tag}: objects under predicates"
             );
             taken += res.counts.predicated_objects_taken;
+            if let Some(m) = movers {
+                // Mover draws under a false predicate did not draw: the count is the log's.
+                let logged = r.drawn_objects().iter();
+                let logged = logged.filter(|o| m.objects().contains(o)).count();
+                assert_eq!(
+                    res.counts.mover_draws as usize, logged,
+                    "{tag}: mover draws"
+                );
+            }
             let px = r.read_color().unwrap();
             r.object_pixels(bvh, &cam, &mut pixels).unwrap();
             let check = r.check_drawn(&pixels);

@@ -57,7 +57,7 @@ pub struct FrameRecord {
     /// With `walk --check`: pixels of the exact ID pass owned by missed objects.
     pub missed_pixels: Option<u64>,
     /// With movers (`walk --movers N`): object draws of moving objects (the recorder's count;
-    /// part of `object_draws`).
+    /// part of `object_draws`; under a predicate only where it was true).
     pub mover_draws: Option<u32>,
     /// Object draws recorded under a query's predicate (conditional rendering; part of
     /// `object_draws`).
