@@ -425,7 +425,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
                 name,
                 r.frame_ms,
                 c.draw_calls,
-                c.render_triangles,
+                c.drawn_triangles(),
                 c.queries_begun,
                 c.state_changes,
                 c.submits,

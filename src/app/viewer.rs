@@ -636,7 +636,7 @@ impl Running {
                 "STATE CHANGES {}  BINDS {}",
                 c.state_changes, c.pipeline_binds
             ),
-            format!("DRAWS {}  TRIANGLES {}", c.draw_calls, c.render_triangles),
+            format!("DRAWS {}  TRIANGLES {}", c.draw_calls, c.drawn_triangles()),
         ];
         if self.algorithm == "chcpp" {
             lines.push(format!(

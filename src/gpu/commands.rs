@@ -94,6 +94,19 @@ pub struct CommandCounts {
     /// Of those, objects whose predicate was true, read back from the predicate buffer after
     /// the frame (added by the scene renderer); for reports only.
     pub predicated_objects_taken: u32,
+    /// Triangles of object draws under predicates that were false: submitted (counted in
+    /// `render_triangles`) but not drawn; read back after the frame like
+    /// `predicated_objects_taken`. For reports only.
+    pub predicated_triangles_skipped: u64,
+}
+
+impl CommandCounts {
+    /// Triangles the frame's object draws drew: those of render-state draws and of draws the
+    /// GPU generated (`indirect_triangles`), less those under false predicates.
+    pub fn drawn_triangles(&self) -> u64 {
+        (self.render_triangles + self.indirect_triangles)
+            .saturating_sub(self.predicated_triangles_skipped)
+    }
 }
 
 /// How a buffer (or any memory) is accessed, for [`Recorder::memory_barrier`].

@@ -6,6 +6,9 @@ use std::ops::Range;
 
 use crate::gpu::CommandCounts;
 
+/// One object draw call under a predicate: its query, objects, movers among them, triangles.
+type PredicatedCall = (u32, u32, u32, u64);
+
 /// The objects one frame's object draws drew (with the log on), and its mover draws.
 #[derive(Default)]
 pub(super) struct DrawLog {
@@ -17,9 +20,9 @@ pub(super) struct DrawLog {
     /// `drawn` once the predicates are read back, if theirs was true.
     predicated: Vec<u32>,
     /// Per call under a predicate this frame: its query, how many objects it drew (log on or
-    /// off; with the log on, the next that many of `predicated`) and how many of them are
-    /// movers.
-    predicated_calls: Vec<(u32, u32, u32)>,
+    /// off; with the log on, the next that many of `predicated`), how many of them are movers,
+    /// and their triangles.
+    predicated_calls: Vec<PredicatedCall>,
     /// Objects whose draws count as mover draws.
     movers: Range<u32>,
     /// Unconditional draws of those this frame (draws under a predicate count once it is
@@ -52,8 +55,9 @@ impl DrawLog {
         self.mover_draws = 0;
     }
 
-    /// `objects` were drawn in render state, under `predicate`'s query if given.
-    pub(super) fn drew(&mut self, objects: &[u32], predicate: Option<u32>) {
+    /// `objects` (`triangles` in all) were drawn in render state, under `predicate`'s query
+    /// if given.
+    pub(super) fn drew(&mut self, objects: &[u32], predicate: Option<u32>, triangles: u64) {
         let movers = match self.movers.is_empty() {
             true => 0,
             false => objects.iter().filter(|o| self.movers.contains(o)).count() as u32,
@@ -61,7 +65,7 @@ impl DrawLog {
         match predicate {
             Some(query) => {
                 self.predicated_calls
-                    .push((query, objects.len() as u32, movers));
+                    .push((query, objects.len() as u32, movers, triangles));
                 if self.on {
                     self.predicated.extend_from_slice(objects);
                 }
@@ -77,16 +81,17 @@ impl DrawLog {
 
     /// After the frame, with the predicates read back (`taken(query)`): adds the mover draws
     /// (those under a predicate only where it was true: a draw a predicate skipped did not
-    /// draw) and the objects drawn under true predicates to `counts`, and those objects to the
-    /// log.
+    /// draw), the objects drawn under true predicates and the triangles of the draws under
+    /// false ones to `counts`, and the objects drawn to the log.
     pub(super) fn end_frame(&mut self, counts: &mut CommandCounts, taken: impl Fn(u32) -> bool) {
         counts.mover_draws += self.mover_draws;
         self.mover_draws = 0;
         let mut first = 0;
-        for &(query, objects, movers) in &self.predicated_calls {
+        for &(query, objects, movers, triangles) in &self.predicated_calls {
             let call = first..first + objects as usize;
             first = call.end;
             if !taken(query) {
+                counts.predicated_triangles_skipped += triangles;
                 continue;
             }
             counts.predicated_objects_taken += objects;

@@ -1061,7 +1061,7 @@ impl Renderer {
                 }
                 self.recorder
                     .draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
-                self.log.drew(&[o], predicate);
+                self.log.drew(&[o], predicate, u64::from(d.index_count / 3));
             }
         }
         Ok(())
@@ -1178,7 +1178,7 @@ impl Renderer {
             let count = self.draw_objects.len() as u32;
             self.recorder
                 .draw_objects_indirect(chunk, offset as u64, count, triangles);
-            self.log.drew(&self.draw_objects, predicate);
+            self.log.drew(&self.draw_objects, predicate, triangles);
             self.draw_used += count;
         }
         Ok(())
@@ -1342,7 +1342,7 @@ impl Renderer {
             self.recorder
                 .draw_objects_indirect(buffer, offset, len, triangles);
             let run = &self.ordered.order()[position as usize..(position + len) as usize];
-            self.log.drew(run, predicate);
+            self.log.drew(run, predicate, triangles);
         }
         Ok(())
     }
@@ -1715,9 +1715,10 @@ impl Renderer {
             for (part, run) in &d.runs {
                 parts += u32::from(last != Some(*part));
                 last = Some(*part);
-                triangles += self.ordered.run_triangles(run.start, run.len());
+                let run_triangles = self.ordered.run_triangles(run.start, run.len());
+                triangles += run_triangles;
                 let objects = &self.ordered.order()[run.start as usize..run.end as usize];
-                self.log.drew(objects, Some(*part));
+                self.log.drew(objects, Some(*part), run_triangles);
             }
             self.recorder.count_gathered(parts, d.commands, triangles);
         } else {

@@ -51,6 +51,7 @@ fn poses(scene: &Scene, path: &str) -> Vec<CameraPose> {
 /// and draw order decides. Returns the objects drawn under true predicates in all.
 fn matches_vfc(
     r: &mut Renderer,
+    triangles: &[u64],
     scene_bvh: &mut ObjectBvh,
     poses: &[CameraPose],
     movers: Option<&Movers>,
@@ -108,8 +109,19 @@ fn matches_vfc(
                 "{tag}: objects under predicates"
             );
             taken += res.counts.predicated_objects_taken;
+            // Triangles (and mover draws) under a false predicate did not draw: the counts are
+            // the log's.
+            let logged: u64 = r
+                .drawn_objects()
+                .iter()
+                .map(|&o| triangles[o as usize])
+                .sum();
+            assert_eq!(
+                res.counts.drawn_triangles(),
+                logged,
+                "{tag}: triangles drawn"
+            );
             if let Some(m) = movers {
-                // Mover draws under a false predicate did not draw: the count is the log's.
                 let logged = r.drawn_objects().iter();
                 let logged = logged.filter(|o| m.objects().contains(o)).count();
                 assert_eq!(
@@ -158,6 +170,7 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
         for (name, scale, path) in [("city", 0.1, "street"), ("powerplant", 0.5, "difficult")] {
             let (scene, mut bvh) = common::scene(name, scale);
             let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+            let tris: Vec<u64> = scene.objects.iter().map(|o| o.triangle_count()).collect();
             // The parts of split nodes decided by the depth part test from the first frame on,
             // then queried.
             let taken = [0, u32::MAX].map(|tested_parts_min| {
@@ -165,7 +178,8 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
                     predicated_tested_parts_min: tested_parts_min,
                     ..ChcppParams::default()
                 };
-                let taken = matches_vfc(&mut r, &mut bvh, &poses(&scene, path), None, 0, &params);
+                let poses = poses(&scene, path);
+                let taken = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &params);
                 assert!(
                     taken > 0,
                     "{name}: something was drawn under a true predicate"
@@ -175,7 +189,8 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
             // One predicate level (the GPU policy): each queried node's objects under its
             // own predicate, gathered on the device where it can.
             let gpu = ChcppParams::for_gpu();
-            let one_level = matches_vfc(&mut r, &mut bvh, &poses(&scene, path), None, 0, &gpu);
+            let poses = poses(&scene, path);
+            let one_level = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &gpu);
             assert!(
                 one_level > 0,
                 "{name}: one level drew under a true predicate"
@@ -207,8 +222,10 @@ fn predicated_images_equal_vfc_in_the_parking_with_100_movers() {
         // depth the first drawn wins, and the predicated draws come after the unconditional
         // ones (seen after the cut: the same colour, shaded by another face's normal; at most
         // 1% of the image; missed objects stay 0).
+        let tris: Vec<u64> = scene.objects.iter().map(|o| o.triangle_count()).collect();
         matches_vfc(
             &mut r,
+            &tris,
             &mut bvh,
             &poses,
             Some(&movers),

@@ -46,7 +46,8 @@ pub struct FrameRecord {
     pub object_draws: u32,
     /// Draw calls of query boxes.
     pub query_draws: u32,
-    /// Triangles submitted for rendering.
+    /// Triangles the object draws drew (query boxes not included; draws under a false
+    /// predicate submitted but not counted).
     pub triangles: u64,
     /// Objects rendered (the recorder's object draws: one draw per object).
     pub objects: u32,
@@ -95,7 +96,7 @@ impl FrameRecord {
             draw_calls: r.counts.draw_calls,
             object_draws: r.counts.object_draws + r.counts.indirect_objects,
             query_draws: r.counts.query_draws,
-            triangles: r.counts.render_triangles + r.counts.indirect_triangles,
+            triangles: r.counts.drawn_triangles(),
             // Objects really drawn: a draw under a false predicate drew nothing.
             objects: r.counts.object_draws - r.counts.predicated_calls
                 + r.counts.predicated_objects_taken
