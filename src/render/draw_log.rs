@@ -6,8 +6,18 @@ use std::ops::Range;
 
 use crate::gpu::CommandCounts;
 
-/// One object draw call under a predicate: its query, objects, movers among them, triangles.
-type PredicatedCall = (u32, u32, u32, u64);
+/// One object draw call under a predicate, counted once the predicate is read back.
+#[derive(Clone, Copy)]
+struct PredicatedCall {
+    /// The query whose predicate the call is under.
+    query: u32,
+    /// Objects it drew (with the log on, the next that many of [`DrawLog::predicated`]).
+    objects: u32,
+    /// How many of those are movers.
+    movers: u32,
+    /// Their triangles.
+    triangles: u64,
+}
 
 /// The objects one frame's object draws drew (with the log on), and its mover draws.
 #[derive(Default)]
@@ -19,9 +29,7 @@ pub(super) struct DrawLog {
     /// With the log on: objects drawn under a predicate this frame, call by call; they join
     /// `drawn` once the predicates are read back, if theirs was true.
     predicated: Vec<u32>,
-    /// Per call under a predicate this frame: its query, how many objects it drew (log on or
-    /// off; with the log on, the next that many of `predicated`), how many of them are movers,
-    /// and their triangles.
+    /// The calls under a predicate this frame (log on or off).
     predicated_calls: Vec<PredicatedCall>,
     /// Objects whose draws count as mover draws.
     movers: Range<u32>,
@@ -58,14 +66,19 @@ impl DrawLog {
     /// `objects` (`triangles` in all) were drawn in render state, under `predicate`'s query
     /// if given.
     pub(super) fn drew(&mut self, objects: &[u32], predicate: Option<u32>, triangles: u64) {
-        let movers = match self.movers.is_empty() {
-            true => 0,
-            false => objects.iter().filter(|o| self.movers.contains(o)).count() as u32,
+        let movers = if self.movers.is_empty() {
+            0
+        } else {
+            objects.iter().filter(|o| self.movers.contains(o)).count() as u32
         };
         match predicate {
             Some(query) => {
-                self.predicated_calls
-                    .push((query, objects.len() as u32, movers, triangles));
+                self.predicated_calls.push(PredicatedCall {
+                    query,
+                    objects: objects.len() as u32,
+                    movers,
+                    triangles,
+                });
                 if self.on {
                     self.predicated.extend_from_slice(objects);
                 }
@@ -87,15 +100,15 @@ impl DrawLog {
         counts.mover_draws += self.mover_draws;
         self.mover_draws = 0;
         let mut first = 0;
-        for &(query, objects, movers, triangles) in &self.predicated_calls {
-            let call = first..first + objects as usize;
+        for c in &self.predicated_calls {
+            let call = first..first + c.objects as usize;
             first = call.end;
-            if !taken(query) {
-                counts.predicated_triangles_skipped += triangles;
+            if !taken(c.query) {
+                counts.predicated_triangles_skipped += c.triangles;
                 continue;
             }
-            counts.predicated_objects_taken += objects;
-            counts.mover_draws += movers;
+            counts.predicated_objects_taken += c.objects;
+            counts.mover_draws += c.movers;
             if self.on {
                 self.drawn.extend_from_slice(&self.predicated[call]);
             }
