@@ -72,7 +72,7 @@ pub fn run(
         // it, and the oracle's timed frame no longer follows an ID pass of its own (which
         // slows the next frame); with the order turning a pose (`rotated`), every algorithm
         // follows the exact pass equally often.
-        let needs_exact = cfg.check || cullers.iter().any(|c| c.needs_exact_visibility());
+        let needs_exact = needs_pose_exact(cfg.check, &cullers);
         for i in 0..total {
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
@@ -240,7 +240,7 @@ pub fn run_with_movers(
             c.count_mover_draws(renderer, walk.movers.objects())?;
         }
         // As in `run`: one exact pass per pose, shared by the check and the oracle.
-        let needs_exact = cfg.check || cullers.iter().any(|c| c.needs_exact_visibility());
+        let needs_exact = needs_pose_exact(cfg.check, &cullers);
         let mut base_cullers = match walk.baseline.as_mut() {
             Some((base, _)) => create_all(&walk.baseline_algorithms, cfg, base)?,
             None => Vec::new(),
@@ -291,6 +291,16 @@ pub fn run_with_movers(
 
 /// The pose's exact pass when the walk needs one (`--check` or the oracle): `owned` gets each
 /// object's pixels, and the visible objects come back front to back.
+/// Whether a walk runs the exact pass at each pose: for `--check`, or for a culler that draws
+/// the exact set (the oracle). The box oracle finds its set with a pass of its own, so it
+/// needs none.
+fn needs_pose_exact(check: bool, cullers: &[FrameAlgorithm]) -> bool {
+    check
+        || cullers
+            .iter()
+            .any(|c| c.needs_exact_visibility() && !c.needs_box_visibility())
+}
+
 fn pose_exact(
     needs: bool,
     renderer: &mut Renderer,
@@ -382,4 +392,32 @@ pub fn place_movers(
     bvh.update();
     hierarchy += t.elapsed();
     Ok(hierarchy.as_secs_f64() * 1e3)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::culling::CullerSetup;
+
+    fn algorithms(names: &[&str]) -> Vec<FrameAlgorithm> {
+        let setup = CullerSetup::default();
+        let culler = |n: &&str| FrameAlgorithm::Culler(culling::create_named(n, &setup).unwrap());
+        names.iter().map(culler).collect()
+    }
+
+    #[test]
+    fn the_pose_exact_pass_runs_for_the_check_and_the_oracle_only() {
+        assert!(!needs_pose_exact(false, &algorithms(&["vfc", "chcpp"])));
+        assert!(needs_pose_exact(true, &algorithms(&["vfc", "chcpp"])));
+        assert!(needs_pose_exact(false, &algorithms(&["vfc", "oracle"])));
+        // The box oracle runs its own pass (`Renderer::box_visible`).
+        assert!(!needs_pose_exact(
+            false,
+            &algorithms(&["chcpp", "oracle-box"])
+        ));
+        assert!(needs_pose_exact(
+            false,
+            &algorithms(&["oracle-box", "oracle"])
+        ));
+    }
 }

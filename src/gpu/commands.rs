@@ -101,6 +101,15 @@ pub struct CommandCounts {
 }
 
 impl CommandCounts {
+    /// Objects the frame drew: those of render-state draws, less the draws recorded under
+    /// predicates, plus the objects of those whose predicate was true
+    /// (`predicated_objects_taken`) and the objects of draws the GPU generated
+    /// (`indirect_objects`). A draw under a false predicate drew nothing.
+    pub fn drawn_objects(&self) -> u32 {
+        (self.object_draws + self.predicated_objects_taken + self.indirect_objects)
+            .saturating_sub(self.predicated_calls)
+    }
+
     /// Triangles the frame's object draws drew: those of render-state draws and of draws the
     /// GPU generated (`indirect_triangles`), less those under false predicates.
     pub fn drawn_triangles(&self) -> u64 {

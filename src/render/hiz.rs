@@ -576,6 +576,15 @@ impl FrameAlgorithm {
         }
     }
 
+    /// Whether it needs the objects whose own box shows against the exact depth (the box
+    /// oracle), which [`Renderer::render_frame_given`] finds with a pass of its own.
+    pub fn needs_box_visibility(&self) -> bool {
+        match self {
+            FrameAlgorithm::Culler(c) => c.needs_box_visibility(),
+            FrameAlgorithm::Hiz(_) => false,
+        }
+    }
+
     /// Renders one frame.
     pub fn render_frame(
         &mut self,

@@ -121,6 +121,11 @@ fn matches_vfc(
                 logged,
                 "{tag}: triangles drawn"
             );
+            assert_eq!(
+                res.counts.drawn_objects() as usize,
+                r.drawn_objects().len(),
+                "{tag}: objects drawn"
+            );
             if let Some(m) = movers {
                 let logged = r.drawn_objects().iter();
                 let logged = logged.filter(|o| m.objects().contains(o)).count();

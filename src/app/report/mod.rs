@@ -97,10 +97,7 @@ impl FrameRecord {
             object_draws: r.counts.object_draws + r.counts.indirect_objects,
             query_draws: r.counts.query_draws,
             triangles: r.counts.drawn_triangles(),
-            // Objects really drawn: a draw under a false predicate drew nothing.
-            objects: r.counts.object_draws - r.counts.predicated_calls
-                + r.counts.predicated_objects_taken
-                + r.counts.indirect_objects,
+            objects: r.counts.drawn_objects(),
             submits: r.counts.submits,
             missed_objects: r.check.map(|c| c.missed_objects),
             missed_pixels: r.check.map(|c| c.missed_pixels),
