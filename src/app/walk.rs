@@ -289,8 +289,6 @@ pub fn run_with_movers(
     Ok((records, stats))
 }
 
-/// The pose's exact pass when the walk needs one (`--check` or the oracle): `owned` gets each
-/// object's pixels, and the visible objects come back front to back.
 /// Whether a walk runs the exact pass at each pose: for `--check`, or for a culler that draws
 /// the exact set (the oracle). The box oracle finds its set with a pass of its own, so it
 /// needs none.
@@ -301,6 +299,8 @@ fn needs_pose_exact(check: bool, cullers: &[FrameAlgorithm]) -> bool {
             .any(|c| c.needs_exact_visibility() && !c.needs_box_visibility())
 }
 
+/// The pose's exact pass when the walk needs one (`--check` or the oracle): `owned` gets each
+/// object's pixels, and the visible objects come back front to back.
 fn pose_exact(
     needs: bool,
     renderer: &mut Renderer,
