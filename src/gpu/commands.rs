@@ -104,7 +104,8 @@ impl CommandCounts {
     /// Objects the frame drew: those of render-state draws, less the draws recorded under
     /// predicates, plus the objects of those whose predicate was true
     /// (`predicated_objects_taken`) and the objects of draws the GPU generated
-    /// (`indirect_objects`). A draw under a false predicate drew nothing.
+    /// (`indirect_objects`). A draw under a false predicate drew nothing. Render-state draws
+    /// outside predicates draw one object each (the multi-draws are all predicated).
     pub fn drawn_objects(&self) -> u32 {
         (self.object_draws + self.predicated_objects_taken + self.indirect_objects)
             .saturating_sub(self.predicated_calls)

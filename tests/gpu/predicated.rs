@@ -176,6 +176,7 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
             let (scene, mut bvh) = common::scene(name, scale);
             let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
             let tris: Vec<u64> = scene.objects.iter().map(|o| o.triangle_count()).collect();
+            let poses = poses(&scene, path);
             // The parts of split nodes decided by the depth part test from the first frame on,
             // then queried.
             let taken = [0, u32::MAX].map(|tested_parts_min| {
@@ -183,7 +184,6 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
                     predicated_tested_parts_min: tested_parts_min,
                     ..ChcppParams::default()
                 };
-                let poses = poses(&scene, path);
                 let taken = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &params);
                 assert!(
                     taken > 0,
@@ -194,7 +194,6 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
             // One predicate level (the GPU policy): each queried node's objects under its
             // own predicate, gathered on the device where it can.
             let gpu = ChcppParams::for_gpu();
-            let poses = poses(&scene, path);
             let one_level = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &gpu);
             assert!(
                 one_level > 0,
