@@ -391,7 +391,10 @@ pub struct FrameInput<'a> {
     /// The object hierarchy.
     pub bvh: &'a ObjectBvh,
     /// The camera: view-projection matrix, eye and depth convention (`(&camera).into()` for
-    /// the built-in [`crate::camera::Camera`]).
+    /// the built-in [`crate::camera::Camera`]). A matrix with a NaN entry (a window of size
+    /// zero, say) is no error: its frustum holds nothing, so the cullers that test it draw
+    /// nothing, as rendering with it would show nothing (the oracles draw the set they are
+    /// given), and the next frame with a good view is exact again.
     pub view: CameraView,
     /// Frame number (for temporal state).
     pub frame: u64,

@@ -7,8 +7,9 @@ mod common;
 use std::cell::{Cell, RefCell};
 use std::sync::Arc;
 
-use coherent_cull::camera::{Camera, CameraPose};
+use coherent_cull::camera::{Camera, CameraPose, CameraView};
 use coherent_cull::chcpp::{Chcpp, ChcppParams};
+use coherent_cull::glam::Mat4;
 use coherent_cull::glam::Vec3;
 use coherent_cull::pvs::{Pvs, ViewCell};
 use coherent_cull::testing::{Completion, MockBackend, MockEvent};
@@ -1025,5 +1026,125 @@ fn a_split_ratio_converges_while_standing() {
             .sum();
         let steady: usize = standing.iter().map(|(_, want)| want).sum();
         assert!(extra * 10 < steady, "k={k}: {extra} extra of {steady}");
+    }
+}
+
+/// Boxes an engine might hand over by mistake: NaN, infinite, inverted, empty, huge.
+fn bad_boxes() -> Vec<Aabb> {
+    let n = f32::NAN;
+    let i = f32::INFINITY;
+    let mut boxes = random_boxes(200, 31);
+    boxes.extend([
+        Aabb::new(Vec3::splat(n), Vec3::splat(n)),
+        Aabb::new(Vec3::new(1.0, n, 1.0), Vec3::new(2.0, 2.0, 2.0)),
+        Aabb::new(Vec3::splat(-i), Vec3::splat(i)),
+        Aabb::new(Vec3::new(5.0, 0.0, 5.0), Vec3::new(4.0, 1.0, 6.0)),
+        Aabb::EMPTY,
+        Aabb::new(Vec3::splat(-1e30), Vec3::splat(1e30)),
+        Aabb::new(Vec3::splat(50.0), Vec3::splat(50.0)),
+    ]);
+    boxes
+}
+
+/// Views an engine might hand over by mistake: NaN and zero matrices, the eye at the target.
+fn bad_views(f: u64) -> CameraView {
+    let good: CameraView = (&walk(f)).into();
+    match f % 5 {
+        1 => CameraView {
+            view_proj: Mat4::from_cols_array(&[f32::NAN; 16]),
+            ..good
+        },
+        2 => CameraView {
+            view_proj: Mat4::ZERO,
+            ..good
+        },
+        3 => (&Camera::from_pose(
+            CameraPose {
+                eye: Vec3::splat(50.0),
+                target: Vec3::splat(50.0),
+            },
+            1.0,
+            100.0,
+        ))
+            .into(),
+        4 => CameraView {
+            eye: Vec3::splat(f32::NAN),
+            ..good
+        },
+        _ => good,
+    }
+}
+
+/// Every culler and mode, with a latency where it has one: no panic on the boxes and views
+/// above, and a frame with a good view after bad ones draws every valid box in the frustum
+/// again where the mode is exact (the mock shows every valid box); a NaN view draws nothing
+/// (but in the oracles, which draw the set they are given).
+#[test]
+fn bad_boxes_and_bad_views_neither_panic_nor_break_the_frames_after() {
+    let boxes = bad_boxes();
+    let mut cullers: Vec<(&str, Latency, Box<dyn Culler>)> =
+        vec![("nohc", Latency::InFrame, nohc(boxes.len() + 1, 100))];
+    for name in [
+        "vfc",
+        "stop-and-wait",
+        "chc",
+        "chcpp",
+        "oracle",
+        "oracle-box",
+    ] {
+        for latency in [
+            Latency::InFrame,
+            Latency::NextFrame,
+            Latency::NextFrameConservative,
+            Latency::Predicated,
+        ] {
+            if let Ok(c) = create_latency(name, &ChcppParams::default(), latency) {
+                cullers.push((name, latency, c));
+            }
+        }
+    }
+    assert_eq!(cullers.len(), 1 + 4 + 2 * 4);
+    for (name, latency, mut culler) in cullers {
+        let mut bvh = ObjectBvh::build(&boxes, 1);
+        let mut backend = MockBackend::new(|b: &Aabb| if b.is_valid() { PIXELS } else { 0 });
+        for f in 0..30u64 {
+            if f == 10 {
+                // A mover that turns NaN and an insert at infinity.
+                bvh.set_bounds(3, Aabb::new(Vec3::splat(f32::NAN), Vec3::ONE))
+                    .unwrap();
+                bvh.insert(Aabb::new(Vec3::splat(f32::INFINITY), Vec3::ONE));
+                bvh.update();
+            }
+            let all = live_objects(&bvh);
+            let input = FrameInput {
+                bvh: &bvh,
+                view: bad_views(f),
+                frame: f,
+                exact_visible: Some(&all),
+            };
+            let r = culler.cull_frame(&input, &mut backend);
+            if f % 5 == 1 && !name.starts_with("oracle") {
+                let drawn = backend.drawn_last_frame();
+                assert!(
+                    drawn.is_empty(),
+                    "{name} {latency:?}: a NaN view drew {drawn:?}"
+                );
+            }
+            let exact = matches!(latency, Latency::InFrame | Latency::Predicated);
+            if f % 5 == 0 && f > 0 && exact {
+                assert!(r.is_ok(), "{name} {latency:?} frame {f}: {r:?}");
+                let want: Vec<u32> = in_frustum(&bvh, &walk(f))
+                    .into_iter()
+                    .filter(|&o| bvh.object_bounds(o).is_some_and(|b| b.is_valid()))
+                    .collect();
+                assert!(!want.is_empty());
+                let missed = missing(&want, &backend.drawn_last_frame());
+                assert!(
+                    missed.is_empty(),
+                    "{name} {latency:?} frame {f}: missed {missed:?}"
+                );
+            }
+            backend.end_frame();
+        }
     }
 }
