@@ -1046,7 +1046,8 @@ fn bad_boxes() -> Vec<Aabb> {
     boxes
 }
 
-/// Views an engine might hand over by mistake: NaN and zero matrices, the eye at the target.
+/// Views an engine might hand over by mistake: NaN and zero matrices, the eye at the target, a
+/// NaN eye.
 fn bad_views(f: u64) -> CameraView {
     let good: CameraView = (&walk(f)).into();
     match f % 5 {
