@@ -368,8 +368,9 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         other => bail!("--latency is for chc and chcpp, not \"{other}\""),
     };
     let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
-    let movers = Movers::add(&mut scene, a.movers);
+    // The path of the scene without movers (checked and found on the fixed geometry).
     let path = scene.resolve_path(a.path.as_deref())?;
+    let movers = Movers::add(&mut scene, a.movers);
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let mut bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let ctx = context(!a.no_validation)?;
@@ -571,8 +572,10 @@ fn walk_scale_movers(
     let fixed = load_scene(&a.scene, scale)?;
     let mut scene = fixed.clone();
     let movers = Movers::add(&mut scene, a.movers);
-    // The same paths as without movers: built-in names, path files, `interior`.
-    let path = scene.resolve_path(a.path.as_deref())?;
+    // The same paths as without movers: built-in names, path files, `interior`, found and
+    // checked on the scene without them (the movers' triangles at frame 0 would only slow
+    // the check: at a million movers, past the machine's memory).
+    let path = fixed.resolve_path(a.path.as_deref())?;
     let (mut bvh, fixed_bvh) = (
         bvh_of(&scene, a.scene.leaf_size),
         bvh_of(&fixed, a.scene.leaf_size),
@@ -768,8 +771,9 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     let params = a.chcpp.params()?;
     check_algorithm(&a.algorithm, &params)?;
     let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
-    let movers = Movers::add(&mut scene, a.movers);
+    // The path of the scene without movers (checked and found on the fixed geometry).
     let path = scene.resolve_path(a.path.as_deref())?;
+    let movers = Movers::add(&mut scene, a.movers);
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let resize_at = match &a.resize_at {
