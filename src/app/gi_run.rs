@@ -275,8 +275,9 @@ pub struct ModeSummary {
     /// B.
     pub budget: usize,
     /// Mean RMSE (tone-mapped RGB in 0..1) against the 4N-VPL full-recompute reference over
-    /// the summary's `rmse_frames` (frames after the first, where the modes differ).
-    pub rmse_vs_reference: f64,
+    /// the summary's `rmse_frames` (frames after the first, where the modes differ); `None`
+    /// when no frame was compared (`--samples 0`).
+    pub rmse_vs_reference: Option<f64>,
     /// The RMSE at each of `rmse_frames`, in order.
     pub rmse_per_frame: Vec<f64>,
 }
@@ -341,7 +342,7 @@ impl GiSummary {
         );
         for (name, m) in &self.algorithms {
             out += &format!(
-                "{:<12} {:>10.2} {:>10.2} {:>10.2} {:>10.2} {:>10.2} {:>8.1} {:>6} {:>6} {:>8.4}\n",
+                "{:<12} {:>10.2} {:>10.2} {:>10.2} {:>10.2} {:>10.2} {:>8.1} {:>6} {:>6} {:>8}\n",
                 name,
                 m.frame_ms_median,
                 m.frame_ms_p95,
@@ -352,12 +353,13 @@ impl GiSummary {
                 m.vpls,
                 m.budget,
                 m.rmse_vs_reference
+                    .map_or_else(|| "-".to_string(), |e| format!("{e:.4}"))
             );
         }
-        out += &format!(
-            "rmse: mean over frames {:?} (frame 0 excluded)\n",
-            self.rmse_frames
-        );
+        out += &match self.rmse_frames.as_slice() {
+            [] => "rmse: no frame compared with the reference (--samples 0)\n".to_string(),
+            frames => format!("rmse: mean over frames {frames:?} (frame 0 excluded)\n"),
+        };
         out
     }
 }
@@ -762,7 +764,8 @@ fn summarize_mode(r: &ModeRun, reference: &[Vec<u8>], opts: &GiRunOptions) -> Mo
         } else {
             opts.vpls
         },
-        rmse_vs_reference: errors.iter().sum::<f64>() / errors.len().max(1) as f64,
+        rmse_vs_reference: (!errors.is_empty())
+            .then(|| errors.iter().sum::<f64>() / errors.len() as f64),
         rmse_per_frame: errors,
     }
 }
@@ -849,5 +852,57 @@ mod tests {
         assert!(near(walking.at(1.0).target, pose(6.0).target));
         let standing = CameraTrack { camera, walk: None };
         assert_eq!(standing.at(0.7).eye, pose(-1.0).eye);
+    }
+
+    /// With no frame compared (`--samples 0`) a mode has no RMSE, and the table says so
+    /// instead of printing a zero; with frames compared it is their mean.
+    #[test]
+    fn the_rmse_is_absent_when_no_frame_was_compared() {
+        let opts = GiRunOptions {
+            vpls: 16,
+            budget: 4,
+            frames: 3,
+            width: 2,
+            height: 1,
+            modes: vec![GiMode::Incremental],
+            shadow_size: 8,
+            sample_frames: 0,
+            ism: IsmOptions::default(),
+        };
+        let run = |samples: Vec<Vec<u8>>| ModeRun {
+            mode: GiMode::Incremental,
+            frames: vec![GiFrame::default(); 3],
+            update_ms: vec![0.0; 3],
+            samples,
+            last: Vec::new(),
+        };
+        let none = summarize_mode(&run(Vec::new()), &[], &opts);
+        assert_eq!(none.rmse_vs_reference, None);
+        let mut summary = GiSummary {
+            scene: "s".into(),
+            objects: 1,
+            triangles: 1,
+            device: "d".into(),
+            size: "2x1".into(),
+            frames: 3,
+            movers: 0,
+            rmse_frames: Vec::new(),
+            algorithms: vec![("incremental".into(), none)],
+        };
+        let table = summary.table();
+        assert!(table.contains("no frame compared"), "{table}");
+        assert!(!table.contains("0.0000"), "{table}");
+        let black = vec![0u8; 8];
+        let grey = vec![51u8; 8];
+        let some = summarize_mode(
+            &run(vec![black.clone(), grey.clone()]),
+            &[black.clone(), black],
+            &opts,
+        );
+        let e = some.rmse_vs_reference.expect("two frames compared");
+        assert!((e - rmse(&grey, &vec![0u8; 8]) / 2.0).abs() < 1e-9, "{e}");
+        summary.rmse_frames = vec![1, 2];
+        summary.algorithms = vec![("incremental".into(), some)];
+        assert!(summary.table().contains(&format!("{e:.4}")));
     }
 }
