@@ -900,7 +900,7 @@ mod tests {
             &opts,
         );
         let e = some.rmse_vs_reference.expect("two frames compared");
-        assert!((e - rmse(&grey, &vec![0u8; 8]) / 2.0).abs() < 1e-9, "{e}");
+        assert!((e - rmse(&grey, &[0u8; 8]) / 2.0).abs() < 1e-9, "{e}");
         summary.rmse_frames = vec![1, 2];
         summary.algorithms = vec![("incremental".into(), some)];
         assert!(summary.table().contains(&format!("{e:.4}")));
