@@ -451,6 +451,12 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         check_algorithm(alg, &params)?;
     }
     let algorithms = culling::with_latency_names(&a.algorithms, &a.latency)?;
+    let twice = (1..algorithms.len()).find(|&i| algorithms[..i].contains(&algorithms[i]));
+    if let Some(name) = twice.map(|i| &algorithms[i]) {
+        bail!(
+            "--algorithms with --latency names {name} twice (each runs once a pose: name it once)"
+        );
+    }
     let ctx = context(a.validation)?;
     a.chcpp.adapt_to_device(&mut params, &ctx, &a.latency);
     let cfg = WalkConfig {
@@ -946,6 +952,24 @@ fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::app::gi_run::GiSetup>
 mod tests {
     use super::ChcppParams;
     use clap::Parser;
+
+    /// An algorithm named twice (directly, or as two latency names of one mode) is refused
+    /// before any device is opened: the report would merge the two runs under one name.
+    #[test]
+    fn walk_refuses_an_algorithm_named_twice() {
+        for extra in [
+            &["--algorithms", "chcpp,vfc,chcpp"][..],
+            &["--algorithms", "chcpp", "--latency", "predicated,predicated-k1"],
+        ] {
+            let mut argv = vec!["coherent", "walk", "--scene", "city"];
+            argv.extend_from_slice(extra);
+            let crate::Command::Walk(w) = crate::Cli::try_parse_from(argv).unwrap().command else {
+                unreachable!()
+            };
+            let e = super::walk(&w).expect_err("named twice").to_string();
+            assert!(e.contains("twice"), "{e}");
+        }
+    }
 
     /// On a GPU the predicated mode keeps one predicate level unless `--refine-levels` says
     /// otherwise, and queries with tight bounds; every other parameter is the user's.
