@@ -959,7 +959,12 @@ mod tests {
     fn walk_refuses_an_algorithm_named_twice() {
         for extra in [
             &["--algorithms", "chcpp,vfc,chcpp"][..],
-            &["--algorithms", "chcpp", "--latency", "predicated,predicated-k1"],
+            &[
+                "--algorithms",
+                "chcpp",
+                "--latency",
+                "predicated,predicated-k1",
+            ],
         ] {
             let mut argv = vec!["coherent", "walk", "--scene", "city"];
             argv.extend_from_slice(extra);
