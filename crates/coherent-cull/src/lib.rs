@@ -618,8 +618,9 @@ pub struct CullStats {
     pub query_culled: u32,
 }
 
-/// A culling algorithm with its temporal state.
-pub trait Culler {
+/// A culling algorithm with its temporal state. Every culler is `Send`, so one made by name
+/// ([`create_named`]) can move to the thread that records the host's frames.
+pub trait Culler: Send {
     /// Name used on the command line and in reports.
     fn name(&self) -> &str;
     /// Whether the renderer must compute the exact visible set before the frame (oracle).

@@ -60,6 +60,42 @@ fn vfc_draws_exactly_the_objects_in_the_frustum() {
     assert!(culled_some, "the walk leaves objects outside the frustum");
 }
 
+/// A culler made by name is `Send`: a host that picks the algorithm from its settings moves it
+/// to the thread that records its frames, where it stays exact.
+#[test]
+fn cullers_made_by_name_move_to_another_thread() {
+    let bvh = std::sync::Arc::new(ObjectBvh::build(&random_boxes(300, 7), 2));
+    let setup = coherent_cull::CullerSetup::default();
+    for name in [
+        "chcpp",
+        "chcpp@predicated",
+        "chcpp@next-frame-k2",
+        "stop-and-wait",
+    ] {
+        let mut culler = coherent_cull::create_named(name, &setup).unwrap();
+        let bvh = std::sync::Arc::clone(&bvh);
+        let lost = std::thread::spawn(move || {
+            let mut backend = MockBackend::new(|_| 0).with_frames_in_flight(2);
+            let mut lost = Vec::new();
+            for f in 1..=FRAMES {
+                let cam = walk(f);
+                let fog = Fog::new(&cam, 40.0);
+                let want = fog.visible_objects(&bvh);
+                backend.set_visibility(move |b| fog.pixels(b));
+                let fr = run(culler.as_mut(), &bvh, &cam, &mut backend, f);
+                lost.extend(missing(&want, &fr.drawn));
+            }
+            (culler.name().to_string(), lost)
+        })
+        .join()
+        .expect("the culler's thread");
+        // Next-frame modes draw late by design; the exact ones miss nothing.
+        if !name.contains("next-frame") {
+            assert!(lost.1.is_empty(), "{}: missed {:?}", lost.0, lost.1);
+        }
+    }
+}
+
 #[test]
 fn stop_and_wait_draws_the_visible_objects_and_only_those() {
     let bvh = ObjectBvh::build(&random_boxes(400, 2), 1);
