@@ -70,10 +70,11 @@ fn depth_at(cam: &Camera, d: f32) -> f32 {
     p.z / p.w
 }
 
-/// Runs `frames` frames of chcpp@next-frame-k2 through a QueryBackend; the depth pass draws
+/// Runs `frames` frames of chcpp in next-frame mode with `k` frames in flight through a
+/// QueryBackend (one command pool, command buffer and fence per slot); the depth pass draws
 /// nothing but is cleared to the depth of a wall `wall` units away, so boxes behind it are
 /// hidden. Returns the objects drawn in each frame and the backend's counts of the last frame.
-fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCounts) {
+fn run_frames(frames: u64, wall: f32, k: u32) -> (Vec<Vec<u32>>, coherent_ash::QueryCounts) {
     let (ctx, log) = common::context();
     let result;
     {
@@ -81,7 +82,7 @@ fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCoun
         let d = &ctx.device;
         let depth = depth_image(&ctx);
         let desc = QueryBackendDesc {
-            frames_in_flight: 2,
+            frames_in_flight: k,
             depth_format: vk::Format::D32_SFLOAT,
             depth: DepthConvention::STANDARD,
             max_queries: 256,
@@ -96,7 +97,7 @@ fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCoun
         // SAFETY: valid device; everything below is destroyed before the block ends.
         // One command pool per slot, reset whole when the slot is reused.
         let (pools, cmds, fences) = unsafe {
-            let pools: Vec<vk::CommandPool> = (0..2)
+            let pools: Vec<vk::CommandPool> = (0..k)
                 .map(|_| {
                     d.create_command_pool(
                         &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
@@ -116,7 +117,7 @@ fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCoun
                     .expect("command buffer")[0]
                 })
                 .collect();
-            let fences: Vec<vk::Fence> = (0..2)
+            let fences: Vec<vk::Fence> = (0..k)
                 .map(|_| {
                     d.create_fence(
                         &vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED),
@@ -129,13 +130,13 @@ fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCoun
         };
         let mut culler = Chcpp::new(ChcppParams::default())
             .with_latency(Latency::NextFrame)
-            .with_frames_in_flight(2);
+            .with_frames_in_flight(k);
         let clear = depth_at(&cam, wall);
         let view: CameraView = (&cam).into();
         let view_proj = view.view_proj.to_cols_array();
         let mut drawn = Vec::new();
         for frame in 0..frames {
-            let slot = (frame % 2) as usize;
+            let slot = (frame % u64::from(k)) as usize;
             let cmd = cmds[slot];
             let mut objects: Vec<u32> = Vec::new();
             // SAFETY: the slot's fence is waited for before its command buffer and queries are
@@ -204,7 +205,7 @@ fn run_frames(frames: u64, wall: f32) -> (Vec<Vec<u32>>, coherent_ash::QueryCoun
 /// edge-on side faces of a box straight ahead have a steep slope.
 #[test]
 fn query_backend_culls_what_the_depth_hides_two_frames_late() {
-    let (drawn, counts) = run_frames(12, 10.5);
+    let (drawn, counts) = run_frames(12, 10.5, 2);
     let last = drawn.last().expect("frames");
     assert!(
         [0, 1, 2].iter().all(|o| last.contains(o)),
@@ -223,10 +224,31 @@ fn query_backend_culls_what_the_depth_hides_two_frames_late() {
     assert!(counts.pipeline_binds <= counts.queries, "{counts:?}");
 }
 
+/// Three frames in flight (triple buffering): results are read three frames late, and the
+/// culler ends where it does with two.
+#[test]
+fn query_backend_with_three_frames_in_flight_reads_three_frames_late() {
+    let (drawn, counts) = run_frames(14, 10.5, 3);
+    assert!(drawn[..3].iter().all(|d| d.is_empty()), "{drawn:?}");
+    assert!(
+        !drawn[3].is_empty(),
+        "nothing drawn once results came back: {drawn:?}"
+    );
+    let last = drawn.last().expect("frames");
+    assert!([0, 1, 2].iter().all(|o| last.contains(o)), "{drawn:?}");
+    assert!(last.iter().all(|&o| o <= 3), "{drawn:?}");
+    assert_eq!(
+        drawn.last(),
+        run_frames(14, 10.5, 2).0.last(),
+        "k = 3 against k = 2"
+    );
+    assert!(counts.results_read > 0, "{counts:?}");
+}
+
 /// Without the wall every box is seen, and every one ends up drawn.
 #[test]
 fn query_backend_draws_everything_that_is_visible() {
-    let (drawn, _) = run_frames(10, 1000.0);
+    let (drawn, _) = run_frames(10, 1000.0, 2);
     assert_eq!(
         drawn.last().expect("frames"),
         &(0..16).collect::<Vec<u32>>(),
