@@ -348,6 +348,11 @@ pub fn info() -> Result<()> {
         i.optional.fragment_stores
     );
     println!(
+        "predicated:      VK_EXT_conditional_rendering (conditionalRendering) {} (the \
+         predicated latency mode needs it)",
+        i.optional.conditional_rendering
+    );
+    println!(
         "features used:   {} (all present)",
         coherent::gpu::context::REQUIRED_FEATURES.join(", ")
     );
