@@ -9,8 +9,7 @@ use std::sync::Arc;
 
 use coherent_cull::camera::{Camera, CameraPose, CameraView};
 use coherent_cull::chcpp::{Chcpp, ChcppParams};
-use coherent_cull::glam::Mat4;
-use coherent_cull::glam::Vec3;
+use coherent_cull::glam::{Mat4, Vec3};
 use coherent_cull::pvs::{Pvs, ViewCell};
 use coherent_cull::testing::{Completion, MockBackend, MockEvent};
 use coherent_cull::{
@@ -1088,12 +1087,7 @@ fn bad_boxes_and_bad_views_neither_panic_nor_break_the_frames_after() {
     // Every algorithm of the factory but the two that need more than parameters (nohc above;
     // pvs needs a scene's sets).
     for &name in ALGORITHMS.iter().filter(|&&n| n != "nohc" && n != "pvs") {
-        for latency in [
-            Latency::InFrame,
-            Latency::NextFrame,
-            Latency::NextFrameConservative,
-            Latency::Predicated,
-        ] {
+        for latency in Latency::ALL {
             if let Ok(c) = create_latency(name, &ChcppParams::default(), latency) {
                 cullers.push((name, latency, c));
             }
