@@ -64,6 +64,13 @@ impl ObjectBvh {
     /// Builds the hierarchy over `bounds` (one per object; object `i` gets id `i`) with at most
     /// `leaf_size` objects per leaf (a leaf takes several only where the SAH says splitting
     /// them does not pay). An empty input gives a root leaf with no objects.
+    ///
+    /// A box that is not a box (a NaN or infinite corner, or `min` above `max` on an axis,
+    /// [`Aabb::is_valid`] false) stands for a point at the origin, here and in
+    /// [`ObjectBvh::set_bounds`] and [`ObjectBvh::insert`]: nothing panics and the hierarchy
+    /// stays finite, but such an object is drawn only when that point is seen. Keep objects
+    /// that have no bounds (a sky, an endless ground plane) out of the hierarchy and draw them
+    /// yourself every frame.
     pub fn build(bounds: &[Aabb], leaf_size: u32) -> ObjectBvh {
         let object_bounds: Vec<Aabb> = bounds.iter().map(bounds_or_point).collect();
         let ids: Vec<u32> = (0..bounds.len() as u32).collect();
@@ -501,7 +508,8 @@ impl ObjectBvh {
 
     /// Sets an object's world bounds (it moved); the next [`ObjectBvh::update`] refits.
     /// `bounds`: an [`Aabb`] or plain arrays `[min, max]` (see [`Aabb::from_min_max`] for
-    /// `mint` points).
+    /// `mint` points); a box that is not valid stands for a point at the origin (see
+    /// [`ObjectBvh::build`]).
     pub fn set_bounds(&mut self, object: u32, bounds: impl Into<Aabb>) -> Result<()> {
         let bounds: Aabb = bounds.into();
         let leaf = self.leaf_of(object)?;
@@ -906,6 +914,32 @@ mod tests {
 
     fn unit_box(p: Vec3) -> Aabb {
         Aabb::new(p, p + Vec3::ONE)
+    }
+
+    /// A box that is not valid stands for a point at the origin in build, set_bounds and
+    /// insert, as the docs of `build` say; the hierarchy stays finite.
+    #[test]
+    fn boxes_that_are_not_valid_stand_for_a_point_at_the_origin() {
+        let origin = Aabb::new(Vec3::ZERO, Vec3::ZERO);
+        let bad = [
+            Aabb::new(Vec3::splat(f32::NAN), Vec3::ONE),
+            Aabb::new(Vec3::splat(f32::NEG_INFINITY), Vec3::splat(f32::INFINITY)),
+            Aabb::new(Vec3::splat(2.0), Vec3::ONE),
+        ];
+        let mut boxes = vec![unit_box(Vec3::splat(10.0))];
+        boxes.extend(bad);
+        let mut bvh = ObjectBvh::build(&boxes, 1);
+        for o in 1..4 {
+            assert_eq!(bvh.object_bounds(o), Some(origin), "object {o}");
+        }
+        bvh.set_bounds(0, bad[0]).unwrap();
+        let id = bvh.insert(bad[2]);
+        bvh.update();
+        assert_eq!(bvh.object_bounds(0), Some(origin));
+        assert_eq!(bvh.object_bounds(id), Some(origin));
+        bvh.validate().unwrap();
+        let root = &bvh.nodes[0].bounds;
+        assert!(root.is_valid(), "root {root:?}");
     }
 
     /// `n` unit boxes on a jittered grid.
