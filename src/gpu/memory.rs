@@ -175,8 +175,30 @@ impl Image {
         ctx: &Arc<GpuContext>,
         name: &str,
         format: vk::Format,
+        size: (u32, u32),
+        layers: u32,
+        usage: vk::ImageUsageFlags,
+    ) -> Result<Image> {
+        Image::new_multisampled(
+            ctx,
+            name,
+            format,
+            size,
+            layers,
+            vk::SampleCountFlags::TYPE_1,
+            usage,
+        )
+    }
+
+    /// [`Image::new`] with `samples` per texel (an attachment for multisampled rendering);
+    /// the caller checks that the device supports the count for the format and usage.
+    pub fn new_multisampled(
+        ctx: &Arc<GpuContext>,
+        name: &str,
+        format: vk::Format,
         (width, height): (u32, u32),
         layers: u32,
+        samples: vk::SampleCountFlags,
         usage: vk::ImageUsageFlags,
     ) -> Result<Image> {
         let extent = vk::Extent2D { width, height };
@@ -201,7 +223,7 @@ impl Image {
             })
             .mip_levels(1)
             .array_layers(layers)
-            .samples(vk::SampleCountFlags::TYPE_1)
+            .samples(samples)
             .tiling(vk::ImageTiling::OPTIMAL)
             .usage(usage)
             .sharing_mode(vk::SharingMode::EXCLUSIVE)

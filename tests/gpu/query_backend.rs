@@ -1,9 +1,10 @@
 //! coherent-ash's `QueryBackend` on a real device under strict validation (core,
 //! synchronization, best practices): a culler in next-frame mode with two frames in flight,
 //! queries recorded into a host command buffer inside a depth pass, results copied and read two
-//! frames later; its building blocks (`QuerySet`, `BoxPipeline`) on their own, growing and
-//! copying across pools; and the shipped SPIR-V of its box shader equals what the workspace's
-//! GLSL compiles to.
+//! frames later, also with 4 samples and with two views in one command buffer; the sample
+//! counts and view masks it refuses; its building blocks (`QuerySet`, `BoxPipeline`) on their
+//! own, growing and copying across pools; and the shipped SPIR-V of its box shader equals what
+//! the workspace's GLSL compiles to.
 
 use ash::vk;
 use coherent::gpu::memory::Image;
@@ -51,14 +52,18 @@ fn row() -> (ObjectBvh, Camera) {
     (bvh, Camera::from_pose(pose, 1.0, 100.0))
 }
 
-/// A `W`x`H` D32 depth attachment.
-fn depth_image(ctx: &std::sync::Arc<coherent::gpu::GpuContext>) -> Image {
-    Image::new(
+/// A `W`x`H` D32 depth attachment with `samples` samples.
+fn depth_image(
+    ctx: &std::sync::Arc<coherent::gpu::GpuContext>,
+    samples: vk::SampleCountFlags,
+) -> Image {
+    Image::new_multisampled(
         ctx,
         "query test depth",
         vk::Format::D32_SFLOAT,
         (W, H),
         1,
+        samples,
         vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
     )
     .expect("depth image")
@@ -70,30 +75,63 @@ fn depth_at(cam: &Camera, d: f32) -> f32 {
     p.z / p.w
 }
 
+/// One view of a host frame in [`run_views`]: its own depth pass, cleared to the depth of a
+/// wall `wall` units away (boxes behind it are hidden), with `samples` samples, and its own
+/// `QueryBackend` and culler.
+#[derive(Clone, Copy)]
+struct ViewSetup {
+    wall: f32,
+    samples: vk::SampleCountFlags,
+}
+
 /// Runs `frames` frames of chcpp in next-frame mode with `k` frames in flight through a
 /// QueryBackend (one command pool, command buffer and fence per slot); the depth pass draws
 /// nothing but is cleared to the depth of a wall `wall` units away, so boxes behind it are
 /// hidden. Returns the objects drawn in each frame and the backend's counts of the last frame.
 fn run_frames(frames: u64, wall: f32, k: u32) -> (Vec<Vec<u32>>, coherent_ash::QueryCounts) {
+    let view = ViewSetup {
+        wall,
+        samples: vk::SampleCountFlags::TYPE_1,
+    };
+    let (mut drawn, mut counts) = run_views(frames, k, &[view]);
+    (drawn.remove(0), counts.remove(0))
+}
+
+/// [`run_frames`] with several views in each host frame, as a host that culls a second camera
+/// (a mirror, a split screen) in the same command buffer: each view has its own backend and
+/// culler, every backend's frame begins before the first depth pass and ends after the last.
+/// Returns, per view, the objects drawn in each frame and the counts of the last frame.
+fn run_views(
+    frames: u64,
+    k: u32,
+    views: &[ViewSetup],
+) -> (Vec<Vec<Vec<u32>>>, Vec<coherent_ash::QueryCounts>) {
     let (ctx, log) = common::context();
     let result;
     {
         let (bvh, cam) = row();
         let d = &ctx.device;
-        let depth = depth_image(&ctx);
-        let desc = QueryBackendDesc {
-            frames_in_flight: k,
-            depth_format: vk::Format::D32_SFLOAT,
-            depth: DepthConvention::STANDARD,
-            max_queries: 256,
-            max_boxes: 1024,
-            ..QueryBackendDesc::default()
-        };
-        // SAFETY: the context's device has dynamic rendering and precise queries, and outlives
-        // the backend (dropped at the end of this block after the device went idle).
-        let mut queries = unsafe {
-            QueryBackend::new(&ctx.instance, ctx.physical_device, d, desc).expect("backend")
-        };
+        let depths: Vec<Image> = views.iter().map(|v| depth_image(&ctx, v.samples)).collect();
+        let mut backends: Vec<QueryBackend> = views
+            .iter()
+            .map(|v| {
+                let desc = QueryBackendDesc {
+                    frames_in_flight: k,
+                    depth_format: vk::Format::D32_SFLOAT,
+                    samples: v.samples,
+                    depth: DepthConvention::STANDARD,
+                    max_queries: 256,
+                    max_boxes: 1024,
+                    ..QueryBackendDesc::default()
+                };
+                // SAFETY: the context's device has dynamic rendering and precise queries, and
+                // outlives the backend (dropped at the end of this block after the device went
+                // idle).
+                unsafe {
+                    QueryBackend::new(&ctx.instance, ctx.physical_device, d, desc).expect("backend")
+                }
+            })
+            .collect();
         // SAFETY: valid device; everything below is destroyed before the block ends.
         // One command pool per slot, reset whole when the slot is reused.
         let (pools, cmds, fences) = unsafe {
@@ -128,17 +166,20 @@ fn run_frames(frames: u64, wall: f32, k: u32) -> (Vec<Vec<u32>>, coherent_ash::Q
                 .collect();
             (pools, cmds, fences)
         };
-        let mut culler = Chcpp::new(ChcppParams::default())
-            .with_latency(Latency::NextFrame)
-            .with_frames_in_flight(k);
-        let clear = depth_at(&cam, wall);
+        let mut cullers: Vec<Chcpp> = views
+            .iter()
+            .map(|_| {
+                Chcpp::new(ChcppParams::default())
+                    .with_latency(Latency::NextFrame)
+                    .with_frames_in_flight(k)
+            })
+            .collect();
         let view: CameraView = (&cam).into();
         let view_proj = view.view_proj.to_cols_array();
-        let mut drawn = Vec::new();
+        let mut drawn: Vec<Vec<Vec<u32>>> = vec![Vec::new(); views.len()];
         for frame in 0..frames {
             let slot = (frame % u64::from(k)) as usize;
             let cmd = cmds[slot];
-            let mut objects: Vec<u32> = Vec::new();
             // SAFETY: the slot's fence is waited for before its command buffer and queries are
             // reused; recording follows the backend's contract (begin outside rendering, frame
             // inside, end outside).
@@ -148,27 +189,40 @@ fn run_frames(frames: u64, wall: f32, k: u32) -> (Vec<Vec<u32>>, coherent_ash::Q
                 d.reset_fences(&[fences[slot]]).expect("reset fence");
                 d.reset_command_pool(pools[slot], vk::CommandPoolResetFlags::empty())
                     .expect("reset");
-                begin_depth_pass(d, cmd, &depth, clear, |cmd| {
-                    queries.begin_frame(cmd, slot as u32).expect("begin_frame")
-                });
+                d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+                    .expect("begin");
+                for queries in &mut backends {
+                    queries.begin_frame(cmd, slot as u32).expect("begin_frame");
+                }
             }
-            let input = FrameInput {
-                bvh: &bvh,
-                view,
-                frame,
-                exact_visible: None,
-            };
-            let draw = |_: vk::CommandBuffer, o: &[u32], _rebind: bool| {
-                objects.extend_from_slice(o);
-                Ok(())
-            };
-            culler
-                .cull_frame(&input, &mut queries.frame(cmd, view_proj, draw))
-                .expect("cull_frame");
+            for (i, setup) in views.iter().enumerate() {
+                let mut objects: Vec<u32> = Vec::new();
+                // SAFETY: as above; the depth image belongs to the device.
+                unsafe { depth_pass(d, cmd, &depths[i], depth_at(&cam, setup.wall)) };
+                let input = FrameInput {
+                    bvh: &bvh,
+                    view,
+                    frame,
+                    exact_visible: None,
+                };
+                let draw = |_: vk::CommandBuffer, o: &[u32], _rebind: bool| {
+                    objects.extend_from_slice(o);
+                    Ok(())
+                };
+                cullers[i]
+                    .cull_frame(&input, &mut backends[i].frame(cmd, view_proj, draw))
+                    .expect("cull_frame");
+                // SAFETY: inside the rendering begun above.
+                unsafe { d.cmd_end_rendering(cmd) };
+                objects.sort_unstable();
+                objects.dedup();
+                drawn[i].push(objects);
+            }
             // SAFETY: as above.
             unsafe {
-                d.cmd_end_rendering(cmd);
-                queries.end_frame(cmd).expect("end_frame");
+                for queries in &mut backends {
+                    queries.end_frame(cmd).expect("end_frame");
+                }
                 d.end_command_buffer(cmd).expect("end");
                 d.queue_submit(
                     ctx.queue,
@@ -177,15 +231,12 @@ fn run_frames(frames: u64, wall: f32, k: u32) -> (Vec<Vec<u32>>, coherent_ash::Q
                 )
                 .expect("submit");
             }
-            objects.sort_unstable();
-            objects.dedup();
-            drawn.push(objects);
         }
-        result = (drawn, queries.counts());
+        result = (drawn, backends.iter().map(|b| b.counts()).collect());
         // SAFETY: the device is idle before anything is destroyed.
         unsafe {
             d.device_wait_idle().expect("idle");
-            drop(queries);
+            drop(backends);
             for f in fences {
                 d.destroy_fence(f, None);
             }
@@ -256,6 +307,128 @@ fn query_backend_draws_everything_that_is_visible() {
     );
 }
 
+/// Two views in one host frame, each with its own backend and culler (a wall close in front of
+/// the first, none in front of the second): their queries share a command buffer and their
+/// results stay apart. Each view ends where it ends alone.
+#[test]
+fn query_backend_keeps_two_views_of_one_frame_apart() {
+    let one = vk::SampleCountFlags::TYPE_1;
+    let views = [
+        ViewSetup {
+            wall: 10.5,
+            samples: one,
+        },
+        ViewSetup {
+            wall: 1000.0,
+            samples: one,
+        },
+    ];
+    let (drawn, counts) = run_views(12, 2, &views);
+    let walled = drawn[0].last().expect("frames");
+    assert!([0, 1, 2].iter().all(|o| walled.contains(o)), "{drawn:?}");
+    assert!(walled.iter().all(|&o| o <= 3), "{drawn:?}");
+    assert_eq!(
+        drawn[1].last().expect("frames"),
+        &(0..16).collect::<Vec<u32>>(),
+        "{drawn:?}"
+    );
+    assert_eq!(Some(walled), run_frames(12, 10.5, 2).0.last());
+    // (In the last frame only the walled view has hidden boxes left to query.)
+    assert!(
+        counts[0].queries > 0 && counts[0].results_read > 0,
+        "{counts:?}"
+    );
+}
+
+/// With 4 samples (every device has them on depth attachments) the box pipeline and the
+/// queries run under strict validation and cull what the depth hides. Behind the wall they may
+/// keep one box more drawn than with one sample: the box pipeline's conservative depth bias
+/// (above) on the edge-on side faces meets more sample positions. Without the wall every box
+/// is drawn, as with one sample.
+#[test]
+fn query_backend_with_four_samples_culls_what_the_depth_hides() {
+    let four = |wall| {
+        let (drawn, counts) = run_views(
+            12,
+            2,
+            &[ViewSetup {
+                wall,
+                samples: vk::SampleCountFlags::TYPE_4,
+            }],
+        );
+        (drawn.into_iter().next().expect("one view"), counts[0])
+    };
+    let (drawn, counts) = four(10.5);
+    assert!(counts.results_read > 0, "{counts:?}");
+    let last = drawn.last().expect("frames");
+    assert!([0, 1, 2].iter().all(|o| last.contains(o)), "{drawn:?}");
+    assert!(last.iter().all(|&o| o <= 4), "{drawn:?}");
+    let (drawn, _) = four(1000.0);
+    assert_eq!(
+        drawn.last().expect("frames"),
+        &(0..16).collect::<Vec<u32>>(),
+        "{drawn:?}"
+    );
+}
+
+/// A sample count that is not one count, or that the device cannot render depth with, and a
+/// view mask beyond the device's views are refused by `QueryBackend::new` with errors that
+/// name them, before any pipeline is made.
+#[test]
+fn query_backend_refuses_samples_and_views_the_device_lacks() {
+    let (ctx, log) = common::context();
+    let make = |samples: vk::SampleCountFlags, view_mask: u32| {
+        let desc = QueryBackendDesc {
+            depth_format: vk::Format::D32_SFLOAT,
+            samples,
+            view_mask,
+            ..QueryBackendDesc::default()
+        };
+        // SAFETY: the context's handles belong together; a backend made is dropped at once.
+        unsafe { QueryBackend::new(&ctx.instance, ctx.physical_device, &ctx.device, desc) }
+            .err()
+            .map(|e| e.to_string())
+    };
+    let two = make(
+        vk::SampleCountFlags::TYPE_1 | vk::SampleCountFlags::TYPE_4,
+        0,
+    );
+    assert!(
+        two.as_deref()
+            .is_some_and(|e| e.contains("exactly one sample count")),
+        "{two:?}"
+    );
+    assert!(make(vk::SampleCountFlags::empty(), 0).is_some());
+    // SAFETY: the context's handles.
+    let limits = unsafe {
+        ctx.instance
+            .get_physical_device_properties(ctx.physical_device)
+    }
+    .limits;
+    let lacking = [2u32, 8, 16, 32, 64]
+        .map(vk::SampleCountFlags::from_raw)
+        .into_iter()
+        .find(|&s| !limits.framebuffer_depth_sample_counts.contains(s));
+    if let Some(s) = lacking {
+        let e = make(s, 0);
+        assert!(
+            e.as_deref()
+                .is_some_and(|e| e.contains("framebufferDepthSampleCounts")),
+            "{s:?}: {e:?}"
+        );
+    }
+    let views = make(vk::SampleCountFlags::TYPE_1, 1 << 31);
+    assert!(
+        views
+            .as_deref()
+            .is_some_and(|e| e.contains("multiview") || e.contains("maxMultiviewViewCount")),
+        "{views:?}"
+    );
+    assert_eq!(make(vk::SampleCountFlags::TYPE_1, 0), None);
+    assert_eq!(make(vk::SampleCountFlags::TYPE_4, 0), None);
+    common::assert_silent(&log);
+}
+
 /// Begins `cmd`, records what `before` records outside rendering (a query reset), and begins a
 /// depth-only rendering into `depth` (cleared to `clear`, after the writes of earlier frames),
 /// viewport and scissor set; returns what `before` returned.
@@ -270,6 +443,22 @@ unsafe fn begin_depth_pass<T>(
     clear: f32,
     before: impl FnOnce(vk::CommandBuffer) -> T,
 ) -> T {
+    // SAFETY: per the caller.
+    unsafe {
+        d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+            .expect("begin");
+        let out = before(cmd);
+        depth_pass(d, cmd, depth, clear);
+        out
+    }
+}
+
+/// Records into `cmd` (recording, outside rendering) a depth-only rendering into `depth`
+/// (cleared to `clear`, after the writes of earlier frames), viewport and scissor set.
+///
+/// # Safety
+/// `cmd` is recording outside rendering; `depth` is a `W`x`H` depth attachment of its device.
+unsafe fn depth_pass(d: &ash::Device, cmd: vk::CommandBuffer, depth: &Image, clear: f32) {
     let range = vk::ImageSubresourceRange::default()
         .aspect_mask(vk::ImageAspectFlags::DEPTH)
         .level_count(1)
@@ -305,9 +494,6 @@ unsafe fn begin_depth_pass<T>(
     };
     // SAFETY: per the caller.
     unsafe {
-        d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
-            .expect("begin");
-        let out = before(cmd);
         d.cmd_pipeline_barrier2(
             cmd,
             &vk::DependencyInfo::default().image_memory_barriers(&[to_attachment]),
@@ -332,7 +518,6 @@ unsafe fn begin_depth_pass<T>(
             }],
         );
         d.cmd_set_scissor(cmd, 0, &[extent.into()]);
-        out
     }
 }
 
@@ -373,7 +558,7 @@ fn query_set_grows_copies_across_pools_and_refuses_clearly() {
         let boxes: Vec<Aabb> = (0..16)
             .map(|o| bvh.object_bounds(o).expect("object"))
             .collect();
-        let depth = depth_image(&ctx);
+        let depth = depth_image(&ctx, vk::SampleCountFlags::TYPE_1);
         let view: CameraView = (&cam).into();
         let view_proj = view.view_proj.to_cols_array();
         let growing = QuerySetDesc {

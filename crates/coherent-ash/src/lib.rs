@@ -111,12 +111,22 @@
 //!   layout or on the host's ([`BoxPipelineDesc::layout`], sharing the host's push block), with
 //!   back faces culled when the host says how its viewport winds them.
 //!
+//! ## Several views, multisampling
+//!
+//! A host that culls more than one camera in a frame (a mirror, a split screen, a shadow
+//! view) makes one [`QueryBackend`] and one culler per view: each backend has its own query
+//! pools, result memory and box pipeline, so the views' queries can share a command buffer
+//! without their results mixing. Begin every backend's frame before the first rendering and
+//! end them after the last. With multisampled attachments set [`QueryBackendDesc::samples`]:
+//! the queries then count samples, not pixels.
+//!
 //! ## Requirements
 //!
 //! Vulkan 1.3 (or 1.2 with `VK_KHR_dynamic_rendering`) with `dynamicRendering` enabled, and
 //! `occlusionQueryPrecise` enabled on the device ([`QueryBackend::new`] checks that the
 //! physical device has it and says so if not). The host's rendering must match the formats,
-//! samples and view mask of [`QueryBackendDesc`], and set viewport and scissor dynamically.
+//! samples and view mask of [`QueryBackendDesc`] (the device must support them there, which
+//! [`QueryBackend::new`] checks), and set viewport and scissor dynamically.
 //!
 //! ## Lifetime
 //!
@@ -157,9 +167,14 @@ pub struct QueryBackendDesc {
     pub depth_format: vk::Format,
     /// Color attachment formats of the host's depth pass (the box pipeline writes none).
     pub color_formats: Vec<vk::Format>,
-    /// Rasterization samples of the host's attachments.
+    /// Rasterization samples of the host's attachments: one count, which the device must
+    /// support on them ([`QueryBackend::new`] checks `framebufferDepthSampleCounts` and, with
+    /// color formats, `framebufferColorSampleCounts`). With several samples a query counts
+    /// samples, not pixels: a culler's pixel threshold (`ChcppParams::pixel_threshold`, 0 by
+    /// default) is then in samples.
     pub samples: vk::SampleCountFlags,
-    /// View mask of the host's rendering (0 without multiview).
+    /// View mask of the host's rendering (0 without multiview; otherwise the device must have
+    /// `multiview` and enough views, which [`QueryBackend::new`] checks).
     pub view_mask: u32,
     /// The host's depth convention: which depth compare and bias face the eye.
     pub depth: DepthConvention,
@@ -342,6 +357,8 @@ impl QueryBackend {
                 feature: "occlusionQueryPrecise (precise occlusion queries)".into(),
             });
         }
+        // SAFETY: as above.
+        unsafe { check_device_limits(instance, physical_device, &desc)? };
         // (Without VK_EXT_conditional_rendering, QuerySet::new refuses `predicates`.)
         let pipeline_desc = BoxPipelineDesc {
             depth_format: desc.depth_format,
@@ -787,6 +804,71 @@ unsafe fn has_conditional_rendering(
     // SAFETY: per the caller; the chain outlives the call.
     unsafe { instance.get_physical_device_features2(physical_device, &mut f2) };
     cr.conditional_rendering != 0
+}
+
+/// Checks the sample count and view mask of `desc` against what the physical device can
+/// render: a box pipeline the device cannot use would be undefined behaviour, not an error.
+///
+/// # Safety
+/// `physical_device` belongs to `instance`.
+unsafe fn check_device_limits(
+    instance: &ash::Instance,
+    physical_device: vk::PhysicalDevice,
+    desc: &QueryBackendDesc,
+) -> Result<()> {
+    let samples = desc.samples;
+    if samples.as_raw().count_ones() != 1 {
+        return Err(Error::Input(format!(
+            "samples {samples:?}: name exactly one sample count"
+        )));
+    }
+    // SAFETY: per the caller.
+    let limits = unsafe { instance.get_physical_device_properties(physical_device) }.limits;
+    if desc.depth_format != vk::Format::UNDEFINED
+        && !limits.framebuffer_depth_sample_counts.contains(samples)
+    {
+        return Err(Error::Unsupported {
+            feature: format!(
+                "{samples:?} samples on a depth attachment (framebufferDepthSampleCounts: {:?})",
+                limits.framebuffer_depth_sample_counts
+            ),
+        });
+    }
+    if !desc.color_formats.is_empty() && !limits.framebuffer_color_sample_counts.contains(samples) {
+        return Err(Error::Unsupported {
+            feature: format!(
+                "{samples:?} samples on a color attachment (framebufferColorSampleCounts: {:?})",
+                limits.framebuffer_color_sample_counts
+            ),
+        });
+    }
+    if desc.view_mask != 0 {
+        let mut features = vk::PhysicalDeviceMultiviewFeatures::default();
+        let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut features);
+        // SAFETY: per the caller; the chain outlives the call.
+        unsafe { instance.get_physical_device_features2(physical_device, &mut f2) };
+        if features.multiview == vk::FALSE {
+            return Err(Error::Unsupported {
+                feature: format!("multiview (view_mask {:#x})", desc.view_mask),
+            });
+        }
+        let mut props = vk::PhysicalDeviceMultiviewProperties::default();
+        let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut props);
+        // SAFETY: per the caller; the chain outlives the call.
+        unsafe { instance.get_physical_device_properties2(physical_device, &mut p2) };
+        let views = 32 - desc.view_mask.leading_zeros();
+        if views > props.max_multiview_view_count {
+            return Err(Error::Unsupported {
+                feature: format!(
+                    "view {} of view_mask {:#x} (maxMultiviewViewCount: {})",
+                    views - 1,
+                    desc.view_mask,
+                    props.max_multiview_view_count
+                ),
+            });
+        }
+    }
+    Ok(())
 }
 
 fn check_desc(desc: &QueryBackendDesc) -> Result<()> {
