@@ -726,23 +726,37 @@ impl Drop for Engine {
     }
 }
 
-fn frames_arg() -> Result<usize> {
-    let args: Vec<String> = std::env::args().collect();
-    match args.iter().position(|a| a == "--frames") {
-        Some(i) => args
-            .get(i + 1)
-            .context("--frames needs a number")?
-            .parse()
-            .context("--frames needs a number"),
-        None => Ok(24),
+const USAGE: &str = "usage: engine [--frames N]  (frames of the street walk, 24 by default)";
+
+/// The frame count from the command line; `None` where the user asked for help.
+fn frames_arg() -> Result<Option<usize>> {
+    let mut frames = 24;
+    let mut args = std::env::args().skip(1);
+    while let Some(arg) = args.next() {
+        match arg.as_str() {
+            "--frames" => {
+                frames = args
+                    .next()
+                    .and_then(|n| n.parse().ok())
+                    .context("--frames needs a number")?
+            }
+            "--help" | "-h" => {
+                println!("{USAGE}");
+                return Ok(None);
+            }
+            other => bail!("unknown argument {other:?}; {USAGE}"),
+        }
     }
+    Ok(Some(frames))
 }
 
 // ---------------------------------------------------------------------------------------------
 // The engine's main loop: load, create, run frames, report.
 
 fn main() -> Result<()> {
-    let frames = frames_arg()?;
+    let Some(frames) = frames_arg()? else {
+        return Ok(());
+    };
     let scene = Scene::load("city", 0.25, 4096)?;
     // The hierarchy from plain arrays: the engine's own boxes, object i = draw i.
     let boxes: Vec<[[f32; 3]; 2]> = scene.objects.iter().map(|o| o.bounds.to_arrays()).collect();
