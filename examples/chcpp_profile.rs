@@ -18,23 +18,30 @@ use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 
+#[path = "common/args.rs"]
+mod args;
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
 
 fn main() -> Result<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let scene_name = args.get(1).map(String::as_str).unwrap_or("city");
-    let path_name = args.get(2).map(String::as_str).unwrap_or("street");
-    let frames: u32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(100);
-    let (w, h) = args
-        .get(4)
-        .and_then(|s| s.split_once('x'))
-        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-        .unwrap_or((640, 360));
-    let scale: f32 = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(1.0);
-    let with_oracle = args.get(6).map(String::as_str) != Some("no-oracle");
+    const USAGE: &str =
+        "usage: chcpp_profile [scene] [path] [frames] [WxH] [scale] [no-oracle]  (city street 100 640x360 1)";
+    let Some(args) = args::args(USAGE, 6)? else {
+        return Ok(());
+    };
+    let scene_name = args.first().map(String::as_str).unwrap_or("city");
+    let path_name = args.get(1).map(String::as_str).unwrap_or("street");
+    let frames: u32 = args::number(&args, 2, "frames", 100)?;
+    let (w, h) = args::size(&args, 3, (640, 360))?;
+    let scale: f32 = args::number(&args, 4, "scale", 1.0)?;
+    let with_oracle = match args.get(5).map(String::as_str) {
+        None => true,
+        Some("no-oracle") => false,
+        Some(other) => anyhow::bail!("{other:?}: the last argument can only be no-oracle; {USAGE}"),
+    };
     let ctx = GpuContext::new(&ContextOptions::default())?;
     let scene = Scene::load(scene_name, scale, 4096)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();

@@ -12,25 +12,28 @@ use coherent::render::hiz::{HizCuller, HizParams, PASSES};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 
+#[path = "common/args.rs"]
+mod args;
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
 
 fn main() -> Result<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let scene_name = args.get(1).map(String::as_str).unwrap_or("city");
-    let frames: u32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(60);
-    let (w, h) = args
-        .get(4)
-        .and_then(|s| s.split_once('x'))
-        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-        .unwrap_or((640, 360));
+    const USAGE: &str =
+        "usage: hiz_passes [scene] [path] [frames] [WxH]  (city, its first path, 60, 640x360)";
+    let Some(args) = args::args(USAGE, 4)? else {
+        return Ok(());
+    };
+    let scene_name = args.first().map(String::as_str).unwrap_or("city");
+    let frames: u32 = args::number(&args, 2, "frames", 60)?;
+    let (w, h) = args::size(&args, 3, (640, 360))?;
     let ctx = GpuContext::new(&ContextOptions::default())?;
     let scene = Scene::load(scene_name, 1.0, 4096)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, 1);
-    let path = match args.get(2) {
+    let path = match args.get(1) {
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),
     };

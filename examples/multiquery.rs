@@ -12,6 +12,9 @@ use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 
+#[path = "common/args.rs"]
+mod args;
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     if v.is_empty() {
@@ -22,13 +25,12 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn main() -> Result<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let frames: u32 = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(300);
-    let (w, h) = args
-        .get(2)
-        .and_then(|s| s.split_once('x'))
-        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-        .unwrap_or((1280, 720));
+    const USAGE: &str = "usage: multiquery [frames] [WxH]  (300 1280x720)";
+    let Some(args) = args::args(USAGE, 2)? else {
+        return Ok(());
+    };
+    let frames: u32 = args::number(&args, 0, "frames", 300)?;
+    let (w, h) = args::size(&args, 1, (1280, 720))?;
     let ctx = GpuContext::new(&ContextOptions::default())?;
     let scene = Scene::load("parking", 1.0, 4096)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
