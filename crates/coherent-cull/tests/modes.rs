@@ -1138,3 +1138,85 @@ fn bad_boxes_and_bad_views_neither_panic_nor_break_the_frames_after() {
         }
     }
 }
+
+/// A scene that churns while results are in flight: each frame some objects move (some into
+/// view, some out), some are inserted and some removed, and every seventh frame the hierarchy is
+/// rebuilt (node ids change under queries not yet read). Every exact mode with one to three
+/// frames in flight draws every visible object in every frame, and never an object that was
+/// removed; the rebuilds do happen.
+#[test]
+fn exact_modes_stay_exact_while_the_scene_churns_under_queries_in_flight() {
+    use coherent_cull::rng::Rng;
+    let mut modes: Vec<(String, Box<dyn Culler>, u32)> = Vec::new();
+    for k in 1..=3 {
+        for name in ["chc", "chcpp"] {
+            modes.push((
+                format!("{name}@predicated k={k}"),
+                Box::new(predicated(name, k)),
+                k,
+            ));
+        }
+    }
+    for name in ["stop-and-wait", "chc", "chcpp"] {
+        modes.push((
+            format!("{name} in-frame"),
+            create(name, &ChcppParams::default()).unwrap(),
+            1,
+        ));
+    }
+    for (name, mut culler, k) in modes {
+        let mut rng = Rng::new(41);
+        let mut bvh = ObjectBvh::build(&random_boxes(500, 17), 1);
+        let mut backend = MockBackend::new(|_| 0).with_frames_in_flight(k);
+        let mut removed: Vec<u32> = Vec::new();
+        for f in 1..=60u64 {
+            let cam = walk(f);
+            if f > 3 {
+                let live = live_objects(&bvh);
+                for _ in 0..12 {
+                    let o = live[rng.below(live.len() as u32) as usize];
+                    if removed.contains(&o) {
+                        continue;
+                    }
+                    // Half of the moves land close ahead of the camera, the others anywhere.
+                    let b = if rng.below(2) == 0 {
+                        box_ahead(&cam, rng.range(6.0, 30.0))
+                    } else {
+                        random_boxes(1, rng.next_u64())[0]
+                    };
+                    bvh.set_bounds(o, b).unwrap();
+                }
+                for _ in 0..3 {
+                    let id = bvh.insert(box_ahead(&cam, rng.range(6.0, 40.0)));
+                    removed.retain(|&r| r != id);
+                }
+                for _ in 0..3 {
+                    let live = live_objects(&bvh);
+                    let o = live[rng.below(live.len() as u32) as usize];
+                    bvh.remove(o).unwrap();
+                    removed.push(o);
+                }
+                if f % 7 == 0 {
+                    bvh.rebuild();
+                } else {
+                    bvh.update();
+                }
+                bvh.validate().unwrap();
+            }
+            let fog = Fog::new(&cam, 35.0);
+            let want = fog.visible_objects(&bvh);
+            backend.set_visibility(move |b| fog.pixels(b));
+            let fr = run(culler.as_mut(), &bvh, &cam, &mut backend, f);
+            let lost = missing(&want, &fr.drawn);
+            assert!(lost.is_empty(), "{name} frame {f}: {lost:?} missed");
+            let gone: Vec<u32> = fr
+                .drawn
+                .iter()
+                .copied()
+                .filter(|o| removed.contains(o))
+                .collect();
+            assert!(gone.is_empty(), "{name} frame {f}: removed {gone:?} drawn");
+        }
+        assert!(bvh.rebuilds() >= 8, "{name}: {} rebuilds", bvh.rebuilds());
+    }
+}
