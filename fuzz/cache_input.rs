@@ -4,7 +4,7 @@
 //! `nohc`, over a small grid of boxes with a host backend. Refusing the file with a one-line
 //! error naming it is fine; a panic (or an error of another shape) is a finding.
 //!
-//! Shared by `fuzz/fuzz_targets/cache_files.rs` and `tests/fuzz_regressions.rs` (which includes
+//! Shared by `fuzz/fuzz_targets/cache_files.rs` and `tests/gpu/fuzz_regressions.rs` (which includes
 //! it with `#[path]`), so that the stable test replays exactly what the fuzzer ran.
 
 use std::path::Path;

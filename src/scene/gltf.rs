@@ -22,6 +22,11 @@ pub const DEFAULT_SUN: Vec3 = Vec3::new(0.4, 1.0, 0.3);
 /// Upper bound on node visits while flattening the hierarchy (guards against exponential DAGs).
 const MAX_NODE_VISITS: usize = 10_000_000;
 
+/// How far from the origin a vertex may lie, in scene units, after its node transforms. f32
+/// keeps about 7 digits, so a scene this large cannot be drawn anyway; beyond it the products
+/// of three coordinates in the path finder's ray tests would overflow.
+const MAX_COORDINATE: f32 = 1.0e12;
+
 /// Loads a `.gltf` or `.glb` file into a [`Scene`].
 ///
 /// Every triangle primitive reachable from the default scene (or the first scene, or all root
@@ -390,6 +395,16 @@ impl Loader<'_> {
             }
             if let Some(mesh) = node.mesh() {
                 for geom in self.mesh_geometry(&mesh)? {
+                    let bounds = geom.bounds.transformed(&world);
+                    let reach = bounds.min.abs().max(bounds.max.abs()).max_element();
+                    if reach.is_nan() || reach > MAX_COORDINATE {
+                        return Err(format!(
+                            "node {}, mesh {}: its vertices reach {reach:.3e} units from the \
+                             origin (at most {MAX_COORDINATE:e}: is the file damaged?)",
+                            node.index(),
+                            mesh.index()
+                        ));
+                    }
                     self.objects.push(Object {
                         first_index: geom.first_index,
                         index_count: geom.index_count,
@@ -397,7 +412,7 @@ impl Loader<'_> {
                         vertex_count: geom.vertex_count,
                         transform: world,
                         color: geom.color,
-                        bounds: geom.bounds.transformed(&world),
+                        bounds,
                         material: geom.material,
                     });
                 }

@@ -181,8 +181,12 @@ impl TriangleScene {
         self.triangles.is_empty()
     }
 
-    /// The closest hit along a unit `dir` up to `t_max`, with the side it hit.
+    /// The closest hit along a unit `dir` up to `t_max`, with the side it hit; none for a ray
+    /// that is not finite.
     pub fn hit(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
+        if !(origin.is_finite() && dir.is_finite()) || t_max.is_nan() {
+            return None;
+        }
         let ray = Ray::new(origin.into(), dir.into(), 0.0, t_max);
         let mut hit = RayHit::none();
         if !self
