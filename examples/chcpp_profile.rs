@@ -18,25 +18,22 @@ use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 
-#[path = "common/args.rs"]
-mod args;
+#[path = "common/measure.rs"]
+mod measure;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(0.0)
-}
+use measure::median;
 
 fn main() -> Result<()> {
     const USAGE: &str =
         "usage: chcpp_profile [scene] [path] [frames] [WxH] [scale] [no-oracle]  (city street 100 640x360 1)";
-    let Some(args) = args::args(USAGE, 6)? else {
+    let Some(args) = measure::args(USAGE, 6)? else {
         return Ok(());
     };
     let scene_name = args.first().map(String::as_str).unwrap_or("city");
     let path_name = args.get(1).map(String::as_str).unwrap_or("street");
-    let frames: u32 = args::number(&args, 2, "frames", 100)?;
-    let (w, h) = args::size(&args, 3, (640, 360))?;
-    let scale: f32 = args::number(&args, 4, "scale", 1.0)?;
+    let frames: u32 = measure::number(&args, 2, "frames", 100)?;
+    let (w, h) = measure::size(&args, 3, (640, 360))?;
+    let scale: f32 = measure::number(&args, 4, "scale", 1.0)?;
     let with_oracle = match args.get(5).map(String::as_str) {
         None => true,
         Some("no-oracle") => false,

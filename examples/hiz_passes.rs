@@ -12,23 +12,20 @@ use coherent::render::hiz::{HizCuller, HizParams, PASSES};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 
-#[path = "common/args.rs"]
-mod args;
+#[path = "common/measure.rs"]
+mod measure;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(0.0)
-}
+use measure::median;
 
 fn main() -> Result<()> {
     const USAGE: &str =
         "usage: hiz_passes [scene] [path] [frames] [WxH]  (city, its first path, 60, 640x360)";
-    let Some(args) = args::args(USAGE, 4)? else {
+    let Some(args) = measure::args(USAGE, 4)? else {
         return Ok(());
     };
     let scene_name = args.first().map(String::as_str).unwrap_or("city");
-    let frames: u32 = args::number(&args, 2, "frames", 60)?;
-    let (w, h) = args::size(&args, 3, (640, 360))?;
+    let frames: u32 = measure::number(&args, 2, "frames", 60)?;
+    let (w, h) = measure::size(&args, 3, (640, 360))?;
     let ctx = GpuContext::new(&ContextOptions::default())?;
     let scene = Scene::load(scene_name, 1.0, 4096)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();

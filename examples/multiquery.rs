@@ -12,25 +12,18 @@ use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::Renderer;
 use coherent::scene::Scene;
 
-#[path = "common/args.rs"]
-mod args;
+#[path = "common/measure.rs"]
+mod measure;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() {
-        0.0
-    } else {
-        v[v.len() / 2]
-    }
-}
+use measure::median;
 
 fn main() -> Result<()> {
     const USAGE: &str = "usage: multiquery [frames] [WxH]  (300 1280x720)";
-    let Some(args) = args::args(USAGE, 2)? else {
+    let Some(args) = measure::args(USAGE, 2)? else {
         return Ok(());
     };
-    let frames: u32 = args::number(&args, 0, "frames", 300)?;
-    let (w, h) = args::size(&args, 1, (1280, 720))?;
+    let frames: u32 = measure::number(&args, 0, "frames", 300)?;
+    let (w, h) = measure::size(&args, 1, (1280, 720))?;
     let ctx = GpuContext::new(&ContextOptions::default())?;
     let scene = Scene::load("parking", 1.0, 4096)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();

@@ -1,5 +1,6 @@
-//! Positional arguments of the measuring examples: each has a default, and one that does not
-//! parse is an error that names it instead of being replaced by the default.
+//! What the measuring examples share: their positional arguments (each has a default, and one
+//! that does not parse is an error that names it instead of being replaced by the default) and
+//! the median they report.
 
 use anyhow::{bail, Context, Result};
 
@@ -42,4 +43,10 @@ pub fn size(args: &[String], i: usize, default: (u32, u32)) -> Result<(u32, u32)
             .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
             .with_context(|| format!("size: {a:?} is not WxH (for example 640x360)")),
     }
+}
+
+/// The median (the upper one of an even count); 0 for no values.
+pub fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
