@@ -159,7 +159,9 @@ pub struct QueryBackendDesc {
     /// Frames in flight: one query pool and result buffer per slot (at least 2; a host with one
     /// frame in flight still uses 2, and its culler reads results two frames late).
     pub frames_in_flight: u32,
-    /// Most queries one frame may issue.
+    /// Most queries one frame may issue. A frame that needs more fails `cull_frame` with an
+    /// error that says to raise it (`CullStats::queries` tells how many a frame used); the
+    /// culler's later frames stay exact.
     pub max_queries: u32,
     /// Most query boxes one frame may draw (a multiquery or a tight volume has several).
     pub max_boxes: u32,

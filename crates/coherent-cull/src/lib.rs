@@ -635,6 +635,10 @@ pub trait Culler: Send {
     }
     /// Decides visibility and records draws and queries through `backend`; must read back every
     /// query it issued before returning (after [`OcclusionBackend::finish`] if need be).
+    ///
+    /// An error from the backend (a query refused for want of room, say) ends the frame early:
+    /// what was recorded is incomplete, so the host drops or finishes it as after any failed
+    /// recording. The culler's later frames stay exact, with or without [`Culler::reset`].
     fn cull_frame(
         &mut self,
         input: &FrameInput,
