@@ -1011,6 +1011,7 @@ fn query_side(
         // Counter-clockwise, as the scene pipelines' front faces (gpu/pipelines.rs).
         cull_back_faces: Some(vk::FrontFace::COUNTER_CLOCKWISE),
         layout: Some(pipelines.layout.handle),
+        ..coherent_ash::BoxPipelineDesc::default()
     };
     let sets = coherent_ash::QuerySetDesc {
         queries_per_pool: QUERY_CHUNK,

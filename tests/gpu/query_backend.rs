@@ -1,10 +1,11 @@
 //! coherent-ash's `QueryBackend` on a real device under strict validation (core,
 //! synchronization, best practices): a culler in next-frame mode with two frames in flight,
 //! queries recorded into a host command buffer inside a depth pass, results copied and read two
-//! frames later, also with 4 samples and with two views in one command buffer; the sample
-//! counts and view masks it refuses; its building blocks (`QuerySet`, `BoxPipeline`) on their
-//! own, growing and copying across pools; and the shipped SPIR-V of its box shader equals what
-//! the workspace's GLSL compiles to.
+//! frames later, also with 4 samples, with two views in one command buffer and in a host's
+//! `VkRenderPass` (next-frame and predicated); the sample counts and view masks it refuses;
+//! its building blocks (`QuerySet`, `BoxPipeline`) on their own, growing and copying across
+//! pools; and the shipped SPIR-V of its box shader equals what the workspace's GLSL compiles
+//! to.
 
 use ash::vk;
 use coherent::gpu::memory::Image;
@@ -77,11 +78,150 @@ fn depth_at(cam: &Camera, d: f32) -> f32 {
 
 /// One view of a host frame in [`run_views`]: its own depth pass, cleared to the depth of a
 /// wall `wall` units away (boxes behind it are hidden), with `samples` samples, and its own
-/// `QueryBackend` and culler.
+/// `QueryBackend` and culler. `render_pass`: the depth pass is a `VkRenderPass` instance
+/// instead of dynamic rendering; `predicated` (only with a render pass): the culler runs the
+/// predicated mode, and the resume begins a second render pass whose depth LOADs.
 #[derive(Clone, Copy)]
 struct ViewSetup {
     wall: f32,
     samples: vk::SampleCountFlags,
+    render_pass: bool,
+    predicated: bool,
+}
+
+impl ViewSetup {
+    fn new(wall: f32) -> ViewSetup {
+        ViewSetup {
+            wall,
+            samples: vk::SampleCountFlags::TYPE_1,
+            render_pass: false,
+            predicated: false,
+        }
+    }
+}
+
+/// A depth-only render pass for a view's pass: the depth CLEARs (or LOADs, for the resume
+/// after a predicate resolve) and is stored only where `store` (a resume follows); the
+/// dependency orders the depth writes of one frame's instance before the next.
+///
+/// # Safety
+/// Valid device.
+unsafe fn depth_render_pass(
+    d: &ash::Device,
+    samples: vk::SampleCountFlags,
+    load: vk::AttachmentLoadOp,
+    store: bool,
+) -> vk::RenderPass {
+    let layout = vk::ImageLayout::DEPTH_STENCIL_ATTACHMENT_OPTIMAL;
+    let attachment = vk::AttachmentDescription::default()
+        .format(vk::Format::D32_SFLOAT)
+        .samples(samples)
+        .load_op(load)
+        .store_op(if store {
+            vk::AttachmentStoreOp::STORE
+        } else {
+            vk::AttachmentStoreOp::DONT_CARE
+        })
+        .stencil_load_op(vk::AttachmentLoadOp::DONT_CARE)
+        .stencil_store_op(vk::AttachmentStoreOp::DONT_CARE)
+        .initial_layout(if load == vk::AttachmentLoadOp::LOAD {
+            layout
+        } else {
+            vk::ImageLayout::UNDEFINED
+        })
+        .final_layout(layout);
+    let depth_ref = vk::AttachmentReference::default()
+        .attachment(0)
+        .layout(layout);
+    let subpass = vk::SubpassDescription::default()
+        .pipeline_bind_point(vk::PipelineBindPoint::GRAPHICS)
+        .depth_stencil_attachment(&depth_ref);
+    let tests =
+        vk::PipelineStageFlags::EARLY_FRAGMENT_TESTS | vk::PipelineStageFlags::LATE_FRAGMENT_TESTS;
+    let depth_access = vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_READ
+        | vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_WRITE;
+    let dependency = vk::SubpassDependency::default()
+        .src_subpass(vk::SUBPASS_EXTERNAL)
+        .dst_subpass(0)
+        .src_stage_mask(tests)
+        .src_access_mask(vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_WRITE)
+        .dst_stage_mask(tests)
+        .dst_access_mask(depth_access);
+    // SAFETY: per the caller.
+    unsafe {
+        d.create_render_pass(
+            &vk::RenderPassCreateInfo::default()
+                .attachments(std::slice::from_ref(&attachment))
+                .subpasses(std::slice::from_ref(&subpass))
+                .dependencies(std::slice::from_ref(&dependency)),
+            None,
+        )
+    }
+    .expect("render pass")
+}
+
+/// Begins `pass` on `framebuffer` (depth cleared to `clear`, or loaded where `clear` is
+/// `None`), viewport and scissor set.
+///
+/// # Safety
+/// `cmd` is recording outside rendering; the handles belong to `d`.
+unsafe fn begin_render_pass(
+    d: &ash::Device,
+    cmd: vk::CommandBuffer,
+    pass: vk::RenderPass,
+    framebuffer: vk::Framebuffer,
+    clear: Option<f32>,
+) {
+    let extent = vk::Extent2D {
+        width: W,
+        height: H,
+    };
+    let clear: Vec<vk::ClearValue> = clear
+        .map(|depth| vk::ClearValue {
+            depth_stencil: vk::ClearDepthStencilValue { depth, stencil: 0 },
+        })
+        .into_iter()
+        .collect();
+    // SAFETY: per the caller.
+    unsafe {
+        d.cmd_begin_render_pass(
+            cmd,
+            &vk::RenderPassBeginInfo::default()
+                .render_pass(pass)
+                .framebuffer(framebuffer)
+                .render_area(extent.into())
+                .clear_values(&clear),
+            vk::SubpassContents::INLINE,
+        );
+        set_viewport(d, cmd);
+    }
+}
+
+/// Sets the `W`x`H` viewport and scissor.
+///
+/// # Safety
+/// `cmd` is recording on `d`.
+unsafe fn set_viewport(d: &ash::Device, cmd: vk::CommandBuffer) {
+    let extent = vk::Extent2D {
+        width: W,
+        height: H,
+    };
+    // SAFETY: per the caller.
+    unsafe {
+        d.cmd_set_viewport(
+            cmd,
+            0,
+            &[vk::Viewport {
+                x: 0.0,
+                y: 0.0,
+                width: W as f32,
+                height: H as f32,
+                min_depth: 0.0,
+                max_depth: 1.0,
+            }],
+        );
+        d.cmd_set_scissor(cmd, 0, &[extent.into()]);
+    }
 }
 
 /// Runs `frames` frames of chcpp in next-frame mode with `k` frames in flight through a
@@ -89,10 +229,7 @@ struct ViewSetup {
 /// nothing but is cleared to the depth of a wall `wall` units away, so boxes behind it are
 /// hidden. Returns the objects drawn in each frame and the backend's counts of the last frame.
 fn run_frames(frames: u64, wall: f32, k: u32) -> (Vec<Vec<u32>>, coherent_ash::QueryCounts) {
-    let view = ViewSetup {
-        wall,
-        samples: vk::SampleCountFlags::TYPE_1,
-    };
+    let view = ViewSetup::new(wall);
     let (mut drawn, mut counts) = run_views(frames, k, &[view]);
     (drawn.remove(0), counts.remove(0))
 }
@@ -112,13 +249,53 @@ fn run_views(
         let (bvh, cam) = row();
         let d = &ctx.device;
         let depths: Vec<Image> = views.iter().map(|v| depth_image(&ctx, v.samples)).collect();
+        // Per view with a render pass: the clearing pass, the loading pass of the resume (in the
+        // predicated mode), and the framebuffer (both passes are compatible with it).
+        let passes: Vec<Option<(vk::RenderPass, vk::RenderPass, vk::Framebuffer)>> = views
+            .iter()
+            .zip(&depths)
+            .map(|(v, depth)| {
+                assert!(
+                    v.render_pass || !v.predicated,
+                    "predicated needs a render pass here"
+                );
+                v.render_pass.then(|| {
+                    // SAFETY: valid device; destroyed after the device went idle.
+                    unsafe {
+                        let (c, l) = (vk::AttachmentLoadOp::CLEAR, vk::AttachmentLoadOp::LOAD);
+                        let clear = depth_render_pass(d, v.samples, c, v.predicated);
+                        // (Null, which destroys as nothing, without a resume.)
+                        let load = if v.predicated {
+                            depth_render_pass(d, v.samples, l, true)
+                        } else {
+                            vk::RenderPass::null()
+                        };
+                        let framebuffer = d
+                            .create_framebuffer(
+                                &vk::FramebufferCreateInfo::default()
+                                    .render_pass(clear)
+                                    .attachments(&[depth.view])
+                                    .width(W)
+                                    .height(H)
+                                    .layers(1),
+                                None,
+                            )
+                            .expect("framebuffer");
+                        (clear, load, framebuffer)
+                    }
+                })
+            })
+            .collect();
         let mut backends: Vec<QueryBackend> = views
             .iter()
-            .map(|v| {
+            .zip(&passes)
+            .map(|(v, pass)| {
                 let desc = QueryBackendDesc {
                     frames_in_flight: k,
                     depth_format: vk::Format::D32_SFLOAT,
                     samples: v.samples,
+                    render_pass: pass.map_or(vk::RenderPass::null(), |p| p.0),
+                    predicates: v.predicated,
                     depth: DepthConvention::STANDARD,
                     max_queries: 256,
                     max_boxes: 1024,
@@ -168,9 +345,14 @@ fn run_views(
         };
         let mut cullers: Vec<Chcpp> = views
             .iter()
-            .map(|_| {
+            .map(|v| {
+                let latency = if v.predicated {
+                    Latency::Predicated
+                } else {
+                    Latency::NextFrame
+                };
                 Chcpp::new(ChcppParams::default())
-                    .with_latency(Latency::NextFrame)
+                    .with_latency(latency)
                     .with_frames_in_flight(k)
             })
             .collect();
@@ -197,8 +379,17 @@ fn run_views(
             }
             for (i, setup) in views.iter().enumerate() {
                 let mut objects: Vec<u32> = Vec::new();
-                // SAFETY: as above; the depth image belongs to the device.
-                unsafe { depth_pass(d, cmd, &depths[i], depth_at(&cam, setup.wall)) };
+                // Beyond the far plane: cleared to the far plane.
+                let clear = depth_at(&cam, setup.wall).min(1.0);
+                // SAFETY: as above; the depth image and passes belong to the device.
+                unsafe {
+                    match passes[i] {
+                        Some((pass, _, framebuffer)) => {
+                            begin_render_pass(d, cmd, pass, framebuffer, Some(clear))
+                        }
+                        None => depth_pass(d, cmd, &depths[i], clear),
+                    }
+                };
                 let input = FrameInput {
                     bvh: &bvh,
                     view,
@@ -209,11 +400,26 @@ fn run_views(
                     objects.extend_from_slice(o);
                     Ok(())
                 };
+                let mut frame = backends[i].frame(cmd, view_proj, draw);
+                if let Some((_, load, framebuffer)) = passes[i].filter(|_| setup.predicated) {
+                    frame = frame.with_resume(move |cmd| {
+                        // SAFETY: the backend ended the pass; the loading pass resumes it.
+                        unsafe { begin_render_pass(d, cmd, load, framebuffer, None) };
+                        Ok(())
+                    });
+                }
                 cullers[i]
-                    .cull_frame(&input, &mut backends[i].frame(cmd, view_proj, draw))
+                    .cull_frame(&input, &mut frame)
                     .expect("cull_frame");
-                // SAFETY: inside the rendering begun above.
-                unsafe { d.cmd_end_rendering(cmd) };
+                drop(frame);
+                // SAFETY: inside the rendering begun above (or resumed).
+                unsafe {
+                    if passes[i].is_some() {
+                        d.cmd_end_render_pass(cmd);
+                    } else {
+                        d.cmd_end_rendering(cmd);
+                    }
+                };
                 objects.sort_unstable();
                 objects.dedup();
                 drawn[i].push(objects);
@@ -242,6 +448,11 @@ fn run_views(
             }
             for p in pools {
                 d.destroy_command_pool(p, None);
+            }
+            for (clear, load, framebuffer) in passes.into_iter().flatten() {
+                d.destroy_framebuffer(framebuffer, None);
+                d.destroy_render_pass(clear, None);
+                d.destroy_render_pass(load, None);
             }
         }
     }
@@ -312,17 +523,7 @@ fn query_backend_draws_everything_that_is_visible() {
 /// results stay apart. Each view ends where it ends alone.
 #[test]
 fn query_backend_keeps_two_views_of_one_frame_apart() {
-    let one = vk::SampleCountFlags::TYPE_1;
-    let views = [
-        ViewSetup {
-            wall: 10.5,
-            samples: one,
-        },
-        ViewSetup {
-            wall: 1000.0,
-            samples: one,
-        },
-    ];
+    let views = [ViewSetup::new(10.5), ViewSetup::new(1000.0)];
     let (drawn, counts) = run_views(12, 2, &views);
     let walled = drawn[0].last().expect("frames");
     assert!([0, 1, 2].iter().all(|o| walled.contains(o)), "{drawn:?}");
@@ -340,6 +541,60 @@ fn query_backend_keeps_two_views_of_one_frame_apart() {
     );
 }
 
+/// A host that records its depth pass in a `VkRenderPass` (no dynamic rendering): the box
+/// pipeline is made for its subpass, and the culler ends where it ends with dynamic rendering,
+/// with 1 and 4 samples, beside a view with dynamic rendering in the same command buffer.
+#[test]
+fn query_backend_draws_inside_a_host_render_pass() {
+    let pass = |wall, samples| ViewSetup {
+        samples,
+        render_pass: true,
+        ..ViewSetup::new(wall)
+    };
+    let one = vk::SampleCountFlags::TYPE_1;
+    let views = [
+        pass(10.5, one),
+        pass(1000.0, vk::SampleCountFlags::TYPE_4),
+        ViewSetup::new(10.5),
+    ];
+    let (drawn, counts) = run_views(12, 2, &views);
+    let walled = drawn[0].last().expect("frames");
+    assert_eq!(Some(walled), drawn[2].last(), "{drawn:?}");
+    assert!([0, 1, 2].iter().all(|o| walled.contains(o)), "{drawn:?}");
+    assert!(walled.iter().all(|&o| o <= 3), "{drawn:?}");
+    assert_eq!(
+        drawn[1].last().expect("frames"),
+        &(0..16).collect::<Vec<u32>>(),
+        "{drawn:?}"
+    );
+    assert!(
+        counts[0].queries > 0 && counts[0].results_read > 0,
+        "{counts:?}"
+    );
+}
+
+/// The predicated mode in a host render pass: each predicate resolve ends the render pass
+/// instance (`vkCmdEndRenderPass`) and the host's resume begins one that LOADs the depth; one
+/// submission a frame, strict validation silent. Exact from the first frame: the boxes in front
+/// of the wall are handed over in every frame (drawn or under a predicate).
+#[test]
+fn query_backend_resolves_predicates_inside_a_host_render_pass() {
+    let view = ViewSetup {
+        render_pass: true,
+        predicated: true,
+        ..ViewSetup::new(10.5)
+    };
+    let (drawn, counts) = run_views(10, 2, &[view]);
+    for (f, objects) in drawn[0].iter().enumerate() {
+        assert!(
+            [0, 1, 2].iter().all(|o| objects.contains(o)),
+            "frame {f}: {drawn:?}"
+        );
+    }
+    assert!(counts[0].resolves > 0, "{counts:?}");
+    assert!(counts[0].queries > 0, "{counts:?}");
+}
+
 /// With 4 samples (every device has them on depth attachments) the box pipeline and the
 /// queries run under strict validation and cull what the depth hides. Behind the wall they may
 /// keep one box more drawn than with one sample: the box pipeline's conservative depth bias
@@ -352,8 +607,8 @@ fn query_backend_with_four_samples_culls_what_the_depth_hides() {
             12,
             2,
             &[ViewSetup {
-                wall,
                 samples: vk::SampleCountFlags::TYPE_4,
+                ..ViewSetup::new(wall)
             }],
         );
         (drawn.into_iter().next().expect("one view"), counts[0])
@@ -505,19 +760,7 @@ unsafe fn depth_pass(d: &ash::Device, cmd: vk::CommandBuffer, depth: &Image, cle
                 .layer_count(1)
                 .depth_attachment(&attachment),
         );
-        d.cmd_set_viewport(
-            cmd,
-            0,
-            &[vk::Viewport {
-                x: 0.0,
-                y: 0.0,
-                width: W as f32,
-                height: H as f32,
-                min_depth: 0.0,
-                max_depth: 1.0,
-            }],
-        );
-        d.cmd_set_scissor(cmd, 0, &[extent.into()]);
+        set_viewport(d, cmd);
     }
 }
 

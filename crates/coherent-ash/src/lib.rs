@@ -122,11 +122,14 @@
 //!
 //! ## Requirements
 //!
-//! Vulkan 1.3 (or 1.2 with `VK_KHR_dynamic_rendering`) with `dynamicRendering` enabled, and
 //! `occlusionQueryPrecise` enabled on the device ([`QueryBackend::new`] checks that the
-//! physical device has it and says so if not). The host's rendering must match the formats,
-//! samples and view mask of [`QueryBackendDesc`] (the device must support them there, which
-//! [`QueryBackend::new`] checks), and set viewport and scissor dynamically.
+//! physical device has it and says so if not), and a depth pass recorded either with dynamic
+//! rendering (Vulkan 1.3, or 1.2 with `VK_KHR_dynamic_rendering`, `dynamicRendering` enabled)
+//! or in the host's `VkRenderPass` ([`QueryBackendDesc::render_pass`] and `subpass`). The
+//! host's rendering must match the formats, samples and view mask of [`QueryBackendDesc`]
+//! (the device must support them there, which [`QueryBackend::new`] checks), and set viewport
+//! and scissor dynamically. `Latency::Predicated` also needs `synchronization2` enabled (the
+//! barrier after the predicate copies).
 //!
 //! ## Lifetime
 //!
@@ -186,6 +189,13 @@ pub struct QueryBackendDesc {
     /// Predicated draws for `Latency::Predicated` (see [Predicated frames](crate#predicated-frames)):
     /// the device needs `VK_EXT_conditional_rendering` with `conditionalRendering` enabled.
     pub predicates: bool,
+    /// The host's render pass and subpass, for a depth pass recorded in a `VkRenderPass`
+    /// instead of with dynamic rendering ([`BoxPipelineDesc::render_pass`]); null (the
+    /// default): dynamic rendering. A predicate resolve then ends the render pass instance
+    /// (`vkCmdEndRenderPass`), and the host's resume begins one again whose attachments LOAD.
+    pub render_pass: vk::RenderPass,
+    /// The subpass of `render_pass` the host's depth pass (and the boxes) are drawn in.
+    pub subpass: u32,
 }
 
 impl Default for QueryBackendDesc {
@@ -201,6 +211,8 @@ impl Default for QueryBackendDesc {
             depth: DepthConvention::REVERSE_Z_INFINITE,
             cull_back_faces: None,
             predicates: false,
+            render_pass: vk::RenderPass::null(),
+            subpass: 0,
         }
     }
 }
@@ -370,6 +382,8 @@ impl QueryBackend {
             depth: desc.depth,
             cull_back_faces: desc.cull_back_faces,
             layout: None,
+            render_pass: desc.render_pass,
+            subpass: desc.subpass,
         };
         // SAFETY: the caller's guarantees.
         let pipeline = unsafe { BoxPipeline::new(device, &pipeline_desc)? };
@@ -749,7 +763,11 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         // SAFETY: `cmd` is recording inside the host's rendering (the `frame` contract): it is
         // ended here, the copy and barrier recorded outside it, and the host resumes it.
         unsafe {
-            b.device.cmd_end_rendering(cmd);
+            if b.desc.render_pass == vk::RenderPass::null() {
+                b.device.cmd_end_rendering(cmd);
+            } else {
+                b.device.cmd_end_render_pass(cmd);
+            }
             b.slots[slot as usize].record_resolve(cmd)?;
         }
         resume(cmd)?;

@@ -1,6 +1,6 @@
 //! The box pipeline: world-space box corners through the frame's view-projection (a push
 //! constant), depth test *or-equal* towards the eye with a small bias towards it, no writes, for
-//! the host's attachment formats (dynamic rendering).
+//! the host's attachment formats (dynamic rendering) or the host's render pass.
 
 use std::ffi::CStr;
 
@@ -33,6 +33,14 @@ pub struct BoxPipelineDesc {
     /// host's push block and never pushes). `None`: a layout of its own, pushed at each
     /// [`crate::QuerySet::bind`].
     pub layout: Option<vk::PipelineLayout>,
+    /// The host's render pass, for a host that renders its depth pass in a `VkRenderPass`
+    /// instead of with dynamic rendering: the pipeline is made for its subpass `subpass`
+    /// (`color_formats` then gives only the number of the subpass's color attachments; the
+    /// render pass holds the formats, samples and view mask). Null (the default): dynamic
+    /// rendering.
+    pub render_pass: vk::RenderPass,
+    /// The subpass of `render_pass` the boxes are drawn in.
+    pub subpass: u32,
 }
 
 impl Default for BoxPipelineDesc {
@@ -45,6 +53,8 @@ impl Default for BoxPipelineDesc {
             depth: DepthConvention::REVERSE_Z_INFINITE,
             cull_back_faces: None,
             layout: None,
+            render_pass: vk::RenderPass::null(),
+            subpass: 0,
         }
     }
 }
@@ -179,7 +189,7 @@ impl BoxPipeline {
             .view_mask(desc.view_mask)
             .color_attachment_formats(&desc.color_formats)
             .depth_attachment_format(desc.depth_format);
-        let info = vk::GraphicsPipelineCreateInfo::default()
+        let mut info = vk::GraphicsPipelineCreateInfo::default()
             .stages(&stages)
             .vertex_input_state(&vertex_input)
             .input_assembly_state(&assembly)
@@ -189,8 +199,12 @@ impl BoxPipeline {
             .depth_stencil_state(&depth)
             .color_blend_state(&blend)
             .dynamic_state(&dynamic)
-            .layout(self.layout)
-            .push_next(&mut rendering);
+            .layout(self.layout);
+        info = if desc.render_pass == vk::RenderPass::null() {
+            info.push_next(&mut rendering)
+        } else {
+            info.render_pass(desc.render_pass).subpass(desc.subpass)
+        };
         // SAFETY: valid device and create info.
         let pipelines =
             unsafe { device.create_graphics_pipelines(vk::PipelineCache::null(), &[info], None) };
