@@ -2,8 +2,8 @@
 //!
 //! What an [ash](https://docs.rs/ash) host needs to run a [`coherent_cull`] culler inside its own
 //! frame: [`QueryBackend`], an [`OcclusionBackend`] that records into the host's command buffer
-//! on the host's `ash::Device`, inside the host's depth pass (dynamic rendering), with `k` frames
-//! in flight. It owns the query side and nothing else:
+//! on the host's `ash::Device`, inside the host's depth pass (dynamic rendering or the host's
+//! render pass), with `k` frames in flight. It owns the query side and nothing else:
 //!
 //! - one precise occlusion query pool per frame-in-flight slot, reset inside the frame that
 //!   reuses the slot (`vkCmdResetQueryPool`, before the host begins rendering);
@@ -356,7 +356,9 @@ impl QueryBackend {
     ///
     /// # Safety
     /// `device` must have been created from `physical_device` of `instance`, with
-    /// `dynamicRendering` and `occlusionQueryPrecise` enabled, and must outlive the backend.
+    /// `occlusionQueryPrecise` enabled (and `dynamicRendering`, unless `desc.render_pass` names
+    /// the host's render pass, made on it and outliving the backend), and must outlive the
+    /// backend.
     pub unsafe fn new(
         instance: &ash::Instance,
         physical_device: vk::PhysicalDevice,

@@ -73,8 +73,9 @@ impl BoxPipeline {
     /// depth convention and culling.
     ///
     /// # Safety
-    /// `device` is valid, with dynamic rendering enabled, and outlives the pipeline; a host
-    /// layout in `desc` was made on it and outlives the pipeline.
+    /// `device` is valid, with dynamic rendering enabled unless `desc.render_pass` is set, and
+    /// outlives the pipeline; a host layout or render pass in `desc` was made on it and
+    /// outlives the pipeline.
     pub unsafe fn new(device: &ash::Device, desc: &BoxPipelineDesc) -> Result<BoxPipeline> {
         let words = spirv_words(QUERY_BOX_VERT_SPV)?;
         let mut out = BoxPipeline {
