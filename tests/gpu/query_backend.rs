@@ -468,15 +468,7 @@ fn run_views(
 #[test]
 fn query_backend_culls_what_the_depth_hides_two_frames_late() {
     let (drawn, counts) = run_frames(12, 10.5, 2);
-    let last = drawn.last().expect("frames");
-    assert!(
-        [0, 1, 2].iter().all(|o| last.contains(o)),
-        "a box in front of the wall is missing: {drawn:?}"
-    );
-    assert!(
-        last.iter().all(|&o| o <= 3),
-        "a box far behind the wall is still drawn: {drawn:?}"
-    );
+    assert_walled(&drawn, 3);
     // The first two frames have no results yet (read two frames late).
     assert!(drawn[..2].iter().all(|d| d.is_empty()), "{drawn:?}");
     assert!(counts.queries > 0, "{counts:?}");
@@ -496,9 +488,7 @@ fn query_backend_with_three_frames_in_flight_reads_three_frames_late() {
         !drawn[3].is_empty(),
         "nothing drawn once results came back: {drawn:?}"
     );
-    let last = drawn.last().expect("frames");
-    assert!([0, 1, 2].iter().all(|o| last.contains(o)), "{drawn:?}");
-    assert!(last.iter().all(|&o| o <= 3), "{drawn:?}");
+    assert_walled(&drawn, 3);
     assert_eq!(
         drawn.last(),
         run_frames(14, 10.5, 2).0.last(),
@@ -511,10 +501,29 @@ fn query_backend_with_three_frames_in_flight_reads_three_frames_late() {
 #[test]
 fn query_backend_draws_everything_that_is_visible() {
     let (drawn, _) = run_frames(10, 1000.0, 2);
+    assert_all_drawn(&drawn);
+}
+
+/// The last of a view's `frames` (objects drawn per frame) has the three boxes in front of the
+/// wall 10.5 units away and no box past `last_box`.
+fn assert_walled(frames: &[Vec<u32>], last_box: u32) {
+    let last = frames.last().expect("frames");
+    assert!(
+        [0, 1, 2].iter().all(|o| last.contains(o)),
+        "a box in front of the wall is missing: {frames:?}"
+    );
+    assert!(
+        last.iter().all(|&o| o <= last_box),
+        "a box far behind the wall is still drawn: {frames:?}"
+    );
+}
+
+/// The last of a view's `frames` draws all 16 boxes.
+fn assert_all_drawn(frames: &[Vec<u32>]) {
     assert_eq!(
-        drawn.last().expect("frames"),
+        frames.last().expect("frames"),
         &(0..16).collect::<Vec<u32>>(),
-        "drawn per frame: {drawn:?}"
+        "drawn per frame: {frames:?}"
     );
 }
 
@@ -525,15 +534,9 @@ fn query_backend_draws_everything_that_is_visible() {
 fn query_backend_keeps_two_views_of_one_frame_apart() {
     let views = [ViewSetup::new(10.5), ViewSetup::new(1000.0)];
     let (drawn, counts) = run_views(12, 2, &views);
-    let walled = drawn[0].last().expect("frames");
-    assert!([0, 1, 2].iter().all(|o| walled.contains(o)), "{drawn:?}");
-    assert!(walled.iter().all(|&o| o <= 3), "{drawn:?}");
-    assert_eq!(
-        drawn[1].last().expect("frames"),
-        &(0..16).collect::<Vec<u32>>(),
-        "{drawn:?}"
-    );
-    assert_eq!(Some(walled), run_frames(12, 10.5, 2).0.last());
+    assert_walled(&drawn[0], 3);
+    assert_all_drawn(&drawn[1]);
+    assert_eq!(drawn[0].last(), run_frames(12, 10.5, 2).0.last());
     // (In the last frame only the walled view has hidden boxes left to query.)
     assert!(
         counts[0].queries > 0 && counts[0].results_read > 0,
@@ -558,15 +561,9 @@ fn query_backend_draws_inside_a_host_render_pass() {
         ViewSetup::new(10.5),
     ];
     let (drawn, counts) = run_views(12, 2, &views);
-    let walled = drawn[0].last().expect("frames");
-    assert_eq!(Some(walled), drawn[2].last(), "{drawn:?}");
-    assert!([0, 1, 2].iter().all(|o| walled.contains(o)), "{drawn:?}");
-    assert!(walled.iter().all(|&o| o <= 3), "{drawn:?}");
-    assert_eq!(
-        drawn[1].last().expect("frames"),
-        &(0..16).collect::<Vec<u32>>(),
-        "{drawn:?}"
-    );
+    assert_eq!(drawn[0].last(), drawn[2].last(), "{drawn:?}");
+    assert_walled(&drawn[0], 3);
+    assert_all_drawn(&drawn[1]);
     assert!(
         counts[0].queries > 0 && counts[0].results_read > 0,
         "{counts:?}"
@@ -615,15 +612,9 @@ fn query_backend_with_four_samples_culls_what_the_depth_hides() {
     };
     let (drawn, counts) = four(10.5);
     assert!(counts.results_read > 0, "{counts:?}");
-    let last = drawn.last().expect("frames");
-    assert!([0, 1, 2].iter().all(|o| last.contains(o)), "{drawn:?}");
-    assert!(last.iter().all(|&o| o <= 4), "{drawn:?}");
+    assert_walled(&drawn, 4);
     let (drawn, _) = four(1000.0);
-    assert_eq!(
-        drawn.last().expect("frames"),
-        &(0..16).collect::<Vec<u32>>(),
-        "{drawn:?}"
-    );
+    assert_all_drawn(&drawn);
 }
 
 /// A sample count that is not one count, or that the device cannot render depth with, and a

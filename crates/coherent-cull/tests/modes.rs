@@ -1139,16 +1139,11 @@ fn bad_boxes_and_bad_views_neither_panic_nor_break_the_frames_after() {
     }
 }
 
-/// A scene that churns while results are in flight: each frame some objects move (some into
-/// view, some out), some are inserted and some removed, and every seventh frame the hierarchy is
-/// rebuilt (node ids change under queries not yet read). Every exact mode with one to three
-/// frames in flight draws every visible object in every frame, and never an object that was
-/// removed; the rebuilds do happen.
-#[test]
-fn exact_modes_stay_exact_while_the_scene_churns_under_queries_in_flight() {
-    use coherent_cull::rng::Rng;
+/// The exact modes with their frames in flight: chc and chcpp predicated with 1 to `max_k`
+/// frames in flight, and stop-and-wait, chc and chcpp in-frame.
+fn exact_modes(max_k: u32) -> Vec<(String, Box<dyn Culler>, u32)> {
     let mut modes: Vec<(String, Box<dyn Culler>, u32)> = Vec::new();
-    for k in 1..=3 {
+    for k in 1..=max_k {
         for name in ["chc", "chcpp"] {
             modes.push((
                 format!("{name}@predicated k={k}"),
@@ -1164,7 +1159,18 @@ fn exact_modes_stay_exact_while_the_scene_churns_under_queries_in_flight() {
             1,
         ));
     }
-    for (name, mut culler, k) in modes {
+    modes
+}
+
+/// A scene that churns while results are in flight: each frame some objects move (some into
+/// view, some out), some are inserted and some removed, and every seventh frame the hierarchy is
+/// rebuilt (node ids change under queries not yet read). Every exact mode with one to three
+/// frames in flight draws every visible object in every frame, and never an object that was
+/// removed; the rebuilds do happen.
+#[test]
+fn exact_modes_stay_exact_while_the_scene_churns_under_queries_in_flight() {
+    use coherent_cull::rng::Rng;
+    for (name, mut culler, k) in exact_modes(3) {
         let mut rng = Rng::new(41);
         let mut bvh = ObjectBvh::build(&random_boxes(500, 17), 1);
         let mut backend = MockBackend::new(|_| 0).with_frames_in_flight(k);
@@ -1338,23 +1344,7 @@ impl coherent_cull::OcclusionBackend for Budgeted<'_> {
 fn a_frame_that_ran_out_of_queries_fails_and_the_next_ones_are_exact() {
     let bvh = ObjectBvh::build(&random_boxes(600, 5), 1);
     for reset in [false, true] {
-        let mut modes: Vec<(String, Box<dyn Culler>, u32)> = Vec::new();
-        for k in 1..=2 {
-            for name in ["chc", "chcpp"] {
-                modes.push((
-                    format!("{name}@predicated k={k}"),
-                    Box::new(predicated(name, k)),
-                    k,
-                ));
-            }
-        }
-        for name in ["stop-and-wait", "chc", "chcpp"] {
-            modes.push((
-                format!("{name} in-frame"),
-                create(name, &ChcppParams::default()).unwrap(),
-                1,
-            ));
-        }
+        let mut modes = exact_modes(2);
         modes.push(("nohc".into(), nohc(600, 100), 1));
         // The factory's frames-in-flight wrapper.
         let named = create_named("chcpp@predicated-k2", &CullerSetup::default()).unwrap();
