@@ -174,6 +174,7 @@ pub struct MockBackend<'a> {
     gathering: bool,
     draw_order: Vec<u32>,
     draw_orders: u32,
+    query_limit: Option<u32>,
 }
 
 impl<'a> MockBackend<'a> {
@@ -198,6 +199,7 @@ impl<'a> MockBackend<'a> {
             gathering: false,
             draw_order: Vec::new(),
             draw_orders: 0,
+            query_limit: None,
         }
     }
 
@@ -260,6 +262,13 @@ impl<'a> MockBackend<'a> {
         self
     }
 
+    /// Refuses every query of a frame past `limit` with an [`crate::Error::Input`] ("more
+    /// than N queries in a frame"), as a host whose query pools are full does; `None` (the
+    /// default): no limit.
+    pub fn set_query_limit(&mut self, limit: Option<u32>) {
+        self.query_limit = limit;
+    }
+
     /// Replaces the visibility function (the world changed).
     pub fn set_visibility(&mut self, visibility: impl FnMut(&Aabb) -> u64 + 'a) {
         self.visibility = Box::new(visibility);
@@ -313,8 +322,13 @@ impl<'a> MockBackend<'a> {
 
     /// Records a query of `boxes` (entering query state); it counts the pixels the visibility
     /// function gives them when `drawn`, else none (boxes under a false predicate). Returns its
-    /// id and pixels.
-    fn record_query(&mut self, boxes: &[Aabb], drawn: bool) -> (QueryId, u64) {
+    /// id and pixels, or the error of a frame past its query limit.
+    fn record_query(&mut self, boxes: &[Aabb], drawn: bool) -> Result<(QueryId, u64)> {
+        if let Some(limit) = self.query_limit.filter(|&l| self.counts.queries >= l) {
+            return Err(crate::Error::Input(format!(
+                "more than {limit} queries in a frame"
+            )));
+        }
         if !self.in_query_state {
             self.in_query_state = true;
             self.counts.state_changes += 1;
@@ -327,7 +341,7 @@ impl<'a> MockBackend<'a> {
         let id = self.issue(pixels);
         self.counts.queries += 1;
         self.counts.query_boxes += boxes.len() as u32;
-        (id, pixels)
+        Ok((id, pixels))
     }
 
     /// A new result of this frame (a query's or a tested part's) seeing `pixels`; its id.
@@ -398,7 +412,7 @@ impl OcclusionBackend for MockBackend<'_> {
     }
 
     fn issue_query_for(&mut self, boxes: &[Aabb], purpose: QueryPurpose) -> Result<QueryId> {
-        let (id, pixels) = self.record_query(boxes, true);
+        let (id, pixels) = self.record_query(boxes, true)?;
         self.events.push(MockEvent::Query {
             id,
             purpose,
@@ -495,7 +509,7 @@ impl OcclusionBackend for MockBackend<'_> {
             return Err(crate::predicates_unsupported());
         }
         let taken = self.predicate(predicate, false)?.pixels > 0;
-        let (id, pixels) = self.record_query(boxes, taken);
+        let (id, pixels) = self.record_query(boxes, taken)?;
         let visible = pixels > 0;
         self.counts.predicated_queries += 1;
         self.events.push(MockEvent::QueryIf {
