@@ -38,6 +38,11 @@ fn shipped_box_shader_is_current() {
 
 const W: u32 = 64;
 const H: u32 = 64;
+/// The attachments' size, `W`x`H`.
+const EXTENT: vk::Extent2D = vk::Extent2D {
+    width: W,
+    height: H,
+};
 
 /// 16 unit boxes in a row along -z in front of the camera, at depths 5 to 35.
 fn row() -> (ObjectBvh, Camera) {
@@ -172,10 +177,6 @@ unsafe fn begin_render_pass(
     framebuffer: vk::Framebuffer,
     clear: Option<f32>,
 ) {
-    let extent = vk::Extent2D {
-        width: W,
-        height: H,
-    };
     let clear: Vec<vk::ClearValue> = clear
         .map(|depth| vk::ClearValue {
             depth_stencil: vk::ClearDepthStencilValue { depth, stencil: 0 },
@@ -189,7 +190,7 @@ unsafe fn begin_render_pass(
             &vk::RenderPassBeginInfo::default()
                 .render_pass(pass)
                 .framebuffer(framebuffer)
-                .render_area(extent.into())
+                .render_area(EXTENT.into())
                 .clear_values(&clear),
             vk::SubpassContents::INLINE,
         );
@@ -202,10 +203,6 @@ unsafe fn begin_render_pass(
 /// # Safety
 /// `cmd` is recording on `d`.
 unsafe fn set_viewport(d: &ash::Device, cmd: vk::CommandBuffer) {
-    let extent = vk::Extent2D {
-        width: W,
-        height: H,
-    };
     // SAFETY: per the caller.
     unsafe {
         d.cmd_set_viewport(
@@ -220,7 +217,7 @@ unsafe fn set_viewport(d: &ash::Device, cmd: vk::CommandBuffer) {
                 max_depth: 1.0,
             }],
         );
-        d.cmd_set_scissor(cmd, 0, &[extent.into()]);
+        d.cmd_set_scissor(cmd, 0, &[EXTENT.into()]);
     }
 }
 
@@ -734,10 +731,6 @@ unsafe fn depth_pass(d: &ash::Device, cmd: vk::CommandBuffer, depth: &Image, cle
                 stencil: 0,
             },
         });
-    let extent = vk::Extent2D {
-        width: W,
-        height: H,
-    };
     // SAFETY: per the caller.
     unsafe {
         d.cmd_pipeline_barrier2(
@@ -747,7 +740,7 @@ unsafe fn depth_pass(d: &ash::Device, cmd: vk::CommandBuffer, depth: &Image, cle
         d.cmd_begin_rendering(
             cmd,
             &vk::RenderingInfo::default()
-                .render_area(extent.into())
+                .render_area(EXTENT.into())
                 .layer_count(1)
                 .depth_attachment(&attachment),
         );
