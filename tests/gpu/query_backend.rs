@@ -2,7 +2,8 @@
 //! synchronization, best practices): a culler in next-frame mode with two frames in flight,
 //! queries recorded into a host command buffer inside a depth pass, results copied and read two
 //! frames later, also with 4 samples, with two views in one command buffer and in a host's
-//! `VkRenderPass` (next-frame and predicated); the sample counts and view masks it refuses;
+//! `VkRenderPass` (next-frame and predicated), and in secondary command buffers (next-frame;
+//! a frame without a resume refuses the predicated mode); the sample counts and view masks it refuses;
 //! its building blocks (`QuerySet`, `BoxPipeline`) on their own, growing and copying across
 //! pools; and the shipped SPIR-V of its box shader equals what the workspace's GLSL compiles
 //! to.
@@ -85,13 +86,17 @@ fn depth_at(cam: &Camera, d: f32) -> f32 {
 /// wall `wall` units away (boxes behind it are hidden), with `samples` samples, and its own
 /// `QueryBackend` and culler. `render_pass`: the depth pass is a `VkRenderPass` instance
 /// instead of dynamic rendering; `predicated` (only with a render pass): the culler runs the
-/// predicated mode, and the resume begins a second render pass whose depth LOADs.
+/// predicated mode, and the resume begins a second render pass whose depth LOADs;
+/// `secondary`: the view's culler records into a secondary command buffer that continues the
+/// primary's rendering (executed by it), as an engine that records its passes on several
+/// threads.
 #[derive(Clone, Copy)]
 struct ViewSetup {
     wall: f32,
     samples: vk::SampleCountFlags,
     render_pass: bool,
     predicated: bool,
+    secondary: bool,
 }
 
 impl ViewSetup {
@@ -101,6 +106,7 @@ impl ViewSetup {
             samples: vk::SampleCountFlags::TYPE_1,
             render_pass: false,
             predicated: false,
+            secondary: false,
         }
     }
 }
@@ -166,7 +172,7 @@ unsafe fn depth_render_pass(
 }
 
 /// Begins `pass` on `framebuffer` (depth cleared to `clear`, or loaded where `clear` is
-/// `None`), viewport and scissor set.
+/// `None`) with `contents`; with `INLINE` contents, viewport and scissor set.
 ///
 /// # Safety
 /// `cmd` is recording outside rendering; the handles belong to `d`.
@@ -176,6 +182,7 @@ unsafe fn begin_render_pass(
     pass: vk::RenderPass,
     framebuffer: vk::Framebuffer,
     clear: Option<f32>,
+    contents: vk::SubpassContents,
 ) {
     let clear: Vec<vk::ClearValue> = clear
         .map(|depth| vk::ClearValue {
@@ -192,9 +199,11 @@ unsafe fn begin_render_pass(
                 .framebuffer(framebuffer)
                 .render_area(EXTENT.into())
                 .clear_values(&clear),
-            vk::SubpassContents::INLINE,
+            contents,
         );
-        set_viewport(d, cmd);
+        if contents == vk::SubpassContents::INLINE {
+            set_viewport(d, cmd);
+        }
     }
 }
 
@@ -256,6 +265,10 @@ fn run_views(
                     v.render_pass || !v.predicated,
                     "predicated needs a render pass here"
                 );
+                assert!(
+                    !(v.secondary && v.predicated),
+                    "a secondary that continues the rendering cannot end it for a resolve"
+                );
                 v.render_pass.then(|| {
                     // SAFETY: valid device; destroyed after the device went idle.
                     unsafe {
@@ -308,7 +321,7 @@ fn run_views(
             .collect();
         // SAFETY: valid device; everything below is destroyed before the block ends.
         // One command pool per slot, reset whole when the slot is reused.
-        let (pools, cmds, fences) = unsafe {
+        let (pools, cmds, secondaries, fences) = unsafe {
             let pools: Vec<vk::CommandPool> = (0..k)
                 .map(|_| {
                     d.create_command_pool(
@@ -338,7 +351,20 @@ fn run_views(
                     .expect("fence")
                 })
                 .collect();
-            (pools, cmds, fences)
+            // Per slot, one secondary command buffer per view (used by views with `secondary`).
+            let secondaries: Vec<Vec<vk::CommandBuffer>> = pools
+                .iter()
+                .map(|&pool| {
+                    d.allocate_command_buffers(
+                        &vk::CommandBufferAllocateInfo::default()
+                            .command_pool(pool)
+                            .level(vk::CommandBufferLevel::SECONDARY)
+                            .command_buffer_count(views.len() as u32),
+                    )
+                    .expect("secondary command buffers")
+                })
+                .collect();
+            (pools, cmds, secondaries, fences)
         };
         let mut cullers: Vec<Chcpp> = views
             .iter()
@@ -378,13 +404,53 @@ fn run_views(
                 let mut objects: Vec<u32> = Vec::new();
                 // Beyond the far plane: cleared to the far plane.
                 let clear = depth_at(&cam, setup.wall).min(1.0);
-                // SAFETY: as above; the depth image and passes belong to the device.
-                unsafe {
+                // SAFETY: as above; the depth image and passes belong to the device. A
+                // secondary continues the primary's rendering: begun with the inheritance of
+                // its pass (or its formats), it sets its own viewport and scissor.
+                let cmd = unsafe {
+                    let (contents, flags) = if setup.secondary {
+                        (
+                            vk::SubpassContents::SECONDARY_COMMAND_BUFFERS,
+                            vk::RenderingFlags::CONTENTS_SECONDARY_COMMAND_BUFFERS,
+                        )
+                    } else {
+                        (vk::SubpassContents::INLINE, vk::RenderingFlags::empty())
+                    };
                     match passes[i] {
                         Some((pass, _, framebuffer)) => {
-                            begin_render_pass(d, cmd, pass, framebuffer, Some(clear))
+                            begin_render_pass(d, cmd, pass, framebuffer, Some(clear), contents)
                         }
-                        None => depth_pass(d, cmd, &depths[i], clear),
+                        None => depth_pass(d, cmd, &depths[i], clear, flags),
+                    }
+                    if setup.secondary {
+                        let secondary = secondaries[slot][i];
+                        let formats = [vk::Format::UNDEFINED; 0];
+                        let mut rendering = vk::CommandBufferInheritanceRenderingInfo::default()
+                            .color_attachment_formats(&formats)
+                            .depth_attachment_format(vk::Format::D32_SFLOAT)
+                            .rasterization_samples(setup.samples);
+                        let mut inheritance = vk::CommandBufferInheritanceInfo::default();
+                        inheritance = match passes[i] {
+                            Some((pass, _, framebuffer)) => inheritance
+                                .render_pass(pass)
+                                .subpass(0)
+                                .framebuffer(framebuffer),
+                            None => inheritance.push_next(&mut rendering),
+                        };
+                        d.begin_command_buffer(
+                            secondary,
+                            &vk::CommandBufferBeginInfo::default()
+                                .flags(
+                                    vk::CommandBufferUsageFlags::RENDER_PASS_CONTINUE
+                                        | vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT,
+                                )
+                                .inheritance_info(&inheritance),
+                        )
+                        .expect("begin secondary");
+                        set_viewport(d, secondary);
+                        secondary
+                    } else {
+                        cmd
                     }
                 };
                 let input = FrameInput {
@@ -401,7 +467,10 @@ fn run_views(
                 if let Some((_, load, framebuffer)) = passes[i].filter(|_| setup.predicated) {
                     frame = frame.with_resume(move |cmd| {
                         // SAFETY: the backend ended the pass; the loading pass resumes it.
-                        unsafe { begin_render_pass(d, cmd, load, framebuffer, None) };
+                        unsafe {
+                            let inline = vk::SubpassContents::INLINE;
+                            begin_render_pass(d, cmd, load, framebuffer, None, inline)
+                        };
                         Ok(())
                     });
                 }
@@ -409,8 +478,15 @@ fn run_views(
                     .cull_frame(&input, &mut frame)
                     .expect("cull_frame");
                 drop(frame);
-                // SAFETY: inside the rendering begun above (or resumed).
+                // SAFETY: inside the rendering begun above (or resumed); a secondary is ended
+                // and executed inside the primary's rendering.
                 unsafe {
+                    let cmd = cmds[slot];
+                    if setup.secondary {
+                        d.end_command_buffer(secondaries[slot][i])
+                            .expect("end secondary");
+                        d.cmd_execute_commands(cmd, &[secondaries[slot][i]]);
+                    }
                     if passes[i].is_some() {
                         d.cmd_end_render_pass(cmd);
                     } else {
@@ -567,6 +643,115 @@ fn query_backend_draws_inside_a_host_render_pass() {
     );
 }
 
+/// A host that records its depth pass in secondary command buffers continuing the primary's
+/// rendering (dynamic rendering with `CONTENTS_SECONDARY_COMMAND_BUFFERS`, or a render pass
+/// with `SECONDARY_COMMAND_BUFFERS` contents): the backend's queries and box draws go into the
+/// secondary, its reset and copy into the primary. Each view ends where it ends inline.
+#[test]
+fn query_backend_records_into_the_hosts_secondary_command_buffers() {
+    let secondary = |wall, render_pass| ViewSetup {
+        secondary: true,
+        render_pass,
+        ..ViewSetup::new(wall)
+    };
+    let views = [
+        secondary(10.5, false),
+        secondary(10.5, true),
+        secondary(1000.0, false),
+    ];
+    let (drawn, counts) = run_views(12, 2, &views);
+    let inline = run_frames(12, 10.5, 2).0;
+    assert_walled(&drawn[0], 3);
+    assert_eq!(drawn[0].last(), inline.last(), "{drawn:?}");
+    assert_eq!(drawn[1].last(), inline.last(), "{drawn:?}");
+    assert_all_drawn(&drawn[2]);
+    assert!(
+        counts[0].queries > 0 && counts[0].results_read > 0,
+        "{counts:?}"
+    );
+}
+
+/// A predicated culler on a frame made without `with_resume` (as a host whose depth pass is a
+/// secondary command buffer continuing the primary's rendering must make it: the backend
+/// cannot end that rendering for a resolve) is refused with an error that names what is
+/// missing, before anything is recorded; the same backend then runs a next-frame culler.
+#[test]
+fn query_backend_without_a_resume_refuses_the_predicated_mode() {
+    let (ctx, log) = common::context();
+    {
+        let d = &ctx.device;
+        let (bvh, cam) = row();
+        let depth = depth_image(&ctx, vk::SampleCountFlags::TYPE_1);
+        let view: CameraView = (&cam).into();
+        let view_proj = view.view_proj.to_cols_array();
+        let desc = QueryBackendDesc {
+            predicates: true,
+            depth: DepthConvention::STANDARD,
+            max_queries: 64,
+            ..QueryBackendDesc::default()
+        };
+        // SAFETY: the context's device has dynamic rendering, precise queries and conditional
+        // rendering; everything is dropped after the device went idle, before the context.
+        unsafe {
+            let mut queries = QueryBackend::new(&ctx.instance, ctx.physical_device, d, desc)
+                .expect("backend with predicates");
+            let pool = d
+                .create_command_pool(
+                    &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
+                    None,
+                )
+                .expect("pool");
+            let cmd = d
+                .allocate_command_buffers(
+                    &vk::CommandBufferAllocateInfo::default()
+                        .command_pool(pool)
+                        .command_buffer_count(1),
+                )
+                .expect("command buffer")[0];
+            begin_depth_pass(d, cmd, &depth, 1.0, |cmd| {
+                queries.begin_frame(cmd, 0).expect("begin_frame")
+            });
+            let input = FrameInput {
+                bvh: &bvh,
+                view,
+                frame: 0,
+                exact_visible: None,
+            };
+            let mut drawn = 0;
+            let mut draw = |_: vk::CommandBuffer, o: &[u32], _: bool| {
+                drawn += o.len();
+                Ok(())
+            };
+            let mut predicated = Chcpp::new(ChcppParams::default())
+                .with_latency(Latency::Predicated)
+                .with_frames_in_flight(2);
+            let mut frame = queries.frame(cmd, view_proj, &mut draw);
+            let err = predicated
+                .cull_frame(&input, &mut frame)
+                .expect_err("no resume");
+            assert!(
+                err.to_string().contains("FrameBackend::with_resume"),
+                "{err}"
+            );
+            drop(frame);
+            assert_eq!(queries.counts().queries, 0, "recorded before the refusal");
+            let mut next = Chcpp::new(ChcppParams::default())
+                .with_latency(Latency::NextFrame)
+                .with_frames_in_flight(2);
+            let mut frame = queries.frame(cmd, view_proj, &mut draw);
+            next.cull_frame(&input, &mut frame).expect("next-frame");
+            drop(frame);
+            d.cmd_end_rendering(cmd);
+            queries.end_frame(cmd).expect("end_frame");
+            submit_and_wait(&ctx, cmd);
+            assert!(queries.counts().queries > 0, "{:?}", queries.counts());
+            assert_eq!(drawn, 0, "nothing drawn before results arrive");
+            d.destroy_command_pool(pool, None);
+        }
+    }
+    common::assert_silent(&log);
+}
+
 /// The predicated mode in a host render pass: each predicate resolve ends the render pass
 /// instance (`vkCmdEndRenderPass`) and the host's resume begins one that LOADs the depth; one
 /// submission a frame, strict validation silent. Exact from the first frame: the boxes in front
@@ -691,17 +876,24 @@ unsafe fn begin_depth_pass<T>(
         d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
             .expect("begin");
         let out = before(cmd);
-        depth_pass(d, cmd, depth, clear);
+        depth_pass(d, cmd, depth, clear, vk::RenderingFlags::empty());
         out
     }
 }
 
 /// Records into `cmd` (recording, outside rendering) a depth-only rendering into `depth`
-/// (cleared to `clear`, after the writes of earlier frames), viewport and scissor set.
+/// (cleared to `clear`, after the writes of earlier frames) with `flags`; without
+/// `CONTENTS_SECONDARY_COMMAND_BUFFERS`, viewport and scissor set.
 ///
 /// # Safety
 /// `cmd` is recording outside rendering; `depth` is a `W`x`H` depth attachment of its device.
-unsafe fn depth_pass(d: &ash::Device, cmd: vk::CommandBuffer, depth: &Image, clear: f32) {
+unsafe fn depth_pass(
+    d: &ash::Device,
+    cmd: vk::CommandBuffer,
+    depth: &Image,
+    clear: f32,
+    flags: vk::RenderingFlags,
+) {
     let range = vk::ImageSubresourceRange::default()
         .aspect_mask(vk::ImageAspectFlags::DEPTH)
         .level_count(1)
@@ -740,11 +932,14 @@ unsafe fn depth_pass(d: &ash::Device, cmd: vk::CommandBuffer, depth: &Image, cle
         d.cmd_begin_rendering(
             cmd,
             &vk::RenderingInfo::default()
+                .flags(flags)
                 .render_area(EXTENT.into())
                 .layer_count(1)
                 .depth_attachment(&attachment),
         );
-        set_viewport(d, cmd);
+        if !flags.contains(vk::RenderingFlags::CONTENTS_SECONDARY_COMMAND_BUFFERS) {
+            set_viewport(d, cmd);
+        }
     }
 }
 

@@ -120,6 +120,22 @@
 //! end them after the last. With multisampled attachments set [`QueryBackendDesc::samples`]:
 //! the queries then count samples, not pixels.
 //!
+//! ## Secondary command buffers
+//!
+//! A host that records its depth pass in a secondary command buffer that continues the
+//! primary's rendering (`VK_RENDERING_CONTENTS_SECONDARY_COMMAND_BUFFERS_BIT`, or
+//! `VK_SUBPASS_CONTENTS_SECONDARY_COMMAND_BUFFERS`) passes that secondary to
+//! [`QueryBackend::frame`], and the primary to [`QueryBackend::begin_frame`] and
+//! [`QueryBackend::end_frame`] (outside the rendering, before and after the secondary is
+//! executed). Begin the secondary with `RENDER_PASS_CONTINUE` and the inheritance of the
+//! host's formats and samples (or its render pass and subpass), and set viewport and scissor
+//! in it: the box pipeline uses them as dynamic state, which a secondary does not inherit.
+//! The queries begin and end inside the secondary, so the device needs no `inheritedQueries`.
+//! Such a secondary cannot end the rendering it continues, so the predicated mode, whose
+//! resolves end and resume the rendering, needs the depth pass in a command buffer that
+//! began it: a frame without [`FrameBackend::with_resume`] makes a predicated culler refuse
+//! with an error that names it. The next-frame modes work in secondaries.
+//!
 //! ## Requirements
 //!
 //! `occlusionQueryPrecise` enabled on the device ([`QueryBackend::new`] checks that the

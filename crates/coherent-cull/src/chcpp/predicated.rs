@@ -111,7 +111,13 @@ impl LatencyMode for Predicated {
         if backend.supports_predicates() {
             Ok(())
         } else {
-            Err(crate::predicates_unsupported())
+            Err(crate::Error::Unsupported {
+                feature: "predicated draws (Latency::Predicated needs a backend whose \
+                          supports_predicates() is true: on Vulkan VK_EXT_conditional_rendering, \
+                          with coherent-ash also QueryBackendDesc::predicates and a frame made \
+                          with FrameBackend::with_resume)"
+                    .into(),
+            })
         }
     }
 
