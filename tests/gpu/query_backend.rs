@@ -617,6 +617,29 @@ fn query_backend_keeps_two_views_of_one_frame_apart() {
     );
 }
 
+/// Runs `views` (12 frames, two in flight) beside an inline view with dynamic rendering and a
+/// wall 10.5 units away in the same command buffer: each view with a wall that close ends as
+/// the inline view ends (boxes behind the wall culled, from results it read), each view
+/// without one draws every box.
+fn assert_views_end_as_inline(views: &[ViewSetup]) {
+    let mut all = views.to_vec();
+    all.push(ViewSetup::new(10.5));
+    let (drawn, counts) = run_views(12, 2, &all);
+    let inline = drawn.last().expect("the inline view");
+    assert_walled(inline, 3);
+    for (i, v) in views.iter().enumerate() {
+        if v.wall < 100.0 {
+            assert_eq!(drawn[i].last(), inline.last(), "view {i}: {drawn:?}");
+            assert!(
+                counts[i].queries > 0 && counts[i].results_read > 0,
+                "view {i}: {counts:?}"
+            );
+        } else {
+            assert_all_drawn(&drawn[i]);
+        }
+    }
+}
+
 /// A host that records its depth pass in a `VkRenderPass` (no dynamic rendering): the box
 /// pipeline is made for its subpass, and the culler ends where it ends with dynamic rendering,
 /// with 1 and 4 samples, beside a view with dynamic rendering in the same command buffer.
@@ -627,20 +650,10 @@ fn query_backend_draws_inside_a_host_render_pass() {
         render_pass: true,
         ..ViewSetup::new(wall)
     };
-    let one = vk::SampleCountFlags::TYPE_1;
-    let views = [
-        pass(10.5, one),
+    assert_views_end_as_inline(&[
+        pass(10.5, vk::SampleCountFlags::TYPE_1),
         pass(1000.0, vk::SampleCountFlags::TYPE_4),
-        ViewSetup::new(10.5),
-    ];
-    let (drawn, counts) = run_views(12, 2, &views);
-    assert_eq!(drawn[0].last(), drawn[2].last(), "{drawn:?}");
-    assert_walled(&drawn[0], 3);
-    assert_all_drawn(&drawn[1]);
-    assert!(
-        counts[0].queries > 0 && counts[0].results_read > 0,
-        "{counts:?}"
-    );
+    ]);
 }
 
 /// A host that records its depth pass in secondary command buffers continuing the primary's
@@ -654,21 +667,12 @@ fn query_backend_records_into_the_hosts_secondary_command_buffers() {
         render_pass,
         ..ViewSetup::new(wall)
     };
-    let views = [
+    assert_views_end_as_inline(&[
         secondary(10.5, false),
         secondary(10.5, true),
         secondary(1000.0, false),
-    ];
-    let (drawn, counts) = run_views(12, 2, &views);
-    let inline = run_frames(12, 10.5, 2).0;
-    assert_walled(&drawn[0], 3);
-    assert_eq!(drawn[0].last(), inline.last(), "{drawn:?}");
-    assert_eq!(drawn[1].last(), inline.last(), "{drawn:?}");
-    assert_all_drawn(&drawn[2]);
-    assert!(
-        counts[0].queries > 0 && counts[0].results_read > 0,
-        "{counts:?}"
-    );
+        secondary(1000.0, true),
+    ]);
 }
 
 /// A predicated culler on a frame made without `with_resume` (as a host whose depth pass is a
@@ -695,19 +699,7 @@ fn query_backend_without_a_resume_refuses_the_predicated_mode() {
         unsafe {
             let mut queries = QueryBackend::new(&ctx.instance, ctx.physical_device, d, desc)
                 .expect("backend with predicates");
-            let pool = d
-                .create_command_pool(
-                    &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
-                    None,
-                )
-                .expect("pool");
-            let cmd = d
-                .allocate_command_buffers(
-                    &vk::CommandBufferAllocateInfo::default()
-                        .command_pool(pool)
-                        .command_buffer_count(1),
-                )
-                .expect("command buffer")[0];
+            let (pool, cmd) = command_buffer(&ctx);
             begin_depth_pass(d, cmd, &depth, 1.0, |cmd| {
                 queries.begin_frame(cmd, 0).expect("begin_frame")
             });
@@ -943,6 +935,32 @@ unsafe fn depth_pass(
     }
 }
 
+/// A command pool on `ctx`'s queue family and one primary command buffer of it (destroy the
+/// pool when done).
+///
+/// # Safety
+/// Valid context.
+unsafe fn command_buffer(ctx: &coherent::gpu::GpuContext) -> (vk::CommandPool, vk::CommandBuffer) {
+    let d = &ctx.device;
+    // SAFETY: per the caller.
+    unsafe {
+        let pool = d
+            .create_command_pool(
+                &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
+                None,
+            )
+            .expect("pool");
+        let cmd = d
+            .allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default()
+                    .command_pool(pool)
+                    .command_buffer_count(1),
+            )
+            .expect("command buffer")[0];
+        (pool, cmd)
+    }
+}
+
 /// Ends `cmd`, submits it and waits until the queue is idle.
 ///
 /// # Safety
@@ -1010,19 +1028,7 @@ fn query_set_grows_copies_across_pools_and_refuses_clearly() {
                 .expect("full-size query set");
             assert_eq!(set.capacity(), 4);
             assert_eq!(small.capacity(), 4);
-            let pool = d
-                .create_command_pool(
-                    &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
-                    None,
-                )
-                .expect("pool");
-            let cmd = d
-                .allocate_command_buffers(
-                    &vk::CommandBufferAllocateInfo::default()
-                        .command_pool(pool)
-                        .command_buffer_count(1),
-                )
-                .expect("command buffer")[0];
+            let (pool, cmd) = command_buffer(&ctx);
             set.reset_from_host().expect("host reset");
             let refused_reset = small.reset_from_host().expect_err("no host resets");
             assert!(
