@@ -5,6 +5,7 @@
 use std::path::Path;
 use std::sync::OnceLock;
 
+use plotters::coord::types::RangedCoordu32;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
@@ -59,18 +60,7 @@ fn draw_chart(
     y_desc: &str,
     series: &[(&str, Vec<(u32, f64)>)],
 ) -> Result<(), String> {
-    let finite = |v: &f64| v.is_finite();
-    let max_x = series
-        .iter()
-        .flat_map(|(_, pts)| pts.iter().map(|p| p.0))
-        .max()
-        .unwrap_or(0)
-        .max(1);
-    let max_y = series
-        .iter()
-        .flat_map(|(_, pts)| pts.iter().map(|p| p.1))
-        .filter(finite)
-        .fold(0.0_f64, f64::max);
+    let (max_x, max_y) = extent(series, 0.0);
     let top = if max_y > 0.0 { max_y * 1.1 } else { 1.0 };
 
     let width = area.dim_in_pixel().0;
@@ -104,29 +94,7 @@ fn draw_chart(
         .draw()
         .map_err(|e| e.to_string())?;
 
-    for (i, (name, pts)) in series.iter().enumerate() {
-        let color = COLORS[i % COLORS.len()];
-        let line = pts.iter().filter(|p| p.1.is_finite()).map(|&(x, y)| (x, y));
-        chart
-            .draw_series(LineSeries::new(line, color.stroke_width(2)))
-            .map_err(|e| e.to_string())?
-            .label(*name)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 24, y)], color.stroke_width(3))
-            });
-    }
-    if !series.is_empty() {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .label_font((FAMILY, 18))
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .margin(12)
-            .draw()
-            .map_err(|e| e.to_string())?;
-    }
-    Ok(())
+    draw_lines(&mut chart, series, 0.0, (18, 12))
 }
 
 /// Frame-time plot (1280x720): one line per algorithm of frame time in ms over
@@ -136,15 +104,7 @@ pub fn plot_frametime(
     title: &str,
     series: &[(String, Vec<(u32, f64)>)],
 ) -> Result<(), Error> {
-    ensure_font()?;
-    let root = BitMapBackend::new(path, (1280, 720)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
-    let lines: Vec<(&str, Vec<(u32, f64)>)> = series
-        .iter()
-        .map(|(name, pts)| (name.as_str(), pts.clone()))
-        .collect();
-    draw_chart(&root, title, "frame time [ms]", &lines).map_err(|e| plot_err(path, e))?;
-    root.present().map_err(|e| plot_err(path, e))
+    plot_lines(path, title, "frame time [ms]", series)
 }
 
 /// Line plot (1280x720) of any per-frame value: one line per series over the frame index,
@@ -224,17 +184,7 @@ fn draw_log_chart(
     y_desc: &str,
     series: &[(&str, Vec<(u32, f64)>)],
 ) -> Result<(), String> {
-    let max_x = series
-        .iter()
-        .flat_map(|(_, pts)| pts.iter().map(|p| p.0))
-        .max()
-        .unwrap_or(0)
-        .max(1);
-    let max_y = series
-        .iter()
-        .flat_map(|(_, pts)| pts.iter().map(|p| p.1))
-        .filter(|v| v.is_finite())
-        .fold(1.0_f64, f64::max);
+    let (max_x, max_y) = extent(series, 1.0);
     let mut chart = ChartBuilder::on(area)
         .caption(caption, (FAMILY, 22))
         .margin(12)
@@ -253,12 +203,34 @@ fn draw_log_chart(
         .y_label_formatter(&|v: &f64| format!("{v:.0}"))
         .draw()
         .map_err(|e| e.to_string())?;
+    draw_lines(&mut chart, series, 0.5, (15, 8))
+}
+
+/// The largest frame (at least 1) and the largest finite value (at least `least`) of `series`.
+fn extent(series: &[(&str, Vec<(u32, f64)>)], least: f64) -> (u32, f64) {
+    let points = || series.iter().flat_map(|(_, pts)| pts.iter());
+    let max_x = points().map(|p| p.0).max().unwrap_or(0).max(1);
+    let max_y = points()
+        .map(|p| p.1)
+        .filter(|v| v.is_finite())
+        .fold(least, f64::max);
+    (max_x, max_y)
+}
+
+/// Draws `series` into `chart`, one colored line each (finite values, raised to `floor`),
+/// and their legend in the upper right with `(font size, margin)`.
+fn draw_lines<'a, Y: Ranged<ValueType = f64>>(
+    chart: &mut ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordu32, Y>>,
+    series: &[(&str, Vec<(u32, f64)>)],
+    floor: f64,
+    (font, margin): (u32, u32),
+) -> Result<(), String> {
     for (i, (name, pts)) in series.iter().enumerate() {
         let color = COLORS[i % COLORS.len()];
         let line = pts
             .iter()
             .filter(|p| p.1.is_finite())
-            .map(|&(x, y)| (x, y.max(0.5)));
+            .map(|&(x, y)| (x, y.max(floor)));
         chart
             .draw_series(LineSeries::new(line, color.stroke_width(2)))
             .map_err(|e| e.to_string())?
@@ -271,10 +243,10 @@ fn draw_log_chart(
         chart
             .configure_series_labels()
             .position(SeriesLabelPosition::UpperRight)
-            .label_font((FAMILY, 15))
+            .label_font((FAMILY, font))
             .background_style(WHITE.mix(0.9))
             .border_style(BLACK)
-            .margin(8)
+            .margin(margin)
             .draw()
             .map_err(|e| e.to_string())?;
     }
