@@ -438,18 +438,33 @@ pub fn aspect_of(format: vk::Format) -> vk::ImageAspectFlags {
     }
 }
 
+/// Destroys `view` (unless null) and `image`, and frees `allocation`: the drop of an image
+/// that owns its memory ([`Image`], `Texture`, the pyramids' `MipImage`).
+///
+/// # Safety
+/// The handles belong to `ctx`'s device, which no longer uses them.
+pub(crate) unsafe fn destroy_image(
+    ctx: &GpuContext,
+    image: vk::Image,
+    view: vk::ImageView,
+    allocation: &mut Option<Allocation>,
+) {
+    // SAFETY: per the caller.
+    unsafe {
+        if view != vk::ImageView::null() {
+            ctx.device.destroy_image_view(view, None);
+        }
+        ctx.device.destroy_image(image, None);
+    }
+    if let Some(a) = allocation.take() {
+        let _ = ctx.allocator().free(a);
+    }
+}
+
 impl Drop for Image {
     fn drop(&mut self) {
         // SAFETY: the owner guarantees the GPU no longer uses the image.
-        unsafe {
-            if self.view != vk::ImageView::null() {
-                self.ctx.device.destroy_image_view(self.view, None);
-            }
-            self.ctx.device.destroy_image(self.handle, None);
-        }
-        if let Some(a) = self.allocation.take() {
-            let _ = self.ctx.allocator().free(a);
-        }
+        unsafe { destroy_image(&self.ctx, self.handle, self.view, &mut self.allocation) };
     }
 }
 

@@ -10,7 +10,7 @@ use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
 use gpu_allocator::MemoryLocation;
 
 use super::commands::{Access, Recorder};
-use super::memory::Buffer;
+use super::memory::{destroy_image, Buffer};
 use super::{GpuContext, OneShot};
 use crate::error::{Error, Result, VkContext};
 
@@ -283,15 +283,17 @@ impl Drop for MipImage {
     fn drop(&mut self) {
         // SAFETY: the owner guarantees the GPU no longer uses the image or its views.
         unsafe {
-            for v in self.level_views.drain(..).chain([self.all_levels]) {
+            for v in self.level_views.drain(..) {
                 if v != vk::ImageView::null() {
                     self.ctx.device.destroy_image_view(v, None);
                 }
             }
-            self.ctx.device.destroy_image(self.handle, None);
-        }
-        if let Some(a) = self.allocation.take() {
-            let _ = self.ctx.allocator().free(a);
+            destroy_image(
+                &self.ctx,
+                self.handle,
+                self.all_levels,
+                &mut self.allocation,
+            );
         }
     }
 }

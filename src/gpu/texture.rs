@@ -10,7 +10,7 @@ use gpu_allocator::vulkan::Allocation;
 
 use super::commands::Recorder;
 use super::descriptors::Sampler;
-use super::memory::Buffer;
+use super::memory::{destroy_image, Buffer};
 use super::pyramid::{bind_gpu_only_memory, mip_image_info};
 use super::{GpuContext, OneShot};
 use crate::error::{Error, Result, VkContext};
@@ -388,15 +388,7 @@ impl Texture {
 impl Drop for Texture {
     fn drop(&mut self) {
         // SAFETY: the owner guarantees the GPU no longer uses the image or its view.
-        unsafe {
-            if self.view != vk::ImageView::null() {
-                self.ctx.device.destroy_image_view(self.view, None);
-            }
-            self.ctx.device.destroy_image(self.handle, None);
-        }
-        if let Some(a) = self.allocation.take() {
-            let _ = self.ctx.allocator().free(a);
-        }
+        unsafe { destroy_image(&self.ctx, self.handle, self.view, &mut self.allocation) };
     }
 }
 
