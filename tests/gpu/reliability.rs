@@ -13,6 +13,7 @@ use std::sync::Arc;
 use ash::vk;
 use coherent::culling;
 use coherent::gpu::{Buffer, ContextOptions, GpuContext, Image, LimitOverrides, MemoryUsage};
+use coherent::render::hiz::FrameAlgorithm;
 use coherent::render::Renderer;
 use coherent::Error;
 
@@ -421,8 +422,20 @@ struct Soak {
 }
 
 /// The algorithms a soak runs: every algorithm that needs no preprocessing (pvs needs its
-/// cells built; its per-frame work is vfc's over a smaller set).
-const SOAKED: [&str; 6] = ["vfc", "stop-and-wait", "chc", "chcpp", "oracle", "nohc"];
+/// cells built; its per-frame work is vfc's over a smaller set), and CHC++ in the predicated
+/// mode (one and two frames in flight) and the next-frame mode with two frames in flight.
+const SOAKED: [&str; 10] = [
+    "vfc",
+    "stop-and-wait",
+    "chc",
+    "chcpp",
+    "oracle",
+    "nohc",
+    "hiz",
+    "chcpp@predicated",
+    "chcpp@predicated-k2",
+    "chcpp@next-frame-k2",
+];
 
 /// What the soaked algorithms need: nohc a cost model (a fixed one: the soak is about leaks and
 /// messages, not about which nodes are worth a query).
@@ -434,7 +447,7 @@ fn setup(scene: &coherent::scene::Scene) -> culling::CullerSetup {
 const SOAK_MOVERS: usize = 40;
 
 /// Renders `frames` frames along the city's street path at 160x90 (scale 0.1) with
-/// [`SOAK_MOVERS`] moving cars: each pose is rendered by every algorithm in turn (frames / 6
+/// [`SOAK_MOVERS`] moving cars: each pose is rendered by every algorithm in turn (frames / 10
 /// poses, forward and back along the path), under strict validation. Start figures are taken
 /// after a warm-up of 10 poses; RSS is also sampled at ten checkpoints.
 fn soak(frames: u32) -> Soak {
@@ -448,7 +461,7 @@ fn soak(frames: u32) -> Soak {
         let mut r = Renderer::new(&ctx, &scene, 160, 90).expect("renderer");
         let mut algs: Vec<_> = SOAKED
             .iter()
-            .map(|a| culling::create_with(a, &setup(&scene)).expect("algorithm"))
+            .map(|a| FrameAlgorithm::create(a, &setup(&scene), &r).expect("algorithm"))
             .collect();
         let mut start = (MemoryUsage::default(), std::time::Instant::now());
         let mut rss = Vec::new();
@@ -463,7 +476,7 @@ fn soak(frames: u32) -> Soak {
             coherent::app::walk::place_movers(&movers, p.into(), &mut bvh, &mut r).expect("movers");
             let cam = r.camera(path.sample(k.min(period - k), 601), &bvh);
             for alg in algs.iter_mut() {
-                r.render_frame(alg.as_mut(), &bvh, &cam, p as u64)
+                alg.render_frame(&mut r, &bvh, &cam, p as u64)
                     .expect("frame");
             }
         }
