@@ -24,4 +24,5 @@ mod query_backend;
 mod reliability;
 mod scenes;
 mod viewer;
+mod vulkan_1_2;
 mod walk;

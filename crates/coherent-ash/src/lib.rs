@@ -144,8 +144,11 @@
 //! or in the host's `VkRenderPass` ([`QueryBackendDesc::render_pass`] and `subpass`). The
 //! host's rendering must match the formats, samples and view mask of [`QueryBackendDesc`]
 //! (the device must support them there, which [`QueryBackend::new`] checks), and set viewport
-//! and scissor dynamically. `Latency::Predicated` also needs `synchronization2` enabled (the
-//! barrier after the predicate copies).
+//! and scissor dynamically. The backend records only Vulkan 1.0 commands besides the
+//! conditional blocks and, in a predicated frame with dynamic rendering, the end of the
+//! rendering (`vkCmdEndRendering`, or `vkCmdEndRenderingKHR` on a 1.2 device): it needs neither
+//! Vulkan 1.3 nor `synchronization2` (tested on a Vulkan 1.2 instance whose device has
+//! `VK_KHR_dynamic_rendering` and `VK_EXT_conditional_rendering`).
 //!
 //! ## Lifetime
 //!
@@ -342,6 +345,9 @@ pub struct QueryBackend {
     current: Option<u32>,
     /// The slot of the last frame begun (whose counts [`QueryBackend::counts`] returns).
     last: Option<u32>,
+    /// `vkCmdEndRendering` or `vkCmdEndRenderingKHR`, for the predicate resolves of a host
+    /// with dynamic rendering (`None` with a render pass or without predicates).
+    end_rendering: Option<vk::PFN_vkCmdEndRendering>,
 }
 
 /// The 8 corners of `b`, corner `c` = x | y << 1 | z << 2 (the layout of [`BOX_FACES`]).
@@ -403,6 +409,12 @@ impl QueryBackend {
             render_pass: desc.render_pass,
             subpass: desc.subpass,
         };
+        let end_rendering = if desc.predicates && desc.render_pass == vk::RenderPass::null() {
+            // SAFETY: the caller guarantees that the handles belong together.
+            Some(unsafe { end_rendering_fn(instance, device)? })
+        } else {
+            None
+        };
         // SAFETY: the caller's guarantees.
         let pipeline = unsafe { BoxPipeline::new(device, &pipeline_desc)? };
         let set_desc = QuerySetDesc {
@@ -427,6 +439,7 @@ impl QueryBackend {
             pipeline: Some(pipeline),
             current: None,
             last: None,
+            end_rendering,
             desc,
         })
     }
@@ -781,10 +794,9 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
         // SAFETY: `cmd` is recording inside the host's rendering (the `frame` contract): it is
         // ended here, the copy and barrier recorded outside it, and the host resumes it.
         unsafe {
-            if b.desc.render_pass == vk::RenderPass::null() {
-                b.device.cmd_end_rendering(cmd);
-            } else {
-                b.device.cmd_end_render_pass(cmd);
+            match b.end_rendering {
+                Some(end_rendering) => end_rendering(cmd),
+                None => b.device.cmd_end_render_pass(cmd),
             }
             b.slots[slot as usize].record_resolve(cmd)?;
         }
@@ -818,6 +830,32 @@ impl<D: DrawObjects> OcclusionBackend for FrameBackend<'_, D> {
             b.count_draw(objects)
         })
     }
+}
+
+/// `vkCmdEndRendering` of a Vulkan 1.3 device, or `vkCmdEndRenderingKHR` of a device with
+/// `VK_KHR_dynamic_rendering` (a Vulkan 1.2 host); an error naming both without either.
+///
+/// # Safety
+/// `device` was created from `instance`.
+unsafe fn end_rendering_fn(
+    instance: &ash::Instance,
+    device: &ash::Device,
+) -> Result<vk::PFN_vkCmdEndRendering> {
+    for name in [c"vkCmdEndRendering", c"vkCmdEndRenderingKHR"] {
+        // SAFETY: per the caller; the name is a valid C string.
+        if let Some(f) = unsafe { instance.get_device_proc_addr(device.handle(), name.as_ptr()) } {
+            // SAFETY: both names have the signature of PFN_vkCmdEndRendering.
+            return Ok(unsafe {
+                std::mem::transmute::<unsafe extern "system" fn(), vk::PFN_vkCmdEndRendering>(f)
+            });
+        }
+    }
+    Err(Error::Unsupported {
+        feature: "ending dynamic rendering for the predicate resolves: vkCmdEndRendering \
+                  (Vulkan 1.3) or vkCmdEndRenderingKHR (VK_KHR_dynamic_rendering enabled on \
+                  the device)"
+            .into(),
+    })
 }
 
 /// Whether the physical device has `VK_EXT_conditional_rendering` with `conditionalRendering`.

@@ -492,8 +492,8 @@ impl QuerySet {
             self.copy_results(cmd, first, n, false);
             self.barrier(
                 cmd,
-                vk::PipelineStageFlags2::HOST,
-                vk::AccessFlags2::HOST_READ,
+                vk::PipelineStageFlags::HOST,
+                vk::AccessFlags::HOST_READ,
             );
         }
         self.copied = self.issued;
@@ -535,8 +535,8 @@ impl QuerySet {
             unsafe {
                 self.barrier(
                     cmd,
-                    vk::PipelineStageFlags2::CONDITIONAL_RENDERING_EXT,
-                    vk::AccessFlags2::CONDITIONAL_RENDERING_READ_EXT,
+                    vk::PipelineStageFlags::CONDITIONAL_RENDERING_EXT,
+                    vk::AccessFlags::CONDITIONAL_RENDERING_READ_EXT,
                 )
             };
             self.unguarded = false;
@@ -637,26 +637,30 @@ impl QuerySet {
         Ok(())
     }
 
-    /// A global barrier from the copies (transfer writes) to `stage`'s `access`.
+    /// A global barrier from the copies (transfer writes) to `stage`'s `access`: a Vulkan 1.0
+    /// barrier, so that a host needs neither Vulkan 1.3 nor `synchronization2`.
     ///
     /// # Safety
     /// `cmd` is recording outside a render pass instance.
     unsafe fn barrier(
         &self,
         cmd: vk::CommandBuffer,
-        stage: vk::PipelineStageFlags2,
-        access: vk::AccessFlags2,
+        stage: vk::PipelineStageFlags,
+        access: vk::AccessFlags,
     ) {
-        let barrier = vk::MemoryBarrier2::default()
-            .src_stage_mask(vk::PipelineStageFlags2::ALL_TRANSFER)
-            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-            .dst_stage_mask(stage)
+        let barrier = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
             .dst_access_mask(access);
         // SAFETY: per the caller.
         unsafe {
-            self.device.cmd_pipeline_barrier2(
+            self.device.cmd_pipeline_barrier(
                 cmd,
-                &vk::DependencyInfo::default().memory_barriers(&[barrier]),
+                vk::PipelineStageFlags::TRANSFER,
+                stage,
+                vk::DependencyFlags::empty(),
+                &[barrier],
+                &[],
+                &[],
             )
         };
     }
