@@ -46,7 +46,7 @@ const EXTENT: vk::Extent2D = vk::Extent2D {
 };
 
 /// 16 unit boxes in a row along -z in front of the camera, at depths 5 to 35.
-fn row() -> (ObjectBvh, Camera) {
+pub(crate) fn row() -> (ObjectBvh, Camera) {
     let boxes = (0..16).map(|i| {
         let z = -5.0 - 2.0 * i as f32;
         [[-0.5, -0.5, z - 1.0], [0.5, 0.5, z]]
@@ -699,7 +699,7 @@ fn query_backend_without_a_resume_refuses_the_predicated_mode() {
         unsafe {
             let mut queries = QueryBackend::new(&ctx.instance, ctx.physical_device, d, desc)
                 .expect("backend with predicates");
-            let (pool, cmd) = command_buffer(&ctx);
+            let (pool, cmd) = command_buffer(d, ctx.queue_family);
             begin_depth_pass(d, cmd, &depth, 1.0, |cmd| {
                 queries.begin_frame(cmd, 0).expect("begin_frame")
             });
@@ -935,18 +935,20 @@ unsafe fn depth_pass(
     }
 }
 
-/// A command pool on `ctx`'s queue family and one primary command buffer of it (destroy the
-/// pool when done).
+/// A command pool on queue family `family` of `d` and one primary command buffer of it
+/// (destroy the pool when done).
 ///
 /// # Safety
-/// Valid context.
-unsafe fn command_buffer(ctx: &coherent::gpu::GpuContext) -> (vk::CommandPool, vk::CommandBuffer) {
-    let d = &ctx.device;
+/// Valid device and family.
+pub(crate) unsafe fn command_buffer(
+    d: &ash::Device,
+    family: u32,
+) -> (vk::CommandPool, vk::CommandBuffer) {
     // SAFETY: per the caller.
     unsafe {
         let pool = d
             .create_command_pool(
-                &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
+                &vk::CommandPoolCreateInfo::default().queue_family_index(family),
                 None,
             )
             .expect("pool");
@@ -1028,7 +1030,7 @@ fn query_set_grows_copies_across_pools_and_refuses_clearly() {
                 .expect("full-size query set");
             assert_eq!(set.capacity(), 4);
             assert_eq!(small.capacity(), 4);
-            let (pool, cmd) = command_buffer(&ctx);
+            let (pool, cmd) = command_buffer(d, ctx.queue_family);
             set.reset_from_host().expect("host reset");
             let refused_reset = small.reset_from_host().expect_err("no host resets");
             assert!(

@@ -8,10 +8,11 @@ use std::sync::Mutex;
 
 use ash::{ext, khr, vk};
 use coherent_ash::{QueryBackend, QueryBackendDesc};
-use coherent_cull::camera::{Camera, CameraPose};
 use coherent_cull::chcpp::{Chcpp, ChcppParams};
-use coherent_cull::glam::{Vec3, Vec4};
-use coherent_cull::{CameraView, Culler, DepthConvention, FrameInput, Latency, ObjectBvh};
+use coherent_cull::glam::Vec4;
+use coherent_cull::{CameraView, Culler, DepthConvention, FrameInput, Latency};
+
+use crate::query_backend::{command_buffer, row};
 
 /// Attachment size.
 const EXTENT: vk::Extent2D = vk::Extent2D {
@@ -325,22 +326,6 @@ unsafe fn depth_image(
     }
 }
 
-/// 16 unit boxes in a row along -z in front of the camera, at depths 5 to 35.
-fn row() -> (ObjectBvh, Camera) {
-    let boxes = (0..16).map(|i| {
-        let z = -5.0 - 2.0 * i as f32;
-        [[-0.5, -0.5, z - 1.0], [0.5, 0.5, z]]
-    });
-    let pose = CameraPose {
-        eye: Vec3::ZERO,
-        target: Vec3::new(0.0, 0.0, -10.0),
-    };
-    (
-        ObjectBvh::from_boxes(boxes, 1),
-        Camera::from_pose(pose, 1.0, 100.0),
-    )
-}
-
 /// Runs 12 frames of chcpp in `latency` with two frames in flight through a `QueryBackend` on
 /// the 1.2 host; the depth pass is cleared to a wall 10.5 units away (boxes 0-2 in front of
 /// it). Returns the objects handed over in each frame and the number of predicate resolves.
@@ -373,19 +358,7 @@ fn run(host: &Host, latency: Latency) -> (Vec<Vec<u32>>, u32) {
             .with_frames_in_flight(2);
         let mut slots = Vec::new();
         for _ in 0..2 {
-            let pool = d
-                .create_command_pool(
-                    &vk::CommandPoolCreateInfo::default().queue_family_index(host.queue_family),
-                    None,
-                )
-                .expect("pool");
-            let cmd = d
-                .allocate_command_buffers(
-                    &vk::CommandBufferAllocateInfo::default()
-                        .command_pool(pool)
-                        .command_buffer_count(1),
-                )
-                .expect("command buffer")[0];
+            let (pool, cmd) = command_buffer(d, host.queue_family);
             let fence = d
                 .create_fence(
                     &vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED),
