@@ -32,7 +32,7 @@ pub struct RenderArgs {
     /// Culling algorithm (vfc, stop-and-wait, chc, chcpp, oracle, oracle-box, nohc, pvs, hiz).
     #[arg(long, default_value = "vfc")]
     pub algorithm: String,
-    /// Latency mode of chc and chcpp: in-frame, predicated, next-frame,
+    /// Latency mode of chc, chcpp and nohc: in-frame, predicated, next-frame,
     /// next-frame-conservative, with an optional `-kN` suffix (N frames in flight).
     #[arg(long, default_value = "in-frame")]
     pub latency: String,
@@ -98,7 +98,7 @@ pub struct WalkArgs {
     /// algorithm's missed objects and pixels (visible but not drawn).
     #[arg(long)]
     pub check: bool,
-    /// Latency modes of chc and chcpp, comma separated: in-frame (exact, waits inside the
+    /// Latency modes of chc, chcpp and nohc, comma separated: in-frame (exact, waits inside the
     /// frame), predicated (exact, one submission: hidden nodes drawn under their queries'
     /// predicates), next-frame (queries read one frame late), next-frame-conservative; a
     /// `-kN` suffix reads them N frames late (N frames in flight, e.g. predicated-k2).
@@ -364,13 +364,13 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
     check_algorithm(&a.algorithm, &ChcppParams::default())?;
     let name = match a.algorithm.as_str() {
-        "chc" | "chcpp" => culling::with_latency_names(
+        alg if culling::has_latency_modes(alg) => culling::with_latency_names(
             std::slice::from_ref(&a.algorithm),
             std::slice::from_ref(&a.latency),
         )?
         .remove(0),
         _ if a.latency == "in-frame" => a.algorithm.clone(),
-        other => bail!("--latency is for chc and chcpp, not \"{other}\""),
+        other => bail!("--latency is for chc, chcpp and nohc, not \"{other}\""),
     };
     let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
     // The path of the scene without movers (checked and found on the fixed geometry).

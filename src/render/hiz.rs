@@ -528,7 +528,7 @@ pub fn check_algorithm(name: &str, params: &ChcppParams) -> Result<()> {
     }
     if let Some((alg, mode)) = name.split_once('@') {
         culling::Latency::parse(mode)?;
-        if alg == "chc" || alg == "chcpp" {
+        if culling::has_latency_modes(alg) {
             return Ok(());
         }
     }

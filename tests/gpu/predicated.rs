@@ -1,5 +1,5 @@
 //! The predicated latency mode on the built-in renderer (`VK_EXT_conditional_rendering`): CHC++
-//! with one submission per frame and no wait draws the previously invisible nodes under their
+//! (and NOHC) with one submission per frame and no wait draws the previously invisible nodes under their
 //! queries' predicates. Its images equal vfc's pixel for pixel and it misses no visible object
 //! along walks with a camera cut, a turn that brings nodes in from behind, and movers; the
 //! recorder refuses predicates read without their barrier; a device without the extension gets
@@ -41,7 +41,8 @@ fn poses(scene: &Scene, path: &str) -> Vec<CameraPose> {
     out
 }
 
-/// Walks `poses` with vfc and both predicated modes (with `params`): every frame of a
+/// Walks `poses` with vfc and the predicated modes `names` (created from `setup`; the checks
+/// below read the part policy of `setup.params`): every frame of a
 /// predicated mode is one submission with no wait and two pass breaks at most (the second
 /// decides the parts of split nodes under their predicates: by the renderer's depth part
 /// test, or with `predicated_tested_parts_min` at its maximum by queries; with one
@@ -56,16 +57,14 @@ fn matches_vfc(
     poses: &[CameraPose],
     movers: Option<&Movers>,
     tie_pixels: usize,
-    params: &ChcppParams,
+    setup: &CullerSetup,
+    names: &[&str],
 ) -> u32 {
-    let setup = CullerSetup {
-        params: params.clone(),
-        ..CullerSetup::default()
-    };
+    let params = &setup.params;
     let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
-    let mut modes: Vec<Box<dyn Culler>> = MODES
+    let mut modes: Vec<Box<dyn Culler>> = names
         .iter()
-        .map(|m| culling::create_named(m, &setup).expect(m))
+        .map(|m| culling::create_named(m, setup).expect(m))
         .collect();
     r.log_drawn_objects(true);
     if let Some(m) = movers {
@@ -82,7 +81,7 @@ fn matches_vfc(
         let cam = r.camera(pose, bvh);
         r.render_frame(vfc.as_mut(), bvh, &cam, f).unwrap();
         let reference = r.read_color().unwrap();
-        for (name, c) in MODES.iter().zip(modes.iter_mut()) {
+        for (name, c) in names.iter().zip(modes.iter_mut()) {
             let res = r.render_frame(c.as_mut(), bvh, &cam, f).unwrap();
             let tag = format!("{name} frame {f}");
             assert_eq!(res.counts.submits, 1, "{tag}: submissions");
@@ -168,6 +167,35 @@ fn matches_vfc(
     taken
 }
 
+/// What the predicated modes of chcpp need: its parameters.
+fn with_params(params: ChcppParams) -> CullerSetup {
+    CullerSetup {
+        params,
+        ..CullerSetup::default()
+    }
+}
+
+/// NOHC in the predicated mode, with one and two frames in flight and the suite's fixed cost
+/// model (the nodes its rule does not query are drawn unconditionally; that rule at work is
+/// tested in coherent-cull's `modes.rs`): on the street and in the powerplant its images equal
+/// vfc's and it misses nothing, one submission a frame.
+#[test]
+fn nohc_predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
+    let (ctx, log) = common::context();
+    {
+        for (name, scale, path) in [("city", 0.1, "street"), ("powerplant", 0.5, "difficult")] {
+            let (scene, mut bvh) = common::scene(name, scale);
+            let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+            let tris: Vec<u64> = scene.objects.iter().map(|o| o.triangle_count()).collect();
+            let poses = poses(&scene, path);
+            let setup = common::setup(common::triangles(&scene), (160, 90), 0.05);
+            let modes = ["nohc@predicated", "nohc@predicated-k2"];
+            matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &setup, &modes);
+        }
+    }
+    common::assert_silent(&log);
+}
+
 #[test]
 fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
     let (ctx, log) = common::context();
@@ -184,7 +212,8 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
                     predicated_tested_parts_min: tested_parts_min,
                     ..ChcppParams::default()
                 };
-                let taken = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &params);
+                let setup = with_params(params);
+                let taken = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &setup, &MODES);
                 assert!(
                     taken > 0,
                     "{name}: something was drawn under a true predicate"
@@ -193,8 +222,8 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
             });
             // One predicate level (the GPU policy): each queried node's objects under its
             // own predicate, gathered on the device where it can.
-            let gpu = ChcppParams::for_gpu();
-            let one_level = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &gpu);
+            let gpu = with_params(ChcppParams::for_gpu());
+            let one_level = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &gpu, &MODES);
             assert!(
                 one_level > 0,
                 "{name}: one level drew under a true predicate"
@@ -234,10 +263,11 @@ fn predicated_images_equal_vfc_in_the_parking_with_100_movers() {
             &poses,
             Some(&movers),
             144,
-            &ChcppParams {
+            &with_params(ChcppParams {
                 predicated_tested_parts_min: 0,
                 ..ChcppParams::default()
-            },
+            }),
+            &MODES,
         );
     }
     common::assert_silent(&log);

@@ -512,18 +512,18 @@ pub fn create_latency(
             chcpp::Chcpp::named("chc", ChcppParams::chc()).with_latency(l),
         )),
         (other, l) => Err(Error::Input(format!(
-            "{other} has no latency mode {} (only chc and chcpp)",
+            "{other} has no latency mode {} (only chc, chcpp and nohc)",
             l.name()
         ))),
     }
 }
 
-/// `algorithms` with `chc` and `chcpp` expanded to one report name per latency mode in
-/// `modes` ([`Latency::report_name`]); the others once, in-frame.
+/// `algorithms` with `chc`, `chcpp` and `nohc` expanded to one report name per latency mode
+/// in `modes` ([`Latency::report_name`]); the others once, in-frame.
 pub fn with_latencies(algorithms: &[String], modes: &[Latency]) -> Vec<String> {
     let mut out = Vec::new();
     for a in algorithms {
-        if a == "chc" || a == "chcpp" {
+        if has_latency_modes(a) {
             out.extend(modes.iter().map(|m| m.report_name(a)));
         } else {
             out.push(a.clone());
@@ -534,9 +534,18 @@ pub fn with_latencies(algorithms: &[String], modes: &[Latency]) -> Vec<String> {
 
 /// Creates an algorithm by report name: `ALGORITHM@MODE` (`chcpp@next-frame`) in a latency
 /// mode, `ALGORITHM@MODE-kN` with `N` frames in flight (on the built-in renderer through
-/// [`latency::FramesInFlight`]), else as [`create_with`].
+/// [`latency::FramesInFlight`]), else as [`create_with`]. `nohc@MODE` takes its cost model
+/// from `setup`.
 pub fn create_named(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> {
     match name.split_once('@') {
+        Some(("nohc", mode)) => match Latency::parse_in_flight(mode)? {
+            (Latency::InFrame, _) => create_with("nohc", setup),
+            (l, 1) => Ok(Box::new(nohc_with(setup)?.with_latency(l))),
+            (l, k) => Ok(Box::new(latency::FramesInFlight::new(
+                Box::new(nohc_with(setup)?.with_latency(l).with_frames_in_flight(k)),
+                k,
+            ))),
+        },
         Some((alg, mode)) => match Latency::parse_in_flight(mode)? {
             (l, 1) => create_latency(alg, &setup.params, l),
             (l, k) => Ok(Box::new(latency::FramesInFlight::new(
@@ -548,12 +557,17 @@ pub fn create_named(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> 
     }
 }
 
+/// Whether `name` has the latency modes ([`with_latencies`]): chc, chcpp and nohc.
+pub fn has_latency_modes(name: &str) -> bool {
+    matches!(name, "chc" | "chcpp" | "nohc")
+}
+
 /// [`with_latencies`] from command-line names, which may carry a `-kN` suffix for `N` frames
 /// in flight (`next-frame-k2`, reported as `chcpp@next-frame-k2`).
 pub fn with_latency_names(algorithms: &[String], modes: &[String]) -> Result<Vec<String>> {
     let mut out = Vec::new();
     for a in algorithms {
-        if a == "chc" || a == "chcpp" {
+        if has_latency_modes(a) {
             for m in modes {
                 let (l, k) = Latency::parse_in_flight(m)?;
                 out.push(match k {
@@ -687,15 +701,7 @@ pub fn check_name(name: &str) -> Result<()> {
 /// Creates an algorithm by name with what it needs from `setup`.
 pub fn create_with(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> {
     match name {
-        "nohc" => {
-            let mut p = setup.nohc.clone().ok_or_else(|| {
-                Error::Input("nohc needs a device cost model (CullerSetup::nohc)".into())
-            })?;
-            p.flush_interval = p.flush_interval.max(1);
-            let mut c = chcpp::Chcpp::nohc(p);
-            c.set_pixel_threshold(setup.params.pixel_threshold);
-            Ok(Box::new(c))
-        }
+        "nohc" => Ok(Box::new(nohc_with(setup)?)),
         "pvs" => {
             let pvs = setup.pvs.clone().ok_or_else(|| {
                 Error::Input("pvs needs the scene's potentially visible sets".into())
@@ -704,6 +710,18 @@ pub fn create_with(name: &str, setup: &CullerSetup) -> Result<Box<dyn Culler>> {
         }
         _ => create(name, &setup.params),
     }
+}
+
+/// NOHC with the cost model of `setup` and its pixel threshold, in-frame.
+fn nohc_with(setup: &CullerSetup) -> Result<chcpp::Chcpp> {
+    let mut p = setup
+        .nohc
+        .clone()
+        .ok_or_else(|| Error::Input("nohc needs a device cost model (CullerSetup::nohc)".into()))?;
+    p.flush_interval = p.flush_interval.max(1);
+    let mut c = chcpp::Chcpp::nohc(p);
+    c.set_pixel_threshold(setup.params.pixel_threshold);
+    Ok(c)
 }
 
 /// Creates an algorithm that needs nothing but CHC++'s parameters by name (`chcpp` takes

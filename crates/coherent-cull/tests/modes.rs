@@ -1139,8 +1139,17 @@ fn bad_boxes_and_bad_views_neither_panic_nor_break_the_frames_after() {
     }
 }
 
-/// The exact modes with their frames in flight: chc and chcpp predicated with 1 to `max_k`
-/// frames in flight, and stop-and-wait, chc and chcpp in-frame.
+/// NOHC in the predicated mode with `k` frames in flight, for up to 2,000 objects of 100
+/// triangles.
+fn nohc_predicated(k: u32) -> Chcpp {
+    let params = NohcParams::new(costs(), (640, 360), vec![100; 2000]);
+    Chcpp::nohc(params)
+        .with_latency(Latency::Predicated)
+        .with_frames_in_flight(k)
+}
+
+/// The exact modes with their frames in flight: chc, chcpp and nohc predicated with 1 to
+/// `max_k` frames in flight, and stop-and-wait, chc, chcpp and nohc in-frame.
 fn exact_modes(max_k: u32) -> Vec<(String, Box<dyn Culler>, u32)> {
     let mut modes: Vec<(String, Box<dyn Culler>, u32)> = Vec::new();
     for k in 1..=max_k {
@@ -1151,6 +1160,11 @@ fn exact_modes(max_k: u32) -> Vec<(String, Box<dyn Culler>, u32)> {
                 k,
             ));
         }
+        modes.push((
+            format!("nohc@predicated k={k}"),
+            Box::new(nohc_predicated(k)),
+            k,
+        ));
     }
     for name in ["stop-and-wait", "chc", "chcpp"] {
         modes.push((
@@ -1159,7 +1173,54 @@ fn exact_modes(max_k: u32) -> Vec<(String, Box<dyn Culler>, u32)> {
             1,
         ));
     }
+    modes.push(("nohc in-frame".into(), nohc(2000, 100), 1));
     modes
+}
+
+/// NOHC in the predicated mode: one submission and no wait a frame, nothing visible missed,
+/// and its cost rule at work (some nodes queried, some opened without a query because the rule
+/// says the query would not pay: drawn unconditionally, which stays exact); its history learns
+/// from the results read frames later. By name (`nohc@predicated`, `nohc@predicated-k2`) it
+/// takes its cost model from the setup, and without one it is refused.
+#[test]
+fn nohc_in_the_predicated_mode_is_exact_and_follows_its_cost_rule() {
+    let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
+    for k in [1, 2] {
+        let mut c = nohc_predicated(k);
+        let mut backend = MockBackend::new(|_| 0).with_frames_in_flight(k);
+        let (mut queried, mut skipped) = (0, 0);
+        for f in 1..=40 {
+            let cam = walk(f);
+            let fog = Fog::new(&cam, 35.0);
+            let want = fog.visible_objects(&bvh);
+            backend.set_visibility(move |b| fog.pixels(b));
+            let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+            let lost = missing(&want, &fr.drawn);
+            assert!(lost.is_empty(), "k={k} frame {f}: {lost:?} missed");
+            assert_eq!((fr.counts.submits, fr.counts.waits), (1, 0), "frame {f}");
+            assert_eq!(fr.stats.blocking_waits, 0);
+            let (q, s) = c.nohc_rule().expect("nohc").decisions;
+            queried += q;
+            skipped += s;
+        }
+        assert!(
+            queried > 0 && skipped > 0,
+            "k={k}: {queried} queried, {skipped} skipped"
+        );
+    }
+    let setup = CullerSetup {
+        nohc: Some(NohcParams::new(costs(), (640, 360), vec![100; 600])),
+        ..CullerSetup::default()
+    };
+    for name in ["nohc@predicated", "nohc@predicated-k2", "nohc@next-frame"] {
+        let c = create_named(name, &setup).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(c.name(), "nohc", "{name}");
+    }
+    let refused = create_named("nohc@predicated", &CullerSetup::default()).err();
+    assert!(
+        refused.is_some_and(|e| e.to_string().contains("cost model")),
+        "nohc@predicated without a cost model"
+    );
 }
 
 /// A scene that churns while results are in flight: each frame some objects move (some into
@@ -1236,7 +1297,6 @@ fn a_frame_that_ran_out_of_queries_fails_and_the_next_ones_are_exact() {
     let bvh = ObjectBvh::build(&random_boxes(600, 5), 1);
     for reset in [false, true] {
         let mut modes = exact_modes(2);
-        modes.push(("nohc".into(), nohc(600, 100), 1));
         // The factory's frames-in-flight wrapper.
         let named = create_named("chcpp@predicated-k2", &CullerSetup::default()).unwrap();
         modes.push(("chcpp@predicated-k2 by name".into(), named, 2));

@@ -342,6 +342,10 @@ impl Chcpp {
         if visible {
             stats.visible_results += 1;
         }
+        // The query rule learns from every result, whenever the mode reads it (NOHC's history).
+        for &n in &self.query_nodes[q.first as usize..(q.first + q.count) as usize] {
+            self.rule.record(n, !visible);
+        }
         let mode = self.mode;
         mode.apply_result(self, bvh, q, visible, eye, backend, stats)
     }
@@ -358,9 +362,6 @@ impl Chcpp {
         backend: &mut dyn OcclusionBackend,
         stats: &mut CullStats,
     ) -> Result<()> {
-        for &n in &self.query_nodes[q.first as usize..(q.first + q.count) as usize] {
-            self.rule.record(n, !visible);
-        }
         let nodes = q.first as usize..(q.first + q.count) as usize;
         if visible && q.count > 1 {
             // A failed multiquery: each node is queried on its own in the next batch.
