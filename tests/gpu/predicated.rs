@@ -57,8 +57,7 @@ fn matches_vfc(
     poses: &[CameraPose],
     movers: Option<&Movers>,
     tie_pixels: usize,
-    setup: &CullerSetup,
-    names: &[&str],
+    (setup, names): (&CullerSetup, &[&str]),
 ) -> u32 {
     let params = &setup.params;
     let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
@@ -190,7 +189,7 @@ fn nohc_predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
             let poses = poses(&scene, path);
             let setup = common::setup(common::triangles(&scene), (160, 90), 0.05);
             let modes = ["nohc@predicated", "nohc@predicated-k2"];
-            matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &setup, &modes);
+            matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, (&setup, &modes));
         }
     }
     common::assert_silent(&log);
@@ -213,7 +212,7 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
                     ..ChcppParams::default()
                 };
                 let setup = with_params(params);
-                let taken = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &setup, &MODES);
+                let taken = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, (&setup, &MODES));
                 assert!(
                     taken > 0,
                     "{name}: something was drawn under a true predicate"
@@ -223,7 +222,7 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
             // One predicate level (the GPU policy): each queried node's objects under its
             // own predicate, gathered on the device where it can.
             let gpu = with_params(ChcppParams::for_gpu());
-            let one_level = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, &gpu, &MODES);
+            let one_level = matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, (&gpu, &MODES));
             assert!(
                 one_level > 0,
                 "{name}: one level drew under a true predicate"
@@ -263,11 +262,13 @@ fn predicated_images_equal_vfc_in_the_parking_with_100_movers() {
             &poses,
             Some(&movers),
             144,
-            &with_params(ChcppParams {
-                predicated_tested_parts_min: 0,
-                ..ChcppParams::default()
-            }),
-            &MODES,
+            (
+                &with_params(ChcppParams {
+                    predicated_tested_parts_min: 0,
+                    ..ChcppParams::default()
+                }),
+                &MODES,
+            ),
         );
     }
     common::assert_silent(&log);
