@@ -1,6 +1,9 @@
-//! The predicated latency mode of CHC and CHC++ ([`Latency::Predicated`]): exact culling with
-//! one submission per frame and no CPU wait, through predicates the device evaluates itself
-//! (on Vulkan, `VK_EXT_conditional_rendering`).
+//! The predicated latency mode of CHC, CHC++ and NOHC ([`Latency::Predicated`]): exact culling
+//! with one submission per frame and no CPU wait, through predicates the device evaluates
+//! itself (on Vulkan, `VK_EXT_conditional_rendering`). NOHC runs the same traversal with its
+//! cost rule deciding which nodes are queried; a node the rule does not query is opened as if
+//! visible (case (a) below for its leaves), and the rule learns from the results when they are
+//! read, `k` frames later.
 //!
 //! # A frame
 //!
