@@ -498,8 +498,8 @@ impl Latency {
     }
 }
 
-/// Creates `chc` or `chcpp` (the algorithms with latency modes) reading its queries in
-/// `latency` mode; every other algorithm only in-frame.
+/// Creates `chc` or `chcpp` reading its queries in `latency` mode; every other algorithm only
+/// in-frame (`nohc`, which has the modes too, needs its cost model: [`create_named`]).
 pub fn create_latency(
     name: &str,
     params: &ChcppParams,
@@ -511,6 +511,11 @@ pub fn create_latency(
         ("chc", l) => Ok(Box::new(
             chcpp::Chcpp::named("chc", ChcppParams::chc()).with_latency(l),
         )),
+        ("nohc", l) => Err(Error::Input(format!(
+            "nohc@{} needs a device cost model: create it with create_named and a CullerSetup \
+             whose nohc is set",
+            l.name()
+        ))),
         (other, l) => Err(Error::Input(format!(
             "{other} has no latency mode {} (only chc, chcpp and nohc)",
             l.name()

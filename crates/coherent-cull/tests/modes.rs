@@ -1181,7 +1181,8 @@ fn exact_modes(max_k: u32) -> Vec<(String, Box<dyn Culler>, u32)> {
 /// and its cost rule at work (some nodes queried, some opened without a query because the rule
 /// says the query would not pay: drawn unconditionally, which stays exact); its history learns
 /// from the results read frames later. By name (`nohc@predicated`, `nohc@predicated-k2`) it
-/// takes its cost model from the setup, and without one it is refused.
+/// takes its cost model from the setup; without one, and through `create_latency`, which has
+/// no cost model, it is refused with errors that say so.
 #[test]
 fn nohc_in_the_predicated_mode_is_exact_and_follows_its_cost_rule() {
     let bvh = ObjectBvh::build(&random_boxes(600, 3), 1);
@@ -1220,6 +1221,11 @@ fn nohc_in_the_predicated_mode_is_exact_and_follows_its_cost_rule() {
     assert!(
         refused.is_some_and(|e| e.to_string().contains("cost model")),
         "nohc@predicated without a cost model"
+    );
+    let refused = create_latency("nohc", &ChcppParams::default(), Latency::Predicated).err();
+    assert!(
+        refused.is_some_and(|e| e.to_string().contains("create_named")),
+        "create_latency says where nohc's modes come from"
     );
 }
 
