@@ -17,8 +17,11 @@
 //! `QueryBackend::end_frame` (records the copy of this frame's results); one `vkQueueSubmit`,
 //! no wait.
 //!
-//! Run: `cargo run --release --example engine -- [--frames N]` (validation on; exits non-zero
-//! on any validation message, or if a frame submitted more than once or waited).
+//! Run: `cargo run --release --example engine -- [--frames N] [--policy cpu|gpu]` (validation
+//! on; exits non-zero on any validation message, or if a frame submitted more than once or
+//! waited). `--policy` picks the predicated mode's policy, which follows the device type by
+//! default: `gpu` (`ChcppParams::for_gpu`) keeps one predicate level, `cpu` splits queried
+//! nodes into parts.
 
 use std::sync::atomic::Ordering;
 use std::time::Instant;
@@ -726,19 +729,38 @@ impl Drop for Engine {
     }
 }
 
-const USAGE: &str = "usage: engine [--frames N]  (frames of the street walk, 24 by default)";
+const USAGE: &str = "usage: engine [--frames N] [--policy cpu|gpu]  (frames of the street \
+                     walk, 24 by default; the predicated mode's policy, by device type by default: \
+                     cpu splits queried nodes into parts, gpu keeps one predicate level)";
 
-/// The frame count from the command line; `None` where the user asked for help.
-fn frames_arg() -> Result<Option<usize>> {
-    let mut frames = 24;
+/// What the command line asks for.
+struct Args {
+    frames: usize,
+    /// `Some(true)`: the GPU policy (`ChcppParams::for_gpu`); `None`: by device type.
+    gpu_policy: Option<bool>,
+}
+
+/// The command line; `None` where the user asked for help.
+fn parse_args() -> Result<Option<Args>> {
+    let mut a = Args {
+        frames: 24,
+        gpu_policy: None,
+    };
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
             "--frames" => {
-                frames = args
+                a.frames = args
                     .next()
                     .and_then(|n| n.parse().ok())
                     .context("--frames needs a number")?
+            }
+            "--policy" => {
+                a.gpu_policy = match args.next().unwrap_or_default().as_str() {
+                    "cpu" => Some(false),
+                    "gpu" => Some(true),
+                    other => bail!("--policy needs cpu or gpu, not {other:?}; {USAGE}"),
+                }
             }
             "--help" | "-h" => {
                 println!("{USAGE}");
@@ -747,14 +769,14 @@ fn frames_arg() -> Result<Option<usize>> {
             other => bail!("unknown argument {other:?}; {USAGE}"),
         }
     }
-    Ok(Some(frames))
+    Ok(Some(a))
 }
 
 // ---------------------------------------------------------------------------------------------
 // The engine's main loop: load, create, run frames, report.
 
 fn main() -> Result<()> {
-    let Some(frames) = frames_arg()? else {
+    let Some(Args { frames, gpu_policy }) = parse_args()? else {
         return Ok(());
     };
     let scene = Scene::load("city", 0.25, 4096)?;
@@ -771,13 +793,13 @@ fn main() -> Result<()> {
         Latency::NextFrame
     };
     // On a GPU, recording parts of split nodes costs more than the extra objects they save.
-    let (params, policy) = if engine.is_cpu() {
+    let (params, policy) = if !gpu_policy.unwrap_or(!engine.is_cpu()) {
         (
             ChcppParams::default(),
-            "queried nodes split into parts (CPU device)",
+            "queried nodes split into parts (CPU policy)",
         )
     } else {
-        (ChcppParams::for_gpu(), "one predicate level (GPU)")
+        (ChcppParams::for_gpu(), "one predicate level (GPU policy)")
     };
     let mut culler = Chcpp::new(params)
         .with_latency(latency)

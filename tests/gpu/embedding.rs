@@ -391,6 +391,41 @@ fn engine_example_runs_with_two_frames_in_flight() {
     );
 }
 
+/// The engine example with the GPU policy (`--policy gpu`: `ChcppParams::for_gpu`, one
+/// predicate level, no split nodes) on whatever device the suite runs on: coherent-ash's path
+/// of a GPU host, run under validation here too. At most one pass break a frame, one
+/// submission, no wait, no validation message; `--policy` refuses other values.
+#[test]
+fn engine_example_runs_the_gpu_policy_on_any_device() {
+    let exe = example_binary("engine");
+    let mut cmd = std::process::Command::new(&exe);
+    cmd.args(["--frames", "8", "--policy", "gpu"]);
+    common::on_test_device(&mut cmd);
+    let out = cmd.output().expect("run the engine example");
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "engine failed:\n{text}\n{err}");
+    assert!(text.contains("validation: no messages"), "{text}");
+    assert!(text.contains("one predicate level (GPU policy)"), "{text}");
+    // frame, cull ms, pace ms, draws, predicated, breaks, queries, ..., submits, waits.
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .filter_map(|l| l.split_whitespace().map(|w| w.parse().ok()).collect())
+        .filter(|r: &Vec<f64>| r.len() == 13)
+        .collect();
+    assert_eq!(rows.len(), 8, "{text}");
+    for r in &rows {
+        assert!(r[5] <= 1.0, "one pass break at most: {text}");
+        assert_eq!((r[11], r[12]), (1.0, 0.0), "submits, waits: {text}");
+    }
+    let mut bad = std::process::Command::new(&exe);
+    bad.args(["--policy", "fast"]);
+    common::on_test_device(&mut bad);
+    let out = bad.output().expect("run the engine example");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--policy needs cpu or gpu"));
+}
+
 /// `walk --latency next-frame-k2` runs chcpp with two frames in flight on the built-in
 /// renderer and reports it as `chcpp@next-frame-k2`; a bad suffix is a clear error.
 #[test]
