@@ -338,27 +338,36 @@ fn example_binary(name: &str) -> std::path::PathBuf {
 /// reverse-Z infinite matrices, chcpp in the predicated mode with k = 2, next-frame on a
 /// device without conditional rendering) runs a few frames, submits once per frame, never
 /// waits, reads results from frame 2 on and has no validation message.
-#[test]
-fn engine_example_runs_with_two_frames_in_flight() {
-    let exe = example_binary("engine");
-    let mut cmd = std::process::Command::new(&exe);
-    cmd.args(["--frames", "8"]);
+/// Runs the engine example with `args` on the suite's device; it must succeed without a
+/// validation message. Returns its output and its frame rows: frame, cull ms, pace ms, draws,
+/// predicated, breaks, queries, multi, binds, switches, visible, submits, waits.
+fn run_engine(args: &[&str]) -> (String, Vec<Vec<f64>>) {
+    let mut cmd = std::process::Command::new(example_binary("engine"));
+    cmd.args(args);
     common::on_test_device(&mut cmd);
     let out = cmd.output().expect("run the engine example");
     let text = String::from_utf8_lossy(&out.stdout).to_string();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "engine failed:\n{text}\n{err}");
     assert!(text.contains("validation: no messages"), "{text}");
+    let rows = text
+        .lines()
+        .filter_map(|l| l.split_whitespace().map(|w| w.parse().ok()).collect())
+        .filter(|r: &Vec<f64>| r.len() == 13)
+        .collect();
+    (text, rows)
+}
+
+#[test]
+fn engine_example_runs_with_two_frames_in_flight() {
+    let (text, rows) = run_engine(&["--frames", "8"]);
     assert!(text.contains("predicated mode"), "runs predicated: {text}");
     // The culler's subtree order reaches the engine's draw callback once (the leaves of the
     // engine's hierarchy never change).
     assert!(text.contains("draw order received 1 time(s)"), "{text}");
-    // frame, cull ms, pace ms, draws, predicated, breaks, queries, multi, binds, switches,
-    // visible, submits, waits: the predicated columns are checked, then dropped.
-    let rows: Vec<Vec<f64>> = text
-        .lines()
-        .filter_map(|l| l.split_whitespace().map(|w| w.parse().ok()).collect())
-        .filter(|r: &Vec<f64>| r.len() == 13)
+    // The predicated columns are checked, then dropped.
+    let rows: Vec<Vec<f64>> = rows
+        .into_iter()
         .map(|mut r: Vec<f64>| {
             assert!(
                 r[5] <= 2.0 && r[4] <= r[3],
@@ -397,28 +406,14 @@ fn engine_example_runs_with_two_frames_in_flight() {
 /// submission, no wait, no validation message; `--policy` refuses other values.
 #[test]
 fn engine_example_runs_the_gpu_policy_on_any_device() {
-    let exe = example_binary("engine");
-    let mut cmd = std::process::Command::new(&exe);
-    cmd.args(["--frames", "8", "--policy", "gpu"]);
-    common::on_test_device(&mut cmd);
-    let out = cmd.output().expect("run the engine example");
-    let text = String::from_utf8_lossy(&out.stdout).to_string();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "engine failed:\n{text}\n{err}");
-    assert!(text.contains("validation: no messages"), "{text}");
+    let (text, rows) = run_engine(&["--frames", "8", "--policy", "gpu"]);
     assert!(text.contains("one predicate level (GPU policy)"), "{text}");
-    // frame, cull ms, pace ms, draws, predicated, breaks, queries, ..., submits, waits.
-    let rows: Vec<Vec<f64>> = text
-        .lines()
-        .filter_map(|l| l.split_whitespace().map(|w| w.parse().ok()).collect())
-        .filter(|r: &Vec<f64>| r.len() == 13)
-        .collect();
     assert_eq!(rows.len(), 8, "{text}");
     for r in &rows {
         assert!(r[5] <= 1.0, "one pass break at most: {text}");
         assert_eq!((r[11], r[12]), (1.0, 0.0), "submits, waits: {text}");
     }
-    let mut bad = std::process::Command::new(&exe);
+    let mut bad = std::process::Command::new(example_binary("engine"));
     bad.args(["--policy", "fast"]);
     common::on_test_device(&mut bad);
     let out = bad.output().expect("run the engine example");
