@@ -793,13 +793,13 @@ fn main() -> Result<()> {
         Latency::NextFrame
     };
     // On a GPU, recording parts of split nodes costs more than the extra objects they save.
-    let (params, policy) = if !gpu_policy.unwrap_or(!engine.is_cpu()) {
+    let (params, policy) = if gpu_policy.unwrap_or(!engine.is_cpu()) {
+        (ChcppParams::for_gpu(), "one predicate level (GPU policy)")
+    } else {
         (
             ChcppParams::default(),
             "queried nodes split into parts (CPU policy)",
         )
-    } else {
-        (ChcppParams::for_gpu(), "one predicate level (GPU policy)")
     };
     let mut culler = Chcpp::new(params)
         .with_latency(latency)
