@@ -40,7 +40,7 @@ fn shipped_box_shader_is_current() {
 const W: u32 = 64;
 const H: u32 = 64;
 /// The attachments' size, `W`x`H`.
-const EXTENT: vk::Extent2D = vk::Extent2D {
+pub(crate) const EXTENT: vk::Extent2D = vk::Extent2D {
     width: W,
     height: H,
 };
@@ -77,7 +77,7 @@ fn depth_image(
 }
 
 /// Depth (standard convention) of a point `d` in front of the camera.
-fn depth_at(cam: &Camera, d: f32) -> f32 {
+pub(crate) fn depth_at(cam: &Camera, d: f32) -> f32 {
     let p = cam.view_proj() * coherent_cull::glam::Vec4::new(0.0, 0.0, -d, 1.0);
     p.z / p.w
 }
@@ -211,7 +211,7 @@ unsafe fn begin_render_pass(
 ///
 /// # Safety
 /// `cmd` is recording on `d`.
-unsafe fn set_viewport(d: &ash::Device, cmd: vk::CommandBuffer) {
+pub(crate) unsafe fn set_viewport(d: &ash::Device, cmd: vk::CommandBuffer) {
     // SAFETY: per the caller.
     unsafe {
         d.cmd_set_viewport(
@@ -320,41 +320,13 @@ fn run_views(
             })
             .collect();
         // SAFETY: valid device; everything below is destroyed before the block ends.
-        // One command pool per slot, reset whole when the slot is reused.
-        let (pools, cmds, secondaries, fences) = unsafe {
-            let pools: Vec<vk::CommandPool> = (0..k)
-                .map(|_| {
-                    d.create_command_pool(
-                        &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family),
-                        None,
-                    )
-                    .expect("pool")
-                })
-                .collect();
-            let cmds: Vec<vk::CommandBuffer> = pools
-                .iter()
-                .map(|&pool| {
-                    d.allocate_command_buffers(
-                        &vk::CommandBufferAllocateInfo::default()
-                            .command_pool(pool)
-                            .command_buffer_count(1),
-                    )
-                    .expect("command buffer")[0]
-                })
-                .collect();
-            let fences: Vec<vk::Fence> = (0..k)
-                .map(|_| {
-                    d.create_fence(
-                        &vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED),
-                        None,
-                    )
-                    .expect("fence")
-                })
-                .collect();
+        let (slots, secondaries) = unsafe {
+            let slots = FrameSlots::new(d, ctx.queue_family, k);
             // Per slot, one secondary command buffer per view (used by views with `secondary`).
-            let secondaries: Vec<Vec<vk::CommandBuffer>> = pools
+            let secondaries: Vec<Vec<vk::CommandBuffer>> = slots
+                .0
                 .iter()
-                .map(|&pool| {
+                .map(|&(pool, _, _)| {
                     d.allocate_command_buffers(
                         &vk::CommandBufferAllocateInfo::default()
                             .command_pool(pool)
@@ -364,7 +336,7 @@ fn run_views(
                     .expect("secondary command buffers")
                 })
                 .collect();
-            (pools, cmds, secondaries, fences)
+            (slots, secondaries)
         };
         let mut cullers: Vec<Chcpp> = views
             .iter()
@@ -384,18 +356,12 @@ fn run_views(
         let mut drawn: Vec<Vec<Vec<u32>>> = vec![Vec::new(); views.len()];
         for frame in 0..frames {
             let slot = (frame % u64::from(k)) as usize;
-            let cmd = cmds[slot];
             // SAFETY: the slot's fence is waited for before its command buffer and queries are
             // reused; recording follows the backend's contract (begin outside rendering, frame
             // inside, end outside).
+            let cmd = unsafe { slots.begin(d, slot) };
+            // SAFETY: as above.
             unsafe {
-                d.wait_for_fences(&[fences[slot]], true, u64::MAX)
-                    .expect("wait");
-                d.reset_fences(&[fences[slot]]).expect("reset fence");
-                d.reset_command_pool(pools[slot], vk::CommandPoolResetFlags::empty())
-                    .expect("reset");
-                d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
-                    .expect("begin");
                 for queries in &mut backends {
                     queries.begin_frame(cmd, slot as u32).expect("begin_frame");
                 }
@@ -481,7 +447,7 @@ fn run_views(
                 // SAFETY: inside the rendering begun above (or resumed); a secondary is ended
                 // and executed inside the primary's rendering.
                 unsafe {
-                    let cmd = cmds[slot];
+                    let cmd = slots.0[slot].1;
                     if setup.secondary {
                         d.end_command_buffer(secondaries[slot][i])
                             .expect("end secondary");
@@ -502,13 +468,7 @@ fn run_views(
                 for queries in &mut backends {
                     queries.end_frame(cmd).expect("end_frame");
                 }
-                d.end_command_buffer(cmd).expect("end");
-                d.queue_submit(
-                    ctx.queue,
-                    &[vk::SubmitInfo::default().command_buffers(&[cmd])],
-                    fences[slot],
-                )
-                .expect("submit");
+                slots.submit(d, ctx.queue, slot);
             }
         }
         result = (drawn, backends.iter().map(|b| b.counts()).collect());
@@ -516,12 +476,7 @@ fn run_views(
         unsafe {
             d.device_wait_idle().expect("idle");
             drop(backends);
-            for f in fences {
-                d.destroy_fence(f, None);
-            }
-            for p in pools {
-                d.destroy_command_pool(p, None);
-            }
+            slots.destroy(d);
             for (clear, load, framebuffer) in passes.into_iter().flatten() {
                 d.destroy_framebuffer(framebuffer, None);
                 d.destroy_render_pass(clear, None);
@@ -579,7 +534,7 @@ fn query_backend_draws_everything_that_is_visible() {
 
 /// The last of a view's `frames` (objects drawn per frame) has the three boxes in front of the
 /// wall 10.5 units away and no box past `last_box`.
-fn assert_walled(frames: &[Vec<u32>], last_box: u32) {
+pub(crate) fn assert_walled(frames: &[Vec<u32>], last_box: u32) {
     let last = frames.last().expect("frames");
     assert!(
         [0, 1, 2].iter().all(|o| last.contains(o)),
@@ -589,6 +544,17 @@ fn assert_walled(frames: &[Vec<u32>], last_box: u32) {
         last.iter().all(|&o| o <= last_box),
         "a box far behind the wall is still drawn: {frames:?}"
     );
+}
+
+/// Every one of a predicated view's `frames` hands over the three boxes in front of the wall
+/// (drawn, or under a predicate).
+pub(crate) fn assert_front_in_every_frame(frames: &[Vec<u32>]) {
+    for (f, objects) in frames.iter().enumerate() {
+        assert!(
+            [0, 1, 2].iter().all(|o| objects.contains(o)),
+            "frame {f}: {frames:?}"
+        );
+    }
 }
 
 /// The last of a view's `frames` draws all 16 boxes.
@@ -756,12 +722,7 @@ fn query_backend_resolves_predicates_inside_a_host_render_pass() {
         ..ViewSetup::new(10.5)
     };
     let (drawn, counts) = run_views(10, 2, &[view]);
-    for (f, objects) in drawn[0].iter().enumerate() {
-        assert!(
-            [0, 1, 2].iter().all(|o| objects.contains(o)),
-            "frame {f}: {drawn:?}"
-        );
-    }
+    assert_front_in_every_frame(&drawn[0]);
     assert!(counts[0].resolves > 0, "{counts:?}");
     assert!(counts[0].queries > 0, "{counts:?}");
 }
@@ -960,6 +921,85 @@ pub(crate) unsafe fn command_buffer(
             )
             .expect("command buffer")[0];
         (pool, cmd)
+    }
+}
+
+/// What a host keeps per frame-in-flight slot: a command pool (reset whole when the slot is
+/// reused), its primary command buffer, and a fence (created signaled).
+pub(crate) struct FrameSlots(pub(crate) Vec<(vk::CommandPool, vk::CommandBuffer, vk::Fence)>);
+
+impl FrameSlots {
+    /// `k` slots on queue family `family` of `d`.
+    ///
+    /// # Safety
+    /// Valid device and family; [`FrameSlots::destroy`] before the device.
+    pub(crate) unsafe fn new(d: &ash::Device, family: u32, k: u32) -> FrameSlots {
+        // SAFETY: per the caller.
+        FrameSlots(
+            (0..k)
+                .map(|_| unsafe {
+                    let (pool, cmd) = command_buffer(d, family);
+                    let fence = d
+                        .create_fence(
+                            &vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED),
+                            None,
+                        )
+                        .expect("fence");
+                    (pool, cmd, fence)
+                })
+                .collect(),
+        )
+    }
+
+    /// Waits for `slot`'s previous frame, resets its fence and pool, and begins and returns its
+    /// command buffer.
+    ///
+    /// # Safety
+    /// The slots' device is `d`.
+    pub(crate) unsafe fn begin(&self, d: &ash::Device, slot: usize) -> vk::CommandBuffer {
+        let (pool, cmd, fence) = self.0[slot];
+        // SAFETY: per the caller; the fence guards the pool's reuse.
+        unsafe {
+            d.wait_for_fences(&[fence], true, u64::MAX).expect("wait");
+            d.reset_fences(&[fence]).expect("reset fence");
+            d.reset_command_pool(pool, vk::CommandPoolResetFlags::empty())
+                .expect("reset pool");
+            d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+                .expect("begin");
+        }
+        cmd
+    }
+
+    /// Ends `slot`'s command buffer and submits it to `queue` with the slot's fence.
+    ///
+    /// # Safety
+    /// The slot's command buffer is recording outside rendering on `d`.
+    pub(crate) unsafe fn submit(&self, d: &ash::Device, queue: vk::Queue, slot: usize) {
+        let (_, cmd, fence) = self.0[slot];
+        // SAFETY: per the caller.
+        unsafe {
+            d.end_command_buffer(cmd).expect("end");
+            d.queue_submit(
+                queue,
+                &[vk::SubmitInfo::default().command_buffers(&[cmd])],
+                fence,
+            )
+            .expect("submit");
+        }
+    }
+
+    /// Destroys the fences and pools.
+    ///
+    /// # Safety
+    /// The device is done with them.
+    pub(crate) unsafe fn destroy(self, d: &ash::Device) {
+        for (pool, _, fence) in self.0 {
+            // SAFETY: per the caller.
+            unsafe {
+                d.destroy_fence(fence, None);
+                d.destroy_command_pool(pool, None);
+            }
+        }
     }
 }
 

@@ -9,15 +9,10 @@ use std::sync::Mutex;
 use ash::{ext, khr, vk};
 use coherent_ash::{QueryBackend, QueryBackendDesc};
 use coherent_cull::chcpp::{Chcpp, ChcppParams};
-use coherent_cull::glam::Vec4;
 use coherent_cull::{CameraView, Culler, DepthConvention, FrameInput, Latency};
 
-use crate::query_backend::{command_buffer, row};
-
-/// Attachment size.
-const EXTENT: vk::Extent2D = vk::Extent2D {
-    width: 64,
-    height: 64,
+use crate::query_backend::{
+    assert_front_in_every_frame, assert_walled, depth_at, row, set_viewport, FrameSlots, EXTENT,
 };
 
 /// The validation messages (warnings and errors) of this file's instance.
@@ -227,19 +222,7 @@ impl Host {
                     .layer_count(1)
                     .depth_attachment(&attachment),
             );
-            d.cmd_set_viewport(
-                cmd,
-                0,
-                &[vk::Viewport {
-                    x: 0.0,
-                    y: 0.0,
-                    width: EXTENT.width as f32,
-                    height: EXTENT.height as f32,
-                    min_depth: 0.0,
-                    max_depth: 1.0,
-                }],
-            );
-            d.cmd_set_scissor(cmd, 0, &[EXTENT.into()]);
+            set_viewport(d, cmd);
         }
     }
 }
@@ -333,10 +316,7 @@ fn run(host: &Host, latency: Latency) -> (Vec<Vec<u32>>, u32) {
     let (bvh, cam) = row();
     let view: CameraView = (&cam).into();
     let view_proj = view.view_proj.to_cols_array();
-    let wall = {
-        let p = cam.view_proj() * Vec4::new(0.0, 0.0, -10.5, 1.0);
-        p.z / p.w
-    };
+    let wall = depth_at(&cam, 10.5);
     let desc = QueryBackendDesc {
         predicates: latency == Latency::Predicated,
         depth: DepthConvention::STANDARD,
@@ -356,26 +336,10 @@ fn run(host: &Host, latency: Latency) -> (Vec<Vec<u32>>, u32) {
         let mut culler = Chcpp::new(ChcppParams::default())
             .with_latency(latency)
             .with_frames_in_flight(2);
-        let mut slots = Vec::new();
-        for _ in 0..2 {
-            let (pool, cmd) = command_buffer(d, host.queue_family);
-            let fence = d
-                .create_fence(
-                    &vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED),
-                    None,
-                )
-                .expect("fence");
-            slots.push((pool, cmd, fence));
-        }
+        let slots = FrameSlots::new(d, host.queue_family, 2);
         for frame in 0..12u64 {
             let slot = (frame % 2) as usize;
-            let (pool, cmd, fence) = slots[slot];
-            d.wait_for_fences(&[fence], true, u64::MAX).expect("wait");
-            d.reset_fences(&[fence]).expect("reset fence");
-            d.reset_command_pool(pool, vk::CommandPoolResetFlags::empty())
-                .expect("reset pool");
-            d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
-                .expect("begin");
+            let cmd = slots.begin(d, slot);
             queries.begin_frame(cmd, slot as u32).expect("begin_frame");
             host.begin_pass(cmd, Some(wall));
             let mut objects = Vec::new();
@@ -399,23 +363,14 @@ fn run(host: &Host, latency: Latency) -> (Vec<Vec<u32>>, u32) {
             host.rendering.cmd_end_rendering(cmd);
             queries.end_frame(cmd).expect("end_frame");
             resolves += queries.counts().resolves;
-            d.end_command_buffer(cmd).expect("end");
-            d.queue_submit(
-                host.queue,
-                &[vk::SubmitInfo::default().command_buffers(&[cmd])],
-                fence,
-            )
-            .expect("submit");
+            slots.submit(d, host.queue, slot);
             objects.sort_unstable();
             objects.dedup();
             frames.push(objects);
         }
         d.device_wait_idle().expect("idle");
         drop(queries);
-        for (pool, _, fence) in slots {
-            d.destroy_fence(fence, None);
-            d.destroy_command_pool(pool, None);
-        }
+        slots.destroy(d);
     }
     (frames, resolves)
 }
@@ -440,18 +395,9 @@ fn query_backend_runs_on_a_vulkan_1_2_host() {
     };
     assert!(has(khr::dynamic_rendering::NAME) && has(ext::conditional_rendering::NAME));
     let (next, _) = run(&host, Latency::NextFrame);
-    let last = next.last().expect("frames");
-    assert!(
-        [0, 1, 2].iter().all(|o| last.contains(o)) && last.iter().all(|&o| o <= 3),
-        "next-frame: {next:?}"
-    );
+    assert_walled(&next, 3);
     let (predicated, resolves) = run(&host, Latency::Predicated);
-    for (f, objects) in predicated.iter().enumerate() {
-        assert!(
-            [0, 1, 2].iter().all(|o| objects.contains(o)),
-            "predicated frame {f}: {predicated:?}"
-        );
-    }
+    assert_front_in_every_frame(&predicated);
     assert!(resolves > 0, "no predicate resolve");
     drop(host);
     let messages = MESSAGES.lock().map(|m| m.clone()).unwrap_or_default();
