@@ -1,7 +1,8 @@
-//! One fuzz input read as a path file, a PVS cache file or a calibration cache file (picked by
-//! its first byte), the way the program reads it, then used the way a walk uses it: the path's
-//! poses drive vfc and chcpp, the PVS drives the `pvs` culler, the calibration's costs drive
-//! `nohc`, over a small grid of boxes with a host backend. Refusing the file with a one-line
+//! One fuzz input read as a path file, a PVS cache file, a calibration cache file or an
+//! interior walk cache file (picked by its first byte), the way the program reads it, then
+//! used the way a walk uses it: the path's poses drive vfc and chcpp, the PVS drives the `pvs`
+//! culler, the calibration's costs drive `nohc`, the interior walk's and its light's poses
+//! drive vfc, over a small grid of boxes with a host backend. Refusing the file with a one-line
 //! error naming it is fine; a panic (or an error of another shape) is a finding.
 //!
 //! Shared by `fuzz/fuzz_targets/cache_files.rs` and `tests/gpu/fuzz_regressions.rs` (which includes
@@ -17,12 +18,15 @@ use coherent::culling::nohc::NohcParams;
 use coherent::culling::pvs::{fnv1a, Pvs};
 use coherent::culling::{create_with, CullerSetup, FrameInput, OcclusionBackend, QueryId};
 use coherent::scene::camera::Camera;
-use coherent::scene::{paths, Aabb, CameraPose};
+use coherent::scene::{interior, paths, Aabb, CameraPose};
 
 /// The PVS key the harness expects (a real key names scene, settings and object count).
 pub const PVS_KEY: &str = "fuzz;objects=27";
 /// The device a calibration file must name to be accepted.
 pub const DEVICE: [&str; 3] = ["fuzz device", "fuzz driver", "1.3.0"];
+/// The interior walk key the harness expects (a real key hashes the code, the scene and the
+/// parameters).
+pub const INTERIOR_KEY: &str = "interior fuzz";
 /// Objects of the harness scene (a 3 x 3 x 3 grid of unit boxes).
 pub const OBJECTS: u32 = 27;
 
@@ -38,6 +42,8 @@ pub enum Kind {
     PvsBody,
     /// `c`: a calibration cache file.
     Calibration,
+    /// `i`: an interior walk cache file.
+    Interior,
 }
 
 /// The kind and the file's bytes of a fuzz input.
@@ -47,6 +53,7 @@ pub fn split(data: &[u8]) -> (Kind, &[u8]) {
         Some(b'v') => (Kind::Pvs, rest),
         Some(b'V') => (Kind::PvsBody, rest),
         Some(b'c') => (Kind::Calibration, rest),
+        Some(b'i') => (Kind::Interior, rest),
         Some(b'p') => (Kind::Path, rest),
         _ => (Kind::Path, data),
     }
@@ -60,6 +67,7 @@ pub fn join(kind: Kind, file: &[u8]) -> Vec<u8> {
         Kind::Pvs => b'v',
         Kind::PvsBody => b'V',
         Kind::Calibration => b'c',
+        Kind::Interior => b'i',
     };
     let mut out = vec![tag];
     out.extend_from_slice(file);
@@ -80,6 +88,7 @@ pub fn run(dir: &Path, data: &[u8]) -> Result<bool, coherent::Error> {
             ("input.pvs", b)
         }
         Kind::Calibration => ("calibration.json", bytes.to_vec()),
+        Kind::Interior => ("interior.json", bytes.to_vec()),
     };
     let file = dir.join(name);
     std::fs::write(&file, &file_bytes).map_err(coherent::Error::from)?;
@@ -87,6 +96,7 @@ pub fn run(dir: &Path, data: &[u8]) -> Result<bool, coherent::Error> {
         Kind::Path => use_path(&file),
         Kind::Pvs | Kind::PvsBody => use_pvs(&file),
         Kind::Calibration => use_calibration(&file),
+        Kind::Interior => use_interior(&file),
     };
     match read {
         Ok(()) => Ok(true),
@@ -161,6 +171,27 @@ fn use_calibration(file: &Path) -> Result<(), String> {
     };
     cull("nohc", &setup, &fixed_poses()).map_err(|e| format!("{}: {e}", file.display()))?;
     Ok(())
+}
+
+/// An interior walk cache file: read as `Scene::load_cached` reads it, then 24 poses of its
+/// walk and 24 of its light path culled by vfc.
+fn use_interior(file: &Path) -> Result<(), String> {
+    match interior::cache::load(file, INTERIOR_KEY) {
+        Ok(Some(interior::Outcome::Walk { camera, light })) => {
+            for path in [camera, light] {
+                let poses: Vec<CameraPose> = (0..24).map(|i| path.sample(i, 24)).collect();
+                cull("vfc", &CullerSetup::default(), &poses)
+                    .map_err(|e| format!("{}: {e}", file.display()))?;
+            }
+            Ok(())
+        }
+        Ok(Some(interior::Outcome::NoInside(why))) => {
+            assert!(!why.contains('\n'), "a reason of several lines: {why}");
+            Ok(())
+        }
+        Ok(None) => Err(format!("{}: vanished", file.display())),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 /// Poses around and inside the grid.

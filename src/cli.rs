@@ -372,7 +372,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         _ if a.latency == "in-frame" => a.algorithm.clone(),
         other => bail!("--latency is for chc, chcpp and nohc, not \"{other}\""),
     };
-    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?, &a.cache.dir())?;
     // The path of the scene without movers (checked and found on the fixed geometry).
     let path = scene.resolve_path(a.path.as_deref())?;
     let movers = Movers::add(&mut scene, a.movers);
@@ -504,7 +504,7 @@ fn walk_scale(
     if a.movers > 0 {
         return walk_scale_movers(a, ctx, cfg, scale, dir, (w, h));
     }
-    let scene = load_scene(&a.scene, scale)?;
+    let scene = load_scene(&a.scene, scale, &a.cache.dir())?;
     let path = scene.resolve_path(a.path.as_deref())?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
@@ -580,7 +580,7 @@ fn walk_scale_movers(
     dir: &std::path::Path,
     (w, h): (u32, u32),
 ) -> Result<coherent::app::report::WalkSummary> {
-    let fixed = load_scene(&a.scene, scale)?;
+    let fixed = load_scene(&a.scene, scale, &a.cache.dir())?;
     let mut scene = fixed.clone();
     let movers = Movers::add(&mut scene, a.movers);
     // The same paths as without movers: built-in names, path files, `interior`, found and
@@ -781,7 +781,11 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     }
     let params = a.chcpp.params()?;
     check_algorithm(&a.algorithm, &params)?;
-    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let mut scene = load_scene(
+        &a.scene,
+        single_scale(&a.scene)?,
+        &coherent::app::calibrate::default_cache_dir(),
+    )?;
     // The path of the scene without movers (checked and found on the fixed geometry).
     let path = scene.resolve_path(a.path.as_deref())?;
     let movers = Movers::add(&mut scene, a.movers);
@@ -897,7 +901,11 @@ pub fn gi(a: &GiArgs) -> Result<()> {
     if a.vpls == 0 || a.budget == 0 || a.frames == 0 || a.shadow_size == 0 {
         bail!("--vpls, --budget, --frames and --shadow-size must be positive");
     }
-    let scene = load_scene(&a.scene, single_scale(&a.scene)?)?;
+    let scene = load_scene(
+        &a.scene,
+        single_scale(&a.scene)?,
+        &coherent::app::calibrate::default_cache_dir(),
+    )?;
     let ctx = context(a.validation)?;
     let opts = GiRunOptions {
         vpls: a.vpls,

@@ -1,6 +1,7 @@
 //! What the commands share: the scene flags, the device context, loading a scene, the
 //! validation check at the end of a command, progress bars.
 
+use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{bail, Result};
@@ -36,9 +37,15 @@ pub fn context(validation: bool) -> Result<Arc<GpuContext>> {
     })?)
 }
 
-/// The scene of the flags at `scale`.
-pub fn load_scene(a: &SceneArgs, scale: f32) -> Result<Scene> {
-    Ok(Scene::load(&a.scene, scale, a.chunk_triangles)?)
+/// The scene of the flags at `scale`; the interior walk of a glTF file is kept in
+/// `cache_dir`.
+pub fn load_scene(a: &SceneArgs, scale: f32, cache_dir: &Path) -> Result<Scene> {
+    Ok(Scene::load_cached(
+        &a.scene,
+        scale,
+        a.chunk_triangles,
+        cache_dir,
+    )?)
 }
 
 /// The one `--scale` of a command that takes no list.

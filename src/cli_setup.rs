@@ -22,7 +22,8 @@ use crate::cli_common::{self, SceneArgs};
 /// calibration).
 #[derive(Args, Clone, Debug)]
 pub struct CacheArgs {
-    /// Cache directory (default: $XDG_CACHE_HOME/coherent, else ~/.cache/coherent).
+    /// Cache directory of the calibration, the PVS files and glTF files' interior walks
+    /// (default: $XDG_CACHE_HOME/coherent, else ~/.cache/coherent).
     #[arg(long)]
     pub cache_dir: Option<PathBuf>,
     /// Measure the device again instead of using the stored calibration.
@@ -43,7 +44,8 @@ pub struct CacheArgs {
 }
 
 impl CacheArgs {
-    fn dir(&self) -> PathBuf {
+    /// The cache directory: `--cache-dir`, else the user's.
+    pub fn dir(&self) -> PathBuf {
         self.cache_dir
             .clone()
             .unwrap_or_else(calibrate::default_cache_dir)
@@ -180,7 +182,7 @@ pub fn nohc_params(
 /// `coherent pvs`: builds (or loads) the PVS of a scene's path and reports it.
 pub fn pvs_command(a: &PvsCommandArgs) -> Result<()> {
     let scale = cli_common::single_scale(&a.scene)?;
-    let scene = cli_common::load_scene(&a.scene, scale)?;
+    let scene = cli_common::load_scene(&a.scene, scale, &a.cache.dir())?;
     let path = scene.resolve_path(a.path.as_deref())?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);

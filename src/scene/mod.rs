@@ -36,7 +36,7 @@ impl Object {
 }
 
 /// A named walkthrough: keyframes interpolated over a number of frames.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct CameraPath {
     pub name: String,
     pub keys: Vec<CameraPose>,
@@ -131,6 +131,27 @@ impl Scene {
     /// Loads a built-in scene by name or a .gltf/.glb file by path (large meshes are split into
     /// chunks of at most `chunk_triangles`). Warnings are printed to stderr.
     pub fn load(name_or_path: &str, scale: f32, chunk_triangles: u32) -> crate::Result<Scene> {
+        Scene::load_with(name_or_path, scale, chunk_triangles, None)
+    }
+
+    /// As [`Scene::load`], with the interior walk of a glTF file read from the cache directory
+    /// `cache_dir` when it was found there before, and kept there when it is found now (see
+    /// [`interior::cache`]; on a real level finding it takes seconds).
+    pub fn load_cached(
+        name_or_path: &str,
+        scale: f32,
+        chunk_triangles: u32,
+        cache_dir: &std::path::Path,
+    ) -> crate::Result<Scene> {
+        Scene::load_with(name_or_path, scale, chunk_triangles, Some(cache_dir))
+    }
+
+    fn load_with(
+        name_or_path: &str,
+        scale: f32,
+        chunk_triangles: u32,
+        cache_dir: Option<&std::path::Path>,
+    ) -> crate::Result<Scene> {
         let lower = name_or_path.to_lowercase();
         if lower.ends_with(".gltf") || lower.ends_with(".glb") {
             let (mut scene, warnings) = gltf::load_gltf(std::path::Path::new(name_or_path))?;
@@ -138,7 +159,12 @@ impl Scene {
                 eprintln!("warning: {w}");
             }
             chunk::split_large_objects(&mut scene, chunk_triangles);
-            interior::default_if_enclosed(&mut scene);
+            match cache_dir {
+                Some(dir) => {
+                    interior::default_if_enclosed_cached(&mut scene, dir);
+                }
+                None => interior::default_if_enclosed(&mut scene),
+            }
             Ok(scene)
         } else {
             procedural::build(name_or_path, scale)

@@ -182,7 +182,7 @@ fn corpus_replays_without_panic() {
     }
 }
 
-// ---- Path files, PVS cache files and calibration cache files (fuzz target `cache_files`) ----
+// ---- Path files, PVS, calibration and interior walk cache files (fuzz target `cache_files`) ----
 
 #[path = "../../fuzz/cache_input.rs"]
 mod cache_input;
@@ -195,6 +195,7 @@ fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
     use coherent::culling::nohc::CostModel;
     use coherent::culling::pvs::{Pvs, ViewCell};
     use coherent::scene::paths::{keys_to_json, PathKey};
+    use coherent::scene::{interior, CameraPath, CameraPose};
     use glam::Vec3;
     let key = |t: f32, x: f32| PathKey {
         time: t,
@@ -241,6 +242,21 @@ fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
         unmeasurable: vec!["triangle".into()],
     };
     let cal = serde_json::to_string_pretty(&cal).expect("calibration json");
+    let pose = |x: f32| CameraPose {
+        eye: Vec3::new(x, 1.0, 10.0),
+        target: Vec3::new(x, 0.5, 0.0),
+    };
+    let path = |name: &str| CameraPath {
+        name: name.into(),
+        keys: vec![pose(-3.0), pose(0.0), pose(3.0)],
+    };
+    let walk = interior::Outcome::Walk {
+        camera: path(interior::PATH_NAME),
+        light: path(interior::LIGHT_PATH_NAME),
+    };
+    let walk = interior::cache::to_json(&walk, cache_input::INTERIOR_KEY);
+    let no_inside = interior::Outcome::NoInside("no place is inside".into());
+    let no_inside = interior::cache::to_json(&no_inside, cache_input::INTERIOR_KEY);
     vec![
         ("path-even", cache_input::join(Kind::Path, even.as_bytes())),
         (
@@ -256,6 +272,14 @@ fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
         (
             "calibration",
             cache_input::join(Kind::Calibration, cal.as_bytes()),
+        ),
+        (
+            "interior",
+            cache_input::join(Kind::Interior, walk.as_bytes()),
+        ),
+        (
+            "interior-no-inside",
+            cache_input::join(Kind::Interior, no_inside.as_bytes()),
         ),
     ]
 }

@@ -682,3 +682,76 @@ fn recorded_camera_plays_back() {
     assert!((end.eye - rec.keys().last().expect("key").position).length() < 1e-4);
     assert!((path.pose_at(0.0).eye - Vec3::new(0.0, 1.7, 0.0)).length() < 1e-5);
 }
+
+/// A `.glb` room seen from inside: a 12 x 3 x 12 box with its faces turned in, and two
+/// pillars.
+fn room_glb() -> Vec<u8> {
+    use coherent::scene::gltf::testdata::{cube, GltfBuilder};
+    let (positions, normals, indices) = cube();
+    let mut b = GltfBuilder::default();
+    let walls: Vec<[f32; 3]> = positions
+        .iter()
+        .map(|p| [p[0] * 12.0, p[1] * 3.0 + 1.5, p[2] * 12.0])
+        .collect();
+    let inward: Vec<[f32; 3]> = normals.iter().map(|n| n.map(|c| -c)).collect();
+    let turned: Vec<u16> = indices
+        .chunks_exact(3)
+        .flat_map(|t| [t[0], t[2], t[1]])
+        .collect();
+    let (pos, nrm, idx) = (b.vec3(&walls), b.vec3(&inward), b.indices_u16(&turned));
+    b.materials
+        .push(r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.8,0.7,0.6,1]}}"#.into());
+    b.meshes.push(format!(
+        r#"{{"name":"room","primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm}}},"indices":{idx},"material":0}}]}}"#
+    ));
+    let room = b.node(0, [0.0, 0.0, 0.0]);
+    let pillar = b.cube_mesh([0.3, 0.4, 0.8, 1.0]);
+    let pillars = [
+        b.node(pillar, [-3.0, 0.5, 2.0]),
+        b.node(pillar, [3.0, 0.5, -2.0]),
+    ];
+    b.scene_nodes = Some(vec![room, pillars[0], pillars[1]]);
+    b.glb()
+}
+
+#[test]
+fn render_keeps_the_interior_walk_in_the_cache_directory() {
+    // The first render finds the walk and says where it kept it; the second reads it from
+    // there, says nothing about it and renders the same image.
+    let dir = temp_dir("interior_cache");
+    let file = write(&dir, "room.glb", room_glb());
+    let cache = dir.join("cache");
+    let render = |png: &str| {
+        let out = common::on_test_device(&mut Command::new(env!("CARGO_BIN_EXE_coherent")))
+            .args(["render", "--size", "96x54", "--scene"])
+            .arg(&file)
+            .arg("--cache-dir")
+            .arg(&cache)
+            .arg("--out")
+            .arg(dir.join(png))
+            .output()
+            .expect("run coherent");
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        assert!(
+            String::from_utf8_lossy(&out.stdout).contains("room: interior frame 0"),
+            "{err}"
+        );
+        err
+    };
+    let first = render("first.png");
+    assert!(first.contains("interior walk found in"), "{first}");
+    let kept: Vec<_> = std::fs::read_dir(&cache)
+        .expect("cache directory")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().to_string())
+        .collect();
+    assert!(
+        kept.len() == 1 && kept[0].starts_with("interior-") && first.contains(&kept[0]),
+        "{kept:?} {first}"
+    );
+    let second = render("second.png");
+    assert!(!second.contains("interior walk"), "{second}");
+    let image = |png: &str| std::fs::read(dir.join(png)).expect("png");
+    assert!(image("first.png") == image("second.png"));
+    std::fs::remove_dir_all(&dir).expect("clean up");
+}

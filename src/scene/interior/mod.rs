@@ -6,13 +6,15 @@
 //! down the most open way ahead where the view is not filled by one colour (a bare floor, a
 //! wall close ahead); the views between keys are judged every third frame, and a turn that
 //! sweeps past such a view gets other looks at its keys. Also the light path that goes with
-//! it. Deterministic for a given scene.
+//! it. Deterministic for a given scene, so the command line keeps it in the cache directory
+//! ([`cache`]) and finds it once per scene.
 
 use glam::Vec3;
 
 use super::{CameraPath, CameraPose, Scene};
 use crate::Error;
 
+pub mod cache;
 pub mod places;
 pub mod rays;
 pub mod walk;
@@ -20,6 +22,7 @@ pub mod walk;
 #[cfg(test)]
 mod tests;
 
+pub use cache::Outcome;
 pub use places::{Place, Rejections, Scale};
 pub use rays::{distance_to_triangle, Hit, Probe, TriangleScene};
 
@@ -177,17 +180,78 @@ pub fn light_path(rays: &TriangleScene, path: &CameraPath, scale: &Scale) -> Cam
 /// the light path that goes with it (unless the file has its own light); the orbit stays
 /// available as `default`. Without an inside, one line on stderr says why.
 pub fn default_if_enclosed(scene: &mut Scene) {
-    let Some(rays) = TriangleScene::new(scene) else {
-        return;
-    };
-    match find(&rays, &InteriorParams::default()) {
-        Ok(w) => {
-            if scene.path(super::gltf_ext::LIGHT_PATH).is_err() {
-                scene.paths.push(light_path(&rays, &w.path, &w.scale));
-            }
-            scene.paths.insert(0, w.path);
+    if let Some(outcome) = outcome(scene, &InteriorParams::default()) {
+        apply(scene, outcome);
+    }
+}
+
+/// [`default_if_enclosed`] through the cache directory `dir` (see [`cache`]): the walk is read
+/// from there when a command found it before for the same scene and code, and kept there
+/// when it is found now. `None` for a scene without triangles (nothing to find or keep).
+pub fn default_if_enclosed_cached(
+    scene: &mut Scene,
+    dir: &std::path::Path,
+) -> Option<cache::Source> {
+    let params = InteriorParams::default();
+    let key = cache::key(scene, &params);
+    let file = cache::file(dir, &key);
+    match cache::load(&file, &key) {
+        Ok(Some(outcome)) => {
+            apply(scene, outcome);
+            return Some(cache::Source::Cached(file));
         }
-        Err(why) => eprintln!(
+        Ok(None) => {}
+        Err(why) => eprintln!("warning: {why}; finding the interior walk again"),
+    }
+    let start = std::time::Instant::now();
+    let outcome = outcome(scene, &params)?;
+    let kept = match cache::save(&file, &key, &outcome) {
+        Ok(()) => Some(file),
+        Err(e) => {
+            eprintln!(
+                "warning: {}: {e}; the interior walk is not cached",
+                file.display()
+            );
+            None
+        }
+    };
+    if matches!(outcome, Outcome::Walk { .. }) {
+        eprintln!(
+            "note: scene \"{}\": interior walk found in {:.1} s{}",
+            scene.name,
+            start.elapsed().as_secs_f32(),
+            kept.as_ref()
+                .map(|f| format!(", kept in {}", f.display()))
+                .unwrap_or_default()
+        );
+    }
+    apply(scene, outcome);
+    Some(cache::Source::Found(kept))
+}
+
+/// The walk of `scene` and its light path, or why it has none; `None` without triangles.
+fn outcome(scene: &Scene, params: &InteriorParams) -> Option<Outcome> {
+    let rays = TriangleScene::new(scene)?;
+    Some(match find(&rays, params) {
+        Ok(w) => Outcome::Walk {
+            light: light_path(&rays, &w.path, &w.scale),
+            camera: w.path,
+        },
+        Err(why) => Outcome::NoInside(why),
+    })
+}
+
+/// Puts the walk first among `scene`'s paths and its light path after them (unless the scene
+/// has its own light), or says why there is none.
+fn apply(scene: &mut Scene, outcome: Outcome) {
+    match outcome {
+        Outcome::Walk { camera, light } => {
+            if scene.path(super::gltf_ext::LIGHT_PATH).is_err() {
+                scene.paths.push(light);
+            }
+            scene.paths.insert(0, camera);
+        }
+        Outcome::NoInside(why) => eprintln!(
             "note: scene \"{}\": no inside found ({why}); the default path is the orbit",
             scene.name
         ),

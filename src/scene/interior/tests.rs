@@ -854,3 +854,114 @@ fn turns_are_judged_every_few_frames_and_mended() {
         );
     }
 }
+
+/// A fresh directory in the system's temp directory for one test.
+fn temp_dir(test: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("coherent_interior_{}_{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+#[test]
+fn the_walk_is_kept_in_the_cache_and_read_back_unchanged() {
+    let mut l = Level::default();
+    row_of_rooms(&mut l, 0.0, false);
+    let fresh = l.scene(false);
+    let mut found = fresh.clone();
+    default_if_enclosed(&mut found);
+    assert_eq!(found.paths[0].name, PATH_NAME);
+    let dir = temp_dir("kept");
+    let mut first = fresh.clone();
+    let file = match default_if_enclosed_cached(&mut first, &dir) {
+        Some(cache::Source::Found(Some(file))) => file,
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(first.paths, found.paths);
+    let mut second = fresh.clone();
+    let source = default_if_enclosed_cached(&mut second, &dir);
+    assert_eq!(source, Some(cache::Source::Cached(file.clone())));
+    assert_eq!(second.paths, found.paths);
+    // Another scene (one room wall moved) has another key and finds its own walk.
+    let mut moved = fresh.clone();
+    moved.vertices[0].position[0] += 0.5;
+    let source = default_if_enclosed_cached(&mut moved, &dir);
+    assert!(
+        matches!(source, Some(cache::Source::Found(Some(ref f))) if *f != file),
+        "{source:?}"
+    );
+    // So do other parameters.
+    let params = InteriorParams {
+        waypoints: 3,
+        ..InteriorParams::default()
+    };
+    assert_ne!(
+        cache::key(&fresh, &params),
+        cache::key(&fresh, &InteriorParams::default())
+    );
+    std::fs::remove_dir_all(&dir).expect("clean up");
+}
+
+#[test]
+fn a_scene_without_an_inside_is_kept_too() {
+    let mut l = Level::default();
+    row_of_rooms(&mut l, 0.0, false);
+    for t in &mut l.tris {
+        t.swap(1, 2);
+    }
+    let fresh = l.scene(false);
+    let dir = temp_dir("no_inside");
+    for expect_cached in [false, true] {
+        let mut scene = fresh.clone();
+        let source = default_if_enclosed_cached(&mut scene, &dir).expect("triangles");
+        assert_eq!(matches!(source, cache::Source::Cached(_)), expect_cached);
+        assert_eq!(scene.paths[0].name, "default");
+        assert!(scene.path(LIGHT_PATH_NAME).is_err());
+    }
+    std::fs::remove_dir_all(&dir).expect("clean up");
+}
+
+#[test]
+fn a_damaged_cache_file_is_replaced_and_an_unwritable_cache_costs_only_time() {
+    let mut l = Level::default();
+    row_of_rooms(&mut l, 0.0, false);
+    let fresh = l.scene(false);
+    let mut found = fresh.clone();
+    default_if_enclosed(&mut found);
+    let dir = temp_dir("damaged");
+    let key = cache::key(&fresh, &InteriorParams::default());
+    let file = cache::file(&dir, &key);
+    let mut scene = fresh.clone();
+    default_if_enclosed_cached(&mut scene, &dir);
+    let good = std::fs::read_to_string(&file).expect("cache file");
+    let nan = good.replacen("[[", "[[NaN,", 1);
+    let damaged = [
+        (good[..good.len() / 2].to_string(), "not JSON"),
+        (good.replace(&key, "interior v0"), "another scene"),
+        (good.replacen("[[", "[[1e39,", 1), "six finite numbers"),
+        (nan, "not JSON"),
+        (good.replace("\"light\"", "\"lamp\""), "no \"light\" array"),
+        ("{\"key\":\"K\"}".replace('K', &key), "no \"camera\" array"),
+    ];
+    for (text, why) in damaged {
+        let err = cache::parse(&text, &key).expect_err(why);
+        assert!(err.contains(why), "{err}");
+        std::fs::write(&file, &text).expect("damage");
+        let mut scene = fresh.clone();
+        let source = default_if_enclosed_cached(&mut scene, &dir);
+        assert_eq!(
+            source,
+            Some(cache::Source::Found(Some(file.clone()))),
+            "{why}"
+        );
+        assert_eq!(scene.paths, found.paths, "{why}");
+        assert_eq!(std::fs::read_to_string(&file).expect("rewritten"), good);
+    }
+    // A file where the directory should be: nothing is kept, the walk is found all the same.
+    std::fs::remove_dir_all(&dir).expect("clean up");
+    std::fs::write(&dir, b"not a directory").expect("file");
+    let mut scene = fresh.clone();
+    let source = default_if_enclosed_cached(&mut scene, &dir);
+    assert_eq!(source, Some(cache::Source::Found(None)));
+    assert_eq!(scene.paths, found.paths);
+    std::fs::remove_file(&dir).expect("clean up");
+}

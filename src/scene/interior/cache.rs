@@ -1,0 +1,255 @@
+//! The interior walk kept in a cache directory. Finding the walk casts millions of rays
+//! (seconds on a real level: about 10 s for the Sibenik cathedral on two cores), and what it
+//! finds depends only on the scene's geometry and flat colours, the [`InteriorParams`] and
+//! the code that finds it. So a command that loads the same file again reads the walk (or
+//! the reason there is none) from one small JSON file instead:
+//!
+//! ```json
+//! { "key": "interior v1;code=…;scene=…;params=…",
+//!   "camera": [[ex, ey, ez, tx, ty, tz], …], "light": [[…], …] }
+//! ```
+//!
+//! or `"no_inside": "<why>"` in place of the two paths. The key names a hash of the code
+//! (the walk's source files, hashed when the program is compiled), of the scene (vertices,
+//! indices, colours, objects, materials, the sun) and the parameters; the file's name is a
+//! hash of the key, and a file whose key differs is not used. A file that cannot be read or
+//! trusted is replaced, with one line on stderr saying why; a cache that cannot be written
+//! costs only the time.
+
+use std::hash::{Hash, Hasher};
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use serde_json::{json, Value};
+
+use super::{InteriorParams, LIGHT_PATH_NAME, PATH_NAME};
+use crate::scene::{CameraPath, CameraPose, Scene};
+use crate::Error;
+
+/// The source files whose code decides the walk; any change to them gives new keys.
+const SOURCES: [&[u8]; 6] = [
+    include_bytes!("mod.rs"),
+    include_bytes!("places.rs"),
+    include_bytes!("rays.rs"),
+    include_bytes!("walk.rs"),
+    include_bytes!("../path_check.rs"),
+    include_bytes!("../camera.rs"),
+];
+
+/// FNV-1a of `SOURCES`, computed by the compiler.
+const CODE_HASH: u64 = {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut f = 0;
+    while f < SOURCES.len() {
+        let bytes = SOURCES[f];
+        let mut i = 0;
+        while i < bytes.len() {
+            h ^= bytes[i] as u64;
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+            i += 1;
+        }
+        f += 1;
+    }
+    h
+};
+
+/// Most keys of a cached path (a walk has a few hundred).
+const MAX_KEYS: usize = 1 << 16;
+/// Longest reason for no inside a cache file may hold.
+const MAX_WHY: usize = 4096;
+
+/// FNV-1a as a [`Hasher`] (stable across builds and platforms, unlike the standard one).
+struct Fnv(u64);
+
+impl Hasher for Fnv {
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 ^= u64::from(b);
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+
+    fn finish(&self) -> u64 {
+        self.0
+    }
+}
+
+impl Fnv {
+    fn new() -> Fnv {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+
+    fn floats(&mut self, v: &[f32]) {
+        for f in v {
+            f.to_bits().hash(self);
+        }
+    }
+}
+
+/// What finding the walk gave: the walk and its light path, or why the scene has no inside.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outcome {
+    /// The walk ([`PATH_NAME`]) and the light path that goes with it ([`LIGHT_PATH_NAME`]).
+    Walk {
+        camera: CameraPath,
+        light: CameraPath,
+    },
+    /// No inside, and why (the note printed when the orbit stays the default path).
+    NoInside(String),
+}
+
+/// Where an outcome came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Source {
+    /// Read from this file.
+    Cached(PathBuf),
+    /// Found now; kept in this file (`None`: it could not be written, a warning said why).
+    Found(Option<PathBuf>),
+}
+
+/// The cache key of `scene`'s walk with `params`: the code, the scene and the parameters.
+pub fn key(scene: &Scene, params: &InteriorParams) -> String {
+    let mut h = Fnv::new();
+    bytemuck::cast_slice::<_, u8>(&scene.vertices).hash(&mut h);
+    scene.indices.hash(&mut h);
+    bytemuck::cast_slice::<_, u8>(&scene.attributes).hash(&mut h);
+    scene.objects.len().hash(&mut h);
+    for o in &scene.objects {
+        (
+            o.first_index,
+            o.index_count,
+            o.vertex_offset,
+            o.vertex_count,
+        )
+            .hash(&mut h);
+        h.floats(&o.transform.to_cols_array());
+        h.floats(&o.color.to_array());
+        o.material.hash(&mut h);
+    }
+    scene.materials.len().hash(&mut h);
+    for m in &scene.materials {
+        m.base_color_texture.is_some().hash(&mut h);
+        m.double_sided.hash(&mut h);
+    }
+    h.floats(&scene.sun_dir.to_array());
+    format!(
+        "interior v1;code={CODE_HASH:016x};scene={:016x};params={params:?}",
+        h.finish()
+    )
+}
+
+/// The cache file of `key` in `dir`.
+pub fn file(dir: &Path, key: &str) -> PathBuf {
+    let mut h = Fnv::new();
+    h.write(key.as_bytes());
+    dir.join(format!("interior-{:016x}.json", h.finish()))
+}
+
+/// Reads the outcome kept for `key` in `file`: `Ok(None)` when there is no file, an error
+/// saying why when it exists but cannot be used (unreadable, not this format, another key,
+/// numbers that are not finite, too many keys).
+pub fn load(file: &Path, key: &str) -> Result<Option<Outcome>, Error> {
+    let text = match std::fs::read_to_string(file) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(Error::Input(format!("{}: {e}", file.display()))),
+    };
+    parse(&text, key)
+        .map(Some)
+        .map_err(|why| Error::Input(format!("{}: {why}", file.display())))
+}
+
+/// The outcome in a cache file's `text`, made for `key`.
+pub fn parse(text: &str, key: &str) -> Result<Outcome, String> {
+    let v: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
+    match v.get("key").and_then(Value::as_str) {
+        Some(k) if k == key => {}
+        Some(_) => return Err("made for another scene, parameters or version".into()),
+        None => return Err("no \"key\" string".into()),
+    }
+    if let Some(why) = v.get("no_inside") {
+        let why = why.as_str().ok_or("\"no_inside\" is not a string")?;
+        if why.len() > MAX_WHY || why.contains('\n') {
+            return Err("\"no_inside\" is not one short line".into());
+        }
+        return Ok(Outcome::NoInside(why.to_string()));
+    }
+    let camera = poses(&v, "camera")?;
+    let light = poses(&v, "light")?;
+    if camera.is_empty() || camera.len() != light.len() {
+        return Err(format!(
+            "{} camera keys and {} light keys (one each, at least one)",
+            camera.len(),
+            light.len()
+        ));
+    }
+    Ok(Outcome::Walk {
+        camera: CameraPath {
+            name: PATH_NAME.to_string(),
+            keys: camera,
+        },
+        light: CameraPath {
+            name: LIGHT_PATH_NAME.to_string(),
+            keys: light,
+        },
+    })
+}
+
+/// The poses of array `name`: each six finite numbers, eye then target.
+fn poses(v: &Value, name: &str) -> Result<Vec<CameraPose>, String> {
+    let list = v
+        .get(name)
+        .and_then(Value::as_array)
+        .ok_or_else(|| format!("no \"{name}\" array"))?;
+    if list.len() > MAX_KEYS {
+        return Err(format!(
+            "\"{name}\" has {} keys (at most {MAX_KEYS})",
+            list.len()
+        ));
+    }
+    list.iter()
+        .enumerate()
+        .map(|(i, k)| {
+            let n: Vec<f32> = k
+                .as_array()
+                .filter(|a| a.len() == 6)
+                .and_then(|a| a.iter().map(|x| x.as_f64().map(|x| x as f32)).collect())
+                .filter(|n: &Vec<f32>| n.iter().all(|x| x.is_finite()))
+                .ok_or_else(|| format!("\"{name}\" key {i} is not six finite numbers"))?;
+            Ok(CameraPose {
+                eye: Vec3::new(n[0], n[1], n[2]),
+                target: Vec3::new(n[3], n[4], n[5]),
+            })
+        })
+        .collect()
+}
+
+/// The text of the cache file of `outcome` for `key`.
+pub fn to_json(outcome: &Outcome, key: &str) -> String {
+    let poses = |p: &CameraPath| -> Vec<Value> {
+        p.keys
+            .iter()
+            .map(|k| json!([k.eye.x, k.eye.y, k.eye.z, k.target.x, k.target.y, k.target.z]))
+            .collect()
+    };
+    match outcome {
+        Outcome::Walk { camera, light } => {
+            json!({ "key": key, "camera": poses(camera), "light": poses(light) })
+        }
+        Outcome::NoInside(why) => json!({ "key": key, "no_inside": why }),
+    }
+    .to_string()
+}
+
+/// Writes `outcome` for `key` to `file` (through a temporary file, so that a crash or a
+/// second process never leaves half a file).
+pub fn save(file: &Path, key: &str, outcome: &Outcome) -> std::io::Result<()> {
+    if let Some(dir) = file.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    let tmp = file.with_extension(format!("{}.tmp", std::process::id()));
+    std::fs::write(&tmp, to_json(outcome, key))?;
+    std::fs::rename(&tmp, file).inspect_err(|_| {
+        let _ = std::fs::remove_file(&tmp);
+    })
+}
