@@ -326,12 +326,18 @@ pub fn keys_through(
 
 /// Most share of one colour of the views between two keys (a third and two thirds of the way).
 fn between(rays: &TriangleScene, path: &crate::scene::CameraPath, segment: usize) -> f32 {
-    [1.0, 2.0]
-        .iter()
-        .map(|j| {
-            let f = (segment as f32 + j / 3.0) * FRAMES_PER_KEY;
-            one_colour_at(rays, &path.pose_at(f), VIEW_RAYS)
-        })
+    most_one_colour(rays, &between_poses(path, segment))
+}
+
+/// The two views of [`between`].
+fn between_poses(path: &crate::scene::CameraPath, segment: usize) -> [CameraPose; 2] {
+    [1.0, 2.0].map(|j| path.pose_at((segment as f32 + j / 3.0) * FRAMES_PER_KEY))
+}
+
+/// Most share of one colour of the views at `poses`, judged on the machine's cores.
+fn most_one_colour(rays: &TriangleScene, poses: &[CameraPose]) -> f32 {
+    crate::parallel::map(poses.len(), |i| one_colour_at(rays, &poses[i], VIEW_RAYS))
+        .into_iter()
         .fold(0.0, f32::max)
 }
 
@@ -342,13 +348,11 @@ fn between(rays: &TriangleScene, path: &crate::scene::CameraPath, segment: usize
 fn hold_views(rays: &TriangleScene, path: &mut crate::scene::CameraPath, most: f32) {
     let n = path.keys.len();
     let around = |path: &crate::scene::CameraPath, k: usize| {
-        (k.saturating_sub(2)..(k + 3).min(n - 1))
-            .map(|s| between(rays, path, s))
-            .chain(
-                (k.saturating_sub(1)..(k + 3).min(n))
-                    .map(|j| one_colour_at(rays, &path.keys[j], VIEW_RAYS)),
-            )
-            .fold(0.0, f32::max)
+        let poses: Vec<CameraPose> = (k.saturating_sub(2)..(k + 3).min(n - 1))
+            .flat_map(|s| between_poses(path, s))
+            .chain((k.saturating_sub(1)..(k + 3).min(n)).map(|j| path.keys[j]))
+            .collect();
+        most_one_colour(rays, &poses)
     };
     for _ in 0..HOLD_ROUNDS {
         let mut changed = false;
