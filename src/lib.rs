@@ -11,7 +11,7 @@
 //! build, GI runs), which the library never imports. Culling algorithms never call Vulkan: they
 //! talk to the [`culling::OcclusionBackend`] trait ("draw these objects", "draw these boxes inside
 //! a query", "submit", "is query N ready"), which [`render::Renderer`] implements and which a host
-//! engine can implement over its own device and command buffers (see `examples/embed.rs`).
+//! engine can implement over its own device and command buffers (see `examples/engine.rs`).
 //!
 //! ```
 //! use coherent::bvh::ObjectBvh;

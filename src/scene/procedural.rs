@@ -414,7 +414,7 @@ fn corner_statues(
 /// Path `street`: along the centre lines of the streets at eye height 1.7 m, three turns at
 /// crossings. Each turn has a key a few metres before and after the crossing, so that the
 /// Catmull-Rom spline between keys stays in the street instead of cutting the corner through a
-/// building or a parked car (`tests/builtin_paths.rs` checks every quarter frame).
+/// building or a parked car (`tests/gpu/builtin_paths.rs` checks every quarter frame).
 fn city_street_path(b: &mut SceneBuilder, grid: &CityGrid) {
     let (block, street, pitch) = (grid.block, grid.street, grid.pitch);
     let path_blocks = grid.path_blocks();
@@ -669,7 +669,7 @@ fn seat_mesh() -> Mesh {
 
 /// The walk: along the first aisle, round the end of the rows, back along a middle aisle, out
 /// past the first bays and a look over the lot from its far edge. Turns have keys just before and
-/// after them so that the spline stays in the aisles (`tests/builtin_paths.rs`).
+/// after them so that the spline stays in the aisles (`tests/gpu/builtin_paths.rs`).
 fn parking_path(b: &mut SceneBuilder, lot: &ParkingLot) {
     let (rows, dz) = (lot.rows, lot.dz);
     let (w, d) = (lot.width(), lot.depth());
