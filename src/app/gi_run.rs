@@ -400,14 +400,9 @@ pub fn rmse(a: &[u8], b: &[u8]) -> f64 {
     }
 }
 
+/// Percentile `p` in `[0, 1]` of `values` (the report's, interpolated between ranks).
 fn percentile(values: &[f64], p: f64) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let mut v = values.to_vec();
-    v.sort_by(|a, b| a.total_cmp(b));
-    let i = ((v.len() - 1) as f64 * p).round() as usize;
-    v[i.min(v.len() - 1)]
+    crate::app::report::percentile(&mut values.to_vec(), p * 100.0)
 }
 
 /// Renders the full-recompute reference with `4 * vpls` VPLs on `frames`.
