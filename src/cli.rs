@@ -55,7 +55,7 @@ pub struct RenderArgs {
     pub cache: CacheArgs,
     /// Built-in moving objects (cars in city and parking, fans elsewhere), drawn where they are
     /// at the rendered frame.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cli_common::movers_count)]
     pub movers: usize,
 }
 
@@ -101,7 +101,7 @@ pub struct WalkArgs {
     /// Latency modes of chc, chcpp and nohc, comma separated: in-frame (exact, waits inside the
     /// frame), predicated (exact, one submission: hidden nodes drawn under their queries'
     /// predicates), next-frame (queries read one frame late), next-frame-conservative; a
-    /// `-kN` suffix reads them N frames late (N frames in flight, e.g. predicated-k2).
+    /// `-kN` suffix reads them N frames late (N frames in flight, 1 to 16, e.g. predicated-k2).
     /// Reported as `ALGORITHM@MODE`.
     #[arg(long, default_value = "in-frame", value_delimiter = ',')]
     pub latency: Vec<String>,
@@ -114,7 +114,7 @@ pub struct WalkArgs {
     /// Built-in moving objects (cars in city and parking, fans elsewhere); the report adds
     /// refit_ms_median, rebuilds and movers, and chcpp also runs on the scene without movers
     /// (as chcpp-static) for comparison.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cli_common::movers_count)]
     pub movers: usize,
 }
 
@@ -158,7 +158,7 @@ pub struct ViewArgs {
     #[command(flatten)]
     pub chcpp: ChcppArgs,
     /// Built-in moving objects (key M stops and starts them).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cli_common::movers_count)]
     pub movers: usize,
 }
 
@@ -889,7 +889,7 @@ pub struct GiArgs {
     pub light_path: Option<PathBuf>,
     /// Built-in moving objects (fans; cars in city and parking): incremental re-renders the
     /// shadow maps they may have changed, full and ism rebuild every map anyway.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cli_common::movers_count)]
     pub movers: usize,
 }
 
@@ -986,6 +986,31 @@ mod tests {
             };
             let e = super::walk(&w).expect_err("named twice").to_string();
             assert!(e.contains("twice"), "{e}");
+        }
+    }
+
+    /// `--movers` beyond what a machine can hold is refused when the command line is read, on
+    /// every command that takes it, before the scene is built (ten million took 7.7 GB first).
+    #[test]
+    fn movers_beyond_the_limit_are_refused_before_anything_is_built() {
+        let too_many = (crate::cli_common::MAX_MOVERS + 1).to_string();
+        for cmd in [
+            &["render", "--out", "x.png"][..],
+            &["walk"],
+            &["view"],
+            &["gi"],
+        ] {
+            let mut argv = vec!["coherent"];
+            argv.extend_from_slice(cmd);
+            argv.extend_from_slice(&["--scene", "city", "--movers"]);
+            let most = crate::cli_common::MAX_MOVERS.to_string();
+            crate::Cli::try_parse_from([&argv[..], &[most.as_str()]].concat())
+                .unwrap_or_else(|e| panic!("{cmd:?}: {e}"));
+            let e = crate::Cli::try_parse_from([&argv[..], &[too_many.as_str()]].concat())
+                .err()
+                .unwrap_or_else(|| panic!("{cmd:?}: accepted"))
+                .to_string();
+            assert!(e.contains("more than 2000000 movers"), "{cmd:?}: {e}");
         }
     }
 

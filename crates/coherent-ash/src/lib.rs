@@ -178,8 +178,9 @@ pub const QUERY_BOX_VERT_SPV: &[u8] = include_bytes!("../spirv/query_box.vert.sp
 /// How the host renders, and how much the backend may record per frame.
 #[derive(Clone, Debug)]
 pub struct QueryBackendDesc {
-    /// Frames in flight: one query pool and result buffer per slot (at least 2; a host with one
-    /// frame in flight still uses 2, and its culler reads results two frames late).
+    /// Frames in flight: one query pool and result buffer per slot (at least 2, at most
+    /// [`coherent_cull::MAX_FRAMES_IN_FLIGHT`]; a host with one frame in flight still uses 2,
+    /// and its culler reads results two frames late).
     pub frames_in_flight: u32,
     /// Most queries one frame may issue. A frame that needs more fails `cull_frame` with an
     /// error that says to raise it (`CullStats::queries` tells how many a frame used); the
@@ -955,6 +956,13 @@ fn check_desc(desc: &QueryBackendDesc) -> Result<()> {
             desc.frames_in_flight
         )));
     }
+    if desc.frames_in_flight > coherent_cull::MAX_FRAMES_IN_FLIGHT {
+        return Err(Error::Input(format!(
+            "frames_in_flight {} (at most {}, as many as a culler reads late)",
+            desc.frames_in_flight,
+            coherent_cull::MAX_FRAMES_IN_FLIGHT
+        )));
+    }
     if desc.max_queries == 0 || desc.max_boxes == 0 {
         return Err(Error::Input(
             "max_queries and max_boxes must be at least 1".into(),
@@ -994,3 +1002,34 @@ impl std::fmt::Display for VkError {
 }
 
 impl std::error::Error for VkError {}
+
+#[cfg(test)]
+mod tests {
+    use super::{check_desc, QueryBackendDesc};
+
+    /// Descriptions a backend cannot honour are refused before any Vulkan object is made:
+    /// too few or too many frames in flight (a slot is a query pool and buffers each),
+    /// no room for queries, boxes past 32-bit indices.
+    #[test]
+    fn descriptions_out_of_range_are_refused() {
+        let desc = |f: &dyn Fn(&mut QueryBackendDesc)| {
+            let mut d = QueryBackendDesc::default();
+            f(&mut d);
+            d
+        };
+        assert!(check_desc(&QueryBackendDesc::default()).is_ok());
+        let most = coherent_cull::MAX_FRAMES_IN_FLIGHT;
+        assert!(check_desc(&desc(&|d| d.frames_in_flight = most)).is_ok());
+        for (bad, why) in [
+            (desc(&|d| d.frames_in_flight = 1), "at least 2"),
+            (desc(&|d| d.frames_in_flight = most + 1), "at most 16"),
+            (desc(&|d| d.frames_in_flight = u32::MAX), "at most 16"),
+            (desc(&|d| d.max_queries = 0), "at least 1"),
+            (desc(&|d| d.max_boxes = 0), "at least 1"),
+            (desc(&|d| d.max_boxes = u32::MAX / 8), "32-bit indices"),
+        ] {
+            let e = check_desc(&bad).expect_err(why).to_string();
+            assert!(e.contains(why), "{e}");
+        }
+    }
+}

@@ -34,9 +34,10 @@ pub struct FramesInFlight {
 }
 
 impl FramesInFlight {
-    /// `inner` run with `k` frames in flight (`k` at least 1).
+    /// `inner` run with `k` frames in flight (`k` clamped to 1 to
+    /// [`MAX_FRAMES_IN_FLIGHT`](crate::MAX_FRAMES_IN_FLIGHT)).
     pub fn new(inner: Box<dyn Culler>, k: u32) -> FramesInFlight {
-        let k = k.max(1);
+        let k = k.clamp(1, crate::MAX_FRAMES_IN_FLIGHT);
         FramesInFlight {
             inner,
             k,

@@ -404,6 +404,10 @@ pub struct FrameInput<'a> {
     pub exact_visible: Option<&'a [u32]>,
 }
 
+/// Most frames in flight a latency mode takes (`-kN`, [`chcpp::Chcpp::with_frames_in_flight`],
+/// [`latency::FramesInFlight`]); hosts keep two or three.
+pub const MAX_FRAMES_IN_FLIGHT: u32 = 16;
+
 /// When a CHC-family culler reads its occlusion query results.
 ///
 /// - `InFrame` (default): exact. A frame is a chain of submissions; a previously invisible
@@ -464,16 +468,17 @@ impl Latency {
         Latency::parse_in_flight(name).map(|(latency, _)| latency)
     }
     /// Parses a command-line name with an optional `-kN` suffix for `N` frames in flight
-    /// (`next-frame-k2`; default 1; in-frame only with 1).
+    /// (`next-frame-k2`; default 1, at most [`MAX_FRAMES_IN_FLIGHT`]; in-frame only with 1).
     pub fn parse_in_flight(name: &str) -> Result<(Latency, u32)> {
         let (base, k) = match name.rsplit_once("-k").map(|(b, k)| (b, k.parse::<u32>())) {
             Some((base, Ok(k))) => (base, k),
             _ => (name, 1),
         };
         let latency = Latency::parse_base(base)?;
-        if k == 0 || (latency == Latency::InFrame && k != 1) {
+        if k == 0 || k > MAX_FRAMES_IN_FLIGHT || (latency == Latency::InFrame && k != 1) {
             return Err(Error::Input(format!(
-                "latency \"{name}\": frames in flight must be at least 1, and 1 in-frame"
+                "latency \"{name}\": frames in flight must be 1 to {MAX_FRAMES_IN_FLIGHT}, \
+                 and 1 in-frame"
             )));
         }
         Ok((latency, k))

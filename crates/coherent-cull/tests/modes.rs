@@ -14,7 +14,7 @@ use coherent_cull::pvs::{Pvs, ViewCell};
 use coherent_cull::testing::{Completion, MockBackend, MockEvent};
 use coherent_cull::{
     create, create_latency, create_named, create_with, Aabb, CostModel, Culler, CullerSetup, Error,
-    FrameInput, Latency, NohcParams, ObjectBvh, ALGORITHMS,
+    FrameInput, Latency, NohcParams, ObjectBvh, ALGORITHMS, MAX_FRAMES_IN_FLIGHT,
 };
 use common::*;
 
@@ -492,6 +492,7 @@ fn latency_names_parse_and_bad_ones_are_refused() {
             Latency::NextFrameConservative,
             3,
         ),
+        ("predicated-k16", Latency::Predicated, MAX_FRAMES_IN_FLIGHT),
     ];
     for (name, latency, k) in ok {
         assert_eq!(
@@ -507,10 +508,25 @@ fn latency_names_parse_and_bad_ones_are_refused() {
         "in-frame-k2",
         "next-frame-kx",
         "next-frame-k-1",
+        // More slots than a host keeps: refused, not allocated (four billion slots took
+        // 256 GB and aborted the walk).
+        "predicated-k17",
+        "next-frame-k4000000000",
     ] {
         let err = Latency::parse_in_flight(bad).unwrap_err();
         assert!(matches!(err, Error::Input(_)), "{bad}: {err}");
+        let named = create_named(&format!("chcpp@{bad}"), &CullerSetup::default());
+        assert!(named.is_err(), "{bad}");
     }
+    // The builders cannot fail: they clamp.
+    let k = Chcpp::new(ChcppParams::default()).with_frames_in_flight(u32::MAX);
+    assert_eq!(k.frames_in_flight(), MAX_FRAMES_IN_FLIGHT);
+    assert_eq!(
+        Chcpp::new(ChcppParams::default())
+            .with_frames_in_flight(0)
+            .frames_in_flight(),
+        1
+    );
     assert_eq!(Latency::parse("next-frame-k4").unwrap(), Latency::NextFrame);
     for l in Latency::ALL {
         assert_eq!(Latency::parse(l.name()).unwrap(), l);

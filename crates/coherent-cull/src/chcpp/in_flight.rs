@@ -32,12 +32,12 @@ pub(super) struct InFlightQueries {
 
 impl Chcpp {
     /// The same culler reading a frame's query results `k` frames after issuing them, for a
-    /// host with `k` frames in flight (latency modes only; `k` is at least 1, the default).
-    /// The backend must keep query results readable that long
-    /// ([`OcclusionBackend::frames_in_flight`]); objects that come into view appear `k` frames
-    /// late.
+    /// host with `k` frames in flight (latency modes only; `k` is clamped to 1, the default,
+    /// to [`MAX_FRAMES_IN_FLIGHT`](crate::MAX_FRAMES_IN_FLIGHT)). The backend must keep query
+    /// results readable that long ([`OcclusionBackend::frames_in_flight`]); objects that come
+    /// into view appear `k` frames late.
     pub fn with_frames_in_flight(mut self, k: u32) -> Chcpp {
-        self.frames_in_flight = k.max(1);
+        self.frames_in_flight = k.clamp(1, crate::MAX_FRAMES_IN_FLIGHT);
         self
     }
 
