@@ -442,14 +442,19 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     check_validation(&ctx)
 }
 
+/// Most frames of a walk, a `view` playback or a `gi` run (a walk keeps a record of each).
+const MAX_FRAMES: u32 = 100_000;
+/// Most VPLs of `gi` (the reference renders four times as many, each with its shadow map).
+const MAX_VPLS: usize = 65_536;
+
 /// `coherent walk`.
 pub fn walk(a: &WalkArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
-    if a.frames == 0 {
-        bail!("--frames must be at least 1");
+    if !(1..=MAX_FRAMES).contains(&a.frames) || a.warmup > MAX_FRAMES {
+        bail!("--frames must be 1 to {MAX_FRAMES} and --warmup at most {MAX_FRAMES}");
     }
-    if a.repeat == 0 {
-        bail!("--repeat must be at least 1");
+    if !(1..=100).contains(&a.repeat) || u64::from(a.frames) * u64::from(a.repeat) > 1_000_000 {
+        bail!("--repeat must be 1 to 100, and --frames times --repeat at most 1000000");
     }
     let mut params = a.chcpp.params()?;
     for alg in &a.algorithms {
@@ -776,8 +781,8 @@ fn write_scaling_table(
 /// `coherent view`.
 pub fn view(a: &ViewArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
-    if a.frames == Some(0) {
-        bail!("--frames must be at least 1");
+    if a.frames.is_some_and(|f| !(1..=MAX_FRAMES).contains(&f)) {
+        bail!("--frames must be 1 to {MAX_FRAMES}");
     }
     let params = a.chcpp.params()?;
     check_algorithm(&a.algorithm, &params)?;
@@ -901,6 +906,9 @@ pub fn gi(a: &GiArgs) -> Result<()> {
     if a.vpls == 0 || a.budget == 0 || a.frames == 0 || a.shadow_size == 0 {
         bail!("--vpls, --budget, --frames and --shadow-size must be positive");
     }
+    if a.vpls > MAX_VPLS || a.frames > MAX_FRAMES {
+        bail!("--vpls must be at most {MAX_VPLS} and --frames at most {MAX_FRAMES}");
+    }
     let scene = load_scene(
         &a.scene,
         single_scale(&a.scene)?,
@@ -1012,6 +1020,42 @@ mod tests {
                 .to_string();
             assert!(e.contains("more than 2000000 movers"), "{cmd:?}: {e}");
         }
+    }
+
+    /// Counts that would allocate past any machine (a record per walk frame, VPLs, frames in
+    /// flight) are refused before a scene or a device is touched: four billion frames or VPLs
+    /// aborted the command allocating hundreds of gigabytes.
+    #[test]
+    fn counts_past_any_machine_are_refused_up_front() {
+        let walk = |extra: &[&str]| {
+            let mut argv = vec!["coherent", "walk", "--scene", "city"];
+            argv.extend_from_slice(extra);
+            let crate::Command::Walk(w) = crate::Cli::try_parse_from(argv).unwrap().command else {
+                unreachable!()
+            };
+            super::walk(&w).expect_err("refused").to_string()
+        };
+        assert!(walk(&["--frames", "4294967295"]).contains("--frames must be 1 to 100000"));
+        assert!(walk(&["--warmup", "100001"]).contains("--warmup at most"));
+        assert!(walk(&["--repeat", "101"]).contains("--repeat must be 1 to 100"));
+        assert!(walk(&["--frames", "20000", "--repeat", "51"]).contains("at most 1000000"));
+        assert!(walk(&[
+            "--latency",
+            "next-frame-k4000000000",
+            "--algorithms",
+            "chcpp"
+        ])
+        .contains("frames in flight must be 1 to 16"));
+        let gi = |extra: &[&str]| {
+            let mut argv = vec!["coherent", "gi", "--scene", "cornell"];
+            argv.extend_from_slice(extra);
+            let crate::Command::Gi(g) = crate::Cli::try_parse_from(argv).unwrap().command else {
+                unreachable!()
+            };
+            super::gi(&g).expect_err("refused").to_string()
+        };
+        assert!(gi(&["--vpls", "4294967295"]).contains("--vpls must be at most 65536"));
+        assert!(gi(&["--frames", "100001"]).contains("--frames at most 100000"));
     }
 
     /// On a GPU the predicated mode keeps one predicate level unless `--refine-levels` says

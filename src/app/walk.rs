@@ -53,7 +53,8 @@ pub fn run(
     let repeats = cfg.repeats.max(1);
     let total = cfg.warmup + cfg.frames;
     let per_repeat = total as u64 * cfg.algorithms.len() as u64;
-    let mut records = Vec::with_capacity((cfg.frames * repeats) as usize * cfg.algorithms.len());
+    let expected = u64::from(cfg.frames) * u64::from(repeats) * cfg.algorithms.len() as u64;
+    let mut records = Vec::with_capacity(expected.min(1 << 20) as usize);
     for repeat in 0..repeats {
         let setup = culling::CullerSetup {
             params: cfg.params.clone(),
