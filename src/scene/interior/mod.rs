@@ -203,6 +203,14 @@ pub fn default_if_enclosed_cached(
         Ok(None) => {}
         Err(why) => eprintln!("warning: {why}; finding the interior walk again"),
     }
+    if scene.objects.iter().all(|o| o.index_count < 3) {
+        return None;
+    }
+    eprintln!(
+        "note: scene \"{}\": looking for an inside to walk (once: the result is kept in {})",
+        scene.name,
+        dir.display()
+    );
     let start = std::time::Instant::now();
     let outcome = outcome(scene, &params)?;
     let kept = match cache::save(&file, &key, &outcome) {
