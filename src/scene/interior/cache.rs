@@ -23,6 +23,7 @@ use glam::Vec3;
 use serde_json::{json, Value};
 
 use super::{InteriorParams, LIGHT_PATH_NAME, PATH_NAME};
+use crate::culling::pvs::fnv1a;
 use crate::scene::{CameraPath, CameraPose, Scene};
 use crate::Error;
 
@@ -38,20 +39,29 @@ const SOURCES: [&[u8]; 6] = [
 
 /// FNV-1a of `SOURCES`, computed by the compiler.
 const CODE_HASH: u64 = {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut h = FNV_BASIS;
     let mut f = 0;
     while f < SOURCES.len() {
-        let bytes = SOURCES[f];
-        let mut i = 0;
-        while i < bytes.len() {
-            h ^= bytes[i] as u64;
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-            i += 1;
-        }
+        h = fnv_extend(h, SOURCES[f]);
         f += 1;
     }
     h
 };
+
+/// FNV-1a's offset basis (that of [`fnv1a`]).
+const FNV_BASIS: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// FNV-1a from state `h` over `bytes` ([`fnv1a`] is this from [`FNV_BASIS`]), usable where
+/// the compiler evaluates it.
+const fn fnv_extend(mut h: u64, bytes: &[u8]) -> u64 {
+    let mut i = 0;
+    while i < bytes.len() {
+        h ^= bytes[i] as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        i += 1;
+    }
+    h
+}
 
 /// Most keys of a cached path (a walk has a few hundred).
 const MAX_KEYS: usize = 1 << 16;
@@ -63,10 +73,7 @@ struct Fnv(u64);
 
 impl Hasher for Fnv {
     fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 ^= u64::from(b);
-            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
-        }
+        self.0 = fnv_extend(self.0, bytes);
     }
 
     fn finish(&self) -> u64 {
@@ -76,7 +83,7 @@ impl Hasher for Fnv {
 
 impl Fnv {
     fn new() -> Fnv {
-        Fnv(0xcbf2_9ce4_8422_2325)
+        Fnv(FNV_BASIS)
     }
 
     fn floats(&mut self, v: &[f32]) {
@@ -140,9 +147,7 @@ pub fn key(scene: &Scene, params: &InteriorParams) -> String {
 
 /// The cache file of `key` in `dir`.
 pub fn file(dir: &Path, key: &str) -> PathBuf {
-    let mut h = Fnv::new();
-    h.write(key.as_bytes());
-    dir.join(format!("interior-{:016x}.json", h.finish()))
+    dir.join(format!("interior-{:016x}.json", fnv1a(key.as_bytes())))
 }
 
 /// Reads the outcome kept for `key` in `file`: `Ok(None)` when there is no file, an error
@@ -252,4 +257,19 @@ pub fn save(file: &Path, key: &str, outcome: &Outcome) -> std::io::Result<()> {
     std::fs::rename(&tmp, file).inspect_err(|_| {
         let _ = std::fs::remove_file(&tmp);
     })
+}
+
+#[cfg(test)]
+mod tests {
+    /// The compile-time FNV-1a is the project's [`fnv1a`](super::fnv1a), so cache file names
+    /// stay those of the PVS's hash.
+    #[test]
+    fn the_const_hash_is_fnv1a() {
+        for bytes in [&b""[..], b"a", b"interior v1;code=0"] {
+            assert_eq!(
+                super::fnv_extend(super::FNV_BASIS, bytes),
+                super::fnv1a(bytes)
+            );
+        }
+    }
 }
