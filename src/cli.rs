@@ -372,9 +372,10 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         _ if a.latency == "in-frame" => a.algorithm.clone(),
         other => bail!("--latency is for chc, chcpp and nohc, not \"{other}\""),
     };
-    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?, &a.cache.dir())?;
+    let cache_dir = a.cache.dir();
+    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?, &cache_dir)?;
     // The path of the scene without movers (checked and found on the fixed geometry).
-    let path = scene.resolve_path(a.path.as_deref())?;
+    let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
     let movers = Movers::add(&mut scene, a.movers);
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let mut bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
@@ -509,8 +510,9 @@ fn walk_scale(
     if a.movers > 0 {
         return walk_scale_movers(a, ctx, cfg, scale, dir, (w, h));
     }
-    let scene = load_scene(&a.scene, scale, &a.cache.dir())?;
-    let path = scene.resolve_path(a.path.as_deref())?;
+    let cache_dir = a.cache.dir();
+    let scene = load_scene(&a.scene, scale, &cache_dir)?;
+    let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let mut cfg = cfg.clone();
@@ -585,13 +587,14 @@ fn walk_scale_movers(
     dir: &std::path::Path,
     (w, h): (u32, u32),
 ) -> Result<coherent::app::report::WalkSummary> {
-    let fixed = load_scene(&a.scene, scale, &a.cache.dir())?;
+    let cache_dir = a.cache.dir();
+    let fixed = load_scene(&a.scene, scale, &cache_dir)?;
     let mut scene = fixed.clone();
     let movers = Movers::add(&mut scene, a.movers);
     // The same paths as without movers: built-in names, path files, `interior`, found and
     // checked on the scene without them (the movers' triangles at frame 0 would only slow
     // the check: at a million movers, past the machine's memory).
-    let path = fixed.resolve_path(a.path.as_deref())?;
+    let path = fixed.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
     let (mut bvh, fixed_bvh) = (
         bvh_of(&scene, a.scene.leaf_size),
         bvh_of(&fixed, a.scene.leaf_size),
@@ -786,13 +789,10 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     }
     let params = a.chcpp.params()?;
     check_algorithm(&a.algorithm, &params)?;
-    let mut scene = load_scene(
-        &a.scene,
-        single_scale(&a.scene)?,
-        &coherent::app::calibrate::default_cache_dir(),
-    )?;
+    let cache_dir = coherent::app::calibrate::default_cache_dir();
+    let mut scene = load_scene(&a.scene, single_scale(&a.scene)?, &cache_dir)?;
     // The path of the scene without movers (checked and found on the fixed geometry).
-    let path = scene.resolve_path(a.path.as_deref())?;
+    let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
     let movers = Movers::add(&mut scene, a.movers);
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
@@ -948,7 +948,11 @@ pub fn gi(a: &GiArgs) -> Result<()> {
 fn gi_setup(a: &GiArgs, scene: &Scene) -> Result<coherent::app::gi_run::GiSetup> {
     use coherent::scene::paths;
     let camera = match &a.path {
-        Some(p) => Some(scene.resolve_path(Some(p))?.pose_at(0.0)),
+        Some(p) => Some(
+            scene
+                .resolve_path_cached(Some(p), &coherent::app::calibrate::default_cache_dir())?
+                .pose_at(0.0),
+        ),
         None => None,
     };
     let light_keys = match &a.light_path {

@@ -182,8 +182,9 @@ pub fn nohc_params(
 /// `coherent pvs`: builds (or loads) the PVS of a scene's path and reports it.
 pub fn pvs_command(a: &PvsCommandArgs) -> Result<()> {
     let scale = cli_common::single_scale(&a.scene)?;
-    let scene = cli_common::load_scene(&a.scene, scale, &a.cache.dir())?;
-    let path = scene.resolve_path(a.path.as_deref())?;
+    let cache_dir = a.cache.dir();
+    let scene = cli_common::load_scene(&a.scene, scale, &cache_dir)?;
+    let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
     let ctx = cli_common::context(false)?;

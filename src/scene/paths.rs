@@ -330,12 +330,33 @@ impl super::Scene {
     /// Every path is checked first ([`super::path_check`]): bad frames are reported in one
     /// line on stderr.
     pub fn resolve_path(&self, spec: Option<&str>) -> crate::Result<CameraPath> {
+        self.resolve_path_in(spec, None)
+    }
+
+    /// [`resolve_path`](Self::resolve_path), with the interior walk it has to compute read
+    /// from (or kept in) the cache directory `cache_dir` (see
+    /// [`interior_path_cached`](super::interior::interior_path_cached)).
+    pub fn resolve_path_cached(
+        &self,
+        spec: Option<&str>,
+        cache_dir: &Path,
+    ) -> crate::Result<CameraPath> {
+        self.resolve_path_in(spec, Some(cache_dir))
+    }
+
+    fn resolve_path_in(
+        &self,
+        spec: Option<&str>,
+        cache_dir: Option<&Path>,
+    ) -> crate::Result<CameraPath> {
+        use super::interior;
         let path = match spec {
             None => self.default_path().cloned(),
             Some(s) if is_path_file(s) => read_camera_path(Path::new(s)),
-            Some(s) if s == super::interior::PATH_NAME && self.path(s).is_err() => {
-                super::interior::interior_path(self, &super::interior::InteriorParams::default())
-            }
+            Some(s) if s == interior::PATH_NAME && self.path(s).is_err() => match cache_dir {
+                Some(dir) => interior::interior_path_cached(self, dir),
+                None => interior::interior_path(self, &interior::InteriorParams::default()),
+            },
             Some(s) => self.path(s).cloned(),
         }?;
         super::path_check::warn_if_bad(self, &path);

@@ -1,8 +1,9 @@
 //! The interior walk kept in a cache directory. Finding the walk casts millions of rays
 //! (seconds on a real level: about 10 s for the Sibenik cathedral on two cores), and what it
 //! finds depends only on the scene's geometry and flat colours, the [`InteriorParams`] and
-//! the code that finds it. So a command that loads the same file again reads the walk (or
-//! the reason there is none) from one small JSON file instead:
+//! the code that finds it. So a command that meets the same scene again (a glTF file's
+//! default walk, or `--path interior` on a scene without it) reads the walk (or the reason
+//! there is none) from one small JSON file instead:
 //!
 //! ```json
 //! { "key": "interior v1;code=…;scene=…;params=…",

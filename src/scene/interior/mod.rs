@@ -136,10 +136,26 @@ pub fn interior_path(scene: &Scene, params: &InteriorParams) -> Result<CameraPat
             Err(why) => why,
         },
     };
-    Err(Error::Input(format!(
+    Err(no_inside(scene, &why))
+}
+
+/// [`interior_path`] with the default parameters, through the cache directory `dir` (see
+/// [`default_if_enclosed_cached`]): what `--path interior` walks on a scene that does not
+/// have the walk yet (a built-in one: the city's takes about 25 s to find).
+pub fn interior_path_cached(scene: &Scene, dir: &std::path::Path) -> Result<CameraPath, Error> {
+    match cached_outcome(scene, dir) {
+        Some((Outcome::Walk { camera, .. }, _)) => Ok(camera),
+        Some((Outcome::NoInside(why), _)) => Err(no_inside(scene, &why)),
+        None => Err(no_inside(scene, "it has no triangles")),
+    }
+}
+
+/// The error of a scene without an inside.
+fn no_inside(scene: &Scene, why: &str) -> Error {
+    Error::Input(format!(
         "scene \"{}\": no inside for an interior walk ({why})",
         scene.name
-    )))
+    ))
 }
 
 /// A spot light's path inside, going with the interior walk `path`: it follows the walk a key
@@ -180,7 +196,8 @@ pub fn light_path(rays: &TriangleScene, path: &CameraPath, scale: &Scale) -> Cam
 /// the light path that goes with it (unless the file has its own light); the orbit stays
 /// available as `default`. Without an inside, one line on stderr says why.
 pub fn default_if_enclosed(scene: &mut Scene) {
-    if let Some(outcome) = outcome(scene, &InteriorParams::default()) {
+    if let Some(rays) = TriangleScene::new(scene) {
+        let outcome = outcome(&rays, &InteriorParams::default());
         apply(scene, outcome);
     }
 }
@@ -192,27 +209,31 @@ pub fn default_if_enclosed_cached(
     scene: &mut Scene,
     dir: &std::path::Path,
 ) -> Option<cache::Source> {
+    let (outcome, source) = cached_outcome(scene, dir)?;
+    apply(scene, outcome);
+    Some(source)
+}
+
+/// The walk of `scene` with the default parameters and where it came from: read from its file
+/// in `dir`, or found now and kept there (a note before the search and one after it say so);
+/// `None` for a scene without triangles.
+fn cached_outcome(scene: &Scene, dir: &std::path::Path) -> Option<(Outcome, cache::Source)> {
     let params = InteriorParams::default();
     let key = cache::key(scene, &params);
     let file = cache::file(dir, &key);
     match cache::load(&file, &key) {
-        Ok(Some(outcome)) => {
-            apply(scene, outcome);
-            return Some(cache::Source::Cached(file));
-        }
+        Ok(Some(outcome)) => return Some((outcome, cache::Source::Cached(file))),
         Ok(None) => {}
         Err(why) => eprintln!("warning: {why}; finding the interior walk again"),
     }
-    if scene.objects.iter().all(|o| o.index_count < 3) {
-        return None;
-    }
+    let rays = TriangleScene::new(scene)?;
     eprintln!(
         "note: scene \"{}\": looking for an inside to walk (once: the result is kept in {})",
         scene.name,
         dir.display()
     );
     let start = std::time::Instant::now();
-    let outcome = outcome(scene, &params)?;
+    let outcome = outcome(&rays, &params);
     let kept = match cache::save(&file, &key, &outcome) {
         Ok(()) => Some(file),
         Err(e) => {
@@ -233,20 +254,18 @@ pub fn default_if_enclosed_cached(
                 .unwrap_or_default()
         );
     }
-    apply(scene, outcome);
-    Some(cache::Source::Found(kept))
+    Some((outcome, cache::Source::Found(kept)))
 }
 
-/// The walk of `scene` and its light path, or why it has none; `None` without triangles.
-fn outcome(scene: &Scene, params: &InteriorParams) -> Option<Outcome> {
-    let rays = TriangleScene::new(scene)?;
-    Some(match find(&rays, params) {
+/// The walk through `rays` and its light path, or why there is none.
+fn outcome(rays: &TriangleScene, params: &InteriorParams) -> Outcome {
+    match find(rays, params) {
         Ok(w) => Outcome::Walk {
-            light: light_path(&rays, &w.path, &w.scale),
+            light: light_path(rays, &w.path, &w.scale),
             camera: w.path,
         },
         Err(why) => Outcome::NoInside(why),
-    })
+    }
 }
 
 /// Puts the walk first among `scene`'s paths and its light path after them (unless the scene

@@ -965,3 +965,45 @@ fn a_damaged_cache_file_is_replaced_and_an_unwritable_cache_costs_only_time() {
     assert_eq!(scene.paths, found.paths);
     std::fs::remove_file(&dir).expect("clean up");
 }
+
+#[test]
+fn the_interior_path_a_scene_lacks_is_read_from_the_same_cache() {
+    // `--path interior` on a scene without the walk (a built-in one) goes through the cache
+    // that a glTF file's default walk uses: the first resolve finds and keeps it, later ones
+    // read the file.
+    let mut l = Level::default();
+    row_of_rooms(&mut l, 0.0, false);
+    let scene = l.scene(false);
+    assert!(scene.path(PATH_NAME).is_err());
+    let dir = temp_dir("resolve");
+    let direct = scene.resolve_path(Some(PATH_NAME)).expect("walk");
+    let first = scene
+        .resolve_path_cached(Some(PATH_NAME), &dir)
+        .expect("walk");
+    assert_eq!(first, direct);
+    let key = cache::key(&scene, &InteriorParams::default());
+    let file = cache::file(&dir, &key);
+    let Ok(Some(Outcome::Walk { camera, light })) = cache::load(&file, &key) else {
+        panic!("no walk kept in {}", file.display());
+    };
+    assert_eq!(camera, direct);
+    // What the file holds is what a later resolve returns, and what the default walk is.
+    let reversed = CameraPath {
+        keys: camera.keys.iter().rev().copied().collect(),
+        ..camera
+    };
+    let outcome = Outcome::Walk {
+        camera: reversed.clone(),
+        light,
+    };
+    cache::save(&file, &key, &outcome).expect("save");
+    let again = scene
+        .resolve_path_cached(Some(PATH_NAME), &dir)
+        .expect("walk");
+    assert_eq!(again, reversed);
+    let mut with_default = scene.clone();
+    let source = default_if_enclosed_cached(&mut with_default, &dir);
+    assert_eq!(source, Some(cache::Source::Cached(file)));
+    assert_eq!(with_default.paths[0], reversed);
+    std::fs::remove_dir_all(&dir).expect("clean up");
+}
