@@ -1,8 +1,9 @@
-//! One fuzz input read as a path file, a PVS cache file, a calibration cache file or an
-//! interior walk cache file (picked by its first byte), the way the program reads it, then
-//! used the way a walk uses it: the path's poses drive vfc and chcpp, the PVS drives the `pvs`
-//! culler, the calibration's costs drive `nohc`, the interior walk's and its light's poses
-//! drive vfc, over a small grid of boxes with a host backend. Refusing the file with a one-line
+//! One fuzz input read as a path file, a PVS cache file, a calibration cache file, an
+//! interior walk cache file or a path check cache file (picked by its first byte), the way the
+//! program reads it, then used the way a walk uses it: the path's poses drive vfc and chcpp,
+//! the PVS drives the `pvs` culler, the calibration's costs drive `nohc`, the interior walk's
+//! and its light's poses drive vfc, over a small grid of boxes with a host backend; a path
+//! check's report is printed as a warning. Refusing the file with a one-line
 //! error naming it is fine; a panic (or an error of another shape) is a finding.
 //!
 //! Shared by `fuzz/fuzz_targets/cache_files.rs` and `tests/gpu/fuzz_regressions.rs` (which includes
@@ -18,7 +19,7 @@ use coherent::culling::nohc::NohcParams;
 use coherent::culling::pvs::{fnv1a, Pvs};
 use coherent::culling::{create_with, CullerSetup, FrameInput, OcclusionBackend, QueryId};
 use coherent::scene::camera::Camera;
-use coherent::scene::{interior, paths, Aabb, CameraPose};
+use coherent::scene::{interior, path_check, paths, Aabb, CameraPose};
 
 /// The PVS key the harness expects (a real key names scene, settings and object count).
 pub const PVS_KEY: &str = "fuzz;objects=27";
@@ -27,6 +28,9 @@ pub const DEVICE: [&str; 3] = ["fuzz device", "fuzz driver", "1.3.0"];
 /// The interior walk key the harness expects (a real key hashes the code, the scene and the
 /// parameters).
 pub const INTERIOR_KEY: &str = "interior fuzz";
+/// The path check key the harness expects (a real key hashes the code, the scene and the
+/// path).
+pub const PATH_CHECK_KEY: &str = "path check fuzz";
 /// Objects of the harness scene (a 3 x 3 x 3 grid of unit boxes).
 pub const OBJECTS: u32 = 27;
 
@@ -44,6 +48,8 @@ pub enum Kind {
     Calibration,
     /// `i`: an interior walk cache file.
     Interior,
+    /// `k`: a path check cache file.
+    PathCheck,
 }
 
 /// The kind and the file's bytes of a fuzz input.
@@ -54,6 +60,7 @@ pub fn split(data: &[u8]) -> (Kind, &[u8]) {
         Some(b'V') => (Kind::PvsBody, rest),
         Some(b'c') => (Kind::Calibration, rest),
         Some(b'i') => (Kind::Interior, rest),
+        Some(b'k') => (Kind::PathCheck, rest),
         Some(b'p') => (Kind::Path, rest),
         _ => (Kind::Path, data),
     }
@@ -68,6 +75,7 @@ pub fn join(kind: Kind, file: &[u8]) -> Vec<u8> {
         Kind::PvsBody => b'V',
         Kind::Calibration => b'c',
         Kind::Interior => b'i',
+        Kind::PathCheck => b'k',
     };
     let mut out = vec![tag];
     out.extend_from_slice(file);
@@ -89,6 +97,7 @@ pub fn run(dir: &Path, data: &[u8]) -> Result<bool, coherent::Error> {
         }
         Kind::Calibration => ("calibration.json", bytes.to_vec()),
         Kind::Interior => ("interior.json", bytes.to_vec()),
+        Kind::PathCheck => ("pathcheck.json", bytes.to_vec()),
     };
     let file = dir.join(name);
     std::fs::write(&file, &file_bytes).map_err(coherent::Error::from)?;
@@ -97,6 +106,7 @@ pub fn run(dir: &Path, data: &[u8]) -> Result<bool, coherent::Error> {
         Kind::Pvs | Kind::PvsBody => use_pvs(&file),
         Kind::Calibration => use_calibration(&file),
         Kind::Interior => use_interior(&file),
+        Kind::PathCheck => use_path_check(&file),
     };
     match read {
         Ok(()) => Ok(true),
@@ -187,6 +197,21 @@ fn use_interior(file: &Path) -> Result<(), String> {
         }
         Ok(Some(interior::Outcome::NoInside(why))) => {
             assert!(!why.contains('\n'), "a reason of several lines: {why}");
+            Ok(())
+        }
+        Ok(None) => Err(format!("{}: vanished", file.display())),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// A path check cache file: read as the commands read it; a report must be one line, as the
+/// warning it is printed as.
+fn use_path_check(file: &Path) -> Result<(), String> {
+    match path_check::load_verdict(file, PATH_CHECK_KEY) {
+        Ok(Some(report)) => {
+            if let Some(line) = report {
+                assert!(!line.contains('\n'), "a report of several lines: {line}");
+            }
             Ok(())
         }
         Ok(None) => Err(format!("{}: vanished", file.display())),

@@ -1,6 +1,6 @@
-//! Fuzzes the path, PVS cache and calibration cache files (the first byte picks the format,
-//! see `fuzz/cache_input.rs`): any bytes must be read and used, or refused with a one-line error
-//! naming the file, never panic.
+//! Fuzzes the path files and the PVS, calibration, interior walk and path check cache files (the
+//! first byte picks the format, see `fuzz/cache_input.rs`): any bytes must be read and used, or
+//! refused with a one-line error naming the file, never panic.
 #![no_main]
 
 use std::path::PathBuf;

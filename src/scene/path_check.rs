@@ -2,8 +2,18 @@
 //! through a grid over the view of sampled frames say how much of the image is sky and how much
 //! is back faces, and rays in all directions whether the camera stands inside geometry. A bad
 //! path is reported in one line with its first bad frame and position, not silently rendered.
+//!
+//! Building the rays' scene is most of the check's time (about 2 s for the city, 8 s at
+//! `--scale 16`), so the commands keep its verdict in the cache directory
+//! ([`warn_if_bad_cached`]): one small JSON file per scene and path,
+//! `{"key": "path check v1;code=…;scene=…;path=…", "report": null}` or with the report's line,
+//! keyed like the interior walk's files (the same code hash and scene hash, and a hash of the
+//! path's keys).
+
+use std::path::{Path, PathBuf};
 
 use glam::Vec3;
+use serde_json::{json, Value};
 
 use super::interior::rays::{sphere_dirs, TriangleScene};
 use super::{Aabb, CameraPath, CameraPose, Scene};
@@ -180,16 +190,124 @@ pub fn local_region(path: &CameraPath) -> Aabb {
 /// sees more sky and fewer distant back faces than there are, and building the ray scene takes
 /// seconds instead of a minute and gigabytes.
 pub fn warn_if_bad(scene: &Scene, path: &CameraPath) {
+    if let Some(line) = check(scene, path) {
+        eprintln!("warning: {line}");
+    }
+}
+
+/// The one-line report of `path` on `scene` ([`report`]), `None` when no checked frame is bad
+/// or the scene has no triangles.
+pub fn check(scene: &Scene, path: &CameraPath) -> Option<String> {
     let rays = if scene.triangle_count() > LOCAL_CHECK_TRIANGLES {
         TriangleScene::near(scene, &local_region(path))
     } else {
         TriangleScene::new(scene)
-    };
-    let Some(rays) = rays else {
-        return;
-    };
+    }?;
     let interior = path.name == super::interior::PATH_NAME;
-    if let Some(line) = report(path, &views(&rays, path), interior) {
+    report(path, &views(&rays, path), interior)
+}
+
+/// [`warn_if_bad`], with the verdict read from (or kept in) the cache directory `dir`: the
+/// same warning, if any, without building the rays' scene again. A cache file that cannot be
+/// used is replaced, with one line on stderr saying why; a directory that cannot be written
+/// costs only the time. Returns where the verdict came from.
+pub fn warn_if_bad_cached(scene: &Scene, path: &CameraPath, dir: &Path) -> CheckSource {
+    let key = cache_key(scene, path);
+    let file = cache_file(dir, &key);
+    let (report, source) = match load_verdict(&file, &key) {
+        Ok(Some(report)) => (report, CheckSource::Cached(file)),
+        found => {
+            if let Err(why) = found {
+                eprintln!("warning: {why}; checking the path again");
+            }
+            let report = check(scene, path);
+            let kept = match save_verdict(&file, &key, report.as_deref()) {
+                Ok(()) => Some(file),
+                Err(e) => {
+                    eprintln!(
+                        "warning: {}: {e}; the path check is not cached",
+                        file.display()
+                    );
+                    None
+                }
+            };
+            (report, CheckSource::Checked(kept))
+        }
+    };
+    if let Some(line) = report {
         eprintln!("warning: {line}");
     }
+    source
+}
+
+/// Where a path check's verdict came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CheckSource {
+    /// Read from this file.
+    Cached(PathBuf),
+    /// Checked now; kept in this file (`None`: it could not be written, a warning said why).
+    Checked(Option<PathBuf>),
+}
+
+/// Longest report a cache file may hold.
+const MAX_REPORT: usize = 4096;
+
+/// The cache key of the check of `path` on `scene`: the code, the scene and the path.
+pub fn cache_key(scene: &Scene, path: &CameraPath) -> String {
+    use super::interior::cache::{path_hash, scene_hash, CODE_HASH};
+    format!(
+        "path check v1;code={CODE_HASH:016x};scene={:016x};path={:016x}",
+        scene_hash(scene),
+        path_hash(path)
+    )
+}
+
+/// The cache file of `key` in `dir`.
+pub fn cache_file(dir: &Path, key: &str) -> PathBuf {
+    dir.join(format!(
+        "pathcheck-{:016x}.json",
+        crate::culling::pvs::fnv1a(key.as_bytes())
+    ))
+}
+
+/// The verdict kept for `key` in `file`: `Ok(None)` when there is no file, `Ok(Some(report))`
+/// (the report's line, or `None` for a good path) when there is one made for `key`, an error
+/// saying why when it exists but cannot be used.
+pub fn load_verdict(file: &Path, key: &str) -> crate::Result<Option<Option<String>>> {
+    let text = match std::fs::read_to_string(file) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(crate::Error::Input(format!("{}: {e}", file.display()))),
+    };
+    parse_verdict(&text, key)
+        .map(Some)
+        .map_err(|why| crate::Error::Input(format!("{}: {why}", file.display())))
+}
+
+/// The verdict in a cache file's `text`, made for `key`.
+pub fn parse_verdict(text: &str, key: &str) -> Result<Option<String>, String> {
+    let v: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
+    match v.get("key").and_then(Value::as_str) {
+        Some(k) if k == key => {}
+        Some(_) => return Err("made for another scene, path or version".into()),
+        None => return Err("no \"key\" string".into()),
+    }
+    match v.get("report") {
+        Some(Value::Null) => Ok(None),
+        Some(Value::String(line)) if line.len() <= MAX_REPORT && !line.contains('\n') => {
+            Ok(Some(line.clone()))
+        }
+        Some(_) => Err("\"report\" is neither null nor one short line".into()),
+        None => Err("no \"report\"".into()),
+    }
+}
+
+/// Writes the verdict `report` for `key` to `file` (through a temporary file).
+pub fn save_verdict(file: &Path, key: &str, report: Option<&str>) -> std::io::Result<()> {
+    super::interior::cache::write_whole(file, &verdict_json(key, report))
+}
+
+/// The text of the cache file of the verdict `report` for `key`.
+pub fn verdict_json(key: &str, report: Option<&str>) -> String {
+    json!({ "key": key, "report": report }).to_string()
 }

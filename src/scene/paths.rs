@@ -359,7 +359,12 @@ impl super::Scene {
             },
             Some(s) => self.path(s).cloned(),
         }?;
-        super::path_check::warn_if_bad(self, &path);
+        match cache_dir {
+            Some(dir) => {
+                super::path_check::warn_if_bad_cached(self, &path, dir);
+            }
+            None => super::path_check::warn_if_bad(self, &path),
+        }
         Ok(path)
     }
 }

@@ -195,7 +195,7 @@ fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
     use coherent::culling::nohc::CostModel;
     use coherent::culling::pvs::{Pvs, ViewCell};
     use coherent::scene::paths::{keys_to_json, PathKey};
-    use coherent::scene::{interior, CameraPath, CameraPose};
+    use coherent::scene::{interior, path_check, CameraPath, CameraPose};
     use glam::Vec3;
     let key = |t: f32, x: f32| PathKey {
         time: t,
@@ -257,6 +257,11 @@ fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
     let walk = interior::cache::to_json(&walk, cache_input::INTERIOR_KEY);
     let no_inside = interior::Outcome::NoInside("no place is inside".into());
     let no_inside = interior::cache::to_json(&no_inside, cache_input::INTERIOR_KEY);
+    let good_path = path_check::verdict_json(cache_input::PATH_CHECK_KEY, None);
+    let bad_path = path_check::verdict_json(
+        cache_input::PATH_CHECK_KEY,
+        Some("path \"street\": 3 of 120 checked frames look wrong; frame 30 at (1.00, 2.00, 3.00) sees 60% back faces"),
+    );
     vec![
         ("path-even", cache_input::join(Kind::Path, even.as_bytes())),
         (
@@ -280,6 +285,14 @@ fn cache_seeds() -> Vec<(&'static str, Vec<u8>)> {
         (
             "interior-no-inside",
             cache_input::join(Kind::Interior, no_inside.as_bytes()),
+        ),
+        (
+            "path-check-good",
+            cache_input::join(Kind::PathCheck, good_path.as_bytes()),
+        ),
+        (
+            "path-check-bad",
+            cache_input::join(Kind::PathCheck, bad_path.as_bytes()),
         ),
     ]
 }

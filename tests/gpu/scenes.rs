@@ -741,14 +741,20 @@ fn render_keeps_the_interior_walk_in_the_cache_directory() {
     };
     let first = render("first.png");
     assert!(first.contains("interior walk found in"), "{first}");
-    let kept: Vec<_> = std::fs::read_dir(&cache)
+    let mut kept: Vec<_> = std::fs::read_dir(&cache)
         .expect("cache directory")
         .map(|e| e.expect("entry").file_name().to_string_lossy().to_string())
         .collect();
+    kept.sort();
+    // The walk, and the path check's verdict on it (no warning: a good walk).
     assert!(
-        kept.len() == 1 && kept[0].starts_with("interior-") && first.contains(&kept[0]),
+        kept.len() == 2
+            && kept[0].starts_with("interior-")
+            && first.contains(&kept[0])
+            && kept[1].starts_with("pathcheck-"),
         "{kept:?} {first}"
     );
+    assert!(!first.contains("warning"), "{first}");
     let second = render("second.png");
     assert!(!second.contains("interior walk"), "{second}");
     let image = |png: &str| std::fs::read(dir.join(png)).expect("png");

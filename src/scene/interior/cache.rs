@@ -28,7 +28,8 @@ use crate::culling::pvs::fnv1a;
 use crate::scene::{CameraPath, CameraPose, Scene};
 use crate::Error;
 
-/// The source files whose code decides the walk; any change to them gives new keys.
+/// The source files whose code decides the walk and the path check; any change to them gives
+/// new keys.
 const SOURCES: [&[u8]; 6] = [
     include_bytes!("mod.rs"),
     include_bytes!("places.rs"),
@@ -39,7 +40,7 @@ const SOURCES: [&[u8]; 6] = [
 ];
 
 /// FNV-1a of `SOURCES`, computed by the compiler.
-const CODE_HASH: u64 = {
+pub(crate) const CODE_HASH: u64 = {
     let mut h = FNV_BASIS;
     let mut f = 0;
     while f < SOURCES.len() {
@@ -69,28 +70,47 @@ const MAX_KEYS: usize = 1 << 16;
 /// Longest reason for no inside a cache file may hold.
 const MAX_WHY: usize = 4096;
 
-/// FNV-1a as a [`Hasher`] (stable across builds and platforms, unlike the standard one).
-struct Fnv(u64);
+/// A [`Hasher`] stable across builds and platforms (unlike the standard one) that takes
+/// eight bytes per step: each word is mixed in by a multiply and a rotation (the constants of
+/// splitmix64), the bytes left over one by one, and [`finish`](Hasher::finish) mixes once
+/// more.
+struct Words(u64);
 
-impl Hasher for Fnv {
-    fn write(&mut self, bytes: &[u8]) {
-        self.0 = fnv_extend(self.0, bytes);
+impl Words {
+    fn new() -> Words {
+        Words(FNV_BASIS)
     }
 
-    fn finish(&self) -> u64 {
-        self.0
+    fn mix(&mut self, w: u64) {
+        self.0 = (self.0 ^ w)
+            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            .rotate_left(29);
     }
 }
 
-impl Fnv {
-    fn new() -> Fnv {
-        Fnv(FNV_BASIS)
+impl Hasher for Words {
+    fn write(&mut self, bytes: &[u8]) {
+        let mut words = bytes.chunks_exact(8);
+        for w in &mut words {
+            self.mix(u64::from_le_bytes(w.try_into().expect("eight bytes")));
+        }
+        for &b in words.remainder() {
+            self.mix(u64::from(b));
+        }
     }
 
-    fn floats(&mut self, v: &[f32]) {
-        for f in v {
-            f.to_bits().hash(self);
-        }
+    fn finish(&self) -> u64 {
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+}
+
+/// Hashes the bits of `v`.
+fn floats(h: &mut Words, v: &[f32]) {
+    for f in v {
+        f.to_bits().hash(h);
     }
 }
 
@@ -117,7 +137,19 @@ pub enum Source {
 
 /// The cache key of `scene`'s walk with `params`: the code, the scene and the parameters.
 pub fn key(scene: &Scene, params: &InteriorParams) -> String {
-    let mut h = Fnv::new();
+    format!(
+        "interior v2;code={CODE_HASH:016x};scene={:016x};params={params:?}",
+        scene_hash(scene)
+    )
+}
+
+/// A hash of everything in `scene` that the interior walk and the path check look at:
+/// vertices, indices, vertex colours, objects (ranges, transforms, colours, materials), what
+/// of the materials they read, and the sun. Stable across builds and platforms; it reads the
+/// large arrays eight bytes at a time (about 0.2 s for the 49 million triangles of the city
+/// at scale 16).
+pub fn scene_hash(scene: &Scene) -> u64 {
+    let mut h = Words::new();
     bytemuck::cast_slice::<_, u8>(&scene.vertices).hash(&mut h);
     scene.indices.hash(&mut h);
     bytemuck::cast_slice::<_, u8>(&scene.attributes).hash(&mut h);
@@ -130,8 +162,8 @@ pub fn key(scene: &Scene, params: &InteriorParams) -> String {
             o.vertex_count,
         )
             .hash(&mut h);
-        h.floats(&o.transform.to_cols_array());
-        h.floats(&o.color.to_array());
+        floats(&mut h, &o.transform.to_cols_array());
+        floats(&mut h, &o.color.to_array());
         o.material.hash(&mut h);
     }
     scene.materials.len().hash(&mut h);
@@ -139,11 +171,20 @@ pub fn key(scene: &Scene, params: &InteriorParams) -> String {
         m.base_color_texture.is_some().hash(&mut h);
         m.double_sided.hash(&mut h);
     }
-    h.floats(&scene.sun_dir.to_array());
-    format!(
-        "interior v1;code={CODE_HASH:016x};scene={:016x};params={params:?}",
-        h.finish()
-    )
+    floats(&mut h, &scene.sun_dir.to_array());
+    h.finish()
+}
+
+/// A hash of a camera path: its name and its keys' bits.
+pub fn path_hash(path: &CameraPath) -> u64 {
+    let mut h = Words::new();
+    path.name.hash(&mut h);
+    path.keys.len().hash(&mut h);
+    for k in &path.keys {
+        floats(&mut h, &k.eye.to_array());
+        floats(&mut h, &k.target.to_array());
+    }
+    h.finish()
 }
 
 /// The cache file of `key` in `dir`.
@@ -250,11 +291,17 @@ pub fn to_json(outcome: &Outcome, key: &str) -> String {
 /// Writes `outcome` for `key` to `file` (through a temporary file, so that a crash or a
 /// second process never leaves half a file).
 pub fn save(file: &Path, key: &str, outcome: &Outcome) -> std::io::Result<()> {
+    write_whole(file, &to_json(outcome, key))
+}
+
+/// Writes `text` to `file`, creating its directory, through a temporary file and a rename so
+/// that a crash or a second process never leaves half a file.
+pub(crate) fn write_whole(file: &Path, text: &str) -> std::io::Result<()> {
     if let Some(dir) = file.parent() {
         std::fs::create_dir_all(dir)?;
     }
     let tmp = file.with_extension(format!("{}.tmp", std::process::id()));
-    std::fs::write(&tmp, to_json(outcome, key))?;
+    std::fs::write(&tmp, text)?;
     std::fs::rename(&tmp, file).inspect_err(|_| {
         let _ = std::fs::remove_file(&tmp);
     })

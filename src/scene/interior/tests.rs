@@ -1007,3 +1007,82 @@ fn the_interior_path_a_scene_lacks_is_read_from_the_same_cache() {
     assert_eq!(with_default.paths[0], reversed);
     std::fs::remove_dir_all(&dir).expect("clean up");
 }
+
+#[test]
+fn the_path_checks_verdict_is_kept_in_the_cache_and_said_again() {
+    use path_check::CheckSource;
+    let mut l = Level::default();
+    row_of_rooms(&mut l, 0.0, false);
+    let scene = l.scene(false);
+    let pose = |eye: Vec3, target: Vec3| crate::scene::CameraPose { eye, target };
+    // A bad path (above the roof, looking down at the ceilings' backs) and a good one.
+    let over = CameraPath {
+        name: "over".into(),
+        keys: vec![
+            pose(Vec3::new(3.0, 8.0, 3.0), Vec3::new(3.0, 0.0, 3.5)),
+            pose(Vec3::new(9.0, 8.0, 3.0), Vec3::new(9.0, 0.0, 3.5)),
+        ],
+    };
+    let walk = interior_path(&scene, &InteriorParams::default()).expect("walk");
+    let dir = temp_dir("path_check");
+    for (path, bad) in [(&over, true), (&walk, false)] {
+        let expected = path_check::check(&scene, path);
+        assert_eq!(expected.is_some(), bad, "{expected:?}");
+        let key = path_check::cache_key(&scene, path);
+        let file = path_check::cache_file(&dir, &key);
+        let first = path_check::warn_if_bad_cached(&scene, path, &dir);
+        assert_eq!(first, CheckSource::Checked(Some(file.clone())));
+        // The file holds the verdict, the report's line itself for a bad path.
+        let kept = path_check::load_verdict(&file, &key).expect("readable");
+        assert_eq!(kept, Some(expected.clone()));
+        let second = path_check::warn_if_bad_cached(&scene, path, &dir);
+        assert_eq!(second, CheckSource::Cached(file.clone()));
+    }
+    // Another path, or the same path on a scene with one vertex moved, has another key.
+    let mut moved = scene.clone();
+    moved.vertices[0].position[0] += 0.5;
+    let mut later = over.clone();
+    later.keys[1].eye.y += 0.25;
+    let key = path_check::cache_key(&scene, &over);
+    assert_ne!(key, path_check::cache_key(&moved, &over));
+    assert_ne!(key, path_check::cache_key(&scene, &later));
+    assert_ne!(key, path_check::cache_key(&scene, &walk));
+    // The commands' way in: resolving a path with a cache directory keeps its verdict.
+    let resolved = scene
+        .resolve_path_cached(Some(PATH_NAME), &dir)
+        .expect("walk");
+    let file = path_check::cache_file(&dir, &path_check::cache_key(&scene, &resolved));
+    let kept = path_check::load_verdict(&file, &path_check::cache_key(&scene, &resolved));
+    assert!(matches!(kept, Ok(Some(None))), "{kept:?}");
+    // A file that cannot be trusted is refused with its reason, checked again and rewritten.
+    let key = path_check::cache_key(&scene, &over);
+    let file = path_check::cache_file(&dir, &key);
+    let good = std::fs::read_to_string(&file).expect("cache file");
+    let damaged = [
+        (good[..good.len() / 2].to_string(), "not JSON"),
+        (good.replace(&key, "path check v0"), "another scene"),
+        (
+            format!("{{\"key\":\"{key}\",\"report\":5}}"),
+            "neither null",
+        ),
+        (
+            format!("{{\"key\":\"{key}\",\"report\":\"a\\nb\"}}"),
+            "one short line",
+        ),
+        (format!("{{\"key\":\"{key}\"}}"), "no \"report\""),
+    ];
+    for (text, why) in damaged {
+        let err = path_check::parse_verdict(&text, &key).expect_err(why);
+        assert!(err.contains(why), "{err}");
+        std::fs::write(&file, &text).expect("damage");
+        let source = path_check::warn_if_bad_cached(&scene, &over, &dir);
+        assert_eq!(source, CheckSource::Checked(Some(file.clone())), "{why}");
+        assert_eq!(std::fs::read_to_string(&file).expect("rewritten"), good);
+    }
+    // A file where the directory should be: nothing is kept, the path is checked all the same.
+    std::fs::remove_dir_all(&dir).expect("clean up");
+    std::fs::write(&dir, b"not a directory").expect("file");
+    let source = path_check::warn_if_bad_cached(&scene, &over, &dir);
+    assert_eq!(source, CheckSource::Checked(None));
+    std::fs::remove_file(&dir).expect("clean up");
+}
