@@ -848,7 +848,8 @@ fn room_vertical_pipes(b: &mut SceneBuilder, rng: &mut Rng, pipe: Proto, x0: f32
 /// The walk through the doorways of the first rooms.
 fn powerplant_path(b: &mut SceneBuilder) {
     let size = ROOM_SIZE;
-    let e = 1.7;
+    // Eye height 1.5 m on both walks: the lowest pipe runs hang from 1.7 m to 2.3 m.
+    let e = 1.5;
     let door = size * 0.5;
     b.path(
         "default",
@@ -882,7 +883,7 @@ fn powerplant_path(b: &mut SceneBuilder) {
 /// runs, where temporal coherence breaks (what was hidden a moment ago fills the view).
 fn powerplant_difficult_path(b: &mut SceneBuilder) {
     let s = ROOM_SIZE;
-    let e = 1.7;
+    let e = 1.5;
     let z = 0.49 * s; // a walkway between the boilers and the pipe runs
     let keys = [
         (Vec3::new(0.5 * s, e, 3.0), Vec3::new(0.5 * s, e, 20.0)),
@@ -899,13 +900,19 @@ fn powerplant_difficult_path(b: &mut SceneBuilder) {
             Vec3::new(1.5 * s, e, s + 10.0),
         ),
         (Vec3::new(1.5 * s, e, s + 1.5), Vec3::new(s, e, s + 1.5)),
+        // South past the boiler by the doorway, then west behind it.
+        (Vec3::new(1.5 * s, e, s + z), Vec3::new(s, e, s + z)),
         (Vec3::new(1.2 * s, e, s + z), Vec3::new(0.5 * s, e, s + z)),
         (Vec3::new(s + 1.5, e, s + z), Vec3::new(s - 10.0, e, s + z)),
         (Vec3::new(s - 1.5, e, s + z), Vec3::new(s - 1.5, e, 2.0 * s)),
-        (Vec3::new(0.5 * s, e, s + z), Vec3::new(0.5 * s, e, 2.5 * s)),
+        // A metre east of the doorway's middle: a vertical pipe stands on the middle line.
         (
-            Vec3::new(0.5 * s, e, 2.0 * s - 1.5),
-            Vec3::new(0.5 * s, e, 2.0 * s + 10.0),
+            Vec3::new(0.5 * s + 1.0, e, s + z),
+            Vec3::new(0.5 * s + 1.0, e, 2.5 * s),
+        ),
+        (
+            Vec3::new(0.5 * s + 1.0, e, 2.0 * s - 1.5),
+            Vec3::new(0.5 * s + 1.0, e, 2.0 * s + 10.0),
         ),
         (
             Vec3::new(0.5 * s, e, 2.0 * s + 1.5),

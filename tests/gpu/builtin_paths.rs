@@ -64,3 +64,29 @@ fn parking_path_stays_out_of_the_cars() {
         );
     }
 }
+
+#[test]
+fn every_builtin_path_passes_the_path_check_at_every_frame() {
+    // What a command checks before it walks a path (and warns about), at every frame rather
+    // than the command's 120 samples: no frame stands inside geometry or closer to it than the
+    // near plane, nor looks mostly at back faces.
+    use coherent::scene::interior::rays::TriangleScene;
+    use coherent::scene::path_check::view_at;
+    let mut bad = Vec::new();
+    for name in coherent::scene::procedural::SCENES {
+        let scene = Scene::load(name, 1.0, 4096).expect(name);
+        let rays = TriangleScene::new(&scene).expect("triangles");
+        for path in &scene.paths {
+            for f in 0..=path.natural_frames() {
+                let view = view_at(&rays, &path.pose_at(f as f32), f);
+                if let Some(problem) = view.problem(false) {
+                    bad.push(format!(
+                        "{name} {} frame {f} at {}: {problem}",
+                        path.name, view.eye
+                    ));
+                }
+            }
+        }
+    }
+    assert!(bad.is_empty(), "{bad:#?}");
+}
