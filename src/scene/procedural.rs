@@ -698,6 +698,9 @@ fn parking_path(b: &mut SceneBuilder, lot: &ParkingLot) {
 const ROOM_SIZE: f32 = 24.0;
 /// Height of a powerplant room's walls.
 const ROOM_HEIGHT: f32 = 12.0;
+/// Half the width of the powerplant's walkways (the rooms' middle lines) that vertical pipes
+/// keep clear of.
+const WALKWAY: f32 = 1.5;
 
 /// The powerplant's prototypes.
 struct PlantProtos {
@@ -828,15 +831,23 @@ fn room_pipe_runs(b: &mut SceneBuilder, rng: &mut Rng, pipe: Proto, x0: f32, z0:
     }
 }
 
-/// Eight floor-to-ceiling pipes at random places in the back half of the room.
+/// Eight floor-to-ceiling pipes at random places in the back half of the room, clear of the
+/// walkways through its doorways (the room's middle lines), where the built-in paths go.
 fn room_vertical_pipes(b: &mut SceneBuilder, rng: &mut Rng, pipe: Proto, x0: f32, z0: f32) {
     let (size, height) = (ROOM_SIZE, ROOM_HEIGHT);
+    let (mid_x, mid_z) = (x0 + 0.5 * size, z0 + 0.5 * size);
+    let clear = |p: Vec3| (p.x - mid_x).abs() >= WALKWAY && (p.z - mid_z).abs() >= WALKWAY;
     for _ in 0..8 {
-        let p = Vec3::new(
-            x0 + rng.range(2.0, size - 2.0),
-            0.0,
-            z0 + rng.range(12.0, size - 2.0),
-        );
+        let Some(p) = (0..64).find_map(|_| {
+            let p = Vec3::new(
+                x0 + rng.range(2.0, size - 2.0),
+                0.0,
+                z0 + rng.range(12.0, size - 2.0),
+            );
+            clear(p).then_some(p)
+        }) else {
+            continue;
+        };
         b.instance(
             pipe,
             Mat4::from_translation(p) * Mat4::from_scale(Vec3::new(0.25, height, 0.25)),
@@ -905,14 +916,10 @@ fn powerplant_difficult_path(b: &mut SceneBuilder) {
         (Vec3::new(1.2 * s, e, s + z), Vec3::new(0.5 * s, e, s + z)),
         (Vec3::new(s + 1.5, e, s + z), Vec3::new(s - 10.0, e, s + z)),
         (Vec3::new(s - 1.5, e, s + z), Vec3::new(s - 1.5, e, 2.0 * s)),
-        // A metre east of the doorway's middle: a vertical pipe stands on the middle line.
+        (Vec3::new(0.5 * s, e, s + z), Vec3::new(0.5 * s, e, 2.5 * s)),
         (
-            Vec3::new(0.5 * s + 1.0, e, s + z),
-            Vec3::new(0.5 * s + 1.0, e, 2.5 * s),
-        ),
-        (
-            Vec3::new(0.5 * s + 1.0, e, 2.0 * s - 1.5),
-            Vec3::new(0.5 * s + 1.0, e, 2.0 * s + 10.0),
+            Vec3::new(0.5 * s, e, 2.0 * s - 1.5),
+            Vec3::new(0.5 * s, e, 2.0 * s + 10.0),
         ),
         (
             Vec3::new(0.5 * s, e, 2.0 * s + 1.5),

@@ -90,3 +90,22 @@ fn every_builtin_path_passes_the_path_check_at_every_frame() {
     }
     assert!(bad.is_empty(), "{bad:#?}");
 }
+
+#[test]
+fn scaled_scenes_paths_pass_the_path_check() {
+    // The generators draw their random props per room or block, so a larger scale puts them
+    // elsewhere along the same paths. The command's own check (120 frames) at scales 2 and 4
+    // (the city's two paths are checked at every scale by the box test above).
+    let mut bad = Vec::new();
+    for name in ["parking", "powerplant"] {
+        for scale in [2.0, 4.0] {
+            let scene = Scene::load(name, scale, 4096).expect(name);
+            for path in &scene.paths {
+                if let Some(line) = coherent::scene::path_check::check(&scene, path) {
+                    bad.push(format!("{name} x{scale}: {line}"));
+                }
+            }
+        }
+    }
+    assert!(bad.is_empty(), "{bad:#?}");
+}
