@@ -3,8 +3,8 @@
 //! is back faces, and rays in all directions whether the camera stands inside geometry. A bad
 //! path is reported in one line with its first bad frame and position, not silently rendered.
 //!
-//! Building the rays' scene is most of the check's time (about 2 s for the city, 8 s at
-//! `--scale 16`), so the commands keep its verdict in the cache directory
+//! Building the rays' scene is most of the check's time (about 2 s for the city, 9 s at
+//! `--scale 4` and 16), so the commands keep its verdict in the cache directory
 //! ([`warn_if_bad_cached`]): one small JSON file per scene and path,
 //! `{"key": "path check v1;code=…;scene=…;path=…", "report": null}` or with the report's line,
 //! keyed like the interior walk's files (the same code hash and scene hash, and a hash of the
