@@ -38,6 +38,10 @@ pub struct Hit {
     pub triangle: u32,
 }
 
+/// World triangles, whether each is double-sided, and their flat colours (empty when not
+/// gathered), in the scene's order.
+type Gathered = (Vec<[Vec3; 3]>, Vec<bool>, Vec<Option<[[u8; 3]; 2]>>);
+
 /// Triangles above which the ray scene's BVH is built for speed rather than quality.
 const LARGE_SCENE_TRIANGLES: usize = 4_000_000;
 
@@ -49,6 +53,7 @@ pub struct TriangleScene {
     two_sided: Vec<bool>,
     /// Per triangle (in `triangles`' order): the colours of its front and back sides when the
     /// built-in renderer draws each in one colour, `None` when its colour varies over it.
+    /// Empty for a [`shape`](Self::shape) scene.
     colours: Vec<Option<[[u8; 3]; 2]>>,
     /// World bounds.
     pub bounds: Aabb,
@@ -67,7 +72,29 @@ impl TriangleScene {
         TriangleScene::of_objects(scene, |o| o.bounds.overlaps(region))
     }
 
+    /// The scene's shape only, for the path check's few thousand rays: as [`new`](Self::new)
+    /// (or [`near`](Self::near) `region`), without the flat colours (hits have none, so
+    /// [`one_colour_share`](Self::one_colour_share) counts only the sky) and with the quickest
+    /// BVH build. Several times quicker to build.
+    pub fn shape(scene: &Scene, region: Option<&Aabb>) -> Option<TriangleScene> {
+        let keep = |o: &Object| region.is_none_or(|r| o.bounds.overlaps(r));
+        let (triangles, two_sided, _) = TriangleScene::gather(scene, keep, false);
+        TriangleScene::build_with(
+            &triangles,
+            &two_sided,
+            None,
+            BvhBuildParams::fastest_build(),
+        )
+    }
+
     fn of_objects(scene: &Scene, keep: impl Fn(&Object) -> bool) -> Option<TriangleScene> {
+        let (triangles, two_sided, sides) = TriangleScene::gather(scene, keep, true);
+        TriangleScene::build(&triangles, &two_sided, &sides)
+    }
+
+    /// The world triangles of the objects `keep` accepts, which of them are double-sided, and
+    /// (when `colours`) their flat colours.
+    fn gather(scene: &Scene, keep: impl Fn(&Object) -> bool, colours: bool) -> Gathered {
         let mut triangles = Vec::new();
         let mut two_sided = Vec::new();
         let mut sides = Vec::new();
@@ -79,7 +106,7 @@ impl TriangleScene {
             let textured = scene
                 .object_material(i)
                 .is_some_and(|m| m.base_color_texture.is_some());
-            let normal_matrix = (!textured).then(|| o.transform.inverse().transpose());
+            let normal_matrix = (colours && !textured).then(|| o.transform.inverse().transpose());
             let first = o.first_index as usize;
             let Some(idx) = scene
                 .indices
@@ -97,14 +124,16 @@ impl TriangleScene {
                 };
                 if let (Some(a), Some(b), Some(c)) = (corner(t[0]), corner(t[1]), corner(t[2])) {
                     triangles.push([a, b, c]);
-                    sides.push(normal_matrix.and_then(|m| flat_sides(scene, o, m, t)));
+                    if colours {
+                        sides.push(normal_matrix.and_then(|m| flat_sides(scene, o, m, t)));
+                    }
                 }
             }
             let both = scene.object_material(i).is_some_and(|m| m.double_sided)
                 && !closed_solid(&triangles[start..]);
             two_sided.resize(triangles.len(), both);
         }
-        TriangleScene::build(&triangles, &two_sided, &sides)
+        (triangles, two_sided, sides)
     }
 
     /// A scene of `triangles` (counter-clockwise fronts), `two_sided[i]` marking double-sided
@@ -122,10 +151,28 @@ impl TriangleScene {
         two_sided: &[bool],
         colours: &[Option<[[u8; 3]; 2]>],
     ) -> Option<TriangleScene> {
+        // A large scene (a scaled-up city) is only path-checked, a few thousand rays: a quick
+        // build without reinsertion is several times faster there and ample for that.
+        let params = if triangles.len() > LARGE_SCENE_TRIANGLES {
+            BvhBuildParams::fastest_build()
+        } else {
+            BvhBuildParams::fast_build()
+        };
+        TriangleScene::build_with(triangles, two_sided, Some(colours), params)
+    }
+
+    /// [`build`](Self::build) with the BVH built by `params`; `colours` `None`: no colours
+    /// at all (hits have none).
+    fn build_with(
+        triangles: &[[Vec3; 3]],
+        two_sided: &[bool],
+        colours: Option<&[Option<[[u8; 3]; 2]>]>,
+        params: BvhBuildParams,
+    ) -> Option<TriangleScene> {
         let mut bounds = Aabb::EMPTY;
         let mut tris = Vec::new();
         let mut sides = Vec::new();
-        let (colours_in, mut colours) = (colours, Vec::new());
+        let mut flat = Vec::new();
         let sun = DEFAULT_SUN.normalize();
         let grey = |n: Vec3| flat_colour(Vec3::splat(0.8), n, sun);
         for (i, t) in triangles.iter().enumerate() {
@@ -139,29 +186,28 @@ impl TriangleScene {
                 v2: t[2].into(),
             });
             sides.push(two_sided.get(i).copied().unwrap_or(false));
-            colours.push(colours_in.get(i).copied().unwrap_or_else(|| {
-                let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
-                Some([grey(n), grey(-n)])
-            }));
+            if let Some(colours) = colours {
+                flat.push(colours.get(i).copied().unwrap_or_else(|| {
+                    let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+                    Some([grey(n), grey(-n)])
+                }));
+            }
         }
         if tris.is_empty() {
             return None;
         }
         let mut time = Duration::ZERO;
-        // A large scene (a scaled-up city) is only path-checked, a few thousand rays: a quick
-        // build without reinsertion is several times faster there and ample for that.
-        let params = if tris.len() > LARGE_SCENE_TRIANGLES {
-            BvhBuildParams::fastest_build()
-        } else {
-            BvhBuildParams::fast_build()
-        };
         let bvh = build_bvh2_from_tris(&tris, params, &mut time);
         let order = &bvh.primitive_indices;
         let triangles = order.iter().map(|&i| tris[i as usize]).collect();
         drop(tris);
         let two_sided = order.iter().map(|&i| sides[i as usize]).collect();
         drop(sides);
-        let colours = order.iter().map(|&i| colours[i as usize]).collect();
+        let colours = if flat.is_empty() {
+            Vec::new()
+        } else {
+            order.iter().map(|&i| flat[i as usize]).collect()
+        };
         Some(TriangleScene {
             bvh,
             triangles,
@@ -208,7 +254,11 @@ impl TriangleScene {
             t,
             normal: if facing { n } else { -n },
             front,
-            colour: self.colours[id]
+            colour: self
+                .colours
+                .get(id)
+                .copied()
+                .flatten()
                 .filter(|_| front)
                 .map(|c| c[usize::from(!facing)]),
             triangle: id as u32,
