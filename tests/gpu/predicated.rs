@@ -88,6 +88,14 @@ fn matches_vfc(
             assert_eq!(res.cull.blocking_waits, 0, "{tag}");
 
             assert!(res.counts.predicate_resolves <= 2, "{tag}: pass breaks");
+            // Every query goes out after the traversal, in one batch, whatever the
+            // algorithm's batching in the other modes: a switch into the query state and
+            // one back (CHC's unbatched queries made two per query).
+            assert!(
+                res.counts.state_changes <= 4,
+                "{tag}: {} state changes",
+                res.counts.state_changes
+            );
             // Every draw under a predicate is a block, except those of tested parts that the
             // device gathered into one indirect draw.
             assert_eq!(
@@ -211,7 +219,7 @@ fn predicated_images_equal_vfc_on_the_street_and_in_the_powerplant() {
                 "{name}: one level drew under a true predicate"
             );
             let nohc = common::setup(common::triangles(&scene), (160, 90), 0.05);
-            let modes = ["nohc@predicated", "nohc@predicated-k2"];
+            let modes = ["nohc@predicated", "nohc@predicated-k2", "chc@predicated"];
             matches_vfc(&mut r, &tris, &mut bvh, &poses, None, 0, (&nohc, &modes));
             // The test is coarser than a query but still hides parts: within a quarter of the
             // queries' objects under true predicates (city 4,730 against 4,695, powerplant

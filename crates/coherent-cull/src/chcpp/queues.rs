@@ -175,10 +175,15 @@ impl Chcpp {
             split: false,
         });
         self.unsubmitted += 1;
-        if !self.params.batching {
+        // A query issued alone, between draws (CHC without batching, in a mode that reads
+        // results in the frame or the next): back to drawing at once. Queued queries (batching,
+        // or the predicated mode, which issues every query after the traversal) go out
+        // together, with one switch.
+        let interleaved = !self.queues_queries();
+        if interleaved {
             backend.restore_render_state()?;
         }
-        if !self.params.batching && self.unsubmitted >= self.params.flush_interval {
+        if interleaved && self.unsubmitted >= self.params.flush_interval {
             self.submit(backend)?;
             self.unsubmitted = 0;
         }
