@@ -146,8 +146,8 @@ pub fn key(scene: &Scene, params: &InteriorParams) -> String {
 /// A hash of everything in `scene` that the interior walk and the path check look at:
 /// vertices, indices, vertex colours, objects (ranges, transforms, colours, materials), what
 /// of the materials they read, and the sun. Stable across builds and platforms; it reads the
-/// large arrays eight bytes at a time (about 0.2 s for the 49 million triangles of the city
-/// at scale 16).
+/// large arrays eight bytes at a time (0.03 s for the city at scale 16, whose 216,385
+/// objects instance a few meshes).
 pub fn scene_hash(scene: &Scene) -> u64 {
     let mut h = Words::new();
     bytemuck::cast_slice::<_, u8>(&scene.vertices).hash(&mut h);
