@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 use glam::Vec3;
 use serde_json::{json, Value};
 
+use super::interior::cache::{self, Source};
 use super::interior::rays::{sphere_dirs, TriangleScene};
 use super::{Aabb, CameraPath, CameraPose, Scene};
 
@@ -208,42 +209,20 @@ pub fn check(scene: &Scene, path: &CameraPath) -> Option<String> {
 /// same warning, if any, without building the rays' scene again. A cache file that cannot be
 /// used is replaced, with one line on stderr saying why; a directory that cannot be written
 /// costs only the time. Returns where the verdict came from.
-pub fn warn_if_bad_cached(scene: &Scene, path: &CameraPath, dir: &Path) -> CheckSource {
+pub fn warn_if_bad_cached(scene: &Scene, path: &CameraPath, dir: &Path) -> Source {
     let key = cache_key(scene, path);
-    let file = cache_file(dir, &key);
-    let (report, source) = match load_verdict(&file, &key) {
-        Ok(Some(report)) => (report, CheckSource::Cached(file)),
-        found => {
-            if let Err(why) = found {
-                eprintln!("warning: {why}; checking the path again");
-            }
-            let report = check(scene, path);
-            let kept = match save_verdict(&file, &key, report.as_deref()) {
-                Ok(()) => Some(file),
-                Err(e) => {
-                    eprintln!(
-                        "warning: {}: {e}; the path check is not cached",
-                        file.display()
-                    );
-                    None
-                }
-            };
-            (report, CheckSource::Checked(kept))
-        }
-    };
+    let (report, source) = cache::kept_or_made(
+        cache_file(dir, &key),
+        |file| load_verdict(file, &key),
+        || Some(check(scene, path)),
+        |file, report| save_verdict(file, &key, report.as_deref()),
+        ("the path check", "checking the path again"),
+    )
+    .expect("a check always has a verdict");
     if let Some(line) = report {
         eprintln!("warning: {line}");
     }
     source
-}
-
-/// Where a path check's verdict came from.
-#[derive(Clone, Debug, PartialEq)]
-pub enum CheckSource {
-    /// Read from this file.
-    Cached(PathBuf),
-    /// Checked now; kept in this file (`None`: it could not be written, a warning said why).
-    Checked(Option<PathBuf>),
 }
 
 /// Longest report a cache file may hold.
@@ -251,7 +230,7 @@ const MAX_REPORT: usize = 4096;
 
 /// The cache key of the check of `path` on `scene`: the code, the scene and the path.
 pub fn cache_key(scene: &Scene, path: &CameraPath) -> String {
-    use super::interior::cache::{path_hash, scene_hash, CODE_HASH};
+    use cache::{path_hash, scene_hash, CODE_HASH};
     format!(
         "path check v1;code={CODE_HASH:016x};scene={:016x};path={:016x}",
         scene_hash(scene),
@@ -271,14 +250,7 @@ pub fn cache_file(dir: &Path, key: &str) -> PathBuf {
 /// (the report's line, or `None` for a good path) when there is one made for `key`, an error
 /// saying why when it exists but cannot be used.
 pub fn load_verdict(file: &Path, key: &str) -> crate::Result<Option<Option<String>>> {
-    let text = match std::fs::read_to_string(file) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(crate::Error::Input(format!("{}: {e}", file.display()))),
-    };
-    parse_verdict(&text, key)
-        .map(Some)
-        .map_err(|why| crate::Error::Input(format!("{}: {why}", file.display())))
+    cache::load_with(file, key, parse_verdict)
 }
 
 /// The verdict in a cache file's `text`, made for `key`.
@@ -301,7 +273,7 @@ pub fn parse_verdict(text: &str, key: &str) -> Result<Option<String>, String> {
 
 /// Writes the verdict `report` for `key` to `file` (through a temporary file).
 pub fn save_verdict(file: &Path, key: &str, report: Option<&str>) -> std::io::Result<()> {
-    super::interior::cache::write_whole(file, &verdict_json(key, report))
+    cache::write_whole(file, &verdict_json(key, report))
 }
 
 /// The text of the cache file of the verdict `report` for `key`.

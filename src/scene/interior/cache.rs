@@ -126,12 +126,13 @@ pub enum Outcome {
     NoInside(String),
 }
 
-/// Where an outcome came from.
+/// Where a cached value (an interior walk's outcome, a path check's verdict) came from.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Source {
     /// Read from this file.
     Cached(PathBuf),
-    /// Found now; kept in this file (`None`: it could not be written, a warning said why).
+    /// Found (or checked) now; kept in this file (`None`: it could not be written, a warning
+    /// said why).
     Found(Option<PathBuf>),
 }
 
@@ -196,6 +197,17 @@ pub fn file(dir: &Path, key: &str) -> PathBuf {
 /// saying why when it exists but cannot be used (unreadable, not this format, another key,
 /// numbers that are not finite, too many keys).
 pub fn load(file: &Path, key: &str) -> Result<Option<Outcome>, Error> {
+    load_with(file, key, parse)
+}
+
+/// What `parse` reads for `key` from the text of `file`: `Ok(None)` when there is no file, an
+/// error naming the file and saying why when it exists but cannot be used. The reading of
+/// every cache file of this kind (the interior walk's, the path check's).
+pub(crate) fn load_with<T>(
+    file: &Path,
+    key: &str,
+    parse: impl FnOnce(&str, &str) -> Result<T, String>,
+) -> Result<Option<T>, Error> {
     let text = match std::fs::read_to_string(file) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
@@ -204,6 +216,34 @@ pub fn load(file: &Path, key: &str) -> Result<Option<Outcome>, Error> {
     parse(&text, key)
         .map(Some)
         .map_err(|why| Error::Input(format!("{}: {why}", file.display())))
+}
+
+/// The value kept in `file` (read by `load`), or, when there is none or it cannot be used
+/// (one line on stderr says why), the value `make` makes now, kept in `file` by `save` (one
+/// line on stderr when it cannot be: then it costs only the time). `what` names the value in
+/// those lines ("the interior walk"), `again` says what happens instead of using a file that
+/// cannot be ("finding the interior walk again"). `None` when `make` has nothing.
+pub(crate) fn kept_or_made<T>(
+    file: PathBuf,
+    load: impl FnOnce(&Path) -> Result<Option<T>, Error>,
+    make: impl FnOnce() -> Option<T>,
+    save: impl FnOnce(&Path, &T) -> std::io::Result<()>,
+    (what, again): (&str, &str),
+) -> Option<(T, Source)> {
+    match load(&file) {
+        Ok(Some(value)) => return Some((value, Source::Cached(file))),
+        Ok(None) => {}
+        Err(why) => eprintln!("warning: {why}; {again}"),
+    }
+    let value = make()?;
+    let kept = match save(&file, &value) {
+        Ok(()) => Some(file),
+        Err(e) => {
+            eprintln!("warning: {}: {e}; {what} is not cached", file.display());
+            None
+        }
+    };
+    Some((value, Source::Found(kept)))
 }
 
 /// The outcome in a cache file's `text`, made for `key`.

@@ -220,41 +220,36 @@ pub fn default_if_enclosed_cached(
 fn cached_outcome(scene: &Scene, dir: &std::path::Path) -> Option<(Outcome, cache::Source)> {
     let params = InteriorParams::default();
     let key = cache::key(scene, &params);
-    let file = cache::file(dir, &key);
-    match cache::load(&file, &key) {
-        Ok(Some(outcome)) => return Some((outcome, cache::Source::Cached(file))),
-        Ok(None) => {}
-        Err(why) => eprintln!("warning: {why}; finding the interior walk again"),
-    }
-    let rays = TriangleScene::new(scene)?;
-    eprintln!(
-        "note: scene \"{}\": looking for an inside to walk (once: the result is kept in {})",
-        scene.name,
-        dir.display()
-    );
-    let start = std::time::Instant::now();
-    let outcome = outcome(&rays, &params);
-    let kept = match cache::save(&file, &key, &outcome) {
-        Ok(()) => Some(file),
-        Err(e) => {
+    let mut took = None;
+    let found = cache::kept_or_made(
+        cache::file(dir, &key),
+        |file| cache::load(file, &key),
+        || {
+            let rays = TriangleScene::new(scene)?;
             eprintln!(
-                "warning: {}: {e}; the interior walk is not cached",
-                file.display()
+                "note: scene \"{}\": looking for an inside to walk (once: the result is kept in {})",
+                scene.name,
+                dir.display()
             );
-            None
-        }
-    };
-    if matches!(outcome, Outcome::Walk { .. }) {
+            let start = std::time::Instant::now();
+            let outcome = outcome(&rays, &params);
+            took = Some(start.elapsed());
+            Some(outcome)
+        },
+        |file, outcome| cache::save(file, &key, outcome),
+        ("the interior walk", "finding the interior walk again"),
+    );
+    if let (Some(took), Some((Outcome::Walk { .. }, cache::Source::Found(kept)))) = (took, &found) {
         eprintln!(
             "note: scene \"{}\": interior walk found in {:.1} s{}",
             scene.name,
-            start.elapsed().as_secs_f32(),
+            took.as_secs_f32(),
             kept.as_ref()
                 .map(|f| format!(", kept in {}", f.display()))
                 .unwrap_or_default()
         );
     }
-    Some((outcome, cache::Source::Found(kept)))
+    found
 }
 
 /// The walk through `rays` and its light path, or why there is none.

@@ -1010,7 +1010,6 @@ fn the_interior_path_a_scene_lacks_is_read_from_the_same_cache() {
 
 #[test]
 fn the_path_checks_verdict_is_kept_in_the_cache_and_said_again() {
-    use path_check::CheckSource;
     let mut l = Level::default();
     row_of_rooms(&mut l, 0.0, false);
     let scene = l.scene(false);
@@ -1031,12 +1030,12 @@ fn the_path_checks_verdict_is_kept_in_the_cache_and_said_again() {
         let key = path_check::cache_key(&scene, path);
         let file = path_check::cache_file(&dir, &key);
         let first = path_check::warn_if_bad_cached(&scene, path, &dir);
-        assert_eq!(first, CheckSource::Checked(Some(file.clone())));
+        assert_eq!(first, cache::Source::Found(Some(file.clone())));
         // The file holds the verdict, the report's line itself for a bad path.
         let kept = path_check::load_verdict(&file, &key).expect("readable");
         assert_eq!(kept, Some(expected.clone()));
         let second = path_check::warn_if_bad_cached(&scene, path, &dir);
-        assert_eq!(second, CheckSource::Cached(file.clone()));
+        assert_eq!(second, cache::Source::Cached(file.clone()));
     }
     // Another path, or the same path on a scene with one vertex moved, has another key.
     let mut moved = scene.clone();
@@ -1076,13 +1075,13 @@ fn the_path_checks_verdict_is_kept_in_the_cache_and_said_again() {
         assert!(err.contains(why), "{err}");
         std::fs::write(&file, &text).expect("damage");
         let source = path_check::warn_if_bad_cached(&scene, &over, &dir);
-        assert_eq!(source, CheckSource::Checked(Some(file.clone())), "{why}");
+        assert_eq!(source, cache::Source::Found(Some(file.clone())), "{why}");
         assert_eq!(std::fs::read_to_string(&file).expect("rewritten"), good);
     }
     // A file where the directory should be: nothing is kept, the path is checked all the same.
     std::fs::remove_dir_all(&dir).expect("clean up");
     std::fs::write(&dir, b"not a directory").expect("file");
     let source = path_check::warn_if_bad_cached(&scene, &over, &dir);
-    assert_eq!(source, CheckSource::Checked(None));
+    assert_eq!(source, cache::Source::Found(None));
     std::fs::remove_file(&dir).expect("clean up");
 }
