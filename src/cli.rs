@@ -1031,10 +1031,12 @@ mod tests {
     /// aborted the command allocating hundreds of gigabytes.
     #[test]
     fn counts_past_any_machine_are_refused_up_front() {
+        let parse = |command: &[&str], extra: &[&str]| {
+            let argv = ["coherent"].iter().chain(command).chain(extra);
+            crate::Cli::try_parse_from(argv).unwrap().command
+        };
         let walk = |extra: &[&str]| {
-            let mut argv = vec!["coherent", "walk", "--scene", "city"];
-            argv.extend_from_slice(extra);
-            let crate::Command::Walk(w) = crate::Cli::try_parse_from(argv).unwrap().command else {
+            let crate::Command::Walk(w) = parse(&["walk", "--scene", "city"], extra) else {
                 unreachable!()
             };
             super::walk(&w).expect_err("refused").to_string()
@@ -1051,9 +1053,7 @@ mod tests {
         ])
         .contains("frames in flight must be 1 to 16"));
         let gi = |extra: &[&str]| {
-            let mut argv = vec!["coherent", "gi", "--scene", "cornell"];
-            argv.extend_from_slice(extra);
-            let crate::Command::Gi(g) = crate::Cli::try_parse_from(argv).unwrap().command else {
+            let crate::Command::Gi(g) = parse(&["gi", "--scene", "cornell"], extra) else {
                 unreachable!()
             };
             super::gi(&g).expect_err("refused").to_string()
