@@ -398,13 +398,7 @@ impl WalkSummary {
         let ref_ms = reference
             .and_then(|r| self.get(r))
             .map(|s| s.frame_ms_median);
-        let name_w = self
-            .algorithms
-            .iter()
-            .map(|(n, _)| n.chars().count())
-            .max()
-            .unwrap_or(0)
-            .max("algorithm".len());
+        let name_w = self.name_width();
         let mut out = String::new();
         let _ = writeln!(
             out,
@@ -461,9 +455,20 @@ impl WalkSummary {
         out
     }
 
+    /// The width of the algorithm column: the longest name, at least "algorithm".
+    fn name_width(&self) -> usize {
+        self.algorithms
+            .iter()
+            .map(|(n, _)| n.chars().count())
+            .max()
+            .unwrap_or(0)
+            .max("algorithm".len())
+    }
+
     /// Missed objects and pixels per algorithm (`walk --check`), and the preprocessing of
     /// precomputed algorithms; empty when neither applies.
     fn check_table(&self) -> String {
+        let w = self.name_width();
         let mut out = String::new();
         for (name, s) in &self.algorithms {
             if s.predicated_draws_median > 0.0 || s.predicate_resolves_median > 0.0 {
@@ -476,7 +481,7 @@ impl WalkSummary {
                 }
                 let _ = writeln!(
                     out,
-                    "  {name:<16} {} sent, {} drawn (max {}), {} pass breaks, {} parts tested",
+                    "  {name:<w$} {} sent, {} drawn (max {}), {} pass breaks, {} parts tested",
                     fmt_count(s.predicated_draws_median),
                     fmt_count(s.predicated_taken_median),
                     s.predicated_taken_max,
@@ -491,7 +496,7 @@ impl WalkSummary {
                 if !std::mem::replace(&mut checked, true) {
                     out.push_str("\nexactness (walk --check): most missed in any frame\n");
                 }
-                let _ = writeln!(out, "  {name:<16} {o} objects, {p} pixels");
+                let _ = writeln!(out, "  {name:<w$} {o} objects, {p} pixels");
             }
         }
         for (name, s) in &self.algorithms {
@@ -522,6 +527,7 @@ impl WalkSummary {
             Some(s) => format!("{:.2}", s.median),
             None => "-".to_owned(),
         };
+        let w = self.name_width();
         let mut out = format!(
             "\nframe-time ratios over {} repeat(s): median [min-max]\n",
             self.repeats
@@ -529,7 +535,7 @@ impl WalkSummary {
         for (name, r) in &self.ratios {
             let _ = writeln!(
                 out,
-                "  {name:<16} x vfc {:<20} x oracle {}",
+                "  {name:<w$} x vfc {:<20} x oracle {}",
                 fmt(r.vs_vfc),
                 fmt(r.vs_oracle)
             );
