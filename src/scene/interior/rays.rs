@@ -7,17 +7,18 @@
 //! object whose triangles close around a volume and face out of it is seen from outside only
 //! (a point inside it is inside geometry), double-sided or not.
 
-use std::time::Duration;
-
 use glam::{Mat4, Vec3, Vec3A};
 use obvhs::aabb::Aabb as BvhAabb;
-use obvhs::bvh2::{builder::build_bvh2_from_tris, Bvh2};
+use obvhs::bvh2::Bvh2;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
-use crate::scene::gltf::DEFAULT_SUN;
 use crate::scene::{Aabb, Object, Scene};
+
+mod build;
+
+use build::padded;
 
 /// One ray hit.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -38,38 +39,106 @@ pub struct Hit {
     pub triangle: u32,
 }
 
-/// World triangles, whether each is double-sided, and their flat colours (empty when not
-/// gathered), in the scene's order.
-type Gathered = (Vec<[Vec3; 3]>, Vec<bool>, Vec<Option<[[u8; 3]; 2]>>);
+/// Whether a hit at distance `t` (and whether it faces the ray) beats the hit `so_far`: it
+/// is nearer, or it faces the ray where the other does not at the same distance (to
+/// [`SAME_DISTANCE`]).
+fn beats((t, facing): (f32, bool), so_far: Option<(f32, bool)>) -> bool {
+    match so_far {
+        None => true,
+        Some((best, best_facing)) if (t - best).abs() <= SAME_DISTANCE * best => {
+            if facing == best_facing {
+                t < best
+            } else {
+                facing
+            }
+        }
+        Some((best, _)) => t < best,
+    }
+}
 
-/// Triangles above which the ray scene's BVH is built for speed rather than quality.
-const LARGE_SCENE_TRIANGLES: usize = 4_000_000;
+/// Relative difference of distance under which two hits are on coincident surfaces (one
+/// that faces the ray is then preferred; see [`TriangleScene::hit`]).
+const SAME_DISTANCE: f32 = 1e-5;
 
 /// World triangles with a BVH for ray casts and distance queries.
+///
+/// Objects that share one mesh (the same index range and vertex offset, as the built-in
+/// scenes' and glTF files' instanced meshes do) keep its triangles once, in the mesh's own
+/// space, with a BVH of their own; a BVH over the objects' boxes leads rays to them (two
+/// levels). The other objects' triangles make one world-space mesh. A placed triangle is
+/// tested in world space, its corners transformed exactly as a world-space copy would be, so
+/// every hit and distance is the one a single world-space BVH gives.
 pub struct TriangleScene {
-    bvh: Bvh2,
-    triangles: Vec<Triangle>,
-    /// Per triangle (in `triangles`' order): whether its material is double-sided.
-    two_sided: Vec<bool>,
-    /// Per triangle (in `triangles`' order): the colours of its front and back sides when the
-    /// built-in renderer draws each in one colour, `None` when its colour varies over it.
-    /// Empty for a [`shape`](Self::shape) scene.
-    colours: Vec<Option<[[u8; 3]; 2]>>,
+    /// Over the instances' world boxes (`instances` in its order).
+    top: Bvh2,
+    instances: Vec<Instance>,
+    meshes: Vec<RayMesh>,
+    /// Triangles in all, every placement counted.
+    triangle_count: usize,
+    /// The sun of the scene's flat colours (see [`flat_colour`]).
+    sun: Vec3,
     /// World bounds.
     pub bounds: Aabb,
+}
+
+/// One mesh of a [`TriangleScene`]: its triangles and their BVH.
+struct RayMesh {
+    bvh: Bvh2,
+    /// Corners in the BVH's order: world space for the world mesh, the mesh's own space for
+    /// an instanced one.
+    triangles: Vec<Triangle>,
+    /// World mesh: per triangle, whether its material is double-sided (an instance says it
+    /// for all of its triangles).
+    two_sided: Vec<bool>,
+    /// World mesh: per triangle, the colours of its front and back sides when the built-in
+    /// renderer draws each in one colour, `None` when its colour varies over it. Empty when
+    /// not gathered.
+    colours: Vec<Option<[[u8; 3]; 2]>>,
+    /// Instanced mesh, colours gathered: per triangle, its corners' normals and vertex
+    /// colours (`None` where a corner's data is missing), from which each placement's flat
+    /// colours follow.
+    corners: Vec<Option<[Corner; 3]>>,
+}
+
+/// What a corner's flat colour is made of, in the mesh's own space.
+#[derive(Clone, Copy, Debug)]
+struct Corner {
+    normal: Vec3,
+    /// The vertex colour; `None` when the scene has none at all.
+    tint: Option<[u8; 4]>,
+}
+
+/// A mesh placed in the world.
+struct Instance {
+    mesh: u32,
+    /// `None`: the world mesh, already in world space.
+    place: Option<Placement>,
+    /// Id of the first triangle: a hit names the triangle `first` plus its place in the
+    /// mesh's BVH order.
+    first: u32,
+}
+
+/// Where an instanced mesh stands and how its triangles look there.
+struct Placement {
+    to_world: Mat4,
+    to_local: Mat4,
+    two_sided: bool,
+    /// The normal matrix and base colour of the object's flat colours; `None` when its hits
+    /// have none (a textured object, or colours not gathered).
+    shade: Option<(Mat4, Vec3)>,
 }
 
 impl TriangleScene {
     /// The scene's world-space triangles (those of double-sided materials marked so, unless
     /// their object is a [`closed_solid`]); `None` when it has none with finite corners.
     pub fn new(scene: &Scene) -> Option<TriangleScene> {
-        TriangleScene::of_objects(scene, |_| true)
+        build::of_objects(scene, |_| true, true, None, true)
     }
 
     /// As [`new`](Self::new), with the triangles of the objects whose bounds meet `region`
     /// only.
     pub fn near(scene: &Scene, region: &Aabb) -> Option<TriangleScene> {
-        TriangleScene::of_objects(scene, |o| o.bounds.overlaps(region))
+        build::of_objects(scene, |o| o.bounds.overlaps(region), true, None, true)
     }
 
     /// The scene's shape only, for the path check's few thousand rays: as [`new`](Self::new)
@@ -78,62 +147,8 @@ impl TriangleScene {
     /// BVH build. Several times quicker to build.
     pub fn shape(scene: &Scene, region: Option<&Aabb>) -> Option<TriangleScene> {
         let keep = |o: &Object| region.is_none_or(|r| o.bounds.overlaps(r));
-        let (triangles, two_sided, _) = TriangleScene::gather(scene, keep, false);
-        TriangleScene::build_with(
-            &triangles,
-            &two_sided,
-            None,
-            BvhBuildParams::fastest_build(),
-        )
-    }
-
-    fn of_objects(scene: &Scene, keep: impl Fn(&Object) -> bool) -> Option<TriangleScene> {
-        let (triangles, two_sided, sides) = TriangleScene::gather(scene, keep, true);
-        TriangleScene::build(&triangles, &two_sided, &sides)
-    }
-
-    /// The world triangles of the objects `keep` accepts, which of them are double-sided, and
-    /// (when `colours`) their flat colours.
-    fn gather(scene: &Scene, keep: impl Fn(&Object) -> bool, colours: bool) -> Gathered {
-        let mut triangles = Vec::new();
-        let mut two_sided = Vec::new();
-        let mut sides = Vec::new();
-        for (i, o) in scene.objects.iter().enumerate() {
-            if !keep(o) {
-                continue;
-            }
-            // A textured object is never one flat colour.
-            let textured = scene
-                .object_material(i)
-                .is_some_and(|m| m.base_color_texture.is_some());
-            let normal_matrix = (colours && !textured).then(|| o.transform.inverse().transpose());
-            let first = o.first_index as usize;
-            let Some(idx) = scene
-                .indices
-                .get(first..first.saturating_add(o.index_count as usize))
-            else {
-                continue;
-            };
-            let start = triangles.len();
-            for t in idx.chunks_exact(3) {
-                let corner = |i: u32| {
-                    let v = scene
-                        .vertices
-                        .get(o.vertex_offset.saturating_add(i) as usize)?;
-                    Some(o.transform.transform_point3(Vec3::from_array(v.position)))
-                };
-                if let (Some(a), Some(b), Some(c)) = (corner(t[0]), corner(t[1]), corner(t[2])) {
-                    triangles.push([a, b, c]);
-                    if colours {
-                        sides.push(normal_matrix.and_then(|m| flat_sides(scene, o, m, t)));
-                    }
-                }
-            }
-            let both = scene.object_material(i).is_some_and(|m| m.double_sided)
-                && !closed_solid(&triangles[start..]);
-            two_sided.resize(triangles.len(), both);
-        }
-        (triangles, two_sided, sides)
+        let quickest = Some(BvhBuildParams::fastest_build());
+        build::of_objects(scene, keep, false, quickest, true)
     }
 
     /// A scene of `triangles` (counter-clockwise fronts), `two_sided[i]` marking double-sided
@@ -151,80 +166,116 @@ impl TriangleScene {
         two_sided: &[bool],
         colours: &[Option<[[u8; 3]; 2]>],
     ) -> Option<TriangleScene> {
-        // A large scene (a scaled-up city) is only path-checked, a few thousand rays: a quick
-        // build without reinsertion is several times faster there and ample for that.
-        let params = if triangles.len() > LARGE_SCENE_TRIANGLES {
-            BvhBuildParams::fastest_build()
-        } else {
-            BvhBuildParams::fast_build()
-        };
-        TriangleScene::build_with(triangles, two_sided, Some(colours), params)
+        build::of_triangles(triangles, two_sided, colours)
     }
 
-    /// [`build`](Self::build) with the BVH built by `params`; `colours` `None`: no colours
-    /// at all (hits have none).
-    fn build_with(
-        triangles: &[[Vec3; 3]],
-        two_sided: &[bool],
-        colours: Option<&[Option<[[u8; 3]; 2]>]>,
-        params: BvhBuildParams,
-    ) -> Option<TriangleScene> {
-        let mut bounds = Aabb::EMPTY;
-        let mut tris = Vec::new();
-        let mut sides = Vec::new();
-        let mut flat = Vec::new();
-        let sun = DEFAULT_SUN.normalize();
-        let grey = |n: Vec3| flat_colour(Vec3::splat(0.8), n, sun);
-        for (i, t) in triangles.iter().enumerate() {
-            if !t.iter().all(|p| p.is_finite()) {
-                continue;
-            }
-            t.iter().for_each(|&p| bounds.grow(p));
-            tris.push(Triangle {
-                v0: t[0].into(),
-                v1: t[1].into(),
-                v2: t[2].into(),
-            });
-            sides.push(two_sided.get(i).copied().unwrap_or(false));
-            if let Some(colours) = colours {
-                flat.push(colours.get(i).copied().unwrap_or_else(|| {
-                    let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
-                    Some([grey(n), grey(-n)])
-                }));
-            }
-        }
-        if tris.is_empty() {
-            return None;
-        }
-        let mut time = Duration::ZERO;
-        let bvh = build_bvh2_from_tris(&tris, params, &mut time);
-        let order = &bvh.primitive_indices;
-        let triangles = order.iter().map(|&i| tris[i as usize]).collect();
-        drop(tris);
-        let two_sided = order.iter().map(|&i| sides[i as usize]).collect();
-        drop(sides);
-        let colours = if flat.is_empty() {
-            Vec::new()
-        } else {
-            order.iter().map(|&i| flat[i as usize]).collect()
-        };
-        Some(TriangleScene {
-            bvh,
-            triangles,
-            two_sided,
-            colours,
-            bounds,
-        })
-    }
-
-    /// Number of triangles.
+    /// Number of triangles, every placement of a shared mesh counted.
     pub fn len(&self) -> usize {
-        self.triangles.len()
+        self.triangle_count
     }
 
     /// Whether there are no triangles (never true for a built scene).
     pub fn is_empty(&self) -> bool {
-        self.triangles.is_empty()
+        self.triangle_count == 0
+    }
+
+    /// The world-space triangle `id` of instance `inst` (in the mesh's BVH order).
+    fn world_triangle(&self, inst: &Instance, id: usize) -> Triangle {
+        let t = &self.meshes[inst.mesh as usize].triangles[id];
+        match &inst.place {
+            None => *t,
+            Some(p) => {
+                let [a, b, c] = placed_corners(t, p.to_world);
+                Triangle {
+                    v0: a.into(),
+                    v1: b.into(),
+                    v2: c.into(),
+                }
+            }
+        }
+    }
+
+    /// The hit of `ray` (world space) on instance `inst`'s triangles other than `skip` that
+    /// beats `so_far` (the distance of the hit found so far and whether it faces the ray):
+    /// its distance, triangle (in the mesh's BVH order) and whether that triangle faces the
+    /// ray; see [`closest`](Self::closest) for which hit beats which.
+    fn instance_hit(
+        &self,
+        inst: &Instance,
+        ray: &Ray,
+        skip: Option<usize>,
+        so_far: Option<(f32, bool)>,
+    ) -> Option<(f32, usize, bool)> {
+        let mesh = &self.meshes[inst.mesh as usize];
+        let mut best: Option<(f32, usize, bool)> = None;
+        // The BVH prunes beyond the distance each closure returns (its ray's `tmax`): a
+        // little beyond the best hit, where a coincident surface may still win.
+        let mut consider = |r: &Ray, id: usize, tri: Triangle| {
+            if Some(id) == skip {
+                return f32::INFINITY;
+            }
+            let t = tri.intersect(r);
+            if !t.is_finite() {
+                return f32::INFINITY;
+            }
+            let facing = Vec3::from(tri.compute_normal()).dot(Vec3::from(ray.direction)) < 0.0;
+            if beats((t, facing), best.map(|b| (b.0, b.2)).or(so_far)) {
+                best = Some((t, id, facing));
+                t * (1.0 + SAME_DISTANCE)
+            } else {
+                f32::INFINITY
+            }
+        };
+        let mut hit = RayHit::none();
+        match &inst.place {
+            None => {
+                mesh.bvh
+                    .ray_traverse(*ray, &mut hit, |r, id| consider(r, id, mesh.triangles[id]));
+            }
+            Some(p) => {
+                // The boxes are tested in the mesh's space, the triangles in world space; the
+                // parameter along the ray is the same in both.
+                let o = p.to_local.transform_point3(Vec3::from(ray.origin));
+                let d = p.to_local.transform_vector3(Vec3::from(ray.direction));
+                if !(o.is_finite() && d.is_finite()) {
+                    return None;
+                }
+                let local = Ray::new(o.into(), d.into(), ray.tmin, ray.tmax);
+                mesh.bvh.ray_traverse(local, &mut hit, |r, id| {
+                    let tri = self.world_triangle(inst, id);
+                    // The world ray, with the local ray's distance so far.
+                    let world = Ray {
+                        tmax: r.tmax,
+                        ..*ray
+                    };
+                    consider(&world, id, tri)
+                });
+            }
+        }
+        best
+    }
+
+    /// The closest hit along `ray` other than on triangle `skip` (an id of [`Hit::triangle`]):
+    /// its distance, instance and triangle in the instance's mesh. Of two triangles met at the
+    /// same distance (to [`SAME_DISTANCE`]: coincident surfaces), one that faces the ray wins
+    /// over one that does not, as the renderer shows the front of such a pair.
+    fn closest(&self, ray: Ray, skip: Option<u32>) -> Option<(f32, usize, usize)> {
+        let mut best: Option<(f32, usize, usize, bool)> = None;
+        let mut hit = RayHit::none();
+        self.top.ray_traverse(ray, &mut hit, |r, i| {
+            let inst = &self.instances[i];
+            let skip = skip
+                .and_then(|s| s.checked_sub(inst.first))
+                .map(|s| s as usize);
+            match self.instance_hit(inst, r, skip, best.map(|b| (b.0, b.3))) {
+                Some((t, id, facing)) => {
+                    best = Some((t, i, id, facing));
+                    t * (1.0 + SAME_DISTANCE)
+                }
+                None => f32::INFINITY,
+            }
+        });
+        best.map(|(t, i, id, _)| (t, i, id))
     }
 
     /// The closest hit along a unit `dir` up to `t_max`, with the side it hit; none for a ray
@@ -234,34 +285,33 @@ impl TriangleScene {
             return None;
         }
         let ray = Ray::new(origin.into(), dir.into(), 0.0, t_max);
-        let mut hit = RayHit::none();
-        if !self
-            .bvh
-            .ray_traverse(ray, &mut hit, |r, id| self.triangles[id].intersect(r))
-        {
-            return None;
-        }
-        Some(self.side(hit.primitive_id as usize, dir, hit.t))
+        let (t, i, id) = self.closest(ray, None)?;
+        Some(self.side(i, id, dir, t))
     }
 
-    /// The hit on triangle `id` at distance `t` along the unit `dir`: the side it meets, whether
-    /// that side is meant to be seen, and its flat colour.
-    fn side(&self, id: usize, dir: Vec3, t: f32) -> Hit {
-        let n = Vec3::from(self.triangles[id].compute_normal());
+    /// The hit on triangle `id` of instance `i` at distance `t` along the unit `dir`: the side
+    /// it meets, whether that side is meant to be seen, and its flat colour.
+    fn side(&self, i: usize, id: usize, dir: Vec3, t: f32) -> Hit {
+        let inst = &self.instances[i];
+        let mesh = &self.meshes[inst.mesh as usize];
+        let n = Vec3::from(self.world_triangle(inst, id).compute_normal());
         let facing = n.dot(dir) < 0.0;
-        let front = facing || self.two_sided[id];
+        let (two_sided, colours) = match &inst.place {
+            None => (mesh.two_sided[id], mesh.colours.get(id).copied().flatten()),
+            Some(p) => (
+                p.two_sided,
+                p.shade.and_then(|(m, base)| {
+                    flat_sides(mesh.corners.get(id).copied().flatten(), m, base, self.sun)
+                }),
+            ),
+        };
+        let front = facing || two_sided;
         Hit {
             t,
             normal: if facing { n } else { -n },
             front,
-            colour: self
-                .colours
-                .get(id)
-                .copied()
-                .flatten()
-                .filter(|_| front)
-                .map(|c| c[usize::from(!facing)]),
-            triangle: id as u32,
+            colour: colours.filter(|_| front).map(|c| c[usize::from(!facing)]),
+            triangle: inst.first.saturating_add(id as u32),
         }
     }
 
@@ -271,20 +321,8 @@ impl TriangleScene {
     fn coplanar_colour(&self, origin: Vec3, dir: Vec3, hit: &Hit) -> Option<[u8; 3]> {
         let eps = 1e-4 * hit.t.max(1.0);
         let ray = Ray::new(origin.into(), dir.into(), hit.t - eps, hit.t + eps);
-        let mut other = RayHit::none();
-        let first = hit.triangle as usize;
-        let found = self.bvh.ray_traverse(ray, &mut other, |r, id| {
-            if id == first {
-                f32::INFINITY
-            } else {
-                self.triangles[id].intersect(r)
-            }
-        });
-        let id = other.primitive_id as usize;
-        if !found || id == first {
-            return None;
-        }
-        self.side(id, dir, other.t)
+        let (t, i, id) = self.closest(ray, Some(hit.triangle))?;
+        self.side(i, id, dir, t)
             .colour
             .filter(|&c| Some(c) != hit.colour)
     }
@@ -307,10 +345,47 @@ impl TriangleScene {
         let pa = Vec3A::from(p);
         let query = BvhAabb::new(pa - Vec3A::splat(r), pa + Vec3A::splat(r));
         let mut found = false;
-        self.bvh.aabb_traverse(query, |bvh, node| {
+        self.top.aabb_traverse(query, |top, node| {
+            let n = &top.nodes[node as usize];
+            let first = n.first_index as usize;
+            for inst in &self.instances[first..first + n.prim_count as usize] {
+                if self.instance_within(inst, &query, p, r) {
+                    found = true;
+                    return false;
+                }
+            }
+            true
+        });
+        found
+    }
+
+    /// Whether a triangle of instance `inst` is closer to `p` than `r` (`query`: the world box
+    /// of that ball).
+    fn instance_within(&self, inst: &Instance, query: &BvhAabb, p: Vec3, r: f32) -> bool {
+        let mesh = &self.meshes[inst.mesh as usize];
+        let local = match &inst.place {
+            None => *query,
+            Some(pl) => {
+                let mut b = Aabb::EMPTY;
+                for c in 0..8 {
+                    let pick = |bit: usize, lo: f32, hi: f32| if c & bit == 0 { lo } else { hi };
+                    let corner = Vec3::new(
+                        pick(1, query.min.x, query.max.x),
+                        pick(2, query.min.y, query.max.y),
+                        pick(4, query.min.z, query.max.z),
+                    );
+                    b.grow(pl.to_local.transform_point3(corner));
+                }
+                let b = padded(b);
+                BvhAabb::new(b.min.into(), b.max.into())
+            }
+        };
+        let mut found = false;
+        mesh.bvh.aabb_traverse(local, |bvh, node| {
             let n = &bvh.nodes[node as usize];
             let first = n.first_index as usize;
-            for t in &self.triangles[first..first + n.prim_count as usize] {
+            for id in first..first + n.prim_count as usize {
+                let t = self.world_triangle(inst, id);
                 let tri = [t.v0, t.v1, t.v2].map(Vec3::from);
                 if distance_to_triangle(p, &tri) < r {
                     found = true;
@@ -330,26 +405,30 @@ impl TriangleScene {
     }
 }
 
-/// The colours of the front and the back of triangle `t` (indices relative to the object's
-/// vertex offset) of the untextured object `o`, whose normals `normal_matrix` takes to world
-/// space, when the built-in renderer draws each side in one colour: the same colour at its
-/// three corners from their vertex colours and normals (see [`flat_colour`]).
-fn flat_sides(scene: &Scene, o: &Object, normal_matrix: Mat4, t: &[u32]) -> Option<[[u8; 3]; 2]> {
+/// The world corners of the mesh-space triangle `t` placed by `transform`, computed as the
+/// world mesh computes its own (so that both give the same hits).
+fn placed_corners(t: &Triangle, transform: Mat4) -> [Vec3; 3] {
+    [t.v0, t.v1, t.v2].map(|p| transform.transform_point3(Vec3::from(p)))
+}
+
+/// The colours of the front and the back of a triangle with `corners`, of an untextured
+/// object of colour `base` whose normals `normal_matrix` takes to world space, when the
+/// built-in renderer draws each side in one colour: the same colour at its three corners
+/// from their vertex colours and normals (see [`flat_colour`]).
+fn flat_sides(
+    corners: Option<[Corner; 3]>,
+    normal_matrix: Mat4,
+    base: Vec3,
+    sun: Vec3,
+) -> Option<[[u8; 3]; 2]> {
     let mut sides: Option<[[u8; 3]; 2]> = None;
-    for &i in t {
-        let at = o.vertex_offset.saturating_add(i) as usize;
-        let mut base = o.color.truncate();
-        if !scene.attributes.is_empty() {
-            let c = scene.attributes.get(at)?.color;
-            base *= Vec3::new(c[0].into(), c[1].into(), c[2].into()) / 255.0;
+    for c in corners? {
+        let mut base = base;
+        if let Some(t) = c.tint {
+            base *= Vec3::new(t[0].into(), t[1].into(), t[2].into()) / 255.0;
         }
-        let n = normal_matrix
-            .transform_vector3(Vec3::from_array(scene.vertices.get(at)?.normal))
-            .try_normalize()?;
-        let corner = [
-            flat_colour(base, n, scene.sun_dir),
-            flat_colour(base, -n, scene.sun_dir),
-        ];
+        let n = normal_matrix.transform_vector3(c.normal).try_normalize()?;
+        let corner = [flat_colour(base, n, sun), flat_colour(base, -n, sun)];
         if sides.is_some_and(|s| s != corner) {
             return None;
         }
@@ -550,5 +629,20 @@ impl TriangleScene {
         let most = colours.into_values().max().unwrap_or(0).max(escaped);
         let rays = dirs.len().max(1) as f32;
         (most as f32 / rays, back as f32 / rays)
+    }
+}
+
+#[cfg(test)]
+impl TriangleScene {
+    /// As [`new`](Self::new) with every triangle in the world mesh (no placed meshes), as
+    /// the ray scene was built before instancing: the reference the placed meshes are
+    /// compared with.
+    pub(crate) fn world_only(scene: &Scene) -> Option<TriangleScene> {
+        build::of_objects(scene, |_| true, true, None, false)
+    }
+
+    /// Number of placed instances (objects of shared meshes).
+    pub(crate) fn placed(&self) -> usize {
+        self.instances.iter().filter(|i| i.place.is_some()).count()
     }
 }

@@ -1085,3 +1085,67 @@ fn the_path_checks_verdict_is_kept_in_the_cache_and_said_again() {
     assert_eq!(source, cache::Source::Found(None));
     std::fs::remove_file(&dir).expect("clean up");
 }
+
+/// Objects that share a mesh keep it once and are placed by their transforms: every hit (its
+/// distance, side, normal and flat colour), every distance query and the bounds are those of
+/// one world-space BVH over all the triangles, on each built-in scene that shares meshes.
+/// Rays from points inside solids meet coincident surfaces (a box's bottom on the ground):
+/// there the one that faces the ray wins in both, whichever the BVH meets first.
+#[test]
+fn placed_meshes_give_the_hits_of_world_space_triangles() {
+    for (name, scale) in [("city", 0.3), ("parking", 0.3), ("powerplant", 0.3)] {
+        let scene = Scene::load(name, scale, 4096).expect(name);
+        let placed = TriangleScene::new(&scene).expect("triangles");
+        let world = TriangleScene::world_only(&scene).expect("triangles");
+        assert!(
+            placed.placed() > scene.objects.len() / 2,
+            "{name}: {}",
+            placed.placed()
+        );
+        assert_eq!(world.placed(), 0);
+        assert_eq!(placed.len(), world.len(), "{name}");
+        assert_eq!(placed.bounds, world.bounds, "{name}");
+        // Eyes along the scene's paths and points spread through its bounds, some inside
+        // solids.
+        let b = world.bounds;
+        let mut points: Vec<Vec3> = scene
+            .paths
+            .iter()
+            .flat_map(|p| p.keys.iter().map(|k| k.eye))
+            .collect();
+        let mut seed = 0x9e37_79b9_u32;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed as f32 / u32::MAX as f32
+        };
+        for _ in 0..150 {
+            let f = Vec3::new(next(), next() * 0.3, next());
+            points.push(b.min + f * b.extent());
+        }
+        let dirs = rays::sphere_dirs(96);
+        let far = b.extent().length() * 2.0;
+        let (mut hits, mut near) = (0, 0);
+        for &p in &points {
+            for &d in &dirs {
+                let (a, w) = (placed.hit(p, d, far), world.hit(p, d, far));
+                let strip = |h: Option<rays::Hit>| h.map(|h| rays::Hit { triangle: 0, ..h });
+                assert_eq!(strip(a), strip(w), "{name}: from {p} along {d}");
+                hits += usize::from(w.is_some());
+            }
+            assert_eq!(
+                placed.one_colour_and_back(p, &dirs, far),
+                world.one_colour_and_back(p, &dirs, far),
+                "{name}: from {p}"
+            );
+            for r in [0.05, 0.3, 1.5] {
+                let inside = world.within(p, r);
+                assert_eq!(placed.within(p, r), inside, "{name}: {p} within {r}");
+                near += usize::from(inside);
+            }
+        }
+        assert!(hits > points.len() * dirs.len() / 2, "{name}: {hits} hits");
+        assert!(near > 0, "{name}: no point near geometry");
+    }
+}
