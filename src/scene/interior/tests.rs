@@ -1095,7 +1095,7 @@ fn the_path_checks_verdict_is_kept_in_the_cache_and_said_again() {
 fn placed_meshes_give_the_hits_of_world_space_triangles() {
     for (name, scale) in [("city", 0.3), ("parking", 0.3), ("powerplant", 0.3)] {
         let scene = Scene::load(name, scale, 4096).expect(name);
-        let placed = TriangleScene::new(&scene).expect("triangles");
+        let placed = TriangleScene::placing(&scene).expect("triangles");
         let world = TriangleScene::world_only(&scene).expect("triangles");
         assert!(
             placed.placed() > scene.objects.len() / 2,

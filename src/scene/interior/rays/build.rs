@@ -51,22 +51,35 @@ pub(super) fn of_triangles(
     Parts::new(world).finish(DEFAULT_SUN.normalize(), params)
 }
 
+/// Triangles from which a mesh shared by several objects is kept once and placed; smaller
+/// ones (a box, a quad) cost less as world-space copies, where a ray meets them without
+/// going through a placement.
+const PLACED_MESH_TRIANGLES: usize = 64;
+
 /// What makes two objects share a mesh: their index range and vertex offset.
 type MeshKey = (u32, u32, u32);
 
 /// The scene of the objects `keep` accepts, with their flat colours when `colours`; the
-/// objects of meshes shared by several placed by their transforms when `instancing` (else
-/// every triangle in the world mesh, which a test compares with). `params`: how its BVHs are
+/// objects of meshes shared by several placed by their transforms when `instancing` says so,
+/// or (`None`) when the objects have more than [`LARGE_SCENE_TRIANGLES`] triangles in all:
+/// a placed mesh saves memory and building time but costs each ray that meets it, so a
+/// scene that fits keeps every triangle in the world mesh. `params`: how its BVHs are
 /// built, `None` for [`params_for`] their sizes.
 pub(super) fn of_objects(
     scene: &Scene,
     keep: impl Fn(&Object) -> bool,
     colours: bool,
     params: Option<BvhBuildParams>,
-    instancing: bool,
+    instancing: Option<bool>,
 ) -> Option<TriangleScene> {
     let key = |o: &Object| (o.first_index, o.index_count, o.vertex_offset);
     let mut uses: HashMap<MeshKey, usize> = Default::default();
+    let instancing = instancing.unwrap_or_else(|| {
+        let triangles: u64 = (scene.objects.iter().filter(|o| keep(o)))
+            .map(Object::triangle_count)
+            .sum();
+        triangles > LARGE_SCENE_TRIANGLES as u64
+    });
     if instancing {
         for o in scene.objects.iter().filter(|o| keep(o)) {
             *uses.entry(key(o)).or_default() += 1;
@@ -80,7 +93,8 @@ pub(super) fn of_objects(
             continue;
         }
         let k = key(o);
-        let shared = uses.get(&k).is_some_and(|&n| n >= 2);
+        let shared = uses.get(&k).is_some_and(|&n| n >= 2)
+            && o.index_count as usize >= 3 * PLACED_MESH_TRIANGLES;
         let mesh = shared
             .then(|| {
                 meshes
