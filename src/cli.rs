@@ -936,7 +936,11 @@ pub fn gi(a: &GiArgs) -> Result<()> {
              (--path P: stand at P's first pose)"
         );
     }
-    let summary = gi_run::run_with(&ctx, &scene, &opts, a.out.as_deref(), &setup)?;
+    let bar = progress_bar();
+    let summary = gi_run::run_reporting(&ctx, &scene, &opts, a.out.as_deref(), &setup, |d, t| {
+        bar.tick(d, t)
+    })?;
+    bar.finish();
     print!("{}", summary.table());
     if let Some(dir) = &a.out {
         println!("wrote {}", dir.display());

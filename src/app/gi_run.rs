@@ -413,6 +413,7 @@ fn reference_images(
     camera: &CameraTrack,
     opts: &GiRunOptions,
     frames: &[u32],
+    progress: &mut Progress<'_>,
 ) -> Result<Vec<Vec<u8>>> {
     let n = opts.vpls * 4;
     // The reference renders its VPLs in chunks of what one layered pass may hold.
@@ -442,6 +443,7 @@ fn reference_images(
         let stats = set.recompute_all(&light, &world.rays);
         renderer.frame(&light, set.vpls(), &stats.new_layers, &camera.at(t))?;
         out.push(renderer.read_output()?);
+        progress.step();
     }
     Ok(out)
 }
@@ -568,6 +570,20 @@ impl World {
     }
 }
 
+/// Frames rendered so far out of all a run renders, reported after each.
+struct Progress<'a> {
+    done: u64,
+    total: u64,
+    report: &'a mut dyn FnMut(u64, u64),
+}
+
+impl Progress<'_> {
+    fn step(&mut self) {
+        self.done += 1;
+        (self.report)(self.done, self.total);
+    }
+}
+
 /// What a mode produced.
 pub struct ModeRun {
     /// The mode.
@@ -592,6 +608,7 @@ fn run_mode(
     opts: &GiRunOptions,
     mode: GiMode,
     sampled: &[u32],
+    progress: &mut Progress<'_>,
 ) -> Result<ModeRun> {
     let options = GiOptions {
         width: opts.width,
@@ -632,6 +649,7 @@ fn run_mode(
                 run.last = img;
             }
         }
+        progress.step();
     }
     Ok(run)
 }
@@ -653,6 +671,19 @@ pub fn run_with(
     opts: &GiRunOptions,
     out: Option<&Path>,
     setup: &GiSetup,
+) -> Result<GiSummary> {
+    run_reporting(ctx, scene, opts, out, setup, |_, _| {})
+}
+
+/// [`run_with`], calling `progress(done, total)` after each frame rendered: the reference's
+/// sampled frames, then every mode's frames.
+pub fn run_reporting(
+    ctx: &Arc<GpuContext>,
+    scene: &Scene,
+    opts: &GiRunOptions,
+    out: Option<&Path>,
+    setup: &GiSetup,
+    mut progress: impl FnMut(u64, u64),
 ) -> Result<GiSummary> {
     if opts.vpls == 0 || opts.frames == 0 {
         return Err(Error::Input(
@@ -676,7 +707,21 @@ pub fn run_with(
         walk: walking_path(scene, setup).cloned(),
     };
     let sampled = sample_frames(opts.frames, opts.sample_frames);
-    let reference = reference_images(ctx, &mut world, &path, &camera, opts, &sampled)?;
+    let total = sampled.len() as u64 + opts.modes.len() as u64 * u64::from(opts.frames);
+    let mut progress = Progress {
+        done: 0,
+        total,
+        report: &mut progress,
+    };
+    let reference = reference_images(
+        ctx,
+        &mut world,
+        &path,
+        &camera,
+        opts,
+        &sampled,
+        &mut progress,
+    )?;
     if let Some(dir) = out {
         std::fs::create_dir_all(dir)?;
         save_strip(
@@ -700,7 +745,16 @@ pub fn run_with(
     // The last sampled frame of the reference and of every mode, side by side.
     let mut side_by_side: Vec<Vec<u8>> = reference.last().cloned().into_iter().collect();
     for &mode in &opts.modes {
-        let r = run_mode(ctx, &mut world, &path, &camera, opts, mode, &sampled)?;
+        let r = run_mode(
+            ctx,
+            &mut world,
+            &path,
+            &camera,
+            opts,
+            mode,
+            &sampled,
+            &mut progress,
+        )?;
         let m = summarize_mode(&r, &reference, opts);
         if let Some(dir) = out {
             save_mode_images(dir, opts, &r)?;

@@ -236,7 +236,17 @@ fn gi_with_movers_runs_all_modes_and_incremental_renders_the_touched_maps() {
                 movers,
                 ..GiSetup::default()
             };
-            gi_run::run_with(&ctx, &scene, &opts, None, &setup).expect("gi run")
+            let mut reports = Vec::new();
+            let summary = gi_run::run_reporting(&ctx, &scene, &opts, None, &setup, |d, t| {
+                reports.push((d, t))
+            })
+            .expect("gi run");
+            // One report per rendered frame: the reference's sampled frames, then each
+            // mode's frames, counted up to the total.
+            let total = summary.rmse_frames.len() as u64 + 3 * u64::from(opts.frames);
+            let expected: Vec<(u64, u64)> = (1..=total).map(|d| (d, total)).collect();
+            assert_eq!(reports, expected);
+            summary
         };
         let still = run(0);
         let moving = run(3);
