@@ -84,8 +84,10 @@ pub fn floors(rays: &TriangleScene, cell: f32) -> Vec<Floor> {
     let (nx, nz) = grid_size(rays, cell);
     let far = b.extent().length() + 1.0;
     let eps = 1e-5 * far;
-    let mut out = Vec::new();
-    for iz in 0..nz {
+    // Each row of columns on the machine's cores, the rows in order.
+    let rows = crate::parallel::map(nz as usize, |iz| {
+        let iz = iz as i32;
+        let mut out = Vec::new();
         for ix in 0..nx {
             let x = b.min.x + (ix as f32 + 0.5) * cell;
             let z = b.min.z + (iz as f32 + 0.5) * cell;
@@ -108,7 +110,9 @@ pub fn floors(rays: &TriangleScene, cell: f32) -> Vec<Floor> {
                 });
             }
         }
-    }
+        out
+    });
+    let out: Vec<Floor> = rows.into_iter().flatten().collect();
     out
 }
 
@@ -217,50 +221,65 @@ impl std::fmt::Display for Rejections {
     }
 }
 
+/// What [`places`] makes of one floor.
+enum Verdict {
+    Low,
+    Cramped,
+    Sky,
+    Back,
+    Place(Place),
+}
+
 /// The places over `floors`, and why the others were rejected.
 pub fn places(rays: &TriangleScene, floors: &[Floor], s: &Scale) -> (Vec<Place>, Rejections) {
     let far = rays.bounds.extent().length() * 2.0 + 1.0;
     let dirs = sphere_dirs(PROBE_RAYS);
     let ring = ring_dirs(RING_RAYS);
     let quick: Vec<Vec3> = ring.iter().step_by(4).copied().collect();
-    let mut why = Rejections {
-        floors: floors.len(),
-        ..Rejections::default()
-    };
-    let mut out = Vec::new();
-    for f in floors {
+    // Each floor is judged on its own, on the machine's cores.
+    let verdicts = crate::parallel::map(floors.len(), |i| {
+        let f = &floors[i];
         if f.headroom < s.eye_height + s.margin {
-            why.low += 1;
-            continue;
+            return Verdict::Low;
         }
         let eye = f.point + Vec3::Y * s.eye_height;
         if rays.within(eye, s.margin) {
-            why.cramped += 1;
-            continue;
+            return Verdict::Cramped;
         }
         // A few level rays first: most outside places are told apart by them alone.
         let first = rays.probe(eye, &quick, far);
         if first.escaped * 2 >= first.rays {
-            why.sky += 1;
-            continue;
+            return Verdict::Sky;
         }
         let level = rays.probe(eye, &ring, far);
         if level.escaped_share() > MAX_ESCAPED {
-            why.sky += 1;
-            continue;
+            return Verdict::Sky;
         }
         let around = rays.probe(eye, &dirs, far);
         if !is_inside(&level, &around) {
-            why.back += 1;
-            continue;
+            return Verdict::Back;
         }
-        out.push(Place {
+        Verdict::Place(Place {
             cell: f.cell,
             floor: f.point,
             eye,
             openness: level.mean_front_distance,
             nearest: level.nearest,
-        });
+        })
+    });
+    let mut why = Rejections {
+        floors: floors.len(),
+        ..Rejections::default()
+    };
+    let mut out = Vec::new();
+    for v in verdicts {
+        match v {
+            Verdict::Low => why.low += 1,
+            Verdict::Cramped => why.cramped += 1,
+            Verdict::Sky => why.sky += 1,
+            Verdict::Back => why.back += 1,
+            Verdict::Place(p) => out.push(p),
+        }
     }
     (out, why)
 }
