@@ -68,6 +68,9 @@ struct Loader<'a> {
     objects: Vec<Object>,
     warnings: Vec<String>,
     meshes: HashMap<usize, Vec<PrimGeom>>,
+    /// Per primitive's first index: the first index of its copy with the winding turned over,
+    /// for nodes that mirror it.
+    mirrored: HashMap<u32, u32>,
     /// Per-vertex texture coordinates and colors, parallel to `vertices`.
     attributes: Vec<VertexAttributes>,
     materials: MaterialLoader,
@@ -88,6 +91,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         objects: Vec::new(),
         warnings: super::gltf_ext::unsupported_warnings(&document),
         meshes: HashMap::new(),
+        mirrored: HashMap::new(),
         attributes: Vec::new(),
         materials: MaterialLoader::new(base),
     };
@@ -394,7 +398,15 @@ impl Loader<'_> {
                 return Err(format!("node {} has a non-finite transform", node.index()));
             }
             if let Some(mesh) = node.mesh() {
-                for geom in self.mesh_geometry(&mesh)? {
+                // glTF: a node whose transform mirrors (negative determinant) turns its
+                // triangles' winding over, so that their fronts still face out. The renderer
+                // and the ray scene take counter-clockwise in world space as the front: such
+                // a node draws a copy of the indices with the winding turned over.
+                let mirrors = world.determinant() < 0.0;
+                for mut geom in self.mesh_geometry(&mesh)? {
+                    if mirrors {
+                        geom.first_index = self.mirrored_indices(&geom)?;
+                    }
                     let bounds = geom.bounds.transformed(&world);
                     let reach = bounds.min.abs().max(bounds.max.abs()).max_element();
                     if reach.is_nan() || reach > MAX_COORDINATE {
@@ -423,6 +435,27 @@ impl Loader<'_> {
             }
         }
         Ok(())
+    }
+
+    /// The first index of a copy of `geom`'s indices with each triangle's winding turned
+    /// over, appended to the shared indices on first use.
+    fn mirrored_indices(&mut self, geom: &PrimGeom) -> Result<u32, String> {
+        if let Some(&first) = self.mirrored.get(&geom.first_index) {
+            return Ok(first);
+        }
+        let start = geom.first_index as usize;
+        let range = start..start + geom.index_count as usize;
+        let first = u32::try_from(self.indices.len())
+            .ok()
+            .filter(|&f| f.checked_add(geom.index_count).is_some())
+            .ok_or_else(|| "scene exceeds 2^32 vertices or indices".to_string())?;
+        let turned: Vec<u32> = self.indices[range]
+            .chunks_exact(3)
+            .flat_map(|t| [t[0], t[2], t[1]])
+            .collect();
+        self.indices.extend_from_slice(&turned);
+        self.mirrored.insert(geom.first_index, first);
+        Ok(first)
     }
 
     /// The triangle primitives of `mesh`, loading them into the shared buffers on first use.
@@ -1140,6 +1173,59 @@ mod tests {
             assert_eq!(triangles(&scene), 25);
             check_consistent(&scene);
         }
+    }
+
+    /// A node that mirrors its mesh (negative determinant) keeps the mesh's fronts facing
+    /// out, as glTF says: it draws a copy of the indices with the winding turned over, shared
+    /// by every mirroring node of that mesh, and every triangle of every cube faces away from
+    /// its centre in world space (counter-clockwise, the renderer's front).
+    #[test]
+    fn mirroring_nodes_keep_their_fronts_facing_out() {
+        let dir = temp_dir("mirrored");
+        let mut b = GltfBuilder::default();
+        let cube = b.cube_mesh([1.0, 1.0, 1.0, 1.0]);
+        b.node(cube, [0.0, 0.0, 0.0]);
+        for (t, s) in [
+            ([3.0, 0.0, 0.0], [-1.0, 1.0, 1.0]),
+            ([6.0, 0.0, 0.0], [1.0, 2.0, -0.5]),
+        ] {
+            b.nodes.push(format!(
+                r#"{{"mesh":{cube},"translation":[{},{},{}],"scale":[{},{},{}]}}"#,
+                t[0], t[1], t[2], s[0], s[1], s[2]
+            ));
+        }
+        // Mirrored twice: not mirrored.
+        b.nodes.push(format!(
+            r#"{{"mesh":{cube},"translation":[9,0,0],"scale":[-1,-1,1]}}"#
+        ));
+        b.scene_nodes = Some(vec![0, 1, 2, 3]);
+        let path = write(&dir, "mirrored.glb", b.glb());
+        let (scene, _) = load_gltf(&path).expect("load");
+        check_consistent(&scene);
+        for (k, o) in scene.objects.iter().enumerate() {
+            let centre = o.bounds.center();
+            let idx =
+                &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
+            for t in idx.chunks_exact(3) {
+                let p = [t[0], t[1], t[2]].map(|i| {
+                    let v = scene.vertices[(o.vertex_offset + i) as usize].position;
+                    o.transform.transform_point3(Vec3::from_array(v))
+                });
+                let n = (p[1] - p[0]).cross(p[2] - p[0]);
+                let out = (p[0] + p[1] + p[2]) / 3.0 - centre;
+                assert!(n.dot(out) > 0.0, "object {k}: a triangle faces in");
+            }
+        }
+        let firsts: Vec<u32> = scene.objects.iter().map(|o| o.first_index).collect();
+        assert_eq!(
+            firsts[0], firsts[3],
+            "a double mirror draws the mesh as it is"
+        );
+        assert_eq!(
+            firsts[1], firsts[2],
+            "mirroring nodes share one turned copy"
+        );
+        assert_ne!(firsts[0], firsts[1]);
     }
 
     #[test]

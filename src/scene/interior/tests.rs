@@ -1149,3 +1149,93 @@ fn placed_meshes_give_the_hits_of_world_space_triangles() {
         assert!(near > 0, "{name}: no point near geometry");
     }
 }
+
+/// Placed meshes under every kind of transform a glTF node may carry (turned, stretched,
+/// mirrored, which turns the winding over), with single- and double-sided materials: every
+/// hit and distance query equals the all-world-space scene's, and a mirrored closed solid is
+/// still seen from outside only.
+#[test]
+fn placed_meshes_under_mirrors_and_stretches_hit_as_in_world_space() {
+    use glam::Quat;
+    let mut b = SceneBuilder::new("placed");
+    let sphere = b.proto(&Mesh::sphere(16, 8));
+    let pipe = b.proto(&Mesh::cylinder(32));
+    b.add(
+        &Mesh::cuboid(Vec3::new(-30.0, -0.1, -30.0), Vec3::new(30.0, 0.0, 30.0)),
+        Vec3::ONE,
+    );
+    let transforms = [
+        Mat4::from_translation(Vec3::new(-8.0, 1.0, 0.0)),
+        Mat4::from_scale_rotation_translation(
+            Vec3::new(3.0, 1.0, 0.5),
+            Quat::from_rotation_y(0.7),
+            Vec3::new(0.0, 2.0, 6.0),
+        ),
+        Mat4::from_translation(Vec3::new(6.0, 1.5, -5.0))
+            * Mat4::from_scale(Vec3::new(-2.0, 1.5, 2.0)),
+        Mat4::from_rotation_translation(Quat::from_rotation_z(1.2), Vec3::new(10.0, 3.0, 8.0))
+            * Mat4::from_scale(Vec3::new(1.0, -1.0, 4.0)),
+    ];
+    for (i, &t) in transforms.iter().enumerate() {
+        b.instance(sphere, t, Vec3::new(0.8, 0.3, 0.2));
+        b.instance(
+            pipe,
+            Mat4::from_translation(Vec3::new(0.0, 0.0, -12.0 + i as f32)) * t,
+            Vec3::ONE,
+        );
+    }
+    b.path("default", &[(Vec3::new(0.0, 5.0, 20.0), Vec3::ZERO); 2]);
+    let mut scene = b.finish();
+    scene.materials.push(Material {
+        double_sided: true,
+        ..Material::default()
+    });
+    // Every other object double-sided: the spheres and pipes are closed solids, so they stay
+    // one-sided from outside; the ground slab too.
+    for o in scene.objects.iter_mut().skip(1).step_by(2) {
+        o.material = Some(0);
+    }
+    let placed = TriangleScene::placing(&scene).expect("triangles");
+    let world = TriangleScene::world_only(&scene).expect("triangles");
+    assert_eq!(placed.placed(), transforms.len() * 2);
+    assert_eq!(placed.len(), world.len());
+    assert_eq!(placed.bounds, world.bounds);
+    let dirs = rays::sphere_dirs(128);
+    let (mut hits, mut back) = (0, 0);
+    let mut points = Vec::new();
+    for x in -6..=6 {
+        for z in -6..=6 {
+            for y in [0.5f32, 1.5, 3.0] {
+                // Off the meshes' planes of symmetry: a ray in the plane of a box's face
+                // may miss it in either BVH.
+                points.push(Vec3::new(x as f32 * 2.1 + 0.013, y, z as f32 * 2.1 + 0.029));
+            }
+        }
+    }
+    points.extend(
+        transforms
+            .iter()
+            .map(|t| t.transform_point3(Vec3::new(0.011, 0.007, 0.013))),
+    );
+    for &p in &points {
+        for &d in &dirs {
+            let strip = |h: Option<rays::Hit>| h.map(|h| rays::Hit { triangle: 0, ..h });
+            let (a, w) = (
+                strip(placed.hit(p, d, 200.0)),
+                strip(world.hit(p, d, 200.0)),
+            );
+            assert_eq!(a, w, "from {p} along {d}");
+            hits += usize::from(w.is_some());
+            back += usize::from(w.is_some_and(|h| !h.front));
+        }
+        for r in [0.1, 0.6, 2.0] {
+            assert_eq!(placed.within(p, r), world.within(p, r), "{p} within {r}");
+        }
+    }
+    assert!(hits > points.len() * dirs.len() / 2, "{hits} hits");
+    // The solids' centres look out at their insides' back faces, mirrored or not.
+    assert!(
+        back >= transforms.len() * dirs.len() / 2,
+        "{back} back hits"
+    );
+}
