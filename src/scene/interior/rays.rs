@@ -284,8 +284,8 @@ impl TriangleScene {
     }
 
     /// The closest hit along a unit `dir` up to `t_max`, with the side it hit; none for a ray
-    /// that is not finite. Of two coincident surfaces (hits at the same distance to
-    /// [`SAME_DISTANCE`]), the one that faces the ray, as the renderer shows it.
+    /// that is not finite. Of two coincident surfaces (hits at the same distance, to a
+    /// relative 1e-5), the one that faces the ray, as the renderer shows it.
     pub fn hit(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
         if !(origin.is_finite() && dir.is_finite()) || t_max.is_nan() {
             return None;
