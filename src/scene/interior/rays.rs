@@ -18,7 +18,7 @@ use crate::scene::{Aabb, Object, Scene};
 
 mod build;
 
-use build::padded;
+use build::{bvh_box, padded, triangle};
 
 /// One ray hit.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -189,14 +189,7 @@ impl TriangleScene {
         let t = &self.meshes[inst.mesh as usize].triangles[id];
         match &inst.place {
             None => *t,
-            Some(p) => {
-                let [a, b, c] = placed_corners(t, p.to_world);
-                Triangle {
-                    v0: a.into(),
-                    v1: b.into(),
-                    v2: c.into(),
-                }
-            }
+            Some(p) => triangle(placed_corners(t, p.to_world)),
         }
     }
 
@@ -372,18 +365,8 @@ impl TriangleScene {
         let local = match &inst.place {
             None => *query,
             Some(pl) => {
-                let mut b = Aabb::EMPTY;
-                for c in 0..8 {
-                    let pick = |bit: usize, lo: f32, hi: f32| if c & bit == 0 { lo } else { hi };
-                    let corner = Vec3::new(
-                        pick(1, query.min.x, query.max.x),
-                        pick(2, query.min.y, query.max.y),
-                        pick(4, query.min.z, query.max.z),
-                    );
-                    b.grow(pl.to_local.transform_point3(corner));
-                }
-                let b = padded(b);
-                BvhAabb::new(b.min.into(), b.max.into())
+                let world = Aabb::new(query.min.into(), query.max.into());
+                bvh_box(padded(world.transformed(&pl.to_local)))
             }
         };
         let mut found = false;

@@ -1086,6 +1086,52 @@ fn the_path_checks_verdict_is_kept_in_the_cache_and_said_again() {
     std::fs::remove_file(&dir).expect("clean up");
 }
 
+/// What [`same_rays`] counted.
+struct SameRays {
+    hits: usize,
+    back: usize,
+    near: usize,
+}
+
+/// Asserts that `placed` and `world` give the same hit (all but the triangle's id, which
+/// each numbers its own way) along every one of `dirs` from every one of `points` (up to
+/// `far`), and the same answer to whether geometry lies within each of `radii` of each
+/// point. Counts the hits, those on back faces, and the points within a radius.
+fn same_rays(
+    name: &str,
+    placed: &TriangleScene,
+    world: &TriangleScene,
+    points: &[Vec3],
+    dirs: &[Vec3],
+    far: f32,
+    radii: &[f32],
+) -> SameRays {
+    let strip = |h: Option<rays::Hit>| h.map(|h| rays::Hit { triangle: 0, ..h });
+    let mut same = SameRays {
+        hits: 0,
+        back: 0,
+        near: 0,
+    };
+    for &p in points {
+        for &d in dirs {
+            let w = strip(world.hit(p, d, far));
+            assert_eq!(
+                strip(placed.hit(p, d, far)),
+                w,
+                "{name}: from {p} along {d}"
+            );
+            same.hits += usize::from(w.is_some());
+            same.back += usize::from(w.is_some_and(|h| !h.front));
+        }
+        for &r in radii {
+            let inside = world.within(p, r);
+            assert_eq!(placed.within(p, r), inside, "{name}: {p} within {r}");
+            same.near += usize::from(inside);
+        }
+    }
+    same
+}
+
 /// Objects that share a mesh keep it once and are placed by their transforms: every hit (its
 /// distance, side, normal and flat colour), every distance query and the bounds are those of
 /// one world-space BVH over all the triangles, on each built-in scene that shares meshes.
@@ -1126,25 +1172,23 @@ fn placed_meshes_give_the_hits_of_world_space_triangles() {
         }
         let dirs = rays::sphere_dirs(96);
         let far = b.extent().length() * 2.0;
-        let (mut hits, mut near) = (0, 0);
+        let same = same_rays(
+            name,
+            &placed,
+            &world,
+            &points,
+            &dirs,
+            far,
+            &[0.05, 0.3, 1.5],
+        );
         for &p in &points {
-            for &d in &dirs {
-                let (a, w) = (placed.hit(p, d, far), world.hit(p, d, far));
-                let strip = |h: Option<rays::Hit>| h.map(|h| rays::Hit { triangle: 0, ..h });
-                assert_eq!(strip(a), strip(w), "{name}: from {p} along {d}");
-                hits += usize::from(w.is_some());
-            }
             assert_eq!(
                 placed.one_colour_and_back(p, &dirs, far),
                 world.one_colour_and_back(p, &dirs, far),
                 "{name}: from {p}"
             );
-            for r in [0.05, 0.3, 1.5] {
-                let inside = world.within(p, r);
-                assert_eq!(placed.within(p, r), inside, "{name}: {p} within {r}");
-                near += usize::from(inside);
-            }
         }
+        let (hits, near) = (same.hits, same.near);
         assert!(hits > points.len() * dirs.len() / 2, "{name}: {hits} hits");
         assert!(near > 0, "{name}: no point near geometry");
     }
@@ -1201,7 +1245,6 @@ fn placed_meshes_under_mirrors_and_stretches_hit_as_in_world_space() {
     assert_eq!(placed.len(), world.len());
     assert_eq!(placed.bounds, world.bounds);
     let dirs = rays::sphere_dirs(128);
-    let (mut hits, mut back) = (0, 0);
     let mut points = Vec::new();
     for x in -6..=6 {
         for z in -6..=6 {
@@ -1217,21 +1260,16 @@ fn placed_meshes_under_mirrors_and_stretches_hit_as_in_world_space() {
             .iter()
             .map(|t| t.transform_point3(Vec3::new(0.011, 0.007, 0.013))),
     );
-    for &p in &points {
-        for &d in &dirs {
-            let strip = |h: Option<rays::Hit>| h.map(|h| rays::Hit { triangle: 0, ..h });
-            let (a, w) = (
-                strip(placed.hit(p, d, 200.0)),
-                strip(world.hit(p, d, 200.0)),
-            );
-            assert_eq!(a, w, "from {p} along {d}");
-            hits += usize::from(w.is_some());
-            back += usize::from(w.is_some_and(|h| !h.front));
-        }
-        for r in [0.1, 0.6, 2.0] {
-            assert_eq!(placed.within(p, r), world.within(p, r), "{p} within {r}");
-        }
-    }
+    let same = same_rays(
+        "placed",
+        &placed,
+        &world,
+        &points,
+        &dirs,
+        200.0,
+        &[0.1, 0.6, 2.0],
+    );
+    let (hits, back) = (same.hits, same.back);
     assert!(hits > points.len() * dirs.len() / 2, "{hits} hits");
     // The solids' centres look out at their insides' back faces, mirrored or not.
     assert!(

@@ -137,16 +137,14 @@ pub(super) fn of_objects(
                 m
             }
         };
-        let material = scene.object_material(i);
-        let two_sided = material.is_some_and(|m| m.double_sided)
+        let two_sided = scene.object_material(i).is_some_and(|m| m.double_sided)
             && !closed_solid(&parts.meshes[mesh as usize].placed_in_order(o.transform));
-        // A textured object is never one flat colour.
-        let textured = material.is_some_and(|m| m.base_color_texture.is_some());
+        let to_local = o.transform.inverse();
         let shade =
-            (colours && !textured).then(|| (o.transform.inverse().transpose(), o.color.truncate()));
+            flat_coloured(scene, i, colours).then(|| (to_local.transpose(), o.color.truncate()));
         let place = Placement {
             to_world: o.transform,
-            to_local: o.transform.inverse(),
+            to_local,
             two_sided,
             shade,
         };
@@ -164,11 +162,8 @@ fn gather_objects(scene: &Scene, objects: impl Iterator<Item = usize>, colours: 
     let mut sides = Vec::new();
     for i in objects {
         let o = &scene.objects[i];
-        // A textured object is never one flat colour.
-        let textured = scene
-            .object_material(i)
-            .is_some_and(|m| m.base_color_texture.is_some());
-        let normal_matrix = (colours && !textured).then(|| o.transform.inverse().transpose());
+        let normal_matrix =
+            flat_coloured(scene, i, colours).then(|| o.transform.inverse().transpose());
         let first = o.first_index as usize;
         let Some(idx) = scene
             .indices
@@ -235,14 +230,13 @@ impl Parts {
 
     /// Places mesh `mesh` (`place` `None`: the world mesh) with world bounds `bounds`.
     fn place(&mut self, mesh: u32, place: Option<Placement>, bounds: Aabb) {
-        self.bounds.grow(bounds.min);
-        self.bounds.grow(bounds.max);
+        self.bounds = self.bounds.union(&bounds);
         let b = if place.is_some() {
             padded(bounds)
         } else {
             bounds
         };
-        self.boxes.push(BvhAabb::new(b.min.into(), b.max.into()));
+        self.boxes.push(bvh_box(b));
         self.instances.push(Instance {
             mesh,
             place,
@@ -309,11 +303,7 @@ impl RayMesh {
                 continue;
             }
             t.iter().for_each(|&p| bounds.grow(p));
-            tris.push(Triangle {
-                v0: t[0].into(),
-                v1: t[1].into(),
-                v2: t[2].into(),
-            });
+            tris.push(triangle(*t));
             sides.push(two_sided.get(i).copied().unwrap_or(false));
             if let Some(colours) = colours {
                 flat.push(colours.get(i).copied().unwrap_or_else(|| {
@@ -416,8 +406,7 @@ impl LocalMesh {
             .map(|t| {
                 let mut b = Aabb::EMPTY;
                 t.iter().for_each(|&p| b.grow(p));
-                let b = padded(b);
-                BvhAabb::new(b.min.into(), b.max.into())
+                bvh_box(padded(b))
             })
             .collect();
         let mut time = Duration::ZERO;
@@ -425,14 +414,7 @@ impl LocalMesh {
         let order = &bvh.primitive_indices;
         let triangles = order
             .iter()
-            .map(|&i| {
-                let t = self.triangles[i as usize];
-                Triangle {
-                    v0: t[0].into(),
-                    v1: t[1].into(),
-                    v2: t[2].into(),
-                }
-            })
+            .map(|&i| triangle(self.triangles[i as usize]))
             .collect();
         let corners = if self.corners.is_empty() {
             Vec::new()
@@ -454,11 +436,30 @@ impl LocalMesh {
 pub(super) fn padded(b: Aabb) -> Aabb {
     let size = b.extent().max_element().max(0.0);
     let far = b.min.abs().max(b.max.abs()).max_element();
-    let m = PLACED_BOX_MARGIN * size + 1e-6 * far + 1e-6;
-    Aabb {
-        min: b.min - Vec3::splat(m),
-        max: b.max + Vec3::splat(m),
+    b.enlarged(PLACED_BOX_MARGIN * size + 1e-6 * far + 1e-6)
+}
+
+/// `b` as the BVH builder's box.
+pub(super) fn bvh_box(b: Aabb) -> BvhAabb {
+    BvhAabb::new(b.min.into(), b.max.into())
+}
+
+/// The BVH's triangle of `corners`.
+pub(super) fn triangle([a, b, c]: [Vec3; 3]) -> Triangle {
+    Triangle {
+        v0: a.into(),
+        v1: b.into(),
+        v2: c.into(),
     }
+}
+
+/// Whether object `i`'s hits get flat colours, when `colours` are gathered at all: a
+/// textured object is never one flat colour.
+fn flat_coloured(scene: &Scene, i: usize, colours: bool) -> bool {
+    colours
+        && scene
+            .object_material(i)
+            .is_none_or(|m| m.base_color_texture.is_none())
 }
 
 /// The data of the corners of triangle `t` (indices relative to `vertex_offset`) that their
