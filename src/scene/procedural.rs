@@ -669,15 +669,19 @@ fn seat_mesh() -> Mesh {
 
 /// The walk: along the first aisle, round the end of the rows, back along a middle aisle, out
 /// past the first bays and a look over the lot from its far edge. Turns have keys just before and
-/// after them so that the spline stays in the aisles (`tests/gpu/builtin_paths.rs`).
+/// after them so that the spline stays in the aisles (`tests/gpu/builtin_paths.rs`). Both aisles
+/// walked along are in front of pillars: the movers drive along the other aisles (`movers.rs`),
+/// which the walk only crosses.
 fn parking_path(b: &mut SceneBuilder, lot: &ParkingLot) {
     let (rows, dz) = (lot.rows, lot.dz);
     let (w, d) = (lot.width(), lot.depth());
     let e = 1.7;
     // Between the cars of row `r` (up to z = r dz + 4.7) and the pillars in front of row r + 1
     // (from z = r dz + 6.9): the eye keeps more than 1 m from both.
+    // Only even rows have pillar-lined aisles behind them (the odd ones are the movers' lanes).
     let aisle = |r: i32| r as f32 * dz + 5.8;
-    let (a0, am) = (aisle(0), aisle((rows - 1).max(0) / 2));
+    let middle = (rows - 1).max(0) / 2;
+    let (a0, am) = (aisle(0), aisle(middle + (middle & 1)));
     let at = |x: f32, z: f32| Vec3::new(x, e, z);
     let mut keys = vec![
         (at(-4.0, a0), at(10.0, a0)),

@@ -66,6 +66,50 @@ fn parking_path_stays_out_of_the_cars() {
 }
 
 #[test]
+fn parking_walk_crosses_the_driving_lanes_and_never_follows_one() {
+    // The parking's movers drive along the aisles free of pillars, out of the lot and back in.
+    // A walk along such an aisle has cars drive through the eye (their roofs are 0.1 m under
+    // it) for much of its length. The walk may cross a lane, as a walker does, but not travel
+    // along it: within a car's box, widened by 0.3 m, the eye moves at most 3 m along x.
+    use coherent::scene::movers::Movers;
+    for scale in [0.25, 0.5, 1.0, 4.0] {
+        let mut scene = Scene::load("parking", scale, 4096).expect("parking");
+        let movers = Movers::add(&mut scene, 200);
+        // Each car keeps its z and height on its aisle: its box at frame 0 gives its lane.
+        let mut lanes = Vec::new();
+        movers
+            .for_each_at(0, |_, b, _| {
+                lanes.push(b.enlarged(0.3));
+                Ok(())
+            })
+            .expect("movers");
+        let in_lane = |eye: glam::Vec3| {
+            lanes
+                .iter()
+                .any(|b| (b.min.z..=b.max.z).contains(&eye.z) && eye.y <= b.max.y)
+        };
+        let path = scene.default_path().expect("path").clone();
+        let frames = path.natural_frames() * 4;
+        // The x where the eye entered the lane it is in, if any.
+        let mut entered: Option<f32> = None;
+        let mut longest = 0.0f32;
+        for i in 0..=frames {
+            let eye = path.sample(i, frames + 1).eye;
+            if in_lane(eye) {
+                let x0 = *entered.get_or_insert(eye.x);
+                longest = longest.max((eye.x - x0).abs());
+            } else {
+                entered = None;
+            }
+        }
+        assert!(
+            longest <= 3.0,
+            "x{scale}: the walk follows a driving lane for {longest:.1} m"
+        );
+    }
+}
+
+#[test]
 fn every_builtin_path_passes_the_path_check_at_every_frame() {
     // What a command checks before it walks a path (and warns about), at every frame rather
     // than the command's 120 samples: no frame stands inside geometry or closer to it than the
