@@ -16,8 +16,9 @@ pub struct SceneArgs {
     /// Built-in scene (city, parking, powerplant, cornell, hall) or a .gltf/.glb path.
     #[arg(long)]
     pub scene: String,
-    /// Size multiplier of a built-in scene (1 = default). `walk` takes a list (e.g. 1,4,16) and
-    /// adds a scaling table.
+    /// Size multiplier (1 = default): a built-in scene grows (more blocks, rows or rooms; up to
+    /// 64), a glTF file's coordinates are multiplied (for a model not in meters at life size;
+    /// 0.001 to 1000). `walk` takes a list (e.g. 1,4,16) and adds a scaling table.
     #[arg(long, default_value = "1", value_delimiter = ',')]
     pub scale: Vec<f32>,
     /// Split glTF meshes into chunks of at most this many triangles (0: don't split).

@@ -1180,6 +1180,47 @@ mod tests {
     /// by every mirroring node of that mesh, and every triangle of every cube faces away from
     /// its centre in world space (counter-clockwise, the renderer's front).
     #[test]
+    fn a_file_loaded_at_a_scale_is_magnified_about_the_origin() {
+        let dir = temp_dir("magnified");
+        let mut b = GltfBuilder::default();
+        let cube = b.cube_mesh([1.0, 1.0, 1.0, 1.0]);
+        b.node(cube, [0.0, 0.0, 0.0]);
+        b.node(cube, [3.0, 1.0, -2.0]);
+        b.scene_nodes = Some(vec![0, 1]);
+        let path = write(&dir, "magnified.glb", b.glb());
+        let name = path.to_str().expect("utf-8 path");
+        let one = crate::scene::Scene::load(name, 1.0, 4096).expect("load at 1");
+        let f = 2.5;
+        let big = crate::scene::Scene::load(name, f, 4096).expect("load at 2.5");
+        assert_eq!(one.objects.len(), big.objects.len());
+        let close = |a: Vec3, b: Vec3| (a - b).length() <= 1e-4 * (1.0 + b.length());
+        for (a, b) in one.objects.iter().zip(&big.objects) {
+            assert!(close(b.bounds.min, a.bounds.min * f) && close(b.bounds.max, a.bounds.max * f));
+            for i in 0..a.vertex_count {
+                let v = Vec3::from_array(one.vertices[(a.vertex_offset + i) as usize].position);
+                let w = Vec3::from_array(big.vertices[(b.vertex_offset + i) as usize].position);
+                assert!(close(
+                    b.transform.transform_point3(w),
+                    a.transform.transform_point3(v) * f
+                ));
+            }
+        }
+        assert_eq!(one.paths.len(), big.paths.len());
+        for (p, q) in one.paths.iter().zip(&big.paths) {
+            for (k, l) in p.keys.iter().zip(&q.keys) {
+                assert!(close(l.eye, k.eye * f) && close(l.target, k.target * f));
+            }
+        }
+        for bad in [0.0, -1.0, 1e4, f32::NAN] {
+            let Err(e) = crate::scene::Scene::load(name, bad, 4096) else {
+                panic!("scale {bad} loaded");
+            };
+            let e = e.to_string();
+            assert!(e.contains("0.001 to 1000"), "{e}");
+        }
+    }
+
+    #[test]
     fn mirroring_nodes_keep_their_fronts_facing_out() {
         let dir = temp_dir("mirrored");
         let mut b = GltfBuilder::default();

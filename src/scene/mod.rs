@@ -42,6 +42,10 @@ pub struct CameraPath {
     pub keys: Vec<CameraPose>,
 }
 
+/// The factors a glTF file's coordinates may be multiplied by when it is loaded (`--scale`):
+/// from a model in millimetres to one at 1/1000 of life size.
+pub const GLTF_SCALES: std::ops::RangeInclusive<f32> = 0.001..=1000.0;
+
 /// A scene: shared geometry, objects, walkthrough paths and a sun direction.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -128,8 +132,31 @@ impl Scene {
             .ok_or_else(|| crate::Error::Input(format!("scene \"{}\" has no paths", self.name)))
     }
 
+    /// Multiplies every position of the scene by `factor` (> 0) about the origin: the objects'
+    /// transforms and boxes, and the paths' eyes and targets. For a model made in other units
+    /// than meters, or at another size than life size (the renderer's near plane is 0.1 and
+    /// the interior walk's eye 1.7 units high where the storeys allow).
+    pub fn magnify(&mut self, factor: f32) {
+        let m = Mat4::from_scale(Vec3::splat(factor));
+        for o in &mut self.objects {
+            o.transform = m * o.transform;
+            o.bounds = Aabb {
+                min: o.bounds.min * factor,
+                max: o.bounds.max * factor,
+            };
+        }
+        for p in &mut self.paths {
+            for k in &mut p.keys {
+                k.eye *= factor;
+                k.target *= factor;
+            }
+        }
+    }
+
     /// Loads a built-in scene by name or a .gltf/.glb file by path (large meshes are split into
-    /// chunks of at most `chunk_triangles`). Warnings are printed to stderr.
+    /// chunks of at most `chunk_triangles`). `scale` multiplies a built-in scene's size (its
+    /// blocks, rows or rooms; (0, 64]) and a glTF file's coordinates ([`Scene::magnify`];
+    /// [`GLTF_SCALES`]). Warnings are printed to stderr.
     pub fn load(name_or_path: &str, scale: f32, chunk_triangles: u32) -> crate::Result<Scene> {
         Scene::load_with(name_or_path, scale, chunk_triangles, None)
     }
@@ -154,9 +181,20 @@ impl Scene {
     ) -> crate::Result<Scene> {
         let lower = name_or_path.to_lowercase();
         if lower.ends_with(".gltf") || lower.ends_with(".glb") {
+            if !(scale.is_finite() && GLTF_SCALES.contains(&scale)) {
+                return Err(crate::Error::Input(format!(
+                    "scale {scale} is out of range for a glTF file ({} to {}: it multiplies \
+                     the file's coordinates)",
+                    GLTF_SCALES.start(),
+                    GLTF_SCALES.end()
+                )));
+            }
             let (mut scene, warnings) = gltf::load_gltf(std::path::Path::new(name_or_path))?;
             for w in warnings {
                 eprintln!("warning: {w}");
+            }
+            if scale != 1.0 {
+                scene.magnify(scale);
             }
             chunk::split_large_objects(&mut scene, chunk_triangles);
             match cache_dir {

@@ -87,6 +87,35 @@ pub struct InteriorWalk {
 /// Finds the interior walk over `rays`; `Err` says in one line why there is none.
 pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWalk, String> {
     let scale = places::scale(rays, params.eye_height, params.margin, params.grid);
+    find_at(rays, params, &scale).map_err(|why| match small_model_hint(&scale) {
+        Some(hint) => format!("{why}; {hint}"),
+        None => why,
+    })
+}
+
+/// Below this eye height (in scene units) a model is probably smaller than life size in
+/// meters: the renderer's near plane (0.1) is then a large part of a storey.
+const SMALL_EYE: f32 = 0.5;
+
+/// For a model whose storeys are far lower than a person in meters, what to do about it.
+fn small_model_hint(scale: &places::Scale) -> Option<String> {
+    (scale.eye_height < SMALL_EYE).then(|| {
+        format!(
+            "the eye would stand {:.2} units over the floors ({} in a model in meters at life \
+             size): --scale N multiplies a glTF file's coordinates by N",
+            scale.eye_height,
+            places::EYE_METERS
+        )
+    })
+}
+
+/// [`find`] at the scale found.
+fn find_at(
+    rays: &TriangleScene,
+    params: &InteriorParams,
+    scale: &places::Scale,
+) -> Result<InteriorWalk, String> {
+    let scale = *scale;
     let floors = places::floors(rays, scale.cell);
     if floors.is_empty() {
         return Err("no surface faces up".into());

@@ -27,7 +27,7 @@ const HEIGHT_PERCENTILE: f32 = 0.9;
 /// is a roofless level, whose storey height the walls' tops give.
 const ROOFED_SHARE: f32 = 0.25;
 /// Standard eye height in meters.
-const EYE_METERS: f32 = 1.7;
+pub(super) const EYE_METERS: f32 = 1.7;
 /// Most surfaces followed down one column.
 const MAX_LAYERS: usize = 64;
 

@@ -366,6 +366,27 @@ fn double_sided_materials_count_from_either_side() {
 }
 
 #[test]
+fn a_small_model_without_an_inside_is_told_about_the_scale() {
+    // Rooms turned inside out have no inside at any size; at 1/32 of life size the reason also
+    // says how high the eye would stand and that --scale magnifies a glTF file.
+    let mut l = Level::default();
+    row_of_rooms(&mut l, 0.0, false);
+    for t in &mut l.tris {
+        t.swap(1, 2);
+    }
+    let mut scene = l.scene(false);
+    let err = interior_path(&scene, &InteriorParams::default()).expect_err("no inside");
+    assert!(!err.to_string().contains("--scale"), "{err}");
+    scene.magnify(1.0 / 32.0);
+    let err = interior_path(&scene, &InteriorParams::default()).expect_err("no inside");
+    let text = err.to_string();
+    assert!(
+        text.contains("back faces") && text.contains("--scale N"),
+        "{text}"
+    );
+}
+
+#[test]
 fn the_light_path_is_inside_above_the_eye_and_lights_the_floor() {
     let mut l = Level::default();
     let (rooms, doors) = house(&mut l);
