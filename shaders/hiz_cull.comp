@@ -16,6 +16,9 @@ struct ObjectBounds {
     vec4 bmin;
     vec4 bmax;
     uvec4 draw; // index count, first index, vertex offset (as int), unused
+    // its group (the objects that bind what it binds): the first command slot of the group in
+    // a phase's stretch, the counter of the group's phase-1 draws, of its phase-2 draws, unused
+    uvec4 group;
 };
 struct DrawCommand {
     uint index_count;
@@ -28,8 +31,9 @@ struct DrawCommand {
 layout(std430, set = 0, binding = 0) readonly buffer Bounds { ObjectBounds objects[]; };
 layout(std430, set = 0, binding = 1) buffer Flags { uint flags[]; };
 layout(std430, set = 0, binding = 2) writeonly buffer Draws { DrawCommand draws[]; };
-// count[p - 1]: draws of phase p; triangles[p - 1]: their triangles (report only).
-layout(std430, set = 0, binding = 3) buffer Counters { uint count[2]; uint triangles[2]; };
+// triangles[p - 1]: the triangles of phase p's draws (report only); count[c]: the draws of one
+// group in one phase (ObjectBounds.group.yz name them).
+layout(std430, set = 0, binding = 3) buffer Counters { uint triangles[2]; uint spare[2]; uint count[]; };
 layout(set = 0, binding = 4) uniform sampler2D pyramid;
 
 layout(push_constant) uniform Push {
@@ -48,9 +52,10 @@ const uint DRAWN_EARLY = 2u;
 
 void append(uint phase, uint i) {
     uvec4 d = objects[i].draw;
-    uint slot = atomicAdd(count[phase - 1u], 1u);
+    uvec4 g = objects[i].group;
+    uint slot = atomicAdd(count[phase == 1u ? g.y : g.z], 1u);
     atomicAdd(triangles[phase - 1u], d.x / 3u);
-    draws[(phase - 1u) * pc.info.x + slot] = DrawCommand(d.x, 1u, d.y, int(d.z), i);
+    draws[(phase - 1u) * pc.info.x + g.x + slot] = DrawCommand(d.x, 1u, d.y, int(d.z), i);
 }
 
 void main() {

@@ -20,10 +20,18 @@
 //! near plane are visible; a box is culled only when its nearest depth, less a small margin, is
 //! farther than the farthest depth of every pyramid texel under its screen rectangle), so an
 //! object that covers a pixel of the final image is always drawn — on the first frame (no flags,
-//! nothing in phase 1) and after a camera cut alike. Moving objects (`--movers`) are not handled.
+//! nothing in phase 1) and after a camera cut alike. Moving objects (`--movers`): their boxes
+//! are uploaded again before a frame when the renderer's have changed.
 //!
-//! Counts come from the recorder: dispatches (2 cull + one per pyramid level), 2 indirect
-//! draws, pipeline binds; the objects and triangles those draws drew are read back from the
+//! Materials: objects that bind the same things (texture set, alpha cutoff, two-sided) form a
+//! group, each with its own stretch of the command buffer and its own counter per phase; each
+//! phase draws a group with one indirect draw after binding what the group's objects bind in
+//! the forward pass. So textured, masked and two-sided objects look as they do with every
+//! other algorithm, and masked ones write depth only where they are drawn (the pyramid sees
+//! through their holes). A scene without materials is one group.
+//!
+//! Counts come from the recorder: dispatches (2 cull + one per pyramid level), an indirect
+//! draw per group and phase, pipeline and texture binds; the objects and triangles those draws drew are read back from the
 //! GPU's counters after the frame (for the report only).
 
 pub mod pyramid;
@@ -49,7 +57,9 @@ use super::{FrameResult, Renderer};
 /// Objects per workgroup of the culling shader (hiz_cull.comp: 64).
 const GROUP: u32 = 64;
 /// Bytes of one object's record in the bounds buffer (hiz_cull.comp `ObjectBounds`).
-const BOUNDS_BYTES: u64 = 48;
+const BOUNDS_BYTES: u64 = 64;
+/// Bytes of the counters buffer before the per-group draw counts (hiz_cull.comp `Counters`).
+const COUNTS_AT: u64 = 16;
 /// Bytes of one `VkDrawIndexedIndirectCommand`.
 const COMMAND_BYTES: u64 = 20;
 /// Push constants of the culling shader: view_proj, info, screen.
@@ -94,6 +104,8 @@ pub struct HizCuller {
     pyramid_valid: bool,
     /// Objects drawn by phase 1 and phase 2 of the last frame (read back).
     last_phases: [u32; 2],
+    /// The objects of one draw class: their commands' stretch and one object of theirs.
+    groups: Vec<Group>,
     /// Device time of each pass of the last frame ([`PASSES`]), from timestamps.
     last_pass_ms: [f64; 5],
     /// Per object: world bounds and draw parameters (the descriptor set points at it).
@@ -116,12 +128,16 @@ impl HizCuller {
         let ctx = renderer.context().clone();
         let n = renderer.draw_ranges().len() as u32;
         check_device(&ctx, n)?;
-        let mut records: Vec<u32> = Vec::with_capacity(n as usize * 12);
-        for o in renderer.draw_ranges() {
+        let ranges: Vec<super::DrawRange> = renderer.draw_ranges().collect();
+        let (groups, group_of) = Group::of(&ranges);
+        let g = groups.len() as u32;
+        let mut records: Vec<u32> = Vec::with_capacity(n as usize * 16);
+        for (o, &k) in ranges.iter().zip(&group_of) {
             let (lo, hi) = (o.bounds.min, o.bounds.max);
             let corners = [lo.x, lo.y, lo.z, 0.0, hi.x, hi.y, hi.z, 0.0];
             records.extend(corners.map(f32::to_bits));
             records.extend([o.index_count, o.first_index, o.vertex_offset as u32, 0]);
+            records.extend([groups[k as usize].first_slot, k, g + k, 0]);
         }
         let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
         let indirect =
@@ -138,7 +154,7 @@ impl HizCuller {
         let counters = Buffer::new(
             &ctx,
             "hiz counters",
-            16,
+            COUNTS_AT + 8 * u64::from(g),
             indirect | vk::BufferUsageFlags::TRANSFER_DST,
             MemoryLocation::GpuToCpu,
         )?;
@@ -174,6 +190,7 @@ impl HizCuller {
             pyramid,
             pyramid_valid: false,
             last_phases: [0; 2],
+            groups,
             last_pass_ms: [0.0; 5],
             bounds,
             flags,
@@ -193,7 +210,8 @@ impl HizCuller {
         for (i, o) in r.draw_ranges().take(self.object_count as usize).enumerate() {
             let (lo, hi) = (o.bounds.min, o.bounds.max);
             let corners = [lo.x, lo.y, lo.z, 0.0, hi.x, hi.y, hi.z, 0.0];
-            self.bounds.write(i * 48, bytes_of(&corners))?;
+            self.bounds
+                .write(i * BOUNDS_BYTES as usize, bytes_of(&corners))?;
         }
         self.bounds_version = r.bounds_version();
         Ok(())
@@ -223,21 +241,26 @@ impl HizCuller {
     }
 
     /// Reads the draw commands of both phases from the readback copy: each command's
-    /// `firstInstance` is its object.
-    fn read_drawn(&mut self, phases: [u32; 2]) -> Result<()> {
+    /// `firstInstance` is its object. `counts` holds each group's draws, phase 1's groups first.
+    fn read_drawn(&mut self, counts: &[u32]) -> Result<()> {
         self.drawn.clear();
         let Some(bytes) = self.readback.as_ref().and_then(|b| b.mapped()) else {
             return Ok(());
         };
         let n = self.object_count as usize;
-        for (phase, &count) in phases.iter().enumerate() {
-            for k in 0..(count as usize).min(n) {
-                let at = ((phase * n + k) * COMMAND_BYTES as usize) + 16;
-                let word = bytes.get(at..at + 4).ok_or_else(|| {
-                    Error::Alloc("hiz draws readback is shorter than its commands".into())
-                })?;
-                self.drawn
-                    .push(u32::from_le_bytes([word[0], word[1], word[2], word[3]]));
+        let groups = self.groups.len();
+        for phase in 0..2 {
+            for (k, g) in self.groups.iter().enumerate() {
+                let count = counts.get(phase * groups + k).copied().unwrap_or(0);
+                for slot in 0..(count.min(g.size)) as usize {
+                    let command = phase * n + g.first_slot as usize + slot;
+                    let at = command * COMMAND_BYTES as usize + 16;
+                    let word = bytes.get(at..at + 4).ok_or_else(|| {
+                        Error::Alloc("hiz draws readback is shorter than its commands".into())
+                    })?;
+                    self.drawn
+                        .push(u32::from_le_bytes([word[0], word[1], word[2], word[3]]));
+                }
             }
         }
         Ok(())
@@ -294,9 +317,14 @@ impl HizCuller {
         let frame_ms = frame_time.as_secs_f64() * 1e3;
         let cpu_ms = r.cpu_ms(start, frame_time);
         self.pyramid_valid = true;
-        let (phases, triangles) = self.read_counters()?;
+        let (counts, triangles) = self.read_counters()?;
+        let groups = self.groups.len();
+        let phases = [
+            counts[..groups].iter().sum::<u32>(),
+            counts[groups..].iter().sum::<u32>(),
+        ];
         self.last_phases = phases;
-        self.read_drawn(phases)?;
+        self.read_drawn(&counts)?;
         let objects = phases[0] + phases[1];
         let movers = r.mover_objects();
         let moving = self.drawn.iter().filter(|o| movers.contains(o)).count();
@@ -326,7 +354,8 @@ impl HizCuller {
     fn record_phase(&mut self, r: &mut Renderer, phase: u32, view_proj: &[f32; 16]) -> Result<()> {
         let rec = r.recorder_mut();
         if phase == 1 {
-            rec.fill_buffer(&self.counters, 0, 16, 0);
+            let bytes = COUNTS_AT + 8 * self.groups.len() as u64;
+            rec.fill_buffer(&self.counters, 0, bytes, 0);
             rec.memory_barrier(Access::TransferWrite, Access::ComputeReadWrite);
         } else {
             rec.memory_barrier(Access::IndirectRead, Access::ComputeReadWrite);
@@ -361,16 +390,21 @@ impl HizCuller {
         r.write_timestamp()?;
         r.begin_target_rendering(phase == 1)?;
         r.bind_scene_geometry();
+        let n = u64::from(self.object_count);
+        let groups = self.groups.len() as u64;
+        for (k, g) in self.groups.iter().enumerate() {
+            r.bind_draw_class_of(g.object)?;
+            let first = ((phase as u64 - 1) * n + u64::from(g.first_slot)) * COMMAND_BYTES;
+            let count_offset = COUNTS_AT + ((phase as u64 - 1) * groups + k as u64) * 4;
+            r.recorder_mut().draw_indexed_indirect_count(
+                &self.draws,
+                first,
+                &self.counters,
+                count_offset,
+                g.size,
+            );
+        }
         let rec = r.recorder_mut();
-        let first = (phase as u64 - 1) * self.object_count as u64 * COMMAND_BYTES;
-        let count_offset = (phase as u64 - 1) * 4;
-        rec.draw_indexed_indirect_count(
-            &self.draws,
-            first,
-            &self.counters,
-            count_offset,
-            self.object_count,
-        );
         rec.end_rendering();
         r.write_timestamp()
     }
@@ -395,8 +429,9 @@ impl HizCuller {
         self.last_pass_ms
     }
 
-    /// Objects and triangles drawn by both phases of the last frame (it has completed).
-    fn read_counters(&self) -> Result<([u32; 2], u64)> {
+    /// Each group's draws in both phases of the last frame (it has completed; phase 1's groups
+    /// first), and the triangles they drew.
+    fn read_counters(&self) -> Result<(Vec<u32>, u64)> {
         let bytes = self
             .counters
             .mapped()
@@ -404,10 +439,11 @@ impl HizCuller {
         let word = |i| {
             word_at(bytes, i).ok_or_else(|| Error::Alloc("hiz counters buffer is too short".into()))
         };
-        Ok((
-            [word(0)?, word(1)?],
-            u64::from(word(2)?) + u64::from(word(3)?),
-        ))
+        let first = (COUNTS_AT / 4) as usize;
+        let counts = (0..2 * self.groups.len())
+            .map(|k| word(first + k))
+            .collect::<Result<Vec<u32>>>()?;
+        Ok((counts, u64::from(word(0)?) + u64::from(word(1)?)))
     }
 
     /// Objects drawn by phase 1 (visible last frame) and phase 2 (newly visible) in the last
@@ -443,6 +479,46 @@ impl HizCuller {
             .flat_map(|y| (0..w).map(move |x| (y * stride + x) as usize))
             .map(|i| texels[i])
             .collect())
+    }
+}
+
+/// The objects of one [`DrawClass`](super::DrawClass): in each phase their draw commands fill
+/// `size` slots from `first_slot` of that phase's stretch of the command buffer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Group {
+    first_slot: u32,
+    size: u32,
+    /// One object of the group (what it binds, the whole group binds).
+    object: u32,
+}
+
+impl Group {
+    /// The groups of `ranges` in the order their classes first appear, and each object's group.
+    fn of(ranges: &[super::DrawRange]) -> (Vec<Group>, Vec<u32>) {
+        let mut index = std::collections::HashMap::new();
+        let mut groups: Vec<Group> = Vec::new();
+        let group_of: Vec<u32> = ranges
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let k = *index.entry(r.class).or_insert_with(|| {
+                    groups.push(Group {
+                        first_slot: 0,
+                        size: 0,
+                        object: i as u32,
+                    });
+                    groups.len() as u32 - 1
+                });
+                groups[k as usize].size += 1;
+                k
+            })
+            .collect();
+        let mut next = 0;
+        for g in &mut groups {
+            g.first_slot = next;
+            next += g.size;
+        }
+        (groups, group_of)
     }
 }
 

@@ -1802,13 +1802,25 @@ impl Renderer {
     }
 }
 
-/// One object as GPU-driven culling uploads it: its world bounds and its indexed draw range.
+/// One object as GPU-driven culling uploads it: its world bounds, its indexed draw range and
+/// what its draw binds.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct DrawRange {
     pub bounds: Aabb,
     pub first_index: u32,
     pub index_count: u32,
     pub vertex_offset: i32,
+    pub class: DrawClass,
+}
+
+/// What an object's draw binds in a scene with materials: its texture set, its alpha cutoff
+/// (masked) and whether it is two-sided. Objects of one class can share an indirect draw; a
+/// scene without materials has one class.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub(crate) struct DrawClass {
+    set: u32,
+    cutoff_bits: Option<u32>,
+    double_sided: bool,
 }
 
 /// What a GPU-driven frame (`hiz`) records with: the scene's draw ranges, one command buffer
@@ -1822,7 +1834,23 @@ impl Renderer {
             first_index: o.first_index,
             index_count: o.index_count,
             vertex_offset: o.vertex_offset,
+            class: DrawClass {
+                set: o.set,
+                cutoff_bits: o.mask.map(f32::to_bits),
+                double_sided: o.double_sided,
+            },
         })
+    }
+
+    /// Binds what the draws of `object`'s [`DrawClass`] need, after
+    /// [`Renderer::bind_scene_geometry`]: in a scene with materials its (masked, two-sided)
+    /// pipeline, texture set and cutoff; nothing in a scene without.
+    pub(crate) fn bind_draw_class_of(&mut self, object: u32) -> Result<()> {
+        if self.pipelines.materials {
+            let d = self.object_draw(object)?;
+            self.bind_material(&d);
+        }
+        Ok(())
     }
 
     /// Bumped whenever an object's bounds change (uploaded bounds are stale when it differs).
