@@ -87,7 +87,7 @@ pub struct InteriorWalk {
 /// Finds the interior walk over `rays`; `Err` says in one line why there is none.
 pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWalk, String> {
     let scale = places::scale(rays, params.eye_height, params.margin, params.grid);
-    find_at(rays, params, &scale).map_err(|why| match small_model_hint(&scale) {
+    find_at(rays, params, &scale).map_err(|why| match small_model_hint(rays, &scale) {
         Some(hint) => format!("{why}; {hint}"),
         None => why,
     })
@@ -97,9 +97,12 @@ pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWal
 /// meters: the renderer's near plane (0.1) is then a large part of a storey.
 const SMALL_EYE: f32 = 0.5;
 
-/// For a model whose storeys are far lower than a person in meters, what to do about it.
-fn small_model_hint(scale: &places::Scale) -> Option<String> {
-    (scale.eye_height < SMALL_EYE).then(|| {
+/// For a level (its plan at least [`LEVEL_PLAN`] eye heights across) whose storeys are far
+/// lower than a person in meters, what to do about it. A small object (a helmet) is not told.
+fn small_model_hint(rays: &TriangleScene, scale: &places::Scale) -> Option<String> {
+    let e = rays.bounds.extent();
+    let plan = e.x.max(e.z);
+    (scale.eye_height < SMALL_EYE && plan >= LEVEL_PLAN * scale.eye_height).then(|| {
         format!(
             "the eye would stand {:.2} units over the floors ({} in a model in meters at life \
              size): --scale N multiplies a glTF file's coordinates by N",
@@ -108,6 +111,10 @@ fn small_model_hint(scale: &places::Scale) -> Option<String> {
         )
     })
 }
+
+/// Least width of a model's plan, in eye heights, for [`small_model_hint`] to take it for a
+/// level rather than an object.
+const LEVEL_PLAN: f32 = 8.0;
 
 /// [`find`] at the scale found.
 fn find_at(

@@ -384,6 +384,13 @@ fn a_small_model_without_an_inside_is_told_about_the_scale() {
         text.contains("back faces") && text.contains("--scale N"),
         "{text}"
     );
+    // A small solid (a prop, not a level) at the same size is not told about the scale.
+    let mut l = Level::default();
+    l.brush(Vec3::ZERO, Vec3::new(12.0, 5.0, 12.0));
+    let mut scene = l.scene(true);
+    scene.magnify(1.0 / 32.0);
+    let err = interior_path(&scene, &InteriorParams::default()).expect_err("no inside");
+    assert!(!err.to_string().contains("--scale"), "{err}");
 }
 
 #[test]
