@@ -120,7 +120,11 @@ impl LightPath {
                 } else {
                     Vec3::Z * e.z
                 };
-                let top = c + Vec3::Y * (0.3 * e.y);
+                let mut top = c + Vec3::Y * (0.3 * e.y);
+                if inside_solid(rays, top, geometry.diagonal()) {
+                    // A closed model (an object, not a room): above it, looking down at it.
+                    top = Vec3::new(c.x, b.max.y + 0.5 * e.x.max(e.z), c.z);
+                }
                 (
                     top - 0.3 * axis,
                     Vec3::NEG_Y + 0.3 * axis.normalize(),
@@ -159,6 +163,28 @@ impl LightPath {
             keys: Some(keys),
         }
     }
+}
+
+/// Whether `p` lies inside a closed solid: most of 14 rays from it (the axes and the
+/// diagonals) meet the back sides of triangles within `reach`. A point in a room meets its
+/// walls' front sides, one in the open escapes.
+fn inside_solid(rays: &RayScene, p: Vec3, reach: f32) -> bool {
+    let mut dirs: Vec<Vec3> = [Vec3::X, Vec3::Y, Vec3::Z]
+        .into_iter()
+        .flat_map(|a| [a, -a])
+        .collect();
+    for x in [-1.0, 1.0] {
+        for y in [-1.0, 1.0] {
+            for z in [-1.0, 1.0] {
+                dirs.push(Vec3::new(x, y, z).normalize());
+            }
+        }
+    }
+    let backs = dirs
+        .iter()
+        .filter(|&&d| rays.intersect(p, d, reach).is_some_and(|h| !h.front))
+        .count();
+    2 * backs > dirs.len()
 }
 
 /// What a run may take from the user instead of the scene's defaults.
@@ -878,6 +904,27 @@ pub fn save_strip(path: &Path, width: u32, height: u32, images: &[Vec<u8>]) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_light_inside_a_closed_solid_is_told_from_one_in_a_room() {
+        let cube = crate::scene::mesh::Mesh::cube();
+        let triangles: Vec<[Vec3; 3]> = cube
+            .indices
+            .chunks_exact(3)
+            .map(|t| {
+                [t[0], t[1], t[2]]
+                    .map(|i| Vec3::from_array(cube.vertices[i as usize].position) * 4.0)
+            })
+            .collect();
+        let grey = vec![Vec3::splat(0.5); triangles.len()];
+        let solid = RayScene::new(triangles.clone(), grey.clone());
+        assert!(inside_solid(&solid, Vec3::new(0.3, 0.2, -0.1), 100.0));
+        assert!(!inside_solid(&solid, Vec3::new(0.0, 5.0, 0.0), 100.0));
+        // The same box turned inside out is a room: its walls face the light.
+        let room: Vec<[Vec3; 3]> = triangles.iter().map(|t| [t[0], t[2], t[1]]).collect();
+        let room = RayScene::new(room, grey);
+        assert!(!inside_solid(&room, Vec3::new(0.3, 0.2, -0.1), 100.0));
+    }
 
     #[test]
     fn a_walking_camera_follows_its_path_over_the_run_and_a_fixed_one_stands() {

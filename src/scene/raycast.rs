@@ -28,6 +28,9 @@ pub struct Hit {
     pub position: Vec3,
     /// Geometric unit normal of the hit triangle, flipped to face against the ray direction.
     pub normal: Vec3,
+    /// Whether the ray met the triangle's front (counter-clockwise) side; a ray from inside a
+    /// closed solid meets back sides.
+    pub front: bool,
     /// Diffuse albedo of the hit triangle.
     pub albedo: Vec3,
     /// Index of the hit triangle in the list given to [`RayScene::new`].
@@ -160,6 +163,7 @@ impl RayScene {
         let tri = &self.triangles[hit.primitive_id as usize];
         let original = self.original[hit.primitive_id as usize];
         let mut normal = Vec3::from(tri.compute_normal());
+        let front = normal.dot(dir) < 0.0;
         if normal == Vec3::ZERO {
             normal = -dir.normalize();
         } else if normal.dot(dir) > 0.0 {
@@ -169,6 +173,7 @@ impl RayScene {
             t: hit.t,
             position: origin + dir * hit.t,
             normal,
+            front,
             albedo: self.albedo[original as usize],
             triangle: original,
         })
