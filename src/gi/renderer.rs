@@ -208,6 +208,16 @@ impl GiRenderer {
     ) -> Result<GiRenderer> {
         check_device(ctx, &options)?;
         let (vertex_data, vertex_count, masks) = gpu_vertices(geometry)?;
+        // The shaders pull every world-space vertex from one storage buffer: say so when a
+        // scene is too large for the device's binding (lavapipe: 128 MiB, about 930,000
+        // triangles).
+        ctx.info.check_storage_buffer(
+            &format!(
+                "gi: {} world-space triangles (the scene's, long ones split) in one storage buffer",
+                vertex_count / 3
+            ),
+            vertex_data.len() as u64 * 4,
+        )?;
         let (graphics_layout, compute_layout) = create_layouts(ctx)?;
         let mut shadow = ShadowMaps::new(
             ctx,

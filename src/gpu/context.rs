@@ -201,6 +201,8 @@ pub struct LimitOverrides {
     pub max_image_array_layers: Option<u32>,
     /// `maxComputeWorkGroupCount`.
     pub max_compute_work_group_count: Option<[u32; 3]>,
+    /// `maxStorageBufferRange`.
+    pub max_storage_buffer_range: Option<u32>,
 }
 
 /// What the context's allocator holds (gpu-allocator's report), for soak runs and leak checks.
@@ -367,6 +369,10 @@ impl DeviceInfo {
         min(
             &mut self.max_image_array_layers,
             lower.max_image_array_layers,
+        );
+        min(
+            &mut self.max_storage_buffer_range,
+            lower.max_storage_buffer_range,
         );
         if let Some(counts) = lower.max_compute_work_group_count {
             for (v, o) in self.max_compute_work_group_count.iter_mut().zip(counts) {

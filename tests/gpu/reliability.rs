@@ -275,6 +275,36 @@ fn gi_frames_with(
 }
 
 #[test]
+fn gi_refuses_a_scene_too_large_for_one_storage_buffer_in_one_line() {
+    // Every world-space vertex of a GI scene is pulled from one storage buffer; on a device
+    // whose maxStorageBufferRange is smaller than that, gi says so before it allocates.
+    let low = lowered_context(LimitOverrides {
+        max_storage_buffer_range: Some(4096),
+        ..Default::default()
+    });
+    let low_log = low.validation_log();
+    assert_eq!(low.info.max_storage_buffer_range, 4096);
+    let err = gi_frames(&low)
+        .err()
+        .expect("the cornell box needs more than 4 KiB");
+    let text = err.to_string();
+    assert!(
+        matches!(
+            err,
+            Error::Limit {
+                limit: "maxStorageBufferRange",
+                ..
+            }
+        ) && text.starts_with("gi: ")
+            && text.contains("world-space triangles")
+            && !text.contains('\n'),
+        "{text}"
+    );
+    drop(low);
+    common::assert_silent(&low_log);
+}
+
+#[test]
 fn gi_shadow_maps_split_at_max_framebuffer_layers() {
     // 32 VPL layers + the spotlight's: one 33-layer rendering on lavapipe (2048 allowed);
     // with maxFramebufferLayers lowered to 6, chunks of 5 VPL maps through the staging image.
