@@ -284,9 +284,7 @@ fn gi_refuses_a_scene_too_large_for_one_storage_buffer_in_one_line() {
     });
     let low_log = low.validation_log();
     assert_eq!(low.info.max_storage_buffer_range, 4096);
-    let err = gi_frames(&low)
-        .err()
-        .expect("the cornell box needs more than 4 KiB");
+    let err = gi_frames(&low).expect_err("the cornell box needs more than 4 KiB");
     let text = err.to_string();
     assert!(
         matches!(
