@@ -31,8 +31,8 @@
 //! through their holes). A scene without materials is one group.
 //!
 //! Counts come from the recorder: dispatches (2 cull + one per pyramid level), an indirect
-//! draw per group and phase, pipeline and texture binds; the objects and triangles those draws drew are read back from the
-//! GPU's counters after the frame (for the report only).
+//! draw per group and phase, pipeline and texture binds; the objects and triangles those
+//! draws drew are read back from the GPU's counters after the frame (for the report only).
 
 pub mod pyramid;
 
