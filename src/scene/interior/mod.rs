@@ -87,7 +87,7 @@ pub struct InteriorWalk {
 /// Finds the interior walk over `rays`; `Err` says in one line why there is none.
 pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWalk, String> {
     let scale = places::scale(rays, params.eye_height, params.margin, params.grid);
-    find_at(rays, params, &scale).map_err(|why| match small_model_hint(rays, &scale) {
+    find_at(rays, params, &scale).map_err(|why| match small_model_hint(rays, params, &scale) {
         Some(hint) => format!("{why}; {hint}"),
         None => why,
     })
@@ -97,18 +97,47 @@ pub fn find(rays: &TriangleScene, params: &InteriorParams) -> Result<InteriorWal
 /// meters: the renderer's near plane (0.1) is then a large part of a storey.
 const SMALL_EYE: f32 = 0.5;
 
+/// Magnifications the hint of [`small_model_hint`] tries, smallest first.
+const SCALE_TRIES: [f32; 16] = [
+    2.0, 4.0, 5.0, 8.0, 10.0, 16.0, 20.0, 25.0, 32.0, 50.0, 64.0, 100.0, 128.0, 200.0, 500.0,
+    1000.0,
+];
+
 /// For a level (its plan at least [`LEVEL_PLAN`] eye heights across) whose storeys are far
-/// lower than a person in meters, what to do about it. A small object (a helmet) is not told.
-fn small_model_hint(rays: &TriangleScene, scale: &places::Scale) -> Option<String> {
+/// lower than a person in meters, what to do about it; a small object (a helmet) is not told.
+/// Magnified by N, the search is the same but for the eye, which stands 1.7 units high where
+/// the storeys look like meters (under 30 units): the hint names the smallest N of
+/// [`SCALE_TRIES`] whose eye finds an inside here, if one does.
+fn small_model_hint(
+    rays: &TriangleScene,
+    params: &InteriorParams,
+    scale: &places::Scale,
+) -> Option<String> {
     let e = rays.bounds.extent();
     let plan = e.x.max(e.z);
-    (scale.eye_height < SMALL_EYE && plan >= LEVEL_PLAN * scale.eye_height).then(|| {
-        format!(
-            "the eye would stand {:.2} units over the floors ({} in a model in meters at life \
-             size): --scale N multiplies a glTF file's coordinates by N",
-            scale.eye_height,
-            places::EYE_METERS
-        )
+    let eye = scale.eye_height;
+    if params.eye_height.is_some() || eye >= SMALL_EYE || plan < LEVEL_PLAN * eye {
+        return None;
+    }
+    let said = format!(
+        "the eye would stand {eye:.2} units over the floors ({} in a model in meters at life \
+         size)",
+        places::EYE_METERS
+    );
+    // Here the eye is 60% of the storeys' height h; magnified by N, the eye is 1.7 when
+    // 0.6 h N >= 1.7 and the storeys look like meters while h N <= 30.
+    let storey = eye / 0.6;
+    let works = |n: f32| {
+        let at = places::EYE_METERS / n;
+        let s = places::scale(rays, Some(at), params.margin, params.grid);
+        at < eye && storey * n <= 30.0 && find_at(rays, params, &s).is_ok()
+    };
+    Some(match SCALE_TRIES.into_iter().find(|&n| works(n)) {
+        Some(n) => format!(
+            "{said}: --scale {n} multiplies a glTF file's coordinates by {n} and finds an \
+             inside"
+        ),
+        None => format!("{said}: --scale N multiplies a glTF file's coordinates by N"),
     })
 }
 

@@ -394,6 +394,28 @@ fn a_small_model_without_an_inside_is_told_about_the_scale() {
 }
 
 #[test]
+fn a_small_level_is_told_the_scale_that_finds_its_inside() {
+    // The house at 1/32 of life size has no inside at the eye height its storeys give; the
+    // reason names a --scale, and the house magnified by it has one.
+    let mut l = Level::default();
+    house(&mut l);
+    let mut scene = l.scene(false);
+    scene.magnify(1.0 / 32.0);
+    let err = interior_path(&scene, &InteriorParams::default()).expect_err("no inside");
+    let text = err.to_string();
+    let n: f32 = text
+        .split("--scale ")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .and_then(|t| t.parse().ok())
+        .unwrap_or_else(|| panic!("no scale named: {text}"));
+    assert!(n > 1.0 && n <= 1000.0, "{text}");
+    scene.magnify(n);
+    interior_path(&scene, &InteriorParams::default())
+        .unwrap_or_else(|e| panic!("at --scale {n}: {e}"));
+}
+
+#[test]
 fn the_light_path_is_inside_above_the_eye_and_lights_the_floor() {
     let mut l = Level::default();
     let (rooms, doors) = house(&mut l);
