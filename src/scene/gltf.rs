@@ -1175,10 +1175,6 @@ mod tests {
         }
     }
 
-    /// A node that mirrors its mesh (negative determinant) keeps the mesh's fronts facing
-    /// out, as glTF says: it draws a copy of the indices with the winding turned over, shared
-    /// by every mirroring node of that mesh, and every triangle of every cube faces away from
-    /// its centre in world space (counter-clockwise, the renderer's front).
     #[test]
     fn a_file_loaded_at_a_scale_is_magnified_about_the_origin() {
         let dir = temp_dir("magnified");
@@ -1220,6 +1216,10 @@ mod tests {
         }
     }
 
+    /// A node that mirrors its mesh (negative determinant) keeps the mesh's fronts facing
+    /// out, as glTF says: it draws a copy of the indices with the winding turned over, shared
+    /// by every mirroring node of that mesh, and every triangle of every cube faces away from
+    /// its centre in world space (counter-clockwise, the renderer's front).
     #[test]
     fn mirroring_nodes_keep_their_fronts_facing_out() {
         let dir = temp_dir("mirrored");
