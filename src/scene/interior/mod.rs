@@ -126,11 +126,17 @@ fn small_model_hint(
     );
     // Here the eye is 60% of the storeys' height h; magnified by N, the eye is 1.7 when
     // 0.6 h N >= 1.7 and the storeys look like meters while h N <= 30.
-    let storey = eye / 0.6;
+    let storey = eye / places::EYE_SHARE_METERS;
     let works = |n: f32| {
         let at = places::EYE_METERS / n;
-        let s = places::scale(rays, Some(at), params.margin, params.grid);
-        at < eye && storey * n <= 30.0 && find_at(rays, params, &s).is_ok()
+        at < eye
+            && storey * n <= places::METERS_STOREY_MOST
+            && find_at(
+                rays,
+                params,
+                &places::scale(rays, Some(at), params.margin, params.grid),
+            )
+            .is_ok()
     };
     Some(match SCALE_TRIES.into_iter().find(|&n| works(n)) {
         Some(n) => format!(

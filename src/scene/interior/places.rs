@@ -28,6 +28,12 @@ const HEIGHT_PERCENTILE: f32 = 0.9;
 const ROOFED_SHARE: f32 = 0.25;
 /// Standard eye height in meters.
 pub(super) const EYE_METERS: f32 = 1.7;
+/// Highest storey (the floor-to-ceiling percentile) taken for meters; above it the units are
+/// smaller (centimetres, inches).
+pub(super) const METERS_STOREY_MOST: f32 = 30.0;
+/// The eye's height as a share of the storey where the storey is lower than an eye in
+/// meters would need.
+pub(super) const EYE_SHARE_METERS: f32 = 0.6;
 /// Most surfaces followed down one column.
 const MAX_LAYERS: usize = 64;
 
@@ -155,8 +161,8 @@ pub fn scale(
                 tops.sort_by(f32::total_cmp);
                 h = h.max(tops.get(tops.len() / 2).copied().unwrap_or(h));
             }
-            if h <= 30.0 {
-                (0.6 * h).min(EYE_METERS)
+            if h <= METERS_STOREY_MOST {
+                (EYE_SHARE_METERS * h).min(EYE_METERS)
             } else {
                 0.4 * h
             }
