@@ -106,6 +106,9 @@ pub struct HizCuller {
     last_phases: [u32; 2],
     /// The objects of one draw class: their commands' stretch and one object of theirs.
     groups: Vec<Group>,
+    /// Each group's draws in both phases of the last frame, phase 1's groups first (read
+    /// back; kept to be refilled without allocating).
+    group_counts: Vec<u32>,
     /// Device time of each pass of the last frame ([`PASSES`]), from timestamps.
     last_pass_ms: [f64; 5],
     /// Per object: world bounds and draw parameters (the descriptor set points at it).
@@ -190,6 +193,7 @@ impl HizCuller {
             pyramid,
             pyramid_valid: false,
             last_phases: [0; 2],
+            group_counts: vec![0; 2 * groups.len()],
             groups,
             last_pass_ms: [0.0; 5],
             bounds,
@@ -241,8 +245,8 @@ impl HizCuller {
     }
 
     /// Reads the draw commands of both phases from the readback copy: each command's
-    /// `firstInstance` is its object. `counts` holds each group's draws, phase 1's groups first.
-    fn read_drawn(&mut self, counts: &[u32]) -> Result<()> {
+    /// `firstInstance` is its object; `group_counts` says how many each group drew.
+    fn read_drawn(&mut self) -> Result<()> {
         self.drawn.clear();
         let Some(bytes) = self.readback.as_ref().and_then(|b| b.mapped()) else {
             return Ok(());
@@ -251,7 +255,7 @@ impl HizCuller {
         let groups = self.groups.len();
         for phase in 0..2 {
             for (k, g) in self.groups.iter().enumerate() {
-                let count = counts.get(phase * groups + k).copied().unwrap_or(0);
+                let count = self.group_counts[phase * groups + k];
                 for slot in 0..(count.min(g.size)) as usize {
                     let command = phase * n + g.first_slot as usize + slot;
                     let at = command * COMMAND_BYTES as usize + 16;
@@ -317,14 +321,11 @@ impl HizCuller {
         let frame_ms = frame_time.as_secs_f64() * 1e3;
         let cpu_ms = r.cpu_ms(start, frame_time);
         self.pyramid_valid = true;
-        let (counts, triangles) = self.read_counters()?;
-        let groups = self.groups.len();
-        let phases = [
-            counts[..groups].iter().sum::<u32>(),
-            counts[groups..].iter().sum::<u32>(),
-        ];
+        let triangles = self.read_counters()?;
+        let (first, second) = self.group_counts.split_at(self.groups.len());
+        let phases = [first.iter().sum::<u32>(), second.iter().sum::<u32>()];
         self.last_phases = phases;
-        self.read_drawn(&counts)?;
+        self.read_drawn()?;
         let objects = phases[0] + phases[1];
         let movers = r.mover_objects();
         let moving = self.drawn.iter().filter(|o| movers.contains(o)).count();
@@ -429,9 +430,9 @@ impl HizCuller {
         self.last_pass_ms
     }
 
-    /// Each group's draws in both phases of the last frame (it has completed; phase 1's groups
-    /// first), and the triangles they drew.
-    fn read_counters(&self) -> Result<(Vec<u32>, u64)> {
+    /// Reads each group's draws in both phases of the last frame (it has completed) into
+    /// `group_counts`, and returns the triangles they drew.
+    fn read_counters(&mut self) -> Result<u64> {
         let bytes = self
             .counters
             .mapped()
@@ -440,10 +441,10 @@ impl HizCuller {
             word_at(bytes, i).ok_or_else(|| Error::Alloc("hiz counters buffer is too short".into()))
         };
         let first = (COUNTS_AT / 4) as usize;
-        let counts = (0..2 * self.groups.len())
-            .map(|k| word(first + k))
-            .collect::<Result<Vec<u32>>>()?;
-        Ok((counts, u64::from(word(0)?) + u64::from(word(1)?)))
+        for (k, count) in self.group_counts.iter_mut().enumerate() {
+            *count = word(first + k)?;
+        }
+        Ok(u64::from(word(0)?) + u64::from(word(1)?))
     }
 
     /// Objects drawn by phase 1 (visible last frame) and phase 2 (newly visible) in the last
