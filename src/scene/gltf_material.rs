@@ -1,5 +1,6 @@
 //! glTF materials: base color textures (PNG and JPEG, from a GLB buffer view, a data URI or a
-//! file next to the .gltf) with their samplers, alpha mode MASK with its cutoff, and the
+//! file next to the .gltf) with their samplers, alpha mode MASK with its cutoff (BLEND is drawn
+//! as MASK at [`BLEND_CUTOFF`], with a warning), and the
 //! per-vertex TEXCOORD_n and COLOR_0 attributes. An image that cannot be decoded (KTX2/Basis,
 //! WebP, a broken file) is a one-line warning and the material is drawn without its texture.
 
@@ -15,6 +16,12 @@ use ::gltf::Accessor;
 use super::material::{
     AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
 };
+
+/// The alpha cutoff a BLEND material is drawn with. Without sorted, blended draws, testing alpha
+/// is the closest a depth-tested pass comes: foliage and grates, which files often mark BLEND,
+/// keep their shape instead of showing as solid quads, and a surface under half opacity lets
+/// what lies behind it be seen (and be culled by what is really in front of it).
+pub const BLEND_CUTOFF: f32 = 0.5;
 
 /// Largest decoded image accepted (texels), so a hostile file cannot ask for gigabytes.
 const MAX_TEXELS: u64 = 1 << 26;
@@ -43,7 +50,7 @@ impl MaterialLoader {
     }
 
     /// Our material for a primitive's glTF material: `None` when it has neither a usable base
-    /// color texture nor alpha mode MASK nor `doubleSided` (then the base color factor says it
+    /// color texture nor alpha mode MASK or BLEND nor `doubleSided` (then the base color factor says it
     /// all).
     pub fn material(
         &mut self,
@@ -66,9 +73,10 @@ impl MaterialLoader {
             }
             ::gltf::material::AlphaMode::Blend => {
                 warnings.push(format!(
-                    "material {index}: alpha mode BLEND is drawn opaque"
+                    "material {index}: alpha mode BLEND is drawn alpha-tested at {BLEND_CUTOFF} \
+                     (no blending: cut where its alpha is under {BLEND_CUTOFF}, opaque elsewhere)"
                 ));
-                AlphaMode::Opaque
+                AlphaMode::Mask(BLEND_CUTOFF)
             }
             ::gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
         };

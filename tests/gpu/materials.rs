@@ -284,6 +284,36 @@ fn textures_masks_and_vertex_colors_render_as_authored() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A BLEND material is drawn as MASK at 0.5: the same pixels and ID pass as the masked quad it
+/// replaces (its left half cut, the wall seen through it), with one warning naming it.
+#[test]
+fn blend_materials_are_drawn_alpha_tested_at_one_half() {
+    let dir = temp_dir("blend");
+    let masked = write_gltf(&dir);
+    let json = std::fs::read_to_string(&masked).expect("read");
+    let mask = r#""alphaMode":"MASK","alphaCutoff":0.5"#;
+    assert_eq!(json.matches(mask).count(), 1);
+    let blended = dir.join("blend.gltf");
+    std::fs::write(&blended, json.replace(mask, r#""alphaMode":"BLEND""#)).expect("write");
+
+    let (want, _) = coherent::scene::gltf::load_gltf(&masked).expect("masked");
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&blended).expect("blended");
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].starts_with("material 3: alpha mode BLEND is drawn alpha-tested at 0.5"),
+        "{warnings:?}"
+    );
+    assert_eq!(scene.materials, want.materials);
+    let (pixels, ids) = render(&scene);
+    let (want_pixels, want_ids) = render(&want);
+    assert_eq!(ids, want_ids, "ID pass");
+    assert!(
+        pixels == want_pixels,
+        "the BLEND quad's pixels differ from the MASK quad's"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn glb_views_jpeg_and_unsupported_images() {
     let dir = temp_dir("glb");
