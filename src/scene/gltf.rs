@@ -120,6 +120,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         &mut loader.warnings,
     ));
     let mats = loader.materials;
+    loader.warnings.extend(mats.blend_warning());
     let attributes = if mats.attributes_used || !mats.materials.is_empty() {
         loader.attributes
     } else {

@@ -23,6 +23,9 @@ use super::material::{
 /// what lies behind it be seen (and be culled by what is really in front of it).
 pub const BLEND_CUTOFF: f32 = 0.5;
 
+/// How many BLEND materials the warning names before it counts the rest.
+const BLEND_NAMED: usize = 6;
+
 /// Largest decoded image accepted (texels), so a hostile file cannot ask for gigabytes.
 const MAX_TEXELS: u64 = 1 << 26;
 
@@ -38,6 +41,8 @@ pub(super) struct MaterialLoader {
     pub images: Vec<TextureImage>,
     /// Whether any primitive had vertex colors.
     pub attributes_used: bool,
+    /// The glTF materials with alpha mode BLEND, in the order they were met.
+    blended: Vec<usize>,
 }
 
 impl MaterialLoader {
@@ -72,10 +77,7 @@ impl MaterialLoader {
                 AlphaMode::Mask(if cutoff.is_finite() { cutoff } else { 0.5 })
             }
             ::gltf::material::AlphaMode::Blend => {
-                warnings.push(format!(
-                    "material {index}: alpha mode BLEND is drawn alpha-tested at {BLEND_CUTOFF} \
-                     (no blending: cut where its alpha is under {BLEND_CUTOFF}, opaque elsewhere)"
-                ));
+                self.blended.push(index);
                 AlphaMode::Mask(BLEND_CUTOFF)
             }
             ::gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
@@ -93,6 +95,28 @@ impl MaterialLoader {
         };
         self.by_material.insert(index, ours);
         ours
+    }
+
+    /// One warning for every BLEND material met (none when there was none), naming the first
+    /// few: a file can have hundreds.
+    pub fn blend_warning(&self) -> Option<String> {
+        let (named, rest) = self.blended.split_at(self.blended.len().min(BLEND_NAMED));
+        let list = |ns: &[usize]| ns.iter().map(usize::to_string).collect::<Vec<_>>();
+        let who = match (named, rest.len()) {
+            ([], _) => return None,
+            ([one], _) => format!("material {one}"),
+            (_, 0) => {
+                let mut names = list(named);
+                let last = names.pop().unwrap_or_default();
+                format!("materials {} and {last}", names.join(", "))
+            }
+            (_, more) => format!("materials {} and {more} more", list(named).join(", ")),
+        };
+        let are = if self.blended.len() == 1 { "is" } else { "are" };
+        Some(format!(
+            "{who}: alpha mode BLEND {are} drawn alpha-tested at {BLEND_CUTOFF} (no blending: \
+             cut where alpha is under {BLEND_CUTOFF}, opaque elsewhere)"
+        ))
     }
 
     fn texture(
@@ -360,7 +384,33 @@ pub(super) fn primitive_attributes(
 
 #[cfg(test)]
 mod tests {
-    use super::base64_decode;
+    use super::{base64_decode, MaterialLoader};
+
+    #[test]
+    fn blend_materials_get_one_warning_that_names_the_first_few() {
+        let warning = |blended: Vec<usize>| {
+            MaterialLoader {
+                blended,
+                ..Default::default()
+            }
+            .blend_warning()
+        };
+        let tail = "drawn alpha-tested at 0.5 (no blending: cut where alpha is under 0.5, \
+                    opaque elsewhere)";
+        assert_eq!(warning(vec![]), None);
+        assert_eq!(
+            warning(vec![3]).unwrap(),
+            format!("material 3: alpha mode BLEND is {tail}")
+        );
+        assert_eq!(
+            warning(vec![3, 7, 12]).unwrap(),
+            format!("materials 3, 7 and 12: alpha mode BLEND are {tail}")
+        );
+        assert_eq!(
+            warning((0..200).collect()).unwrap(),
+            format!("materials 0, 1, 2, 3, 4, 5 and 194 more: alpha mode BLEND are {tail}")
+        );
+    }
 
     #[test]
     fn base64_decodes() {
