@@ -55,8 +55,8 @@ impl MaterialLoader {
     }
 
     /// Our material for a primitive's glTF material: `None` when it has neither a usable base
-    /// color texture nor alpha mode MASK or BLEND nor `doubleSided` (then the base color factor says it
-    /// all).
+    /// color texture nor alpha mode MASK or BLEND nor `doubleSided` (then the base color factor
+    /// says it all).
     pub fn material(
         &mut self,
         m: &::gltf::Material<'_>,
@@ -112,9 +112,8 @@ impl MaterialLoader {
             }
             (_, more) => format!("materials {} and {more} more", list(named).join(", ")),
         };
-        let are = if self.blended.len() == 1 { "is" } else { "are" };
         Some(format!(
-            "{who}: alpha mode BLEND {are} drawn alpha-tested at {BLEND_CUTOFF} (no blending: \
+            "{who}: alpha mode BLEND, drawn alpha-tested at {BLEND_CUTOFF} (no blending: \
              cut where alpha is under {BLEND_CUTOFF}, opaque elsewhere)"
         ))
     }
@@ -400,15 +399,15 @@ mod tests {
         assert_eq!(warning(vec![]), None);
         assert_eq!(
             warning(vec![3]).unwrap(),
-            format!("material 3: alpha mode BLEND is {tail}")
+            format!("material 3: alpha mode BLEND, {tail}")
         );
         assert_eq!(
             warning(vec![3, 7, 12]).unwrap(),
-            format!("materials 3, 7 and 12: alpha mode BLEND are {tail}")
+            format!("materials 3, 7 and 12: alpha mode BLEND, {tail}")
         );
         assert_eq!(
             warning((0..200).collect()).unwrap(),
-            format!("materials 0, 1, 2, 3, 4, 5 and 194 more: alpha mode BLEND are {tail}")
+            format!("materials 0, 1, 2, 3, 4, 5 and 194 more: alpha mode BLEND, {tail}")
         );
     }
 

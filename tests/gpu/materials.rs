@@ -300,7 +300,7 @@ fn blend_materials_are_drawn_alpha_tested_at_one_half() {
     let (scene, warnings) = coherent::scene::gltf::load_gltf(&blended).expect("blended");
     assert_eq!(warnings.len(), 1, "{warnings:?}");
     assert!(
-        warnings[0].starts_with("material 3: alpha mode BLEND is drawn alpha-tested at 0.5"),
+        warnings[0].starts_with("material 3: alpha mode BLEND, drawn alpha-tested at 0.5"),
         "{warnings:?}"
     );
     assert_eq!(scene.materials, want.materials);
