@@ -21,7 +21,12 @@ pub const LIGHT_PATH: &str = "gltf-light";
 const MESHOPT: &str = "EXT_meshopt_compression";
 const QUANTIZATION: &str = "KHR_mesh_quantization";
 /// Extensions the loader honors; any other one in `extensionsUsed` gets a warning.
-pub const HONORED: &[&str] = &[MESHOPT, QUANTIZATION, "KHR_lights_punctual"];
+pub const HONORED: &[&str] = &[
+    MESHOPT,
+    QUANTIZATION,
+    "KHR_lights_punctual",
+    "KHR_texture_transform",
+];
 /// Largest buffer a meshopt fallback may declare (it is allocated to receive decoded data).
 const MAX_FALLBACK_BYTES: usize = 1 << 32;
 /// Most samples taken of an animated light.

@@ -166,10 +166,52 @@ impl MaterialLoader {
     }
 
     /// The texture coordinate set a material's base color texture reads (0 when none).
+    /// `KHR_texture_transform` may name another set.
     pub fn tex_coord_set(m: &::gltf::Material<'_>) -> u32 {
         m.pbr_metallic_roughness()
             .base_color_texture()
-            .map_or(0, |info| info.tex_coord())
+            .map_or(0, |info| {
+                info.texture_transform()
+                    .and_then(|t| t.tex_coord())
+                    .unwrap_or(info.tex_coord())
+            })
+    }
+
+    /// The `KHR_texture_transform` of a material's base color texture (`None` when it has
+    /// none). gltfpack writes one for every textured material whose texture coordinates it
+    /// quantizes.
+    pub fn uv_transform(m: &::gltf::Material<'_>) -> Option<UvTransform> {
+        let t = m
+            .pbr_metallic_roughness()
+            .base_color_texture()?
+            .texture_transform()?;
+        Some(UvTransform::new(t.offset(), t.rotation(), t.scale()))
+    }
+}
+
+/// `KHR_texture_transform`: texture coordinates scaled, then rotated counter-clockwise about
+/// the origin, then offset, as a 2x3 affine map (rows).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct UvTransform([[f32; 3]; 2]);
+
+impl UvTransform {
+    /// The map of `offset`, `rotation` (radians) and `scale`.
+    pub fn new(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> UvTransform {
+        let (s, c) = rotation.sin_cos();
+        UvTransform([
+            [c * scale[0], s * scale[1], offset[0]],
+            [-s * scale[0], c * scale[1], offset[1]],
+        ])
+    }
+
+    /// Whether it maps (u, v) to itself.
+    pub fn is_identity(&self) -> bool {
+        self.0 == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    }
+
+    /// The transformed coordinates.
+    pub fn apply(&self, [u, v]: [f32; 2]) -> [f32; 2] {
+        self.0.map(|r| r[0] * u + r[1] * v + r[2])
     }
 }
 
@@ -383,7 +425,28 @@ pub(super) fn primitive_attributes(
 
 #[cfg(test)]
 mod tests {
-    use super::{base64_decode, MaterialLoader};
+    use super::{base64_decode, MaterialLoader, UvTransform};
+
+    /// The extension's own example: offset (0, 1), a quarter turn and half scale use the lower
+    /// left quadrant of the image, turned clockwise.
+    #[test]
+    fn texture_transforms_map_coordinates_as_the_extension_says() {
+        let t = UvTransform::new([0.0, 1.0], std::f32::consts::FRAC_PI_2, [0.5, 0.5]);
+        let corners = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
+        let want = [[0.0, 1.0], [0.0, 0.5], [0.5, 0.5], [0.5, 1.0]];
+        for (c, w) in corners.into_iter().zip(want) {
+            let got = t.apply(c);
+            assert!(
+                (got[0] - w[0]).abs() < 1e-6 && (got[1] - w[1]).abs() < 1e-6,
+                "{c:?} -> {got:?}, want {w:?}"
+            );
+        }
+        // Scale before offset; the identity is recognised.
+        let t = UvTransform::new([0.25, -1.0], 0.0, [2.0, 3.0]);
+        assert_eq!(t.apply([1.0, 1.0]), [2.25, 2.0]);
+        assert!(UvTransform::new([0.0; 2], 0.0, [1.0; 2]).is_identity());
+        assert!(!t.is_identity());
+    }
 
     #[test]
     fn blend_materials_get_one_warning_that_names_the_first_few() {

@@ -314,6 +314,58 @@ fn blend_materials_are_drawn_alpha_tested_at_one_half() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// One checker quad (REPEAT, nearest) whose texture coordinates reach u = `u1`, its material's
+/// texture under `transform` (a KHR_texture_transform object, or none), as a .gltf in `dir`.
+fn write_checker_quad(dir: &Path, name: &str, u1: f32, transform: Option<&str>) -> PathBuf {
+    let mut b = GltfBuilder::default();
+    let ext = transform
+        .map(|t| format!(r#","extensions":{{"KHR_texture_transform":{t}}}"#))
+        .unwrap_or_default();
+    b.materials = vec![format!(
+        r#"{{"pbrMetallicRoughness":{{"baseColorTexture":{{"index":0{ext}}}}}}}"#
+    )];
+    let q = quad(&mut b, (-2.0, -1.0, 2.0, 1.0, 0.0), u1, None, 0);
+    b.node(q, [0.0, 0.0, 0.0]);
+    let used = if transform.is_some() {
+        r#""extensionsUsed":["KHR_texture_transform"],"#
+    } else {
+        ""
+    };
+    let head = format!(
+        r#"{used}"images":[{{"uri":"data:image/png;base64,{}"}}],"samplers":[{{"magFilter":9728,"minFilter":9728}}],"textures":[{{"source":0,"sampler":0}}],"#,
+        base64(&checker_png())
+    );
+    let uri = format!("data:application/octet-stream;base64,{}", base64(&b.bin));
+    let json = b.json(Some(&uri)).replacen('{', &format!("{{{head}"), 1);
+    let path = dir.join(name);
+    std::fs::write(&path, json).expect("write");
+    path
+}
+
+/// KHR_texture_transform on the base color texture: texture coordinates to u = 1 scaled by 2
+/// draw what coordinates to u = 2 draw (16 checker cells across), with no warning; gltfpack
+/// writes such a transform for every textured material it quantizes.
+#[test]
+fn texture_transforms_scale_the_coordinates() {
+    let dir = temp_dir("transform");
+    let plain = write_checker_quad(&dir, "plain.gltf", 2.0, None);
+    let scaled = write_checker_quad(&dir, "scaled.gltf", 1.0, Some(r#"{"scale":[2,1]}"#));
+    let (want, _) = coherent::scene::gltf::load_gltf(&plain).expect("plain");
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&scaled).expect("scaled");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!(scene.attributes, want.attributes);
+    let (pixels, _) = render(&scene);
+    let (want_pixels, _) = render(&want);
+    // The left half of the image holds the quad's left half: 8 cells (4 untransformed).
+    let cells = checker_transitions(&pixels, H / 2);
+    assert!((6..=9).contains(&cells), "{cells} transitions");
+    assert!(
+        pixels == want_pixels,
+        "the transformed quad's pixels differ"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn glb_views_jpeg_and_unsupported_images() {
     let dir = temp_dir("glb");
