@@ -287,12 +287,22 @@ fn decode_image(
     let format = image::guess_format(&bytes).map_err(|_| {
         let mime = match img.source() {
             ::gltf::image::Source::View { mime_type, .. } => Some(mime_type),
-            ::gltf::image::Source::Uri { mime_type, .. } => mime_type,
+            ::gltf::image::Source::Uri { mime_type, uri } => mime_type.or_else(|| {
+                let media = uri.strip_prefix("data:")?.split([';', ',']).next()?;
+                (!media.is_empty()).then_some(media)
+            }),
         };
-        format!(
-            "format {} is not supported (PNG and JPEG are)",
-            mime.unwrap_or("unknown")
-        )
+        match mime {
+            Some(m @ ("image/png" | "image/jpeg")) => format!(
+                "its {} bytes are not the {} image it declares",
+                bytes.len(),
+                if m == "image/png" { "PNG" } else { "JPEG" }
+            ),
+            m => format!(
+                "format {} is not supported (PNG and JPEG are)",
+                m.unwrap_or("unknown")
+            ),
+        }
     })?;
     let mut reader = image::ImageReader::with_format(std::io::Cursor::new(&bytes), format);
     let mut limits = image::Limits::default();

@@ -405,6 +405,14 @@ fn glb_views_jpeg_and_unsupported_images() {
         "{warnings:?}"
     );
     assert_eq!(scene.images.len(), 1);
+
+    // Bytes that are not the PNG their view declares: a warning that says so.
+    let (_, warnings) = coherent::scene::gltf::load_gltf(&write_glb(&dir, b"ERR", "image/png"))
+        .expect("broken png glb");
+    assert_eq!(
+        warnings,
+        ["image 0: its 3 bytes are not the PNG image it declares; drawn without this texture"]
+    );
     let (pixels, _) = render(&scene);
     assert!(pixels
         .chunks_exact(4)
