@@ -19,6 +19,9 @@ use crate::Error;
 /// normalized): from above, a little from the side.
 pub const DEFAULT_SUN: Vec3 = Vec3::new(0.4, 1.0, 0.3);
 
+/// The extension that places a node's mesh many times.
+const INSTANCING: &str = "EXT_mesh_gpu_instancing";
+
 /// Upper bound on node visits while flattening the hierarchy (guards against exponential DAGs).
 const MAX_NODE_VISITS: usize = 10_000_000;
 
@@ -399,35 +402,52 @@ impl Loader<'_> {
                 return Err(format!("node {} has a non-finite transform", node.index()));
             }
             if let Some(mesh) = node.mesh() {
-                // glTF: a node whose transform mirrors (negative determinant) turns its
-                // triangles' winding over, so that their fronts still face out. The renderer
-                // and the ray scene take counter-clockwise in world space as the front: such
-                // a node draws a copy of the indices with the winding turned over.
-                let mirrors = world.determinant() < 0.0;
-                for mut geom in self.mesh_geometry(&mesh)? {
-                    if mirrors {
-                        geom.first_index = self.mirrored_indices(&geom)?;
-                    }
-                    let bounds = geom.bounds.transformed(&world);
-                    let reach = bounds.min.abs().max(bounds.max.abs()).max_element();
-                    if reach.is_nan() || reach > MAX_COORDINATE {
+                let instances = self.instances(doc, &node)?;
+                visits += instances.as_ref().map_or(0, Vec::len);
+                if visits > MAX_NODE_VISITS {
+                    return Err("node hierarchy expands to too many instances".to_string());
+                }
+                let geoms = self.mesh_geometry(&mesh)?;
+                for instance in instances.unwrap_or_else(|| vec![Mat4::IDENTITY]) {
+                    let world = world * instance;
+                    if !world.is_finite() {
                         return Err(format!(
-                            "node {}, mesh {}: its vertices reach {reach:.3e} units from the \
-                             origin (at most {MAX_COORDINATE:e}: is the file damaged?)",
-                            node.index(),
-                            mesh.index()
+                            "node {}: an instance has a non-finite transform",
+                            node.index()
                         ));
                     }
-                    self.objects.push(Object {
-                        first_index: geom.first_index,
-                        index_count: geom.index_count,
-                        vertex_offset: geom.vertex_offset,
-                        vertex_count: geom.vertex_count,
-                        transform: world,
-                        color: geom.color,
-                        bounds,
-                        material: geom.material,
-                    });
+                    // glTF: a node whose transform mirrors (negative determinant) turns its
+                    // triangles' winding over, so that their fronts still face out. The
+                    // renderer and the ray scene take counter-clockwise in world space as the
+                    // front: such a node draws a copy of the indices with the winding turned
+                    // over.
+                    let mirrors = world.determinant() < 0.0;
+                    for geom in &geoms {
+                        let mut geom = *geom;
+                        if mirrors {
+                            geom.first_index = self.mirrored_indices(&geom)?;
+                        }
+                        let bounds = geom.bounds.transformed(&world);
+                        let reach = bounds.min.abs().max(bounds.max.abs()).max_element();
+                        if reach.is_nan() || reach > MAX_COORDINATE {
+                            return Err(format!(
+                                "node {}, mesh {}: its vertices reach {reach:.3e} units from \
+                                 the origin (at most {MAX_COORDINATE:e}: is the file damaged?)",
+                                node.index(),
+                                mesh.index()
+                            ));
+                        }
+                        self.objects.push(Object {
+                            first_index: geom.first_index,
+                            index_count: geom.index_count,
+                            vertex_offset: geom.vertex_offset,
+                            vertex_count: geom.vertex_count,
+                            transform: world,
+                            color: geom.color,
+                            bounds,
+                            material: geom.material,
+                        });
+                    }
                 }
             }
             let children: Vec<_> = node.children().collect();
@@ -436,6 +456,73 @@ impl Loader<'_> {
             }
         }
         Ok(())
+    }
+
+    /// The instance transforms of a node with `EXT_mesh_gpu_instancing` (`None` without it):
+    /// per instance TRANSLATION x ROTATION x SCALE from its accessors, each absent one the
+    /// identity. Every instance becomes an object of its own, so the culler tests each.
+    fn instances(&self, doc: &Document, node: &Node<'_>) -> Result<Option<Vec<Mat4>>, String> {
+        let Some(ext) = node.extension_value(INSTANCING) else {
+            return Ok(None);
+        };
+        let label = format!("node {} {INSTANCING}", node.index());
+        let attributes = ext
+            .get("attributes")
+            .and_then(serde_json::Value::as_object)
+            .ok_or_else(|| format!("{label}: no attributes"))?;
+        let read = |name: &str, dims: Dimensions| -> Result<Option<Vec<[f32; 4]>>, String> {
+            let Some(index) = attributes.get(name) else {
+                return Ok(None);
+            };
+            let acc = index
+                .as_u64()
+                .and_then(|i| doc.accessors().nth(usize::try_from(i).ok()?))
+                .ok_or_else(|| format!("{label}: {name} names no accessor"))?;
+            if acc.dimensions() != dims {
+                return Err(format!(
+                    "{label}: {name} accessor {} is {:?}, not {dims:?}",
+                    acc.index(),
+                    acc.dimensions()
+                ));
+            }
+            let elems = super::gltf_material::read_elements(&acc, self.buffers)
+                .map_err(|e| format!("{label}: {name} accessor {}: {e}", acc.index()))?;
+            if let Some(i) = elems.iter().position(|e| !e.iter().all(|c| c.is_finite())) {
+                return Err(format!("{label}: {name} of instance {i} is not finite"));
+            }
+            Ok(Some(elems))
+        };
+        let t = read("TRANSLATION", Dimensions::Vec3)?;
+        let r = read("ROTATION", Dimensions::Vec4)?;
+        let s = read("SCALE", Dimensions::Vec3)?;
+        let counts: Vec<usize> = [&t, &r, &s]
+            .iter()
+            .filter_map(|a| a.as_ref().map(Vec::len))
+            .collect();
+        let Some(&count) = counts.first() else {
+            return Err(format!("{label}: none of TRANSLATION, ROTATION and SCALE"));
+        };
+        if counts.iter().any(|&c| c != count) {
+            return Err(format!("{label}: its accessors count {counts:?} instances"));
+        }
+        Ok(Some(
+            (0..count)
+                .map(|i| {
+                    let t = t
+                        .as_ref()
+                        .map_or(Vec3::ZERO, |t| Vec3::from_slice(&t[i][..3]));
+                    let r = r.as_ref().map_or(glam::Quat::IDENTITY, |r| {
+                        Vec4::from_array(r[i])
+                            .try_normalize()
+                            .map_or(glam::Quat::IDENTITY, glam::Quat::from_vec4)
+                    });
+                    let s = s
+                        .as_ref()
+                        .map_or(Vec3::ONE, |s| Vec3::from_slice(&s[i][..3]));
+                    Mat4::from_scale_rotation_translation(s, r, t)
+                })
+                .collect(),
+        ))
     }
 
     /// The first index of a copy of `geom`'s indices with each triangle's winding turned
@@ -1185,6 +1272,71 @@ mod tests {
             assert_eq!(triangles(&scene), 25);
             check_consistent(&scene);
         }
+    }
+
+    /// A cube node placed three times by `EXT_mesh_gpu_instancing` (rotations as normalized
+    /// shorts, as gltfpack writes them), the extension required; `scale_count` SCALE elements.
+    fn instanced_cubes(scale_count: usize) -> GltfBuilder {
+        let mut b = GltfBuilder::default();
+        let cube = b.cube_mesh([1.0, 1.0, 1.0, 1.0]);
+        let t = b.vec3(&[[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 5.0, 0.0]]);
+        let h = (std::f32::consts::FRAC_1_SQRT_2 * 32767.0).round() as i16;
+        let shorts: Vec<u8> = [[0, 0, 0, 32767], [0, h, 0, h], [0, 0, 0, 32767]]
+            .iter()
+            .flatten()
+            .flat_map(|c: &i16| c.to_le_bytes())
+            .collect();
+        let view = b.view(&shorts);
+        b.accessors.push(format!(
+            r#"{{"bufferView":{view},"componentType":5122,"normalized":true,"type":"VEC4","count":3}}"#
+        ));
+        let r = b.accessors.len() - 1;
+        let s = b.vec3(&[[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]][..scale_count]);
+        b.nodes.push(format!(
+            r#"{{"mesh":{cube},"translation":[0,0,10],"extensions":{{"EXT_mesh_gpu_instancing":{{"attributes":{{"TRANSLATION":{t},"ROTATION":{r},"SCALE":{s}}}}}}}}}"#
+        ));
+        b.scene_nodes = Some(vec![0]);
+        b
+    }
+
+    #[test]
+    fn gpu_instancing_places_one_object_per_instance() {
+        let dir = temp_dir("instancing");
+        let required = r#"{"extensionsUsed":["EXT_mesh_gpu_instancing"],"extensionsRequired":["EXT_mesh_gpu_instancing"],"#;
+        let json = instanced_cubes(3)
+            .gltf_embedded()
+            .replacen('{', required, 1);
+        let (scene, warnings) = load_gltf(&write(&dir, "instanced.gltf", json)).expect("load");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        assert_eq!(scene.objects.len(), 3);
+        check_consistent(&scene);
+        let o = &scene.objects;
+        let node = Mat4::from_translation(Vec3::new(0.0, 0.0, 10.0));
+        let turn = Mat4::from_rotation_y(std::f32::consts::FRAC_PI_2);
+        let want = [
+            node,
+            node * Mat4::from_translation(Vec3::new(5.0, 0.0, 0.0)) * turn,
+            node * Mat4::from_translation(Vec3::new(0.0, 5.0, 0.0))
+                * Mat4::from_scale(Vec3::splat(2.0)),
+        ];
+        for (i, (o, w)) in o.iter().zip(want).enumerate() {
+            assert!(
+                o.transform.abs_diff_eq(w, 1e-4),
+                "instance {i}: {} against {w}",
+                o.transform
+            );
+        }
+        // The instances share the mesh's geometry; the scaled one's box is twice as wide.
+        assert!(o.iter().all(|x| x.first_index == o[0].first_index));
+        let size = |x: &Object| x.bounds.max - x.bounds.min;
+        assert!((size(&o[2]) - 2.0 * size(&o[0])).abs().max_element() < 1e-4);
+
+        let broken = write(&dir, "counts.gltf", instanced_cubes(2).gltf_embedded());
+        assert_scene_err(
+            &broken,
+            "EXT_mesh_gpu_instancing: its accessors count [3, 3, 2] instances",
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -26,6 +26,7 @@ pub const HONORED: &[&str] = &[
     QUANTIZATION,
     "KHR_lights_punctual",
     "KHR_texture_transform",
+    "EXT_mesh_gpu_instancing",
 ];
 /// Largest buffer a meshopt fallback may declare (it is allocated to receive decoded data).
 const MAX_FALLBACK_BYTES: usize = 1 << 32;

@@ -348,7 +348,7 @@ fn base64_decode(text: &str) -> Result<Vec<u8>, String> {
 
 /// Reads any accessor of up to four components (float, or integer normalized or not) as
 /// `[f32; 4]` elements (missing components are 0, alpha 1 for colors is the caller's job).
-fn read_elements(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<[f32; 4]>, String> {
+pub(super) fn read_elements(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<[f32; 4]>, String> {
     let dims = match acc.dimensions() {
         Dimensions::Scalar => 1,
         Dimensions::Vec2 => 2,
