@@ -117,7 +117,8 @@ fn bad_buffer_uris_are_one_line_errors() {
 }
 
 /// Valid files covering the loader's paths: GLB and embedded glTF, u16/u32 and no indices,
-/// instancing, a hierarchy without scenes, a non-triangle mode.
+/// instancing (nodes and `EXT_mesh_gpu_instancing`), a hierarchy without scenes, a non-triangle
+/// mode.
 fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut out = vec![("grid4.glb", cube_grid_glb(4))];
     let mut b = GltfBuilder::default();
@@ -140,6 +141,17 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     out.push(("mixed.glb", b.glb()));
     b.scene_nodes = None;
     out.push(("noscene.glb", b.glb()));
+
+    // A node whose mesh EXT_mesh_gpu_instancing places twice.
+    let mut b = GltfBuilder::default();
+    let cube = b.cube_mesh([0.0, 1.0, 0.0, 1.0]);
+    let t = b.vec3(&[[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]);
+    let s = b.vec3(&[[1.0, 1.0, 1.0], [0.5, 0.5, 0.5]]);
+    b.nodes.push(format!(
+        r#"{{"mesh":{cube},"extensions":{{"EXT_mesh_gpu_instancing":{{"attributes":{{"TRANSLATION":{t},"SCALE":{s}}}}}}}}}"#
+    ));
+    b.scene_nodes = Some(vec![0]);
+    out.push(("instanced.glb", b.glb()));
     out
 }
 
