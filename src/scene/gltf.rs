@@ -33,8 +33,9 @@ const MAX_COORDINATE: f32 = 1.0e12;
 /// Loads a `.gltf` or `.glb` file into a [`Scene`].
 ///
 /// Every triangle primitive reachable from the default scene (or the first scene, or all root
-/// nodes when the file has no scenes) becomes one [`Object`] per node instance; instances of the
-/// same mesh share their vertex and index range. Returns the scene and a list of warnings about
+/// nodes when the file has no scenes) becomes one [`Object`] per node instance (and per
+/// instance of a node's `EXT_mesh_gpu_instancing`); instances of the same mesh share their
+/// vertex and index range. Returns the scene and a list of warnings about
 /// content that was skipped (non-triangle primitives, unusable normals, ...).
 ///
 /// Any malformed input (unreadable or truncated file, invalid JSON, missing or short buffers,
