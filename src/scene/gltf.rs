@@ -124,7 +124,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         &mut loader.warnings,
     ));
     let mats = loader.materials;
-    loader.warnings.extend(mats.blend_warning());
+    loader.warnings.extend(mats.warnings());
     let attributes = if mats.attributes_used || !mats.materials.is_empty() {
         loader.attributes
     } else {
@@ -605,9 +605,7 @@ impl Loader<'_> {
             }
         }
         self.materials.attributes_used |= found;
-        let material = self
-            .materials
-            .material(&gm, self.buffers, &mut self.warnings);
+        let material = self.materials.material(&gm, self.buffers);
         let mut geom = self.append_geometry(&positions, &normals, &indices, color)?;
         self.attributes
             .resize(geom.vertex_offset as usize, Default::default());

@@ -23,8 +23,24 @@ use super::material::{
 /// what lies behind it be seen (and be culled by what is really in front of it).
 pub const BLEND_CUTOFF: f32 = 0.5;
 
-/// How many BLEND materials the warning names before it counts the rest.
+/// How many materials or images a warning names before it counts the rest.
 const BLEND_NAMED: usize = 6;
+
+/// "material 3", "materials 3, 7 and 12", "images 0, 1, 2, 3, 4, 5 and 194 more": the first
+/// [`BLEND_NAMED`] of `indices` of a `kind`, the rest counted (`None` for none).
+fn named(kind: &str, indices: &[usize]) -> Option<String> {
+    let (first, rest) = indices.split_at(indices.len().min(BLEND_NAMED));
+    let mut names: Vec<String> = first.iter().map(usize::to_string).collect();
+    Some(match (names.len(), rest.len()) {
+        (0, _) => return None,
+        (1, _) => format!("{kind} {}", names[0]),
+        (_, 0) => {
+            let last = names.pop().unwrap_or_default();
+            format!("{kind}s {} and {last}", names.join(", "))
+        }
+        (_, more) => format!("{kind}s {} and {more} more", names.join(", ")),
+    })
+}
 
 /// Largest decoded image accepted (texels), so a hostile file cannot ask for gigabytes.
 const MAX_TEXELS: u64 = 1 << 26;
@@ -43,6 +59,8 @@ pub(super) struct MaterialLoader {
     pub attributes_used: bool,
     /// The glTF materials with alpha mode BLEND, in the order they were met.
     blended: Vec<usize>,
+    /// The glTF images that could not be decoded, and why, in the order they were met.
+    failed_images: Vec<(usize, String)>,
 }
 
 impl MaterialLoader {
@@ -57,12 +75,7 @@ impl MaterialLoader {
     /// Our material for a primitive's glTF material: `None` when it has neither a usable base
     /// color texture nor alpha mode MASK or BLEND nor `doubleSided` (then the base color factor
     /// says it all).
-    pub fn material(
-        &mut self,
-        m: &::gltf::Material<'_>,
-        buffers: &[Data],
-        warnings: &mut Vec<String>,
-    ) -> Option<u32> {
+    pub fn material(&mut self, m: &::gltf::Material<'_>, buffers: &[Data]) -> Option<u32> {
         let index = m.index()?;
         if let Some(&known) = self.by_material.get(&index) {
             return known;
@@ -70,7 +83,7 @@ impl MaterialLoader {
         let texture = m
             .pbr_metallic_roughness()
             .base_color_texture()
-            .and_then(|info| self.texture(&info.texture(), buffers, warnings));
+            .and_then(|info| self.texture(&info.texture(), buffers));
         let alpha = match m.alpha_mode() {
             ::gltf::material::AlphaMode::Mask => {
                 let cutoff = m.alpha_cutoff().unwrap_or(0.5);
@@ -97,37 +110,42 @@ impl MaterialLoader {
         ours
     }
 
-    /// One warning for every BLEND material met (none when there was none), naming the first
-    /// few: a file can have hundreds.
-    pub fn blend_warning(&self) -> Option<String> {
-        let (named, rest) = self.blended.split_at(self.blended.len().min(BLEND_NAMED));
-        let list = |ns: &[usize]| ns.iter().map(usize::to_string).collect::<Vec<_>>();
-        let who = match (named, rest.len()) {
-            ([], _) => return None,
-            ([one], _) => format!("material {one}"),
-            (_, 0) => {
-                let mut names = list(named);
-                let last = names.pop().unwrap_or_default();
-                format!("materials {} and {last}", names.join(", "))
+    /// The warnings about materials and images, each kind in one line that names the first
+    /// few (a file can have hundreds): the BLEND materials, and the images that could not be
+    /// decoded, grouped by reason.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let mut reasons: Vec<(&str, Vec<usize>)> = Vec::new();
+        for (index, reason) in &self.failed_images {
+            match reasons.iter_mut().find(|(r, _)| r == reason) {
+                Some((_, indices)) => indices.push(*index),
+                None => reasons.push((reason, vec![*index])),
             }
-            (_, more) => format!("materials {} and {more} more", list(named).join(", ")),
-        };
-        Some(format!(
-            "{who}: alpha mode BLEND, drawn alpha-tested at {BLEND_CUTOFF} (no blending: \
-             cut where alpha is under {BLEND_CUTOFF}, opaque elsewhere)"
-        ))
+        }
+        for (reason, indices) in reasons {
+            if let Some(who) = named("image", &indices) {
+                let these = if indices.len() == 1 {
+                    "this texture"
+                } else {
+                    "these textures"
+                };
+                out.push(format!("{who}: {reason}; drawn without {these}"));
+            }
+        }
+        out.extend(named("material", &self.blended).map(|who| {
+            format!(
+                "{who}: alpha mode BLEND, drawn alpha-tested at {BLEND_CUTOFF} (no blending: \
+                 cut where alpha is under {BLEND_CUTOFF}, opaque elsewhere)"
+            )
+        }));
+        out
     }
 
-    fn texture(
-        &mut self,
-        t: &::gltf::Texture<'_>,
-        buffers: &[Data],
-        warnings: &mut Vec<String>,
-    ) -> Option<u32> {
+    fn texture(&mut self, t: &::gltf::Texture<'_>, buffers: &[Data]) -> Option<u32> {
         if let Some(&known) = self.by_texture.get(&t.index()) {
             return known;
         }
-        let image = self.image(&t.source(), buffers, warnings);
+        let image = self.image(&t.source(), buffers);
         let ours = image.map(|image| {
             self.textures.push(Texture {
                 image,
@@ -139,12 +157,7 @@ impl MaterialLoader {
         ours
     }
 
-    fn image(
-        &mut self,
-        img: &::gltf::Image<'_>,
-        buffers: &[Data],
-        warnings: &mut Vec<String>,
-    ) -> Option<u32> {
+    fn image(&mut self, img: &::gltf::Image<'_>, buffers: &[Data]) -> Option<u32> {
         if let Some(&known) = self.by_image.get(&img.index()) {
             return known;
         }
@@ -154,10 +167,7 @@ impl MaterialLoader {
                 Some(self.images.len() as u32 - 1)
             }
             Err(e) => {
-                warnings.push(format!(
-                    "image {}: {e}; drawn without this texture",
-                    img.index()
-                ));
+                self.failed_images.push((img.index(), e));
                 None
             }
         };
@@ -465,22 +475,46 @@ mod tests {
                 blended,
                 ..Default::default()
             }
-            .blend_warning()
+            .warnings()
         };
         let tail = "drawn alpha-tested at 0.5 (no blending: cut where alpha is under 0.5, \
                     opaque elsewhere)";
-        assert_eq!(warning(vec![]), None);
+        assert!(warning(vec![]).is_empty());
         assert_eq!(
-            warning(vec![3]).unwrap(),
-            format!("material 3: alpha mode BLEND, {tail}")
+            warning(vec![3]),
+            [format!("material 3: alpha mode BLEND, {tail}")]
         );
         assert_eq!(
-            warning(vec![3, 7, 12]).unwrap(),
-            format!("materials 3, 7 and 12: alpha mode BLEND, {tail}")
+            warning(vec![3, 7, 12]),
+            [format!("materials 3, 7 and 12: alpha mode BLEND, {tail}")]
         );
         assert_eq!(
-            warning((0..200).collect()).unwrap(),
-            format!("materials 0, 1, 2, 3, 4, 5 and 194 more: alpha mode BLEND, {tail}")
+            warning((0..200).collect()),
+            [format!(
+                "materials 0, 1, 2, 3, 4, 5 and 194 more: alpha mode BLEND, {tail}"
+            )]
+        );
+    }
+
+    #[test]
+    fn images_that_fail_for_one_reason_share_a_warning() {
+        let ktx2 = "format image/ktx2 is not supported (PNG and JPEG are)".to_string();
+        let loader = MaterialLoader {
+            failed_images: vec![
+                (2, ktx2.clone()),
+                (4, "cannot read 'a.png'".to_string()),
+                (5, ktx2.clone()),
+                (9, ktx2),
+            ],
+            ..Default::default()
+        };
+        assert_eq!(
+            loader.warnings(),
+            [
+                "images 2, 5 and 9: format image/ktx2 is not supported (PNG and JPEG are); \
+                 drawn without these textures",
+                "image 4: cannot read 'a.png'; drawn without this texture",
+            ]
         );
     }
 
