@@ -24,12 +24,12 @@ use super::material::{
 pub const BLEND_CUTOFF: f32 = 0.5;
 
 /// How many materials or images a warning names before it counts the rest.
-const BLEND_NAMED: usize = 6;
+const NAMED_MOST: usize = 6;
 
 /// "material 3", "materials 3, 7 and 12", "images 0, 1, 2, 3, 4, 5 and 194 more": the first
-/// [`BLEND_NAMED`] of `indices` of a `kind`, the rest counted (`None` for none).
+/// [`NAMED_MOST`] of `indices` of a `kind`, the rest counted (`None` for none).
 fn named(kind: &str, indices: &[usize]) -> Option<String> {
-    let (first, rest) = indices.split_at(indices.len().min(BLEND_NAMED));
+    let (first, rest) = indices.split_at(indices.len().min(NAMED_MOST));
     let mut names: Vec<String> = first.iter().map(usize::to_string).collect();
     Some(match (names.len(), rest.len()) {
         (0, _) => return None,
