@@ -11,6 +11,7 @@ use ::gltf::mesh::{Mode, Semantic};
 use ::gltf::{Accessor, Document, Gltf, Node};
 use glam::{Mat4, Vec3, Vec4};
 
+use super::gltf_ext::INSTANCING;
 use super::gltf_material::{primitive_attributes, MaterialLoader};
 use super::{Aabb, CameraPath, CameraPose, Object, Scene, Vertex, VertexAttributes};
 use crate::Error;
@@ -18,9 +19,6 @@ use crate::Error;
 /// Direction towards the directional light the loader gives every glTF scene (not
 /// normalized): from above, a little from the side.
 pub const DEFAULT_SUN: Vec3 = Vec3::new(0.4, 1.0, 0.3);
-
-/// The extension that places a node's mesh many times.
-const INSTANCING: &str = "EXT_mesh_gpu_instancing";
 
 /// Upper bound on node visits while flattening the hierarchy (guards against exponential DAGs).
 const MAX_NODE_VISITS: usize = 10_000_000;

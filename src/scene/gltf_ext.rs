@@ -20,13 +20,16 @@ pub const CAMERAS_PATH: &str = "gltf-cameras";
 pub const LIGHT_PATH: &str = "gltf-light";
 const MESHOPT: &str = "EXT_meshopt_compression";
 const QUANTIZATION: &str = "KHR_mesh_quantization";
+/// The extension that places a node's mesh many times (the loader reads it while it walks
+/// the nodes).
+pub const INSTANCING: &str = "EXT_mesh_gpu_instancing";
 /// Extensions the loader honors; any other one in `extensionsUsed` gets a warning.
 pub const HONORED: &[&str] = &[
     MESHOPT,
     QUANTIZATION,
     "KHR_lights_punctual",
     "KHR_texture_transform",
-    "EXT_mesh_gpu_instancing",
+    INSTANCING,
 ];
 /// Largest buffer a meshopt fallback may declare (it is allocated to receive decoded data).
 const MAX_FALLBACK_BYTES: usize = 1 << 32;
