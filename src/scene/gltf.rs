@@ -588,20 +588,7 @@ impl Loader<'_> {
         let normals = self.primitive_normals(prim, label, &positions, &indices)?;
         let color = base_color(prim);
         let gm = prim.material();
-        let set = MaterialLoader::tex_coord_set(&gm);
-        let (mut attributes, found) =
-            primitive_attributes(prim, set, self.buffers, positions.len(), label)?;
-        if let Some(t) = MaterialLoader::uv_transform(&gm).filter(|t| !t.is_identity()) {
-            for (i, a) in attributes.iter_mut().enumerate() {
-                a.uv = t.apply(a.uv);
-                if !a.uv.iter().all(|c| c.is_finite()) {
-                    return Err(format!(
-                        "{label}: TEXCOORD_{set} of vertex {i} is not finite after the \
-                         material's KHR_texture_transform"
-                    ));
-                }
-            }
-        }
+        let (attributes, found) = primitive_attributes(prim, self.buffers, positions.len(), label)?;
         self.materials.attributes_used |= found;
         let material = self.materials.material(&gm, self.buffers);
         let mut geom = self.append_geometry(&positions, &normals, &indices, color)?;

@@ -177,7 +177,7 @@ impl MaterialLoader {
 
     /// The texture coordinate set a material's base color texture reads (0 when none).
     /// `KHR_texture_transform` may name another set.
-    pub fn tex_coord_set(m: &::gltf::Material<'_>) -> u32 {
+    fn tex_coord_set(m: &::gltf::Material<'_>) -> u32 {
         m.pbr_metallic_roughness()
             .base_color_texture()
             .map_or(0, |info| {
@@ -190,7 +190,7 @@ impl MaterialLoader {
     /// The `KHR_texture_transform` of a material's base color texture (`None` when it has
     /// none). gltfpack writes one for every textured material whose texture coordinates it
     /// quantizes.
-    pub fn uv_transform(m: &::gltf::Material<'_>) -> Option<UvTransform> {
+    fn uv_transform(m: &::gltf::Material<'_>) -> Option<UvTransform> {
         let t = m
             .pbr_metallic_roughness()
             .base_color_texture()?
@@ -202,7 +202,7 @@ impl MaterialLoader {
 /// `KHR_texture_transform`: texture coordinates scaled, then rotated counter-clockwise about
 /// the origin, then offset, as a 2x3 affine map (rows).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(super) struct UvTransform([[f32; 3]; 2]);
+struct UvTransform([[f32; 3]; 2]);
 
 impl UvTransform {
     /// The map of `offset`, `rotation` (radians) and `scale`.
@@ -398,15 +398,19 @@ pub(super) fn read_elements(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<
         .collect())
 }
 
-/// A primitive's TEXCOORD_`set` and COLOR_0 for its `n` vertices (defaults where absent), and
-/// whether it had vertex colors (texture coordinates alone matter only with a texture). Non-finite values are an error naming the attribute.
+/// A primitive's COLOR_0 and the TEXCOORD_n its material's base color texture reads, under
+/// that texture's `KHR_texture_transform`, for its `n` vertices (defaults where absent), and
+/// whether it had vertex colors (texture coordinates alone matter only with a texture).
+/// Non-finite values, read or transformed, are an error naming the attribute.
 pub(super) fn primitive_attributes(
     prim: &::gltf::Primitive<'_>,
-    set: u32,
     buffers: &[Data],
     n: usize,
     label: &str,
 ) -> Result<(Vec<VertexAttributes>, bool), String> {
+    let material = prim.material();
+    let set = MaterialLoader::tex_coord_set(&material);
+    let transform = MaterialLoader::uv_transform(&material).filter(|t| !t.is_identity());
     let mut out = vec![VertexAttributes::default(); n];
     let mut found = false;
     for (semantic, name) in [
@@ -429,9 +433,18 @@ pub(super) fn primitive_attributes(
             return Err(format!("{label}: {name} of vertex {i} is not finite"));
         }
         let rgb_only = acc.dimensions() == Dimensions::Vec3;
-        for (a, e) in out.iter_mut().zip(&elems) {
+        for (i, (a, e)) in out.iter_mut().zip(&elems).enumerate() {
             if matches!(semantic, Semantic::TexCoords(_)) {
                 a.uv = [e[0], e[1]];
+                if let Some(t) = transform {
+                    a.uv = t.apply(a.uv);
+                    if !a.uv.iter().all(|c| c.is_finite()) {
+                        return Err(format!(
+                            "{label}: {name} of vertex {i} is not finite after the \
+                             material's KHR_texture_transform"
+                        ));
+                    }
+                }
             } else {
                 let alpha = if rgb_only { 1.0 } else { e[3] };
                 a.color =
