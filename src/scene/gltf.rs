@@ -571,15 +571,17 @@ impl Loader<'_> {
         prim: &::gltf::Primitive<'_>,
         label: &str,
     ) -> Result<Option<PrimGeom>, String> {
-        if prim.mode() != Mode::Triangles {
-            self.warnings.push(format!(
-                "{label}: mode {:?} is not supported, skipped",
-                prim.mode()
-            ));
+        let mode = prim.mode();
+        if !matches!(
+            mode,
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        ) {
+            self.warnings
+                .push(format!("{label}: mode {mode:?} is not supported, skipped"));
             return Ok(None);
         }
         let positions = self.primitive_positions(prim, label)?;
-        let indices = self.primitive_indices(prim, label, positions.len())?;
+        let indices = self.primitive_indices(prim, label, positions.len(), mode)?;
         if indices.is_empty() {
             self.warnings
                 .push(format!("{label}: no triangles, skipped"));
@@ -616,41 +618,46 @@ impl Loader<'_> {
         Ok(positions)
     }
 
-    /// The triangle list's indices, checked against the `n` vertices; `0..n` when the
-    /// primitive has no index accessor.
+    /// The primitive's triangles as a list of indices, checked against the `n` vertices: the
+    /// index accessor's values, or `0..n` when there is none, read in `mode`'s topology.
     fn primitive_indices(
         &self,
         prim: &::gltf::Primitive<'_>,
         label: &str,
         n: usize,
+        mode: Mode,
     ) -> Result<Vec<u32>, String> {
-        match prim.indices() {
+        let seq = match prim.indices() {
             Some(acc) => {
                 let idx = read_indices(&acc, self.buffers)
                     .map_err(|e| format!("{label}: index accessor {}: {e}", acc.index()))?;
-                if !idx.len().is_multiple_of(3) {
-                    return Err(format!(
-                        "{label}: index count {} is not a multiple of 3",
-                        idx.len()
-                    ));
-                }
                 if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
                     return Err(format!(
                         "{label}: index {bad} out of range (vertex count {n})"
                     ));
                 }
-                Ok(idx)
+                if mode == Mode::Triangles && !idx.len().is_multiple_of(3) {
+                    return Err(format!(
+                        "{label}: index count {} is not a multiple of 3",
+                        idx.len()
+                    ));
+                }
+                idx
             }
             None => {
-                if !n.is_multiple_of(3) {
+                if mode == Mode::Triangles && !n.is_multiple_of(3) {
                     return Err(format!(
                         "{label}: non-indexed vertex count {n} is not a multiple of 3"
                     ));
                 }
                 let n32 = u32::try_from(n).map_err(|_| format!("{label}: too many vertices"))?;
-                Ok((0..n32).collect())
+                (0..n32).collect()
             }
-        }
+        };
+        Ok(match mode {
+            Mode::Triangles => seq,
+            _ => strip_or_fan_triangles(&seq, mode == Mode::TriangleFan),
+        })
     }
 
     /// Appends the vertices and indices to the shared buffers, which must stay addressable by
@@ -736,6 +743,24 @@ impl Loader<'_> {
         }
         Ok(normals)
     }
+}
+
+/// The triangles of a strip (or with `fan`, a fan) of the vertices `seq`, as a list with glTF's
+/// vertex order: triangle `i` of a strip is `(v[i], v[i + 1 + i % 2], v[i + 2 - i % 2])`, of a
+/// fan `(v[i + 1], v[i + 2], v[0])`. Triangles with a repeated vertex (those that stitch strips
+/// together) are left out; they cover no pixel.
+fn strip_or_fan_triangles(seq: &[u32], fan: bool) -> Vec<u32> {
+    (0..seq.len().saturating_sub(2))
+        .map(|i| {
+            if fan {
+                [seq[i + 1], seq[i + 2], seq[0]]
+            } else {
+                [seq[i], seq[i + 1 + i % 2], seq[i + 2 - i % 2]]
+            }
+        })
+        .filter(|[a, b, c]| a != b && b != c && a != c)
+        .flatten()
+        .collect()
 }
 
 /// The material's base color factor, clamped to [0, 1]; white if it is not finite.
@@ -1473,6 +1498,68 @@ mod tests {
             warnings[0].contains("wire") && warnings[0].contains("Lines"),
             "{warnings:?}"
         );
+    }
+
+    #[test]
+    fn triangle_strips_and_fans_become_lists_in_the_specs_vertex_order() {
+        // A strip of four triangles and an indexed fan of four, both in the XY plane and
+        // counter-clockwise seen from +Z in glTF's vertex order.
+        let dir = temp_dir("strips");
+        let mut b = GltfBuilder::default();
+        let strip = b.vec3(&[
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 2.0, 0.0],
+            [1.0, 2.0, 0.0],
+        ]);
+        let fan = b.vec3(&[
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [-1.0, 1.0, 0.0],
+            [-1.0, 0.0, 0.0],
+        ]);
+        let fan_idx = b.indices_u16(&[0, 1, 2, 3, 4, 5]);
+        b.meshes.push(format!(
+            r#"{{"name":"strip","primitives":[{{"attributes":{{"POSITION":{strip}}},"mode":5}}]}}"#
+        ));
+        b.meshes.push(format!(
+            r#"{{"name":"fan","primitives":[{{"attributes":{{"POSITION":{fan}}},"indices":{fan_idx},"mode":6}}]}}"#
+        ));
+        b.node(0, [0.0; 3]);
+        b.node(1, [5.0, 0.0, 0.0]);
+        b.scene_nodes = Some(vec![0, 1]);
+        let path = write(&dir, "strips.gltf", b.gltf_embedded());
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        assert_eq!(scene.objects.len(), 2);
+        assert_eq!(scene.objects[0].triangle_count(), 4);
+        assert_eq!(scene.objects[1].triangle_count(), 4);
+        for o in &scene.objects {
+            let idx =
+                &scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize];
+            let at =
+                |i: u32| Vec3::from_array(scene.vertices[(o.vertex_offset + i) as usize].position);
+            for t in idx.chunks_exact(3) {
+                let n = (at(t[1]) - at(t[0])).cross(at(t[2]) - at(t[0]));
+                assert!(n.z > 0.0, "triangle {t:?} of {o:?} faces away from +Z");
+            }
+        }
+        check_consistent(&scene);
+        assert_eq!(
+            strip_or_fan_triangles(&[0, 1, 2, 3, 4], false),
+            [0, 1, 2, 1, 3, 2, 2, 3, 4]
+        );
+        assert_eq!(
+            strip_or_fan_triangles(&[7, 8, 9, 10], true),
+            [8, 9, 7, 9, 10, 7]
+        );
+        // The two triangles with the repeated vertex are left out.
+        assert_eq!(strip_or_fan_triangles(&[0, 1, 2, 2, 3], false), [0, 1, 2]);
+        assert!(strip_or_fan_triangles(&[0, 1], false).is_empty());
     }
 
     #[test]
