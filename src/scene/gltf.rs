@@ -2,9 +2,11 @@
 //! hierarchy of the default scene into one [`Object`] per primitive instance over shared geometry,
 //! validating every accessor so malformed files give a one-line error instead of a panic.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::Path;
 
+use ::gltf::accessor::sparse::IndexType;
 use ::gltf::accessor::{DataType, Dimensions};
 use ::gltf::buffer::Data;
 use ::gltf::mesh::{Mode, Semantic};
@@ -225,7 +227,8 @@ pub(super) fn percent_decode(uri: &str) -> Result<String, String> {
 }
 
 /// Parses and validates the document, tolerating only missing POSITION `min`/`max` (required
-/// by the spec but often omitted by exporters; bounds are computed from the data anyway).
+/// by the spec but often omitted by exporters; bounds are computed from the data anyway) and
+/// accessors without a buffer view (the spec allows them: their elements are zeros).
 ///
 /// The crate's own validation indexes `accessors` with a primitive's POSITION index unchecked
 /// (gltf-json 1.4.1 panics on `"POSITION": 2147483647`), so attribute indices are checked here
@@ -246,7 +249,9 @@ fn parse(bytes: &[u8]) -> Result<Gltf, String> {
     errors.retain(|(path, error)| {
         let path = path.to_string();
         let tolerated = (*error == ::gltf::json::validation::Error::Missing
-            && (path.ends_with(".min") || path.ends_with(".max")))
+            && (path.ends_with(".min")
+                || path.ends_with(".max")
+                || (path.starts_with("accessors[") && path.ends_with("].bufferView"))))
             || (*error == ::gltf::json::validation::Error::Unsupported
                 && super::gltf_ext::is_honored_required(&path));
         !tolerated
@@ -263,8 +268,8 @@ fn parse(bytes: &[u8]) -> Result<Gltf, String> {
 const LISTED_ERRORS: usize = 5;
 
 /// A load error for a document that failed validation: the required extensions the loader
-/// does not support first (they usually cause the rest, e.g. a Draco mesh's accessors have no
-/// buffer views), then the first [`LISTED_ERRORS`] errors and how many more there are.
+/// does not support first (they often cause the rest), then the first [`LISTED_ERRORS`]
+/// errors and how many more there are.
 fn validation_message(
     root: &::gltf::json::Root,
     errors: &[(::gltf::json::Path, ::gltf::json::validation::Error)],
@@ -792,22 +797,21 @@ fn computed_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
         .collect()
 }
 
-/// The bytes an accessor reads and its element stride, after checking that every element lies
-/// inside its buffer view and the view inside its buffer.
-fn accessor_bytes<'b>(
-    acc: &Accessor<'_>,
+/// Most bytes an accessor without a buffer view, or a sparse one, may expand to (its elements
+/// are written out densely; those of other accessors are read where they lie).
+const MAX_DENSE_ACCESSOR_BYTES: usize = 1 << 28;
+
+/// The bytes of a buffer view, after checking that it lies inside its buffer.
+fn view_bytes<'b>(
+    view: &::gltf::buffer::View<'_>,
     buffers: &'b [Data],
-) -> Result<(&'b [u8], usize), String> {
-    if acc.sparse().is_some() {
-        return Err("sparse accessors are not supported".to_string());
-    }
-    let view = acc.view().ok_or("has no buffer view")?;
+) -> Result<&'b [u8], String> {
     let buffer = view.buffer();
     let data = buffers
         .get(buffer.index())
         .ok_or("refers to a missing buffer")?;
     let data_len = data.len().min(buffer.length());
-    let view_end = view
+    let end = view
         .offset()
         .checked_add(view.length())
         .filter(|&end| end <= data_len)
@@ -820,39 +824,131 @@ fn accessor_bytes<'b>(
                 buffer.index()
             )
         })?;
-    let view_bytes = &data[view.offset()..view_end];
-    let elem = acc.size();
-    let stride = view.stride().unwrap_or(elem);
-    if stride < elem {
-        return Err(format!(
-            "byte stride {stride} is smaller than the element size {elem}"
-        ));
-    }
-    let count = acc.count();
+    Ok(&data[view.offset()..end])
+}
+
+/// The `count` elements of `elem` bytes, `stride` apart from `offset` in `view`'s bytes, after
+/// checking that they lie inside it.
+fn view_elements<'b>(
+    view: &::gltf::buffer::View<'_>,
+    buffers: &'b [Data],
+    offset: usize,
+    count: usize,
+    elem: usize,
+    stride: usize,
+) -> Result<&'b [u8], String> {
+    let bytes = view_bytes(view, buffers)?;
     let needed = if count == 0 {
-        Some(acc.offset())
+        Some(offset)
     } else {
         (count - 1)
             .checked_mul(stride)
             .and_then(|v| v.checked_add(elem))
-            .and_then(|v| v.checked_add(acc.offset()))
+            .and_then(|v| v.checked_add(offset))
     };
     match needed {
-        Some(end) if end <= view_bytes.len() => Ok((&view_bytes[acc.offset()..end], stride)),
+        Some(end) if end <= bytes.len() => Ok(&bytes[offset..end]),
         _ => Err(format!(
-            "{count} elements at offset {} read past the end of buffer view {} ({} bytes)",
-            acc.offset(),
+            "{count} elements at offset {offset} read past the end of buffer view {} ({} bytes)",
             view.index(),
-            view_bytes.len()
+            bytes.len()
         )),
     }
 }
 
-/// Checks that an accessor's elements lie inside its view and buffer (for readers elsewhere).
+/// The bytes an accessor reads and its element stride, after checking that every element lies
+/// inside its buffer view and the view inside its buffer. An accessor without a view reads
+/// zeros; a sparse one its base values (or zeros) with the sparse values written over them
+/// (both are returned densely packed).
+fn accessor_bytes<'b>(
+    acc: &Accessor<'_>,
+    buffers: &'b [Data],
+) -> Result<(Cow<'b, [u8]>, usize), String> {
+    let elem = acc.size();
+    let count = acc.count();
+    let base = match acc.view() {
+        Some(view) => {
+            let stride = view.stride().unwrap_or(elem);
+            if stride < elem {
+                return Err(format!(
+                    "byte stride {stride} is smaller than the element size {elem}"
+                ));
+            }
+            Some((
+                view_elements(&view, buffers, acc.offset(), count, elem, stride)?,
+                stride,
+            ))
+        }
+        None => None,
+    };
+    let sparse = acc.sparse();
+    if let (Some((bytes, stride)), None) = (base, &sparse) {
+        return Ok((Cow::Borrowed(bytes), stride));
+    }
+    let len = count
+        .checked_mul(elem)
+        .filter(|&l| l <= MAX_DENSE_ACCESSOR_BYTES)
+        .ok_or_else(|| {
+            format!(
+                "{count} elements without a buffer view or sparse are more than {} MiB",
+                MAX_DENSE_ACCESSOR_BYTES >> 20
+            )
+        })?;
+    let mut dense = match base {
+        Some((bytes, stride)) => {
+            let mut dense = Vec::with_capacity(len);
+            for i in 0..count {
+                dense.extend_from_slice(&bytes[i * stride..i * stride + elem]);
+            }
+            dense
+        }
+        None => vec![0; len],
+    };
+    if let Some(sparse) = sparse {
+        let n = sparse.count();
+        if n == 0 {
+            return Err("sparse count is 0".to_string());
+        }
+        let (indices, values) = (sparse.indices(), sparse.values());
+        let isize = match indices.index_type() {
+            IndexType::U8 => 1,
+            IndexType::U16 => 2,
+            IndexType::U32 => 4,
+        };
+        let at = |what: &str, e: String| format!("sparse {what}: {e}");
+        let index_bytes =
+            view_elements(&indices.view(), buffers, indices.offset(), n, isize, isize)
+                .map_err(|e| at("indices", e))?;
+        let value_bytes = view_elements(&values.view(), buffers, values.offset(), n, elem, elem)
+            .map_err(|e| at("values", e))?;
+        let mut previous = None;
+        for (k, b) in index_bytes.chunks_exact(isize).enumerate() {
+            let i = match isize {
+                1 => usize::from(b[0]),
+                2 => usize::from(u16::from_le_bytes([b[0], b[1]])),
+                _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
+            };
+            if i >= count {
+                return Err(format!(
+                    "sparse index {i} out of range (element count {count})"
+                ));
+            }
+            if previous.is_some_and(|p| p >= i) {
+                return Err(format!("sparse indices do not increase (index {k} is {i})"));
+            }
+            previous = Some(i);
+            dense[i * elem..(i + 1) * elem].copy_from_slice(&value_bytes[k * elem..(k + 1) * elem]);
+        }
+    }
+    Ok((Cow::Owned(dense), elem))
+}
+
+/// Checks that an accessor's elements lie inside its view and buffer (for readers elsewhere)
+/// and returns them with their stride.
 pub(super) fn check_accessor<'b>(
     acc: &Accessor<'_>,
     buffers: &'b [Data],
-) -> Result<(&'b [u8], usize), String> {
+) -> Result<(Cow<'b, [u8]>, usize), String> {
     accessor_bytes(acc, buffers)
 }
 
@@ -1562,14 +1658,99 @@ mod tests {
         assert!(strip_or_fan_triangles(&[0, 1], false).is_empty());
     }
 
+    /// A triangle mesh whose POSITION accessor is sparse: `base` (a float VEC3 view) or zeros,
+    /// with `values` written at the u16 `indices`.
+    fn sparse_triangle(
+        base: Option<&[[f32; 3]]>,
+        indices: &[u16],
+        values: &[[f32; 3]],
+    ) -> GltfBuilder {
+        let mut b = GltfBuilder::default();
+        let count = base.map_or(3, <[_]>::len);
+        let base_view = base
+            .map(|data| {
+                let bytes: Vec<u8> = data
+                    .iter()
+                    .flatten()
+                    .flat_map(|f| f.to_le_bytes())
+                    .collect();
+                format!(r#""bufferView":{},"#, b.view(&bytes))
+            })
+            .unwrap_or_default();
+        let idx: Vec<u8> = indices.iter().flat_map(|i| i.to_le_bytes()).collect();
+        let idx_view = b.view(&idx);
+        let val: Vec<u8> = values
+            .iter()
+            .flatten()
+            .flat_map(|f| f.to_le_bytes())
+            .collect();
+        let val_view = b.view(&val);
+        b.accessors.push(format!(
+            r#"{{{base_view}"componentType":5126,"type":"VEC3","count":{count},"sparse":{{"count":{},"indices":{{"bufferView":{idx_view},"componentType":5123}},"values":{{"bufferView":{val_view}}}}}}}"#,
+            indices.len()
+        ));
+        let pos = b.accessors.len() - 1;
+        b.meshes.push(format!(
+            r#"{{"name":"sparse","primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}"#
+        ));
+        b.node(0, [0.0; 3]);
+        b.scene_nodes = Some(vec![0]);
+        b
+    }
+
+    #[test]
+    fn sparse_accessors_write_their_values_over_the_base_or_zeros() {
+        let dir = temp_dir("sparse");
+        let base = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        // Over a base view: the third vertex moves up to y = 3.
+        let b = sparse_triangle(Some(&base), &[2], &[[0.0, 3.0, 0.0]]);
+        let path = write(&dir, "over_base.glb", b.glb());
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        assert_eq!(scene.objects.len(), 1);
+        assert_eq!(scene.objects[0].bounds.max, Vec3::new(1.0, 3.0, 0.0));
+        check_consistent(&scene);
+        // No base view: zeros, with the second and third vertices given.
+        let b = sparse_triangle(None, &[1, 2], &[[2.0, 0.0, 0.0], [0.0, 2.0, 0.0]]);
+        let path = write(&dir, "over_zeros.glb", b.glb());
+        let (scene, _) = load_gltf(&path).expect("load");
+        let o = &scene.objects[0];
+        assert_eq!(
+            (o.bounds.min, o.bounds.max),
+            (Vec3::ZERO, Vec3::new(2.0, 2.0, 0.0))
+        );
+        let first = scene.vertices[o.vertex_offset as usize];
+        assert_eq!(first.position, [0.0; 3]);
+        assert_eq!(first.normal, [0.0, 0.0, 1.0]);
+        check_consistent(&scene);
+        // Broken ones are one-line errors.
+        let cases: [(&[u16], &str); 2] = [
+            (&[3], "sparse index 3 out of range (element count 3)"),
+            (&[2, 1], "sparse indices do not increase"),
+        ];
+        for (i, (indices, needle)) in cases.into_iter().enumerate() {
+            let values = vec![[1.0; 3]; indices.len()];
+            let b = sparse_triangle(Some(&base), indices, &values);
+            assert_scene_err(&write(&dir, &format!("bad{i}.glb"), b.glb()), needle);
+        }
+        let mut b = sparse_triangle(Some(&base), &[0, 1], &[[1.0; 3]]);
+        b.views.pop();
+        b.views
+            .push(r#"{"buffer":0,"byteOffset":0,"byteLength":12}"#.to_string());
+        assert_scene_err(
+            &write(&dir, "short.glb", b.glb()),
+            "sparse values: 2 elements",
+        );
+    }
+
     #[test]
     fn unsupported_required_extension_is_named_first_and_the_error_stays_short() {
         let dir = temp_dir("draco");
         let mut b = GltfBuilder::default();
-        // A Draco-compressed file's accessors have no buffer views: 40 errors follow from one
+        // Forty accessors that refer to a missing buffer view: 40 errors besides the one
         // unsupported extension.
         let accessors: Vec<String> = (0..40)
-            .map(|_| r#"{"componentType":5126,"count":3,"type":"VEC3"}"#.to_string())
+            .map(|_| r#"{"bufferView":7,"componentType":5126,"count":3,"type":"VEC3"}"#.to_string())
             .collect();
         b.accessors.extend(accessors);
         b.meshes

@@ -410,7 +410,10 @@ fn node_channels(
             let sampler = ch.sampler();
             let checked = [sampler.input(), sampler.output()]
                 .iter()
-                .try_for_each(|a| super::gltf::check_accessor(a, buffers).map(|_| ()));
+                .try_for_each(|a| match a.count() {
+                    0 => Err("an accessor has no elements".to_string()),
+                    _ => super::gltf::check_accessor(a, buffers).map(|_| ()),
+                });
             if let Err(e) = checked {
                 warnings.push(format!(
                     "animation {} channel {}: {e}, light animation ignored",

@@ -118,7 +118,7 @@ fn bad_buffer_uris_are_one_line_errors() {
 
 /// Valid files covering the loader's paths: GLB and embedded glTF, u16/u32 and no indices,
 /// instancing (nodes and `EXT_mesh_gpu_instancing`), a hierarchy without scenes, a non-triangle
-/// mode.
+/// mode, strips and fans, and a sparse accessor.
 fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut out = vec![("grid4.glb", cube_grid_glb(4))];
     let mut b = GltfBuilder::default();
@@ -152,6 +152,32 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     ));
     b.scene_nodes = Some(vec![0]);
     out.push(("instanced.glb", b.glb()));
+
+    // A strip, an indexed fan and a triangle whose positions are a sparse accessor over zeros.
+    let mut b = GltfBuilder::default();
+    let pos = b.vec3(&[
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0, 1.0, 0.0],
+    ]);
+    let idx = b.indices_u16(&[0, 1, 3, 2]);
+    let sparse_idx = b.view(&[1, 0, 2, 0]);
+    let values: Vec<u8> = [2.0f32, 0.0, 0.0, 0.0, 2.0, 0.0]
+        .iter()
+        .flat_map(|f| f.to_le_bytes())
+        .collect();
+    let sparse_val = b.view(&values);
+    b.accessors.push(format!(
+        r#"{{"componentType":5126,"type":"VEC3","count":3,"sparse":{{"count":2,"indices":{{"bufferView":{sparse_idx},"componentType":5123}},"values":{{"bufferView":{sparse_val}}}}}}}"#
+    ));
+    let sparse = b.accessors.len() - 1;
+    b.meshes.push(format!(
+        r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}},"mode":5}},{{"attributes":{{"POSITION":{pos}}},"indices":{idx},"mode":6}},{{"attributes":{{"POSITION":{sparse}}}}}]}}"#
+    ));
+    b.node(0, [0.0; 3]);
+    b.scene_nodes = Some(vec![0]);
+    out.push(("strips_sparse.glb", b.glb()));
     out
 }
 
