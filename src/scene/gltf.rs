@@ -66,6 +66,7 @@ struct PrimGeom {
 
 /// Accumulates shared geometry and objects while walking the document.
 struct Loader<'a> {
+    doc: &'a Document,
     buffers: &'a [Data],
     vertices: Vec<Vertex>,
     indices: Vec<u32>,
@@ -89,6 +90,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     super::gltf_ext::decode_meshopt(&document, &mut buffers)?;
 
     let mut loader = Loader {
+        doc: &document,
         buffers: &buffers,
         vertices: Vec::new(),
         indices: Vec::new(),
@@ -597,7 +599,7 @@ impl Loader<'_> {
         let gm = prim.material();
         let (attributes, found) = primitive_attributes(prim, self.buffers, positions.len(), label)?;
         self.materials.attributes_used |= found;
-        let material = self.materials.material(&gm, self.buffers);
+        let material = self.materials.material(&gm, self.doc, self.buffers);
         let mut geom = self.append_geometry(&positions, &normals, &indices, color)?;
         self.attributes
             .resize(geom.vertex_offset as usize, Default::default());

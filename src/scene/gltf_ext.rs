@@ -1,7 +1,8 @@
 //! glTF content beyond core geometry: `EXT_meshopt_compression` buffer views (decoded with the
 //! `meshopt` crate), `KHR_mesh_quantization` (accepted: the accessor readers take its integer
-//! types), camera nodes as the path `gltf-cameras`, the first `KHR_lights_punctual` spot light
-//! as the light path `gltf-light`, and one warning per extension that is not honored.
+//! types), `EXT_texture_webp` (the material loader reads its image), camera nodes as the path
+//! `gltf-cameras`, the first `KHR_lights_punctual` spot light as the light path `gltf-light`,
+//! and one warning per extension that is not honored.
 
 use ::gltf::animation::util::ReadOutputs;
 use ::gltf::animation::{Interpolation, Property};
@@ -23,6 +24,8 @@ const QUANTIZATION: &str = "KHR_mesh_quantization";
 /// The extension that places a node's mesh many times (the loader reads it while it walks
 /// the nodes).
 pub const INSTANCING: &str = "EXT_mesh_gpu_instancing";
+/// The extension that gives a texture a WebP image (decoded like PNG and JPEG).
+pub const WEBP: &str = "EXT_texture_webp";
 /// Extensions the loader honors; any other one in `extensionsUsed` gets a warning.
 pub const HONORED: &[&str] = &[
     MESHOPT,
@@ -30,7 +33,12 @@ pub const HONORED: &[&str] = &[
     "KHR_lights_punctual",
     "KHR_texture_transform",
     INSTANCING,
+    WEBP,
 ];
+/// Extensions the loader does not honor but loads a file that requires anyway: they only give
+/// textures images in formats it cannot decode, so the file is drawn without those textures
+/// (with warnings) instead of being refused.
+pub const TOLERATED: &[&str] = &["KHR_texture_basisu", "EXT_texture_avif"];
 /// Largest buffer a meshopt fallback may declare (it is allocated to receive decoded data).
 const MAX_FALLBACK_BYTES: usize = 1 << 32;
 /// Most samples taken of an animated light.
@@ -38,10 +46,14 @@ const MAX_LIGHT_SAMPLES: usize = 1024;
 /// Half the angle the default sweep turns a static spot light through, degrees.
 const SWEEP_DEGREES: f32 = 20.0;
 
-/// Whether a validation error at `path` is `extensionsRequired[i] = "X"` for an honored X.
+/// Whether a validation error at `path` is `extensionsRequired[i] = "X"` for an X that is
+/// honored or tolerated.
 pub fn is_honored_required(path: &str) -> bool {
     path.starts_with("extensionsRequired")
-        && HONORED.iter().any(|e| path.ends_with(&format!("\"{e}\"")))
+        && HONORED
+            .iter()
+            .chain(TOLERATED)
+            .any(|e| path.ends_with(&format!("\"{e}\"")))
 }
 
 /// One warning per used extension that is not honored (its content is ignored).

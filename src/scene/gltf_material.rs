@@ -1,8 +1,8 @@
-//! glTF materials: base color textures (PNG and JPEG, from a GLB buffer view, a data URI or a
-//! file next to the .gltf) with their samplers, alpha mode MASK with its cutoff (BLEND is drawn
-//! as MASK at [`BLEND_CUTOFF`], with a warning), and the
-//! per-vertex TEXCOORD_n and COLOR_0 attributes. An image that cannot be decoded (KTX2/Basis,
-//! WebP, a broken file) is a one-line warning and the material is drawn without its texture.
+//! glTF materials: base color textures (PNG, JPEG, and WebP through `EXT_texture_webp`, from a
+//! GLB buffer view, a data URI or a file next to the .gltf) with their samplers, alpha mode MASK
+//! with its cutoff (BLEND is drawn as MASK at [`BLEND_CUTOFF`], with a warning), and the
+//! per-vertex TEXCOORD_n and COLOR_0 attributes. A texture whose image cannot be decoded
+//! (KTX2/Basis, AVIF, a broken file) is a one-line warning and the material is drawn without it.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -11,8 +11,9 @@ use ::gltf::accessor::{DataType, Dimensions};
 use ::gltf::buffer::Data;
 use ::gltf::mesh::Semantic;
 use ::gltf::texture::{MagFilter, MinFilter, WrappingMode};
-use ::gltf::Accessor;
+use ::gltf::{Accessor, Document};
 
+use super::gltf_ext::WEBP;
 use super::material::{
     AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
 };
@@ -61,6 +62,8 @@ pub(super) struct MaterialLoader {
     blended: Vec<usize>,
     /// The glTF images that could not be decoded, and why, in the order they were met.
     failed_images: Vec<(usize, String)>,
+    /// The glTF textures with no image to decode, and why, in the order they were met.
+    failed_textures: Vec<(usize, String)>,
 }
 
 impl MaterialLoader {
@@ -75,7 +78,12 @@ impl MaterialLoader {
     /// Our material for a primitive's glTF material: `None` when it has neither a usable base
     /// color texture nor alpha mode MASK or BLEND nor `doubleSided` (then the base color factor
     /// says it all).
-    pub fn material(&mut self, m: &::gltf::Material<'_>, buffers: &[Data]) -> Option<u32> {
+    pub fn material(
+        &mut self,
+        m: &::gltf::Material<'_>,
+        doc: &Document,
+        buffers: &[Data],
+    ) -> Option<u32> {
         let index = m.index()?;
         if let Some(&known) = self.by_material.get(&index) {
             return known;
@@ -83,7 +91,7 @@ impl MaterialLoader {
         let texture = m
             .pbr_metallic_roughness()
             .base_color_texture()
-            .and_then(|info| self.texture(&info.texture(), buffers));
+            .and_then(|info| self.texture(&info.texture(), doc, buffers));
         let alpha = match m.alpha_mode() {
             ::gltf::material::AlphaMode::Mask => {
                 let cutoff = m.alpha_cutoff().unwrap_or(0.5);
@@ -110,26 +118,32 @@ impl MaterialLoader {
         ours
     }
 
-    /// The warnings about materials and images, each kind in one line that names the first
-    /// few (a file can have hundreds): the BLEND materials, and the images that could not be
-    /// decoded, grouped by reason.
+    /// The warnings about materials, textures and images, each kind in one line that names the
+    /// first few (a file can have hundreds): the BLEND materials, the textures without an image
+    /// to decode and the images that could not be decoded, grouped by reason.
     pub fn warnings(&self) -> Vec<String> {
         let mut out = Vec::new();
-        let mut reasons: Vec<(&str, Vec<usize>)> = Vec::new();
-        for (index, reason) in &self.failed_images {
-            match reasons.iter_mut().find(|(r, _)| r == reason) {
-                Some((_, indices)) => indices.push(*index),
-                None => reasons.push((reason, vec![*index])),
+        for (kind, failed) in [
+            ("texture", &self.failed_textures),
+            ("image", &self.failed_images),
+        ] {
+            let mut reasons: Vec<(&str, Vec<usize>)> = Vec::new();
+            for (index, reason) in failed {
+                match reasons.iter_mut().find(|(r, _)| r == reason) {
+                    Some((_, indices)) => indices.push(*index),
+                    None => reasons.push((reason, vec![*index])),
+                }
             }
-        }
-        for (reason, indices) in reasons {
-            if let Some(who) = named("image", &indices) {
-                let these = if indices.len() == 1 {
-                    "this texture"
-                } else {
-                    "these textures"
-                };
-                out.push(format!("{who}: {reason}; drawn without {these}"));
+            for (reason, indices) in reasons {
+                if let Some(who) = named(kind, &indices) {
+                    let these = match (kind, indices.len()) {
+                        ("texture", 1) => "it",
+                        ("texture", _) => "them",
+                        (_, 1) => "this texture",
+                        _ => "these textures",
+                    };
+                    out.push(format!("{who}: {reason}; drawn without {these}"));
+                }
             }
         }
         out.extend(named("material", &self.blended).map(|who| {
@@ -141,11 +155,22 @@ impl MaterialLoader {
         out
     }
 
-    fn texture(&mut self, t: &::gltf::Texture<'_>, buffers: &[Data]) -> Option<u32> {
+    fn texture(
+        &mut self,
+        t: &::gltf::Texture<'_>,
+        doc: &Document,
+        buffers: &[Data],
+    ) -> Option<u32> {
         if let Some(&known) = self.by_texture.get(&t.index()) {
             return known;
         }
-        let image = self.image(&t.source(), buffers);
+        let image = match texture_image(t, doc) {
+            Ok(image) => self.image(&image, buffers),
+            Err(e) => {
+                self.failed_textures.push((t.index(), e));
+                None
+            }
+        };
         let ours = image.map(|image| {
             self.textures.push(Texture {
                 image,
@@ -253,6 +278,39 @@ fn sampler_desc(s: &::gltf::texture::Sampler<'_>) -> SamplerDesc {
     }
 }
 
+/// The image a texture reads: the `EXT_texture_webp` image when it names one, else the core
+/// `source`; an error saying why when there is none (its only images are in extensions such as
+/// `KHR_texture_basisu`, which are not decoded).
+fn texture_image<'d>(
+    t: &::gltf::Texture<'d>,
+    doc: &'d Document,
+) -> Result<::gltf::Image<'d>, String> {
+    let extensions = t.extensions();
+    let ext_source = |name: &str| extensions?.get(name)?.get("source");
+    if let Some(source) = ext_source(WEBP) {
+        return source
+            .as_u64()
+            .and_then(|i| doc.images().nth(usize::try_from(i).ok()?))
+            .ok_or_else(|| format!("its {WEBP} source {source} is not an image of the file"));
+    }
+    if let Some(image) = t.source() {
+        return Ok(image);
+    }
+    let others: Vec<&str> = extensions
+        .into_iter()
+        .flatten()
+        .filter(|(_, v)| v.get("source").is_some())
+        .map(|(k, _)| k.as_str())
+        .collect();
+    Err(match others.as_slice() {
+        [] => "it has no image".to_string(),
+        names => format!(
+            "its only image is given by {}, which is not supported",
+            names.join(", ")
+        ),
+    })
+}
+
 /// The encoded bytes of an image and a name for messages.
 fn image_bytes(img: &::gltf::Image<'_>, base: &Path, buffers: &[Data]) -> Result<Vec<u8>, String> {
     match img.source() {
@@ -287,7 +345,7 @@ fn image_bytes(img: &::gltf::Image<'_>, base: &Path, buffers: &[Data]) -> Result
     }
 }
 
-/// Decodes a PNG or JPEG image to sRGB RGBA8.
+/// Decodes a PNG, JPEG or WebP image to sRGB RGBA8.
 fn decode_image(
     img: &::gltf::Image<'_>,
     base: &Path,
@@ -303,13 +361,17 @@ fn decode_image(
             }),
         };
         match mime {
-            Some(m @ ("image/png" | "image/jpeg")) => format!(
+            Some(m @ ("image/png" | "image/jpeg" | "image/webp")) => format!(
                 "its {} bytes are not the {} image it declares",
                 bytes.len(),
-                if m == "image/png" { "PNG" } else { "JPEG" }
+                match m {
+                    "image/png" => "PNG",
+                    "image/jpeg" => "JPEG",
+                    _ => "WebP",
+                }
             ),
             m => format!(
-                "format {} is not supported (PNG and JPEG are)",
+                "format {} is not supported (PNG, JPEG and WebP are)",
                 m.unwrap_or("unknown")
             ),
         }

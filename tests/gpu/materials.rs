@@ -317,6 +317,21 @@ fn blend_materials_are_drawn_alpha_tested_at_one_half() {
 /// One checker quad (REPEAT, nearest) whose texture coordinates reach u = `u1`, its material's
 /// texture under `transform` (a KHR_texture_transform object, or none), as a .gltf in `dir`.
 fn write_checker_quad(dir: &Path, name: &str, u1: f32, transform: Option<&str>) -> PathBuf {
+    let used = if transform.is_some() {
+        r#""extensionsUsed":["KHR_texture_transform"],"#
+    } else {
+        ""
+    };
+    let head = format!(
+        r#"{used}"images":[{{"uri":"data:image/png;base64,{}"}}],"textures":[{{"source":0,"sampler":0}}],"#,
+        base64(&checker_png())
+    );
+    write_quad(dir, name, u1, transform, &head)
+}
+
+/// A quad as [`write_checker_quad`] writes it, with `head` (the images, textures and extension
+/// lists) in place of its checker PNG.
+fn write_quad(dir: &Path, name: &str, u1: f32, transform: Option<&str>, head: &str) -> PathBuf {
     let mut b = GltfBuilder::default();
     let ext = transform
         .map(|t| format!(r#","extensions":{{"KHR_texture_transform":{t}}}"#))
@@ -326,20 +341,65 @@ fn write_checker_quad(dir: &Path, name: &str, u1: f32, transform: Option<&str>) 
     )];
     let q = quad(&mut b, (-2.0, -1.0, 2.0, 1.0, 0.0), u1, None, 0);
     b.node(q, [0.0, 0.0, 0.0]);
-    let used = if transform.is_some() {
-        r#""extensionsUsed":["KHR_texture_transform"],"#
-    } else {
-        ""
-    };
-    let head = format!(
-        r#"{used}"images":[{{"uri":"data:image/png;base64,{}"}}],"samplers":[{{"magFilter":9728,"minFilter":9728}}],"textures":[{{"source":0,"sampler":0}}],"#,
-        base64(&checker_png())
-    );
+    let head = format!(r#"{head}"samplers":[{{"magFilter":9728,"minFilter":9728}}],"#);
     let uri = format!("data:application/octet-stream;base64,{}", base64(&b.bin));
     let json = b.json(Some(&uri)).replacen('{', &format!("{{{head}"), 1);
     let path = dir.join(name);
     std::fs::write(&path, json).expect("write");
     path
+}
+
+/// `EXT_texture_webp` (what gltf-transform's `optimize` writes by default): a texture whose only
+/// image is a WebP one, the extension required, draws as the same texture in PNG does. A
+/// texture whose only image is KTX2 (`KHR_texture_basisu` required, as `gltfpack -tc` writes) is
+/// loaded and drawn without it, with warnings that say so.
+#[test]
+fn webp_textures_draw_as_png_ones_and_ktx2_only_textures_are_left_out() {
+    let dir = temp_dir("webp");
+    let rgba: Vec<u8> = (0..64)
+        .flat_map(|i| {
+            let c = if (i % 8 + i / 8) % 2 == 0 { 255 } else { 0 };
+            [c, c, c, 255]
+        })
+        .collect();
+    let mut webp = Vec::new();
+    image::codecs::webp::WebPEncoder::new_lossless(&mut webp)
+        .encode(&rgba, 8, 8, image::ExtendedColorType::Rgba8)
+        .expect("webp");
+    let plain = write_checker_quad(&dir, "png.gltf", 2.0, None);
+    let head = format!(
+        r#""extensionsUsed":["EXT_texture_webp"],"extensionsRequired":["EXT_texture_webp"],"images":[{{"uri":"data:image/webp;base64,{}"}}],"textures":[{{"sampler":0,"extensions":{{"EXT_texture_webp":{{"source":0}}}}}}],"#,
+        base64(&webp)
+    );
+    let webp_path = write_quad(&dir, "webp.gltf", 2.0, None, &head);
+    let (want, _) = coherent::scene::gltf::load_gltf(&plain).expect("png");
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&webp_path).expect("webp");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!(scene.images, want.images);
+    let (pixels, _) = render(&scene);
+    assert!(checker_transitions(&pixels, H / 2) >= 6);
+    assert!(pixels == render(&want).0, "the WebP quad's pixels differ");
+
+    let ktx2 = [
+        0xAB, b'K', b'T', b'X', b' ', b'2', b'0', 0xBB, b'\r', b'\n', 0x1A, b'\n',
+    ];
+    let head = format!(
+        r#""extensionsUsed":["KHR_texture_basisu"],"extensionsRequired":["KHR_texture_basisu"],"images":[{{"uri":"data:image/ktx2;base64,{}"}}],"textures":[{{"sampler":0,"extensions":{{"KHR_texture_basisu":{{"source":0}}}}}}],"#,
+        base64(&ktx2)
+    );
+    let path = write_quad(&dir, "ktx2.gltf", 2.0, None, &head);
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("ktx2 only");
+    assert_eq!(
+        warnings,
+        [
+            "extension KHR_texture_basisu is not supported, ignored",
+            "texture 0: its only image is given by KHR_texture_basisu, which is not supported; \
+             drawn without it"
+        ]
+    );
+    assert!(scene.images.is_empty() && scene.textures.is_empty());
+    assert_eq!(scene.objects.len(), 1);
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// KHR_texture_transform on the base color texture: texture coordinates to u = 1 scaled by 2
