@@ -59,6 +59,7 @@ struct PrimGeom {
     index_count: u32,
     vertex_offset: u32,
     vertex_count: u32,
+    /// The box of the vertices its triangles use, in the mesh's space.
     bounds: Aabb,
     color: Vec4,
     material: Option<u32>,
@@ -433,7 +434,7 @@ impl Loader<'_> {
                         if mirrors {
                             geom.first_index = self.mirrored_indices(&geom)?;
                         }
-                        let bounds = geom.bounds.transformed(&world);
+                        let bounds = self.world_bounds(&geom, &world);
                         let reach = bounds.min.abs().max(bounds.max.abs()).max_element();
                         if reach.is_nan() || reach > MAX_COORDINATE {
                             return Err(format!(
@@ -550,6 +551,28 @@ impl Loader<'_> {
         self.indices.extend_from_slice(&turned);
         self.mirrored.insert(geom.first_index, first);
         Ok(first)
+    }
+
+    /// The world bounds of `geom`'s triangles under `world`: its local box transformed when
+    /// `world` only scales and translates (exact then), else the box of its transformed
+    /// vertices (a rotated box's bounds can be far larger than what it holds: a floor turned
+    /// about a slanted axis would get a box as tall as it is wide).
+    fn world_bounds(&self, geom: &PrimGeom, world: &Mat4) -> Aabb {
+        let axis_aligned = [world.x_axis, world.y_axis, world.z_axis]
+            .iter()
+            .enumerate()
+            .all(|(i, col)| (0..3).all(|j| j == i || col[j] == 0.0));
+        if axis_aligned {
+            return geom.bounds.transformed(world);
+        }
+        let start = geom.first_index as usize;
+        let base = geom.vertex_offset as usize;
+        let mut bounds = Aabb::EMPTY;
+        for &i in &self.indices[start..start + geom.index_count as usize] {
+            let p = Vec3::from_array(self.vertices[base + i as usize].position);
+            bounds.grow(world.transform_point3(p));
+        }
+        bounds
     }
 
     /// The triangle primitives of `mesh`, loading them into the shared buffers on first use.
@@ -694,9 +717,13 @@ impl Loader<'_> {
             return Err("scene exceeds 2^32 vertices or indices".to_string());
         };
 
+        // The box of the vertices the triangles use: primitives that share one accessor each
+        // get the box of their own part.
         let mut bounds = Aabb::EMPTY;
+        for &i in indices {
+            bounds.grow(positions[i as usize]);
+        }
         for (p, nrm) in positions.iter().zip(normals) {
-            bounds.grow(*p);
             self.vertices.push(Vertex {
                 position: p.to_array(),
                 normal: nrm.to_array(),
@@ -1289,7 +1316,8 @@ mod tests {
         scene.objects.iter().map(|o| o.triangle_count()).sum()
     }
 
-    /// Every object's indices are in range and its bounds contain its transformed vertices.
+    /// Every object's indices are in range, its bounds contain the transformed vertices its
+    /// triangles use, and its normals have unit length.
     fn check_consistent(scene: &Scene) {
         for o in &scene.objects {
             let idx =
@@ -1298,13 +1326,16 @@ mod tests {
             let verts = &scene.vertices
                 [o.vertex_offset as usize..(o.vertex_offset + o.vertex_count) as usize];
             for v in verts {
+                assert!((Vec3::from_array(v.normal).length() - 1.0).abs() < 1e-4);
+            }
+            for &i in idx {
+                let v = verts[i as usize];
                 let p = o.transform.transform_point3(Vec3::from_array(v.position));
                 assert!(
                     o.bounds.enlarged(1e-4).contains(p),
                     "{p} outside {:?}",
                     o.bounds
                 );
-                assert!((Vec3::from_array(v.normal).length() - 1.0).abs() < 1e-4);
             }
         }
     }
@@ -1742,6 +1773,58 @@ mod tests {
         assert_scene_err(
             &write(&dir, "short.glb", b.glb()),
             "sparse values: 2 elements",
+        );
+    }
+
+    #[test]
+    fn bounds_hold_the_triangles_under_turned_nodes_and_shared_accessors_tightly() {
+        // One triangle turned 45 degrees about Z: the box of its turned vertices reaches
+        // y = 0.707; its local box turned would reach 1.414. Two primitives share one POSITION
+        // accessor of six vertices, each using three of them.
+        let dir = temp_dir("tight");
+        let mut b = GltfBuilder::default();
+        let pos = b.vec3(&[
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [10.0, 0.0, 0.0],
+            [11.0, 0.0, 0.0],
+            [10.0, 1.0, 0.0],
+        ]);
+        let first = b.indices_u16(&[0, 1, 2]);
+        let second = b.indices_u16(&[3, 4, 5]);
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}},"indices":{first}}}]}}"#
+        ));
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{pos}}},"indices":{first}}},{{"attributes":{{"POSITION":{pos}}},"indices":{second}}}]}}"#
+        ));
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        b.nodes.push(format!(
+            r#"{{"mesh":0,"rotation":[0,0,{},{}]}}"#,
+            (std::f32::consts::FRAC_PI_8).sin(),
+            (std::f32::consts::FRAC_PI_8).cos()
+        ));
+        b.node(1, [0.0, 5.0, 0.0]);
+        b.scene_nodes = Some(vec![0, 1]);
+        let path = write(&dir, "tight.gltf", b.gltf_embedded());
+        let (scene, _) = load_gltf(&path).expect("load");
+        check_consistent(&scene);
+        let turned = scene.objects[0].bounds;
+        let want = Aabb::new(Vec3::new(-h, 0.0, 0.0), Vec3::new(h, h, 0.0));
+        assert!(
+            (turned.min - want.min).abs().max_element() < 1e-5
+                && (turned.max - want.max).abs().max_element() < 1e-5,
+            "{turned:?}"
+        );
+        let [a, c] = [scene.objects[1].bounds, scene.objects[2].bounds];
+        assert_eq!(
+            (a.min, a.max),
+            (Vec3::new(0.0, 5.0, 0.0), Vec3::new(1.0, 6.0, 0.0))
+        );
+        assert_eq!(
+            (c.min, c.max),
+            (Vec3::new(10.0, 5.0, 0.0), Vec3::new(11.0, 6.0, 0.0))
         );
     }
 
