@@ -65,5 +65,7 @@ pub mod image_io;
 mod parallel;
 pub mod render;
 pub mod scene;
+#[doc(hidden)]
+pub mod testing;
 
 pub use error::{Error, Result};

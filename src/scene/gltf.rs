@@ -1280,14 +1280,12 @@ pub mod testdata {
 mod tests {
     use super::testdata::{base64, cube_grid_glb, GltfBuilder};
     use super::*;
+    use crate::testing::TempDir;
     use std::path::PathBuf;
 
-    /// A fresh per-test directory under the system temp dir.
-    fn temp_dir(test: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("coherent_gltf_{}_{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        dir
+    /// A fresh per-test directory under the system temp dir, removed when dropped.
+    fn temp_dir(test: &str) -> TempDir {
+        TempDir::new(&format!("gltf-{test}"))
     }
 
     fn write(dir: &Path, name: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
@@ -1474,7 +1472,6 @@ mod tests {
             &broken,
             "EXT_mesh_gpu_instancing: its accessors count [3, 3, 2] instances",
         );
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -340,8 +340,7 @@ fn edge_cases_render_like_vfc() {
 
 #[test]
 fn one_object_scene_renders_like_vfc() {
-    let dir = std::env::temp_dir().join(format!("coherent-one-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = coherent::testing::TempDir::new("one");
     let p = dir.join("one.glb");
     std::fs::write(&p, coherent::scene::gltf::testdata::cube_grid_glb(1)).unwrap();
     let scene = Scene::load(p.to_str().unwrap(), 1.0, 4096).unwrap();

@@ -326,8 +326,7 @@ fn inserted_objects_are_drawn_and_removed_ones_never_again() {
 /// movers, and the movers' figures in `summary.json`.
 #[test]
 fn walk_with_movers_reports_refit_and_rebuilds() {
-    let dir = std::env::temp_dir().join(format!("coherent-movers-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = coherent::testing::TempDir::new("movers");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
         .args([
             "walk",
@@ -394,7 +393,6 @@ fn walk_with_movers_reports_refit_and_rebuilds() {
     assert!(m["refit_ms_median"].as_f64().unwrap() > 0.0);
     assert!(m["rebuilds"].is_number());
     assert!(m["vs_static"]["chcpp"]["median"].as_f64().unwrap() > 0.0);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The recorder counts the movers' draws (`mover_draws`): in a walk with movers every algorithm

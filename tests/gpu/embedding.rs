@@ -426,7 +426,7 @@ fn engine_example_runs_the_gpu_policy_on_any_device() {
 #[test]
 fn walk_reports_frames_in_flight_as_a_latency_suffix() {
     use std::process::Command;
-    let dir = std::env::temp_dir().join(format!("coherent-walk-k2-{}", std::process::id()));
+    let dir = coherent::testing::TempDir::new("walk-k2");
     let walk = |latency: &str| {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_coherent"));
         cmd.args([
@@ -447,5 +447,4 @@ fn walk_reports_frames_in_flight_as_a_latency_suffix() {
     let bad = walk("in-frame-k2");
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("frames in flight"));
-    let _ = std::fs::remove_dir_all(&dir);
 }

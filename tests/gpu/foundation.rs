@@ -265,8 +265,6 @@ fn cli_rejects_bad_flags_cleanly() {
     }
 }
 
-fn tempdir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("coherent-test-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn tempdir(name: &str) -> coherent::testing::TempDir {
+    coherent::testing::TempDir::new(&format!("test-{name}"))
 }

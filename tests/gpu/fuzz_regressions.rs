@@ -47,11 +47,8 @@ fn load_never_panics(dir: &Path, name: &str, bytes: &[u8]) -> Result<Scene, Stri
     })
 }
 
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("coherent-fuzzreg-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
+fn scratch(test: &str) -> coherent::testing::TempDir {
+    coherent::testing::TempDir::new(&format!("fuzzreg-{test}"))
 }
 
 /// A cube whose mesh JSON is replaced by `mesh` (with `{pos}`, `{nrm}`, `{idx}` filled in).

@@ -321,8 +321,7 @@ fn a_non_conservative_test_is_caught() {
 fn cli_render_and_walk_accept_hiz() {
     use std::process::Command;
     let exe = env!("CARGO_BIN_EXE_coherent");
-    let dir = std::env::temp_dir().join(format!("coherent-hiz-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = coherent::testing::TempDir::new("hiz-cli");
     let run = |cmd: &mut Command| {
         common::on_test_device(cmd);
         let out = cmd.output().expect("run coherent");

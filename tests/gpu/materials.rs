@@ -17,11 +17,8 @@ use glam::Vec3;
 const W: u32 = 320;
 const H: u32 = 240;
 
-fn temp_dir(test: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("coherent-materials-{}-{test}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
+fn temp_dir(test: &str) -> coherent::testing::TempDir {
+    coherent::testing::TempDir::new(&format!("materials-{test}"))
 }
 
 /// 8x8 checker: texel (x, y) white when x + y is even, else black.
@@ -281,7 +278,6 @@ fn textures_masks_and_vertex_colors_render_as_authored() {
         opaque_ids[0] as usize + behind,
         "wall ID pixels"
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// A BLEND material is drawn as MASK at 0.5: the same pixels and ID pass as the masked quad it
@@ -311,7 +307,6 @@ fn blend_materials_are_drawn_alpha_tested_at_one_half() {
         pixels == want_pixels,
         "the BLEND quad's pixels differ from the MASK quad's"
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// One checker quad (REPEAT, nearest) whose texture coordinates reach u = `u1`, its material's
@@ -399,7 +394,6 @@ fn webp_textures_draw_as_png_ones_and_ktx2_only_textures_are_left_out() {
     );
     assert!(scene.images.is_empty() && scene.textures.is_empty());
     assert_eq!(scene.objects.len(), 1);
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// KHR_texture_transform on the base color texture: texture coordinates to u = 1 scaled by 2
@@ -423,7 +417,6 @@ fn texture_transforms_scale_the_coordinates() {
         pixels == want_pixels,
         "the transformed quad's pixels differ"
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
@@ -477,7 +470,6 @@ fn glb_views_jpeg_and_unsupported_images() {
     assert!(pixels
         .chunks_exact(4)
         .any(|p| is_red([p[0], p[1], p[2], p[3]])));
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// Two quads facing +Z: object 0 red and `doubleSided`, object 1 green and single-sided
@@ -501,7 +493,6 @@ fn two_sided_scene() -> Scene {
     std::fs::write(&path, b.gltf_embedded()).expect("write");
     let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("load");
     assert!(warnings.is_empty(), "{warnings:?}");
-    std::fs::remove_dir_all(&dir).ok();
     scene
 }
 
@@ -585,7 +576,6 @@ fn hiz_draws_textures_masks_and_two_sided_faces_as_vfc_does() {
     let dir = temp_dir("hiz-materials");
     let path = write_glb(&dir, &checker_png(), "image/png");
     let (textured, _) = coherent::scene::gltf::load_gltf(&path).expect("load");
-    std::fs::remove_dir_all(&dir).ok();
     let views = [
         (
             "materials",

@@ -5,8 +5,6 @@
 
 use crate::common;
 
-use std::path::PathBuf;
-
 use coherent::app::calibrate::{self, Source};
 use coherent::app::pvs_build::PvsFile;
 use coherent::app::pvs_build::{self, PvsSettings};
@@ -20,11 +18,8 @@ use glam::Vec3;
 const W: u32 = 160;
 const H: u32 = 90;
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("coherent-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn temp_dir(name: &str) -> coherent::testing::TempDir {
+    coherent::testing::TempDir::new(name)
 }
 
 /// NOHC with queries cheap against rendering (it queries nearly everything) or dear (it queries
@@ -249,7 +244,6 @@ fn pvs_of_two_rooms_is_what_can_be_seen_and_its_cache_is_checked() {
         let res = r.render_frame(culler.as_mut(), &bvh, &cam, 0).unwrap();
         assert_eq!(res.counts.queries_begun, 0);
         assert_eq!(r.check_drawn(&owned).missed_objects, 0);
-        let _ = std::fs::remove_dir_all(&dir);
     }
     drop(ctx);
     common::assert_silent(&log);
@@ -290,7 +284,6 @@ fn calibration_is_measured_once_and_replaced_when_foreign() {
         let (fixed, source) = calibrate::load_or_calibrate(&ctx, &dir, false).unwrap();
         assert!(matches!(source, Source::Measured { replaced: Some(_) }));
         assert!(fixed.costs.is_valid());
-        let _ = std::fs::remove_dir_all(&dir);
     }
     drop(ctx);
     common::assert_silent(&log);
@@ -351,5 +344,4 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
         .next()
         .unwrap()
         .ends_with("missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,cpu_ms"));
-    let _ = std::fs::remove_dir_all(&out);
 }

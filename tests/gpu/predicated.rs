@@ -348,8 +348,7 @@ fn without_conditional_rendering_the_predicated_mode_names_the_extension() {
 /// went under predicates; its image equals vfc's.
 #[test]
 fn render_takes_the_predicated_latency() {
-    let dir = std::env::temp_dir().join(format!("coherent-render-pred-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = coherent::testing::TempDir::new("render-pred");
     let render = |algorithm: &str, latency: &str, png: &str| {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
             .args([
@@ -385,7 +384,6 @@ fn render_takes_the_predicated_latency() {
     render("vfc", "in-frame", "v.png");
     let read = |png: &str| image::open(dir.join(png)).unwrap().to_rgba8().into_raw();
     assert_eq!(common::diff_pixels(&read("v.png"), &read("p.png")), 0);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Ranges of the draw order that do not lie in it, and predicates that are not resolved

@@ -17,16 +17,14 @@ use coherent::render::hiz::FrameAlgorithm;
 use coherent::render::Renderer;
 use coherent::Error;
 
-fn scratch(test: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("coherent-rel-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
+fn scratch(test: &str) -> coherent::testing::TempDir {
+    coherent::testing::TempDir::new(&format!("rel-{test}"))
 }
 
 #[test]
 fn render_passes_with_a_second_layer_injected() {
-    let out = scratch("layer").join("frame.png");
+    let dir = scratch("layer");
+    let out = dir.join("frame.png");
     let run = Command::new(env!("CARGO_BIN_EXE_coherent"))
         .args(["render", "--scene", "cornell", "--size", "64x48", "--out"])
         .arg(&out)

@@ -10,11 +10,8 @@ use coherent::scene::paths::{self, PathKey};
 use coherent::scene::Scene;
 use glam::Vec3;
 
-fn temp_dir(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("coherent_scenes_{}_{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
+fn temp_dir(test: &str) -> coherent::testing::TempDir {
+    coherent::testing::TempDir::new(&format!("scenes-{test}"))
 }
 
 fn write(dir: &Path, name: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
@@ -759,5 +756,4 @@ fn render_keeps_the_interior_walk_in_the_cache_directory() {
     assert!(!second.contains("interior walk"), "{second}");
     let image = |png: &str| std::fs::read(dir.join(png)).expect("png");
     assert!(image("first.png") == image("second.png"));
-    std::fs::remove_dir_all(&dir).expect("clean up");
 }

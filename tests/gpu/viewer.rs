@@ -3,7 +3,7 @@
 //! against Mesa's overlay layer (`VK_LAYER_MESA_overlay`), a counter that is not ours.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 use std::sync::Mutex;
 
@@ -12,10 +12,8 @@ use crate::common;
 /// `xvfb-run -a` picks a free display number racily; run one viewer at a time.
 static XVFB: Mutex<()> = Mutex::new(());
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("coherent-viewer-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
+fn scratch(name: &str) -> coherent::testing::TempDir {
+    coherent::testing::TempDir::new(&format!("viewer-{name}"))
 }
 
 fn run_viewer(args: &[&str], env: &[(&str, &str)]) -> Output {
@@ -165,7 +163,6 @@ fn non_interactive_view_under_xvfb_with_validation() {
         assert!(num(r, "draws") > 0);
         assert!(num(r, "pipeline_binds") > 0);
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Mesa's overlay layer counts, per sampling period, the frames presented and the pipeline binds
@@ -272,7 +269,6 @@ fn overlay_cross_check(algorithm: &str) {
         (binds, draws),
         "{algorithm}: pipeline binds and draws of the first {frames} frames: ours vs Mesa's overlay layer"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A resize in the middle of the run recreates the swapchain without validation messages, and
@@ -293,5 +289,4 @@ fn resize_recreates_the_swapchain_under_validation() {
     ]);
     let img = image::open(&shot).expect("screenshot PNG").to_rgba8();
     assert_eq!(img.dimensions(), (200, 150));
-    let _ = std::fs::remove_dir_all(&dir);
 }

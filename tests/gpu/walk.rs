@@ -2,10 +2,8 @@
 
 use std::process::Command;
 
-fn tempdir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("coherent-walk-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+fn tempdir(name: &str) -> coherent::testing::TempDir {
+    coherent::testing::TempDir::new(&format!("walk-{name}"))
 }
 
 #[test]

@@ -256,16 +256,22 @@ fn draw_lines<'a, Y: Ranged<ValueType = f64>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::TempDir;
     use std::path::PathBuf;
 
-    fn out_dir() -> PathBuf {
-        let dir = std::env::var_os("REPORT_PLOT_DIR")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| {
-                std::env::temp_dir().join(format!("coherent_plot_{}", std::process::id()))
-            });
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
+    /// Where a test writes its plots: `REPORT_PLOT_DIR` when it is set (kept, to look at),
+    /// else a temp dir that is removed when the second value drops.
+    fn out_dir(test: &str) -> (PathBuf, Option<TempDir>) {
+        match std::env::var_os("REPORT_PLOT_DIR") {
+            Some(dir) => {
+                std::fs::create_dir_all(&dir).unwrap();
+                (PathBuf::from(dir), None)
+            }
+            None => {
+                let tmp = TempDir::new(&format!("plot-{test}"));
+                (tmp.to_path_buf(), Some(tmp))
+            }
+        }
     }
 
     /// Synthetic walk: per algorithm `(frame, ms, queries, state changes)`.
@@ -304,7 +310,7 @@ mod tests {
 
     #[test]
     fn frametime_png() {
-        let dir = out_dir();
+        let (dir, _tmp) = out_dir("frametime_png");
         let path = dir.join("frametime.png");
         let series: Vec<(String, Vec<(u32, f64)>)> = walk(600)
             .into_iter()
@@ -317,7 +323,7 @@ mod tests {
 
     #[test]
     fn counts_png() {
-        let dir = out_dir();
+        let (dir, _tmp) = out_dir("counts_png");
         let path = dir.join("counts.png");
         let series: Vec<CountSeries> = walk(600)
             .into_iter()
@@ -337,7 +343,7 @@ mod tests {
 
     #[test]
     fn empty_series_do_not_panic() {
-        let dir = out_dir();
+        let (dir, _tmp) = out_dir("empty_series_do_not_panic");
         plot_frametime(&dir.join("empty1.png"), "empty", &[]).unwrap();
         plot_frametime(
             &dir.join("empty2.png"),
