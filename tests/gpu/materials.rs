@@ -344,10 +344,10 @@ fn write_quad(dir: &Path, name: &str, u1: f32, transform: Option<&str>, head: &s
     path
 }
 
-/// `EXT_texture_webp` (what gltf-transform's `optimize` writes by default): a texture whose only
-/// image is a WebP one, the extension required, draws as the same texture in PNG does. A
-/// texture whose only image is KTX2 (`KHR_texture_basisu` required, as `gltfpack -tc` writes) is
-/// loaded and drawn without it, with warnings that say so.
+/// `EXT_texture_webp` (what `gltf-transform optimize --texture-compress webp` writes): a
+/// texture whose only image is a WebP one, the extension required, draws as the same texture in
+/// PNG does. A texture whose only image is KTX2 (`KHR_texture_basisu` required) is loaded and
+/// drawn without it, with warnings that say so.
 #[test]
 fn webp_textures_draw_as_png_ones_and_ktx2_only_textures_are_left_out() {
     let dir = temp_dir("webp");
