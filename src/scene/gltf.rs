@@ -799,7 +799,7 @@ fn strip_or_fan_triangles(seq: &[u32], fan: bool) -> Vec<u32> {
 
 /// The material's base color factor, clamped to [0, 1]; white if it is not finite.
 fn base_color(prim: &::gltf::Primitive<'_>) -> Vec4 {
-    let factor = prim.material().pbr_metallic_roughness().base_color_factor();
+    let factor = super::gltf_material::base_color_factor(&prim.material());
     let color = Vec4::from_array(factor);
     if color.is_finite() {
         color.clamp(Vec4::ZERO, Vec4::ONE)

@@ -34,6 +34,7 @@ pub const HONORED: &[&str] = &[
     "KHR_texture_transform",
     INSTANCING,
     WEBP,
+    "KHR_materials_pbrSpecularGlossiness",
 ];
 /// Extensions the loader does not honor but loads a file that requires anyway: they only give
 /// textures images in formats it cannot decode, so the file is drawn without those textures

@@ -1,5 +1,6 @@
 //! glTF materials: base color textures (PNG, JPEG, and WebP through `EXT_texture_webp`, from a
-//! GLB buffer view, a data URI or a file next to the .gltf) with their samplers, alpha mode MASK
+//! GLB buffer view, a data URI or a file next to the .gltf; the diffuse texture and factor of
+//! `KHR_materials_pbrSpecularGlossiness` stand for them) with their samplers, alpha mode MASK
 //! with its cutoff (BLEND is drawn as MASK at [`BLEND_CUTOFF`], with a warning), and the
 //! per-vertex TEXCOORD_n and COLOR_0 attributes. A texture whose image cannot be decoded
 //! (KTX2/Basis, AVIF, a broken file) is a one-line warning and the material is drawn without it.
@@ -88,10 +89,8 @@ impl MaterialLoader {
         if let Some(&known) = self.by_material.get(&index) {
             return known;
         }
-        let texture = m
-            .pbr_metallic_roughness()
-            .base_color_texture()
-            .and_then(|info| self.texture(&info.texture(), doc, buffers));
+        let texture =
+            base_color_texture(m).and_then(|info| self.texture(&info.texture(), doc, buffers));
         let alpha = match m.alpha_mode() {
             ::gltf::material::AlphaMode::Mask => {
                 let cutoff = m.alpha_cutoff().unwrap_or(0.5);
@@ -203,24 +202,38 @@ impl MaterialLoader {
     /// The texture coordinate set a material's base color texture reads (0 when none).
     /// `KHR_texture_transform` may name another set.
     fn tex_coord_set(m: &::gltf::Material<'_>) -> u32 {
-        m.pbr_metallic_roughness()
-            .base_color_texture()
-            .map_or(0, |info| {
-                info.texture_transform()
-                    .and_then(|t| t.tex_coord())
-                    .unwrap_or(info.tex_coord())
-            })
+        base_color_texture(m).map_or(0, |info| {
+            info.texture_transform()
+                .and_then(|t| t.tex_coord())
+                .unwrap_or(info.tex_coord())
+        })
     }
 
     /// The `KHR_texture_transform` of a material's base color texture (`None` when it has
     /// none). gltfpack writes one for every textured material whose texture coordinates it
     /// quantizes.
     fn uv_transform(m: &::gltf::Material<'_>) -> Option<UvTransform> {
-        let t = m
-            .pbr_metallic_roughness()
-            .base_color_texture()?
-            .texture_transform()?;
+        let t = base_color_texture(m)?.texture_transform()?;
         Some(UvTransform::new(t.offset(), t.rotation(), t.scale()))
+    }
+}
+
+/// The material's base color factor: the diffuse factor of
+/// `KHR_materials_pbrSpecularGlossiness` when the material has that extension (it takes the
+/// place of the metallic-roughness model, which such files often give only as a fallback),
+/// else the metallic-roughness base color factor.
+pub(super) fn base_color_factor(m: &::gltf::Material<'_>) -> [f32; 4] {
+    match m.pbr_specular_glossiness() {
+        Some(sg) => sg.diffuse_factor(),
+        None => m.pbr_metallic_roughness().base_color_factor(),
+    }
+}
+
+/// The material's base color texture, chosen as [`base_color_factor`] chooses the factor.
+fn base_color_texture<'a>(m: &::gltf::Material<'a>) -> Option<::gltf::texture::Info<'a>> {
+    match m.pbr_specular_glossiness() {
+        Some(sg) => sg.diffuse_texture(),
+        None => m.pbr_metallic_roughness().base_color_texture(),
     }
 }
 

@@ -396,6 +396,38 @@ fn webp_textures_draw_as_png_ones_and_ktx2_only_textures_are_left_out() {
     assert_eq!(scene.objects.len(), 1);
 }
 
+/// `KHR_materials_pbrSpecularGlossiness` (older files, often with a plain metallic-roughness
+/// fallback): its diffuse texture and factor are the base color, so the quad draws the checker
+/// as the metallic-roughness one does, not its red fallback.
+#[test]
+fn specular_glossiness_materials_draw_their_diffuse_texture() {
+    let dir = temp_dir("specgloss");
+    let plain = write_checker_quad(&dir, "plain.gltf", 2.0, None);
+    let text = std::fs::read_to_string(&plain).expect("read");
+    let metallic = r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#;
+    assert!(text.contains(metallic));
+    let text = text.replacen(
+        metallic,
+        r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,0,0,1]},"extensions":{"KHR_materials_pbrSpecularGlossiness":{"diffuseTexture":{"index":0},"diffuseFactor":[1,1,1,1],"glossinessFactor":0.5}}}"#,
+        1,
+    );
+    let text = text.replacen(
+        '{',
+        r#"{"extensionsUsed":["KHR_materials_pbrSpecularGlossiness"],"#,
+        1,
+    );
+    let path = dir.join("specgloss.gltf");
+    std::fs::write(&path, text).expect("write");
+    let (want, _) = coherent::scene::gltf::load_gltf(&plain).expect("plain");
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("spec-gloss");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!(scene.objects[0].color, want.objects[0].color);
+    assert!(
+        render(&scene).0 == render(&want).0,
+        "the spec-gloss quad's pixels differ"
+    );
+}
+
 /// KHR_texture_transform on the base color texture: texture coordinates to u = 1 scaled by 2
 /// draw what coordinates to u = 2 draw (16 checker cells across), with no warning; gltfpack
 /// writes such a transform for every textured material it quantizes.
