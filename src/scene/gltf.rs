@@ -79,6 +79,10 @@ struct Loader<'a> {
     mirrored: HashMap<u32, u32>,
     /// Per-vertex texture coordinates and colors, parallel to `vertices`.
     attributes: Vec<VertexAttributes>,
+    /// The vertex ranges appended so far (offset, count), by a hash of their vertices and
+    /// attributes: primitives with equal vertices (one accessor shared by several primitives,
+    /// as multi-material exports write, or a mesh stored twice) share one range.
+    vertex_ranges: HashMap<u64, Vec<(u32, u32)>>,
     materials: MaterialLoader,
 }
 
@@ -100,6 +104,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         meshes: HashMap::new(),
         mirrored: HashMap::new(),
         attributes: Vec::new(),
+        vertex_ranges: HashMap::new(),
         materials: MaterialLoader::new(base),
     };
     for root in root_nodes(&document) {
@@ -623,10 +628,7 @@ impl Loader<'_> {
         let (attributes, found) = primitive_attributes(prim, self.buffers, positions.len(), label)?;
         self.materials.attributes_used |= found;
         let material = self.materials.material(&gm, self.doc, self.buffers);
-        let mut geom = self.append_geometry(&positions, &normals, &indices, color)?;
-        self.attributes
-            .resize(geom.vertex_offset as usize, Default::default());
-        self.attributes.extend_from_slice(&attributes);
+        let mut geom = self.append_geometry(&positions, &normals, &attributes, &indices, color)?;
         geom.material = material;
         Ok(Some(geom))
     }
@@ -690,22 +692,51 @@ impl Loader<'_> {
         })
     }
 
-    /// Appends the vertices and indices to the shared buffers, which must stay addressable by
-    /// `u32`.
+    /// Appends the indices, and the vertices with their attributes unless an equal range is
+    /// there already, to the shared buffers, which must stay addressable by `u32`.
     fn append_geometry(
         &mut self,
         positions: &[Vec3],
         normals: &[Vec3],
+        attributes: &[VertexAttributes],
         indices: &[u32],
         color: Vec4,
     ) -> Result<PrimGeom, String> {
-        let n = positions.len();
-        let vertex_offset = u32::try_from(self.vertices.len()).ok();
+        let vertices: Vec<Vertex> = positions
+            .iter()
+            .zip(normals)
+            .map(|(p, nrm)| Vertex {
+                position: p.to_array(),
+                normal: nrm.to_array(),
+            })
+            .collect();
+        let n = vertices.len();
+        let key = {
+            use std::hash::{Hash, Hasher};
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            bytemuck::cast_slice::<Vertex, u8>(&vertices).hash(&mut h);
+            bytemuck::cast_slice::<VertexAttributes, u8>(attributes).hash(&mut h);
+            h.finish()
+        };
+        let same = |&(offset, count): &(u32, u32)| {
+            let range = offset as usize..offset as usize + count as usize;
+            count as usize == n
+                && bytemuck::cast_slice::<Vertex, u8>(&self.vertices[range.clone()])
+                    == bytemuck::cast_slice::<Vertex, u8>(&vertices)
+                && self.attributes[range] == *attributes
+        };
+        let shared = self
+            .vertex_ranges
+            .get(&key)
+            .and_then(|ranges| ranges.iter().find(|r| same(r)))
+            .map(|&(offset, _)| offset);
+        let appended = if shared.is_some() { 0 } else { n };
+        let vertex_offset = shared.or_else(|| u32::try_from(self.vertices.len()).ok());
         let first_index = u32::try_from(self.indices.len()).ok();
         let fits = self
             .vertices
             .len()
-            .checked_add(n)
+            .checked_add(appended)
             .is_some_and(|v| v <= u32::MAX as usize)
             && self
                 .indices
@@ -723,11 +754,15 @@ impl Loader<'_> {
         for &i in indices {
             bounds.grow(positions[i as usize]);
         }
-        for (p, nrm) in positions.iter().zip(normals) {
-            self.vertices.push(Vertex {
-                position: p.to_array(),
-                normal: nrm.to_array(),
-            });
+        if shared.is_none() {
+            self.vertices.extend_from_slice(&vertices);
+            self.attributes
+                .resize(vertex_offset as usize, VertexAttributes::default());
+            self.attributes.extend_from_slice(attributes);
+            self.vertex_ranges
+                .entry(key)
+                .or_default()
+                .push((vertex_offset, n as u32));
         }
         self.indices.extend_from_slice(indices);
         Ok(PrimGeom {
@@ -1823,6 +1858,58 @@ mod tests {
             (c.min, c.max),
             (Vec3::new(10.0, 5.0, 0.0), Vec3::new(11.0, 6.0, 0.0))
         );
+    }
+
+    #[test]
+    fn primitives_with_equal_vertices_share_one_vertex_range() {
+        // A mesh of three primitives over one POSITION and NORMAL accessor (as multi-material
+        // exports write): the first two read the same vertices and share one range; the third
+        // has its texture coordinates moved by its material's KHR_texture_transform, so its
+        // vertices differ and get their own.
+        let dir = temp_dir("shared");
+        let mut b = GltfBuilder::default();
+        let (positions, normals, indices) = testdata::cube();
+        let pos = b.vec3(&positions);
+        let nrm = b.vec3(&normals);
+        let uv: Vec<u8> = (0..positions.len())
+            .flat_map(|i| [i as f32 * 0.1, 0.5])
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        let view = b.view(&uv);
+        let uv = b.accessor(view, 5126, "VEC2", positions.len());
+        let (front, back) = indices.split_at(6);
+        let front = b.indices_u16(front);
+        let back = b.indices_u16(back);
+        b.materials = vec![
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,0,0,1]}}"#.to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[0,1,0,1]}}"#.to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0,"extensions":{"KHR_texture_transform":{"scale":[2,2]}}}}}"#.to_string(),
+        ];
+        let attributes =
+            format!(r#""attributes":{{"POSITION":{pos},"NORMAL":{nrm},"TEXCOORD_0":{uv}}}"#);
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{{attributes},"indices":{front},"material":0}},{{{attributes},"indices":{back},"material":1}},{{{attributes},"indices":{back},"material":2}}]}}"#
+        ));
+        b.node(0, [0.0; 3]);
+        b.scene_nodes = Some(vec![0]);
+        // The texture's image is not decoded (a warning); its transform applies all the same.
+        let json = b.gltf_embedded().replacen(
+            '{',
+            r#"{"images":[{"uri":"data:image/png;base64,AAAA"}],"textures":[{"source":0}],"extensionsUsed":["KHR_texture_transform"],"#,
+            1,
+        );
+        let path = write(&dir, "shared.gltf", json);
+        let (scene, _) = load_gltf(&path).expect("load");
+        check_consistent(&scene);
+        let o = &scene.objects;
+        assert_eq!(o.len(), 3);
+        assert_eq!(o[0].vertex_offset, o[1].vertex_offset);
+        assert_ne!(o[1].vertex_offset, o[2].vertex_offset);
+        assert_eq!(scene.vertices.len(), 2 * positions.len());
+        assert_eq!((o[0].color.x, o[1].color.y), (1.0, 1.0));
+        // Each keeps its own triangles and the box of its own half.
+        assert_eq!((o[0].triangle_count(), o[1].triangle_count()), (2, 10));
+        assert_eq!((o[0].bounds.max.x, o[1].bounds.max.x), (-0.5, 0.5));
     }
 
     #[test]
