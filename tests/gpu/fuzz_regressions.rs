@@ -115,7 +115,8 @@ fn bad_buffer_uris_are_one_line_errors() {
 
 /// Valid files covering the loader's paths: GLB and embedded glTF, u16/u32 and no indices,
 /// instancing (nodes and `EXT_mesh_gpu_instancing`), a hierarchy without scenes, a non-triangle
-/// mode, strips and fans, and a sparse accessor.
+/// mode, strips and fans, a sparse accessor, and a WebP texture of a specular-glossiness
+/// material.
 fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut out = vec![("grid4.glb", cube_grid_glb(4))];
     let mut b = GltfBuilder::default();
@@ -175,6 +176,27 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     b.node(0, [0.0; 3]);
     b.scene_nodes = Some(vec![0]);
     out.push(("strips_sparse.glb", b.glb()));
+
+    // A cube whose spec-gloss material reads a 2x2 WebP texture through EXT_texture_webp.
+    let mut webp = Vec::new();
+    image::codecs::webp::WebPEncoder::new_lossless(&mut webp)
+        .encode(&[255; 16], 2, 2, image::ExtendedColorType::Rgba8)
+        .expect("webp");
+    let mut b = GltfBuilder::default();
+    let cube = b.cube_mesh([1.0; 4]);
+    b.materials[0] =
+        r#"{"extensions":{"KHR_materials_pbrSpecularGlossiness":{"diffuseTexture":{"index":0}}}}"#
+            .to_string();
+    b.node(cube, [0.0; 3]);
+    b.scene_nodes = Some(vec![0]);
+    let head = format!(
+        r#"{{"extensionsUsed":["EXT_texture_webp","KHR_materials_pbrSpecularGlossiness"],"extensionsRequired":["EXT_texture_webp"],"images":[{{"uri":"data:image/webp;base64,{}"}}],"textures":[{{"extensions":{{"EXT_texture_webp":{{"source":0}}}}}}],"#,
+        coherent::scene::gltf::testdata::base64(&webp)
+    );
+    out.push((
+        "webp.gltf",
+        b.gltf_embedded().replacen('{', &head, 1).into_bytes(),
+    ));
     out
 }
 
@@ -185,6 +207,9 @@ fn seed_corpus_loads() {
     for (name, bytes) in seeds() {
         let scene = load_never_panics(&dir, name, &bytes).expect(name);
         assert!(!scene.objects.is_empty(), "{name}: no objects");
+        if name == "webp.gltf" {
+            assert_eq!(scene.images.len(), 1, "the WebP seed's texture is not read");
+        }
         if let Some(out) = &out {
             std::fs::create_dir_all(out).expect("seed dir");
             std::fs::write(out.join(name), &bytes).expect("write seed");
