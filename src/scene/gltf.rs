@@ -13,6 +13,7 @@ use ::gltf::mesh::{Mode, Semantic};
 use ::gltf::{Accessor, Document, Gltf, Node};
 use glam::{Mat4, Vec3, Vec4};
 
+use super::gltf_draco::DracoPrimitive;
 use super::gltf_ext::INSTANCING;
 use super::gltf_material::{primitive_attributes, MaterialLoader};
 use super::{Aabb, CameraPath, CameraPose, Object, Scene, Vertex, VertexAttributes};
@@ -615,17 +616,25 @@ impl Loader<'_> {
                 .push(format!("{label}: mode {mode:?} is not supported, skipped"));
             return Ok(None);
         }
-        let positions = self.primitive_positions(prim, label)?;
-        let indices = self.primitive_indices(prim, label, positions.len(), mode)?;
+        let draco = super::gltf_draco::decode(prim, self.doc, self.buffers)
+            .map_err(|e| format!("{label}: {e}"))?;
+        let draco = draco.as_ref();
+        let positions = self.primitive_positions(prim, label, draco)?;
+        let indices = match draco {
+            // A Draco stream's faces are triangles whatever the mode says.
+            Some(d) => d.indices.clone(),
+            None => self.primitive_indices(prim, label, positions.len(), mode)?,
+        };
         if indices.is_empty() {
             self.warnings
                 .push(format!("{label}: no triangles, skipped"));
             return Ok(None);
         }
-        let normals = self.primitive_normals(prim, label, &positions, &indices)?;
+        let normals = self.primitive_normals(prim, label, &positions, &indices, draco)?;
         let color = base_color(prim);
         let gm = prim.material();
-        let (attributes, found) = primitive_attributes(prim, self.buffers, positions.len(), label)?;
+        let (attributes, found) =
+            primitive_attributes(prim, self.buffers, positions.len(), label, draco)?;
         self.materials.attributes_used |= found;
         let material = self.materials.material(&gm, self.doc, self.buffers);
         let mut geom = self.append_geometry(&positions, &normals, &attributes, &indices, color)?;
@@ -638,12 +647,25 @@ impl Loader<'_> {
         &self,
         prim: &::gltf::Primitive<'_>,
         label: &str,
+        draco: Option<&DracoPrimitive>,
     ) -> Result<Vec<Vec3>, String> {
-        let pos_acc = prim
-            .get(&Semantic::Positions)
-            .ok_or_else(|| format!("{label}: no POSITION attribute"))?;
-        let positions = read_vec3(&pos_acc, self.buffers)
-            .map_err(|e| format!("{label}: POSITION accessor {}: {e}", pos_acc.index()))?;
+        let positions = match draco.and_then(|d| d.attribute("POSITION")) {
+            Some(values) => values.iter().map(|v| Vec3::new(v[0], v[1], v[2])).collect(),
+            None => {
+                let pos_acc = prim
+                    .get(&Semantic::Positions)
+                    .ok_or_else(|| format!("{label}: no POSITION attribute"))?;
+                read_vec3(&pos_acc, self.buffers)
+                    .map_err(|e| format!("{label}: POSITION accessor {}: {e}", pos_acc.index()))?
+            }
+        };
+        if let Some(d) = draco.filter(|d| d.points != positions.len()) {
+            return Err(format!(
+                "{label}: its Draco stream has {} points and its POSITION {}",
+                d.points,
+                positions.len()
+            ));
+        }
         if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
             return Err(format!("{label}: vertex {i} has a non-finite position"));
         }
@@ -776,30 +798,37 @@ impl Loader<'_> {
         })
     }
 
-    /// The NORMAL attribute when usable, else area-weighted averaged face normals; invalid
-    /// individual normals are replaced by computed ones.
+    /// The NORMAL attribute (decoded from the primitive's Draco stream, or read from its
+    /// accessor) when usable, else area-weighted averaged face normals; invalid individual
+    /// normals are replaced by computed ones.
     fn primitive_normals(
         &mut self,
         prim: &::gltf::Primitive<'_>,
         label: &str,
         positions: &[Vec3],
         indices: &[u32],
+        draco: Option<&DracoPrimitive>,
     ) -> Result<Vec<Vec3>, String> {
-        let Some(acc) = prim.get(&Semantic::Normals) else {
-            return Ok(computed_normals(positions, indices));
+        let mut normals = match draco.and_then(|d| d.attribute("NORMAL")) {
+            Some(values) => values.iter().map(|v| Vec3::new(v[0], v[1], v[2])).collect(),
+            None => {
+                let Some(acc) = prim.get(&Semantic::Normals) else {
+                    return Ok(computed_normals(positions, indices));
+                };
+                if acc.count() != positions.len() || acc.dimensions() != Dimensions::Vec3 {
+                    self.warnings.push(format!(
+                        "{label}: NORMAL accessor {} has {} {:?} elements for {} vertices, normals recomputed",
+                        acc.index(),
+                        acc.count(),
+                        acc.dimensions(),
+                        positions.len()
+                    ));
+                    return Ok(computed_normals(positions, indices));
+                }
+                read_vec3(&acc, self.buffers)
+                    .map_err(|e| format!("{label}: NORMAL accessor {}: {e}", acc.index()))?
+            }
         };
-        if acc.count() != positions.len() || acc.dimensions() != Dimensions::Vec3 {
-            self.warnings.push(format!(
-                "{label}: NORMAL accessor {} has {} {:?} elements for {} vertices, normals recomputed",
-                acc.index(),
-                acc.count(),
-                acc.dimensions(),
-                positions.len()
-            ));
-            return Ok(computed_normals(positions, indices));
-        }
-        let mut normals = read_vec3(&acc, self.buffers)
-            .map_err(|e| format!("{label}: NORMAL accessor {}: {e}", acc.index()))?;
         let mut computed: Option<Vec<Vec3>> = None;
         for (i, n) in normals.iter_mut().enumerate() {
             match n.try_normalize() {
@@ -866,7 +895,7 @@ fn computed_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
 const MAX_DENSE_ACCESSOR_BYTES: usize = 1 << 28;
 
 /// The bytes of a buffer view, after checking that it lies inside its buffer.
-fn view_bytes<'b>(
+pub(super) fn view_bytes<'b>(
     view: &::gltf::buffer::View<'_>,
     buffers: &'b [Data],
 ) -> Result<&'b [u8], String> {
@@ -1106,6 +1135,9 @@ pub mod testdata {
         pub scene_nodes: Option<Vec<usize>>,
         /// Overrides the declared buffer byteLength (to fake short buffers).
         pub buffer_length_override: Option<usize>,
+        /// Top-level JSON members written first, each followed by a comma (for example
+        /// `"extensionsUsed":["X"],`).
+        pub head: String,
     }
 
     impl GltfBuilder {
@@ -1201,7 +1233,8 @@ pub mod testdata {
                 None => String::new(),
             };
             format!(
-                r#"{{"asset":{{"version":"2.0"}},{scenes}"nodes":[{}],"meshes":[{}],"materials":[{}],"accessors":[{}],"bufferViews":[{}],"buffers":[{{"byteLength":{length}{uri}}}]}}"#,
+                r#"{{{}"asset":{{"version":"2.0"}},{scenes}"nodes":[{}],"meshes":[{}],"materials":[{}],"accessors":[{}],"bufferViews":[{}],"buffers":[{{"byteLength":{length}{uri}}}]}}"#,
+                self.head,
                 self.nodes.join(","),
                 self.meshes.join(","),
                 self.materials.join(","),
@@ -1912,9 +1945,97 @@ mod tests {
         assert_eq!((o[0].bounds.max.x, o[1].bounds.max.x), (-0.5, 0.5));
     }
 
+    /// The unit cube as a Draco stream (positions and normals, 24 points, 12 faces), and the
+    /// unique ids of its two attributes.
+    fn draco_cube() -> (Vec<u8>, u32, u32) {
+        use draco_core::{
+            DataType, EncoderBuffer, EncoderOptions, FaceIndex, GeometryAttributeType, Mesh,
+            MeshEncoder, PointAttribute, PointIndex,
+        };
+        let (positions, normals, indices) = testdata::cube();
+        let mut mesh = Mesh::new();
+        mesh.set_num_points(positions.len());
+        let mut ids = Vec::new();
+        for (kind, values) in [
+            (GeometryAttributeType::Position, &positions),
+            (GeometryAttributeType::Normal, &normals),
+        ] {
+            let mut a = PointAttribute::new();
+            a.init(kind, 3, DataType::Float32, false, values.len());
+            for (i, v) in values.iter().enumerate() {
+                let bytes: Vec<u8> = v.iter().flat_map(|c| c.to_le_bytes()).collect();
+                a.buffer_mut().write(i * 12, &bytes);
+            }
+            let id = mesh.add_attribute(a);
+            ids.push(mesh.attribute(id).unique_id());
+        }
+        mesh.set_num_faces(indices.len() / 3);
+        for (f, t) in indices.chunks_exact(3).enumerate() {
+            let p = |i: u16| PointIndex(u32::from(i));
+            mesh.set_face(FaceIndex(f as u32), [p(t[0]), p(t[1]), p(t[2])]);
+        }
+        let mut encoder = MeshEncoder::new();
+        encoder.set_mesh(mesh);
+        let mut out = EncoderBuffer::new();
+        encoder
+            .encode(&EncoderOptions::new(), &mut out)
+            .expect("encode");
+        (out.data().to_vec(), ids[0], ids[1])
+    }
+
+    #[test]
+    fn draco_compressed_primitives_are_decoded() {
+        // The cube's geometry only in a Draco stream (its accessors have no buffer views), the
+        // extension required, as `gltf-transform draco` writes.
+        let dir = temp_dir("draco-cube");
+        let (stream, pos_id, nrm_id) = draco_cube();
+        let good = |stream: &[u8]| {
+            let mut b = GltfBuilder::default();
+            let view = b.view(stream);
+            b.accessors
+                .push(r#"{"componentType":5123,"type":"SCALAR","count":36}"#.to_string());
+            b.accessors
+                .push(r#"{"componentType":5126,"type":"VEC3","count":24}"#.to_string());
+            b.accessors
+                .push(r#"{"componentType":5126,"type":"VEC3","count":24}"#.to_string());
+            b.meshes.push(format!(
+                r#"{{"primitives":[{{"attributes":{{"POSITION":1,"NORMAL":2}},"indices":0,"extensions":{{"KHR_draco_mesh_compression":{{"bufferView":{view},"attributes":{{"POSITION":{pos_id},"NORMAL":{nrm_id}}}}}}}}}]}}"#
+            ));
+            b.node(0, [3.0, 0.0, 0.0]);
+            b.scene_nodes = Some(vec![0]);
+            b.head = r#""extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"],"#.to_string();
+            b.glb()
+        };
+        let path = write(&dir, "cube.glb", good(&stream));
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        check_consistent(&scene);
+        assert_eq!(scene.objects.len(), 1);
+        assert_eq!(scene.objects[0].triangle_count(), 12);
+        let b = scene.objects[0].bounds;
+        assert!(
+            (b.min - Vec3::new(2.5, -0.5, -0.5)).abs().max_element() < 1e-3
+                && (b.max - Vec3::new(3.5, 0.5, 0.5)).abs().max_element() < 1e-3,
+            "{b:?}"
+        );
+        // Each vertex keeps its face's normal: the six directions, each on four vertices.
+        let mut axes = std::collections::HashMap::new();
+        for v in &scene.vertices {
+            let n = Vec3::from_array(v.normal).round();
+            *axes.entry(n.to_array().map(|c| c as i32)).or_insert(0) += 1;
+        }
+        assert_eq!(axes.len(), 6, "{axes:?}");
+        assert!(axes.values().all(|&c| c == 4), "{axes:?}");
+        // A damaged stream is a one-line error naming the extension.
+        let mut damaged = stream.clone();
+        damaged.truncate(damaged.len() / 2);
+        let path = write(&dir, "damaged.glb", good(&damaged));
+        assert_scene_err(&path, "KHR_draco_mesh_compression: cannot decode");
+    }
+
     #[test]
     fn unsupported_required_extension_is_named_first_and_the_error_stays_short() {
-        let dir = temp_dir("draco");
+        let dir = temp_dir("required");
         let mut b = GltfBuilder::default();
         // Forty accessors that refer to a missing buffer view: 40 errors besides the one
         // unsupported extension.
@@ -1927,11 +2048,11 @@ mod tests {
         b.node(0, [0.0; 3]);
         let json = b.gltf_embedded().replacen(
             r#"{"asset":{"version":"2.0"},"#,
-            r#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"],"#,
+            r#"{"asset":{"version":"2.0"},"extensionsUsed":["EXT_structural_metadata"],"extensionsRequired":["EXT_structural_metadata"],"#,
             1,
         );
-        let path = write(&dir, "draco.gltf", json);
-        assert_scene_err(&path, "does not support (KHR_draco_mesh_compression)");
+        let path = write(&dir, "metadata.gltf", json);
+        assert_scene_err(&path, "does not support (EXT_structural_metadata)");
         let msg = load_gltf(&path).err().unwrap().to_string();
         assert!(msg.contains("and 36 more"), "{msg}");
         assert!(msg.len() < 600, "{} characters: {msg}", msg.len());

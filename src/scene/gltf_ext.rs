@@ -35,6 +35,7 @@ pub const HONORED: &[&str] = &[
     INSTANCING,
     WEBP,
     "KHR_materials_pbrSpecularGlossiness",
+    super::gltf_draco::DRACO,
 ];
 /// Extensions the loader does not honor but loads a file that requires anyway: they only give
 /// textures images in formats it cannot decode, so the file is drawn without those textures

@@ -14,6 +14,7 @@ use ::gltf::mesh::Semantic;
 use ::gltf::texture::{MagFilter, MinFilter, WrappingMode};
 use ::gltf::{Accessor, Document};
 
+use super::gltf_draco::DracoPrimitive;
 use super::gltf_ext::WEBP;
 use super::material::{
     AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
@@ -482,6 +483,7 @@ pub(super) fn primitive_attributes(
     buffers: &[Data],
     n: usize,
     label: &str,
+    draco: Option<&DracoPrimitive>,
 ) -> Result<(Vec<VertexAttributes>, bool), String> {
     let material = prim.material();
     let set = MaterialLoader::tex_coord_set(&material);
@@ -495,8 +497,11 @@ pub(super) fn primitive_attributes(
         let Some(acc) = prim.get(&semantic) else {
             continue;
         };
-        let elems = read_elements(&acc, buffers)
-            .map_err(|e| format!("{label}: {name} accessor {}: {e}", acc.index()))?;
+        let elems = match draco.and_then(|d| d.attribute(&name)) {
+            Some(values) => values.to_vec(),
+            None => read_elements(&acc, buffers)
+                .map_err(|e| format!("{label}: {name} accessor {}: {e}", acc.index()))?,
+        };
         if elems.len() != n {
             return Err(format!(
                 "{label}: {name} accessor {} has {} elements for {n} vertices",

@@ -74,6 +74,7 @@ pub use material::{
 pub mod camera;
 pub mod chunk;
 pub mod gltf;
+mod gltf_draco;
 pub mod gltf_ext;
 mod gltf_material;
 pub mod interior;

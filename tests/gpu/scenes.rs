@@ -467,17 +467,17 @@ fn unsupported_extensions_warn_or_fail_in_one_line() {
     assert!(warnings[0].contains("KHR_texture_basisu") && !warnings[0].contains('\n'));
     let required = write(
         &dir,
-        "draco.gltf",
+        "metadata.gltf",
         with_top(
             &json,
-            r#""extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"]"#,
+            r#""extensionsUsed":["EXT_structural_metadata"],"extensionsRequired":["EXT_structural_metadata"]"#,
         ),
     );
     let msg = coherent::scene::gltf::load_gltf(&required)
-        .expect_err("draco is required")
+        .expect_err("the extension is required")
         .to_string();
     assert!(
-        msg.contains("draco.gltf") && msg.contains("KHR_draco_mesh_compression"),
+        msg.contains("metadata.gltf") && msg.contains("EXT_structural_metadata"),
         "{msg}"
     );
     assert!(!msg.contains('\n'));
