@@ -115,8 +115,8 @@ fn bad_buffer_uris_are_one_line_errors() {
 
 /// Valid files covering the loader's paths: GLB and embedded glTF, u16/u32 and no indices,
 /// instancing (nodes and `EXT_mesh_gpu_instancing`), a hierarchy without scenes, a non-triangle
-/// mode, strips and fans, a sparse accessor, and a WebP texture of a specular-glossiness
-/// material.
+/// mode, strips and fans, a sparse accessor, a WebP texture of a specular-glossiness
+/// material, and a Draco-compressed triangle.
 fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut out = vec![("grid4.glb", cube_grid_glb(4))];
     let mut b = GltfBuilder::default();
@@ -197,7 +197,55 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
         "webp.gltf",
         b.gltf_embedded().replacen('{', &head, 1).into_bytes(),
     ));
+    out.push(("draco.glb", draco_triangle_glb()));
     out
+}
+
+/// A triangle whose positions and faces are a Draco stream (KHR_draco_mesh_compression
+/// required; its accessors have no buffer views).
+fn draco_triangle_glb() -> Vec<u8> {
+    use draco_core::{
+        DataType, EncoderBuffer, EncoderOptions, FaceIndex, GeometryAttributeType, Mesh,
+        MeshEncoder, PointAttribute, PointIndex,
+    };
+    let mut mesh = Mesh::new();
+    mesh.set_num_points(3);
+    let mut position = PointAttribute::new();
+    position.init(
+        GeometryAttributeType::Position,
+        3,
+        DataType::Float32,
+        false,
+        3,
+    );
+    let bytes: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+        .iter()
+        .flat_map(|f| f.to_le_bytes())
+        .collect();
+    position.buffer_mut().write(0, &bytes);
+    let id = mesh.add_attribute(position);
+    let unique = mesh.attribute(id).unique_id();
+    mesh.set_num_faces(1);
+    mesh.set_face(FaceIndex(0), [PointIndex(0), PointIndex(1), PointIndex(2)]);
+    let mut encoder = MeshEncoder::new();
+    encoder.set_mesh(mesh);
+    let mut stream = EncoderBuffer::new();
+    encoder
+        .encode(&EncoderOptions::new(), &mut stream)
+        .expect("encode");
+    let mut b = GltfBuilder::default();
+    let view = b.view(stream.data());
+    b.accessors = vec![
+        r#"{"componentType":5125,"type":"SCALAR","count":3}"#.to_string(),
+        r#"{"componentType":5126,"type":"VEC3","count":3}"#.to_string(),
+    ];
+    b.meshes.push(format!(
+        r#"{{"primitives":[{{"attributes":{{"POSITION":1}},"indices":0,"extensions":{{"KHR_draco_mesh_compression":{{"bufferView":{view},"attributes":{{"POSITION":{unique}}}}}}}}}]}}"#
+    ));
+    b.node(0, [0.0; 3]);
+    b.scene_nodes = Some(vec![0]);
+    b.head = r#""extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"],"#.to_string();
+    b.glb()
 }
 
 #[test]
