@@ -37,8 +37,10 @@
 //!         result.counts.draw_calls
 //!     );
 //! }
-//! renderer.save_png(&std::env::temp_dir().join("coherent-doc-frame.png"))?;
+//! let png = std::env::temp_dir().join("coherent-doc-frame.png");
+//! renderer.save_png(&png)?;
 //! assert_eq!(ctx.validation_log().count(), 0);
+//! # std::fs::remove_file(&png).ok();
 //! # Ok(())
 //! # }
 //! ```
