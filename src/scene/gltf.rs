@@ -6,7 +6,6 @@ use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::Path;
 
-use ::gltf::accessor::sparse::IndexType;
 use ::gltf::accessor::{DataType, Dimensions};
 use ::gltf::buffer::Data;
 use ::gltf::mesh::{Mode, Semantic};
@@ -1003,11 +1002,7 @@ fn accessor_bytes<'b>(
             return Err("sparse count is 0".to_string());
         }
         let (indices, values) = (sparse.indices(), sparse.values());
-        let isize = match indices.index_type() {
-            IndexType::U8 => 1,
-            IndexType::U16 => 2,
-            IndexType::U32 => 4,
-        };
+        let isize = indices.index_type().size();
         let at = |what: &str, e: String| format!("sparse {what}: {e}");
         let index_bytes =
             view_elements(&indices.view(), buffers, indices.offset(), n, isize, isize)
@@ -1016,11 +1011,7 @@ fn accessor_bytes<'b>(
             .map_err(|e| at("values", e))?;
         let mut previous = None;
         for (k, b) in index_bytes.chunks_exact(isize).enumerate() {
-            let i = match isize {
-                1 => usize::from(b[0]),
-                2 => usize::from(u16::from_le_bytes([b[0], b[1]])),
-                _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
-            };
+            let i = unsigned_le(b, isize) as usize;
             if i >= count {
                 return Err(format!(
                     "sparse index {i} out of range (element count {count})"
@@ -1101,15 +1092,18 @@ fn read_indices(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<u32>, String
     }
     let (bytes, stride) = accessor_bytes(acc, buffers)?;
     Ok((0..acc.count())
-        .map(|i| {
-            let b = &bytes[i * stride..];
-            match ty {
-                DataType::U8 => b[0] as u32,
-                DataType::U16 => u16::from_le_bytes([b[0], b[1]]) as u32,
-                _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-            }
-        })
+        .map(|i| unsigned_le(&bytes[i * stride..], ty.size()))
         .collect())
+}
+
+/// The little-endian unsigned integer in the first `size` (1, 2 or 4) bytes of `b`: an index
+/// of an index accessor or of a sparse accessor's indices.
+fn unsigned_le(b: &[u8], size: usize) -> u32 {
+    match size {
+        1 => u32::from(b[0]),
+        2 => u32::from(u16::from_le_bytes([b[0], b[1]])),
+        _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+    }
 }
 
 /// Writers of small glTF files for tests (this crate's and the main crate's integration tests).
