@@ -1044,35 +1044,9 @@ fn read_vec3(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<Vec3>, String> 
             acc.dimensions()
         ));
     }
-    let (bytes, stride) = accessor_bytes(acc, buffers)?;
-    let ty = acc.data_type();
-    let size = ty.size();
-    let normalized = acc.normalized();
-    let component = |b: &[u8]| -> f32 {
-        match ty {
-            DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-            DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
-            DataType::U8 if normalized => b[0] as f32 / 255.0,
-            DataType::U8 => b[0] as f32,
-            DataType::I8 if normalized => (b[0] as i8 as f32 / 127.0).max(-1.0),
-            DataType::I8 => b[0] as i8 as f32,
-            DataType::U16 if normalized => u16::from_le_bytes([b[0], b[1]]) as f32 / 65535.0,
-            DataType::U16 => u16::from_le_bytes([b[0], b[1]]) as f32,
-            DataType::I16 if normalized => {
-                (i16::from_le_bytes([b[0], b[1]]) as f32 / 32767.0).max(-1.0)
-            }
-            DataType::I16 => i16::from_le_bytes([b[0], b[1]]) as f32,
-        }
-    };
-    Ok((0..acc.count())
-        .map(|i| {
-            let e = &bytes[i * stride..];
-            Vec3::new(
-                component(e),
-                component(&e[size..]),
-                component(&e[2 * size..]),
-            )
-        })
+    Ok(super::gltf_material::read_elements(acc, buffers)?
+        .into_iter()
+        .map(|e| Vec3::new(e[0], e[1], e[2]))
         .collect())
 }
 
