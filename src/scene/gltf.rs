@@ -65,6 +65,23 @@ struct PrimGeom {
     material: Option<u32>,
 }
 
+/// A mesh in one pose: its index, for a skinned node that node (its skinned vertices are its
+/// own), and the bits of its morph weights.
+#[derive(Clone, PartialEq, Eq, Hash)]
+struct MeshKey {
+    mesh: usize,
+    skinned_node: Option<usize>,
+    weights: Vec<u32>,
+}
+
+/// What the default pose does to one node's mesh: its morph-target weights, and for a
+/// skinned node its skin's joint matrices and the node's own world transform (which the
+/// skin replaces; vertices without weight keep it).
+struct Pose {
+    weights: Vec<f32>,
+    skin: Option<super::gltf_skin::SkinPose>,
+}
+
 /// Accumulates shared geometry and objects while walking the document.
 struct Loader<'a> {
     doc: &'a Document,
@@ -73,7 +90,11 @@ struct Loader<'a> {
     indices: Vec<u32>,
     objects: Vec<Object>,
     warnings: Vec<String>,
-    meshes: HashMap<usize, Vec<PrimGeom>>,
+    meshes: HashMap<MeshKey, Vec<PrimGeom>>,
+    /// Every node's world transform (skins read their joints' from it).
+    world: Vec<Option<Mat4>>,
+    /// The joint matrices of each skin used so far.
+    skins: HashMap<usize, Vec<Mat4>>,
     /// Per primitive's first index: the first index of its copy with the winding turned over,
     /// for nodes that mirror it.
     mirrored: HashMap<u32, u32>,
@@ -102,6 +123,12 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         objects: Vec::new(),
         warnings: super::gltf_ext::unsupported_warnings(&document),
         meshes: HashMap::new(),
+        world: if document.skins().len() > 0 {
+            super::gltf_skin::all_world_transforms(&document)
+        } else {
+            Vec::new()
+        },
+        skins: HashMap::new(),
         mirrored: HashMap::new(),
         attributes: Vec::new(),
         vertex_ranges: HashMap::new(),
@@ -109,6 +136,12 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     };
     for root in root_nodes(&document) {
         loader.walk(&document, root)?;
+    }
+    let animations = document.animations().len();
+    if animations > 0 {
+        loader.warnings.push(format!(
+            "{animations} animation(s) not played: the scene is drawn in its default pose"
+        ));
     }
     if loader.objects.is_empty() {
         return Err("no triangle geometry".to_string());
@@ -419,9 +452,26 @@ impl Loader<'_> {
                 if visits > MAX_NODE_VISITS {
                     return Err("node hierarchy expands to too many instances".to_string());
                 }
-                let geoms = self.mesh_geometry(&mesh)?;
+                let pose = Pose {
+                    weights: super::gltf_skin::morph_weights(&node),
+                    skin: match node.skin() {
+                        Some(skin) => Some(super::gltf_skin::SkinPose {
+                            joints: self.joint_matrices(&skin)?,
+                            fallback: world,
+                        }),
+                        None => None,
+                    },
+                };
+                let geoms = self.mesh_geometry(&mesh, &node, &pose)?;
+                // glTF: the transform of a node that holds a skinned mesh is ignored; its
+                // vertices are in world space after skinning.
+                let placed = if pose.skin.is_some() {
+                    Mat4::IDENTITY
+                } else {
+                    world
+                };
                 for instance in instances.unwrap_or_else(|| vec![Mat4::IDENTITY]) {
-                    let world = world * instance;
+                    let world = placed * instance;
                     if !world.is_finite() {
                         return Err(format!(
                             "node {}: an instance has a non-finite transform",
@@ -580,9 +630,30 @@ impl Loader<'_> {
         bounds
     }
 
-    /// The triangle primitives of `mesh`, loading them into the shared buffers on first use.
-    fn mesh_geometry(&mut self, mesh: &::gltf::Mesh<'_>) -> Result<Vec<PrimGeom>, String> {
-        if let Some(geoms) = self.meshes.get(&mesh.index()) {
+    /// The joint matrices of `skin`, computed on first use.
+    fn joint_matrices(&mut self, skin: &::gltf::Skin<'_>) -> Result<Vec<Mat4>, String> {
+        if let Some(m) = self.skins.get(&skin.index()) {
+            return Ok(m.clone());
+        }
+        let m = super::gltf_skin::joint_matrices(skin, &self.world, self.buffers)?;
+        self.skins.insert(skin.index(), m.clone());
+        Ok(m)
+    }
+
+    /// The triangle primitives of `mesh` in `pose` (at `node`), loading them into the shared
+    /// buffers on first use.
+    fn mesh_geometry(
+        &mut self,
+        mesh: &::gltf::Mesh<'_>,
+        node: &Node<'_>,
+        pose: &Pose,
+    ) -> Result<Vec<PrimGeom>, String> {
+        let key = MeshKey {
+            mesh: mesh.index(),
+            skinned_node: pose.skin.as_ref().map(|_| node.index()),
+            weights: pose.weights.iter().map(|w| w.to_bits()).collect(),
+        };
+        if let Some(geoms) = self.meshes.get(&key) {
             return Ok(geoms.clone());
         }
         let label = match mesh.name() {
@@ -592,11 +663,11 @@ impl Loader<'_> {
         let mut geoms = Vec::new();
         for prim in mesh.primitives() {
             let label = format!("{label} primitive {}", prim.index());
-            if let Some(geom) = self.load_primitive(&prim, &label)? {
+            if let Some(geom) = self.load_primitive(&prim, &label, pose)? {
                 geoms.push(geom);
             }
         }
-        self.meshes.insert(mesh.index(), geoms.clone());
+        self.meshes.insert(key, geoms.clone());
         Ok(geoms)
     }
 
@@ -605,6 +676,7 @@ impl Loader<'_> {
         &mut self,
         prim: &::gltf::Primitive<'_>,
         label: &str,
+        pose: &Pose,
     ) -> Result<Option<PrimGeom>, String> {
         let mode = prim.mode();
         if !matches!(
@@ -618,8 +690,21 @@ impl Loader<'_> {
         let draco = super::gltf_draco::decode(prim, self.doc, self.buffers)
             .map_err(|e| format!("{label}: {e}"))?;
         let draco = draco.as_ref();
-        let positions = self.primitive_positions(prim, label, draco)?;
-        let indices = match draco {
+        let mut positions = self.primitive_positions(prim, label, draco)?;
+        let morph = super::gltf_skin::morph_deltas(
+            prim,
+            &pose.weights,
+            self.buffers,
+            positions.len(),
+            label,
+        )?;
+        for (p, d) in positions.iter_mut().zip(morph.positions.iter().flatten()) {
+            *p += *d;
+            if !p.is_finite() {
+                return Err(format!("{label}: a morphed position is not finite"));
+            }
+        }
+        let mut indices = match draco {
             // A Draco stream's faces are triangles whatever the mode says.
             Some(d) => d.indices.clone(),
             None => self.primitive_indices(prim, label, positions.len(), mode)?,
@@ -629,7 +714,31 @@ impl Loader<'_> {
                 .push(format!("{label}: no triangles, skipped"));
             return Ok(None);
         }
-        let normals = self.primitive_normals(prim, label, &positions, &indices, draco)?;
+        let mut normals = self.primitive_normals(
+            prim,
+            label,
+            &positions,
+            &indices,
+            draco,
+            morph.normals.as_deref(),
+        )?;
+        if let Some(skin) = &pose.skin {
+            let triangles = super::gltf_skin::Triangles {
+                positions: &mut positions,
+                normals: &mut normals,
+                indices: &mut indices,
+            };
+            let valid =
+                super::gltf_skin::skin_vertices(prim, skin, self.buffers, draco, triangles, label)?;
+            if valid.contains(&false) {
+                let computed = computed_normals(&positions, &indices);
+                for ((n, c), ok) in normals.iter_mut().zip(computed).zip(valid) {
+                    if !ok {
+                        *n = c;
+                    }
+                }
+            }
+        }
         let color = base_color(prim);
         let gm = prim.material();
         let (attributes, found) =
@@ -798,8 +907,8 @@ impl Loader<'_> {
     }
 
     /// The NORMAL attribute (decoded from the primitive's Draco stream, or read from its
-    /// accessor) when usable, else area-weighted averaged face normals; invalid individual
-    /// normals are replaced by computed ones.
+    /// accessor) plus the morph targets' displacement `turned`, when usable, else area-weighted
+    /// averaged face normals; invalid individual normals are replaced by computed ones.
     fn primitive_normals(
         &mut self,
         prim: &::gltf::Primitive<'_>,
@@ -807,6 +916,7 @@ impl Loader<'_> {
         positions: &[Vec3],
         indices: &[u32],
         draco: Option<&DracoPrimitive>,
+        turned: Option<&[Vec3]>,
     ) -> Result<Vec<Vec3>, String> {
         let mut normals = match draco.and_then(|d| d.attribute("NORMAL")) {
             Some(values) => values.iter().map(|v| Vec3::new(v[0], v[1], v[2])).collect(),
@@ -828,6 +938,9 @@ impl Loader<'_> {
                     .map_err(|e| format!("{label}: NORMAL accessor {}: {e}", acc.index()))?
             }
         };
+        for (n, d) in normals.iter_mut().zip(turned.into_iter().flatten()) {
+            *n += *d;
+        }
         let mut computed: Option<Vec<Vec3>> = None;
         for (i, n) in normals.iter_mut().enumerate() {
             match n.try_normalize() {
@@ -1037,7 +1150,7 @@ pub(super) fn check_accessor<'b>(
 }
 
 /// Reads a VEC3 accessor (float or, normalized or not, integer components) as `Vec3`s.
-fn read_vec3(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<Vec3>, String> {
+pub(super) fn read_vec3(acc: &Accessor<'_>, buffers: &[Data]) -> Result<Vec<Vec3>, String> {
     if acc.dimensions() != Dimensions::Vec3 {
         return Err(format!(
             "expected VEC3 elements, found {:?}",
@@ -1288,6 +1401,50 @@ pub mod testdata {
         b.glb()
     }
 
+    /// Three triangles over two joints: the first bound to joint 0, the second to joint 1
+    /// (a child of joint 0, with an inverse bind matrix), the third with one vertex shared
+    /// half and half and two vertices without weight. `joints` is the JOINTS_0 of the
+    /// vertices (four per vertex); the mesh's node (index 2) is translated by 100 in x.
+    pub fn skinned_triangles(joints: &[u8; 36]) -> GltfBuilder {
+        let mut b = GltfBuilder::default();
+        let tri = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let raised = [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]];
+        let pos = b.vec3(&[tri, tri, raised].concat());
+        let j = b.view(joints);
+        let j = b.accessor(j, 5121, "VEC4", 9);
+        let mut weights = Vec::new();
+        for w in [[1.0f32, 0.0, 0.0, 0.0]; 6].into_iter().chain([
+            [0.5, 0.5, 0.0, 0.0],
+            [0.0; 4],
+            [0.0; 4],
+        ]) {
+            weights.extend(w.iter().flat_map(|c| c.to_le_bytes()));
+        }
+        let w = b.view(&weights);
+        let w = b.accessor(w, 5126, "VEC4", 9);
+        let matrices: Vec<u8> = [
+            glam::Mat4::IDENTITY,
+            glam::Mat4::from_translation(glam::Vec3::new(-1.0, 0.0, 0.0)),
+        ]
+        .iter()
+        .flat_map(|m| m.to_cols_array())
+        .flat_map(|c| c.to_le_bytes())
+        .collect();
+        let ibm = b.view(&matrices);
+        let ibm = b.accessor(ibm, 5126, "MAT4", 2);
+        b.meshes.push(format!(
+            r#"{{"primitives":[{{"attributes":{{"POSITION":{pos},"JOINTS_0":{j},"WEIGHTS_0":{w}}}}}]}}"#
+        ));
+        b.nodes
+            .push(r#"{"translation":[10,0,0],"scale":[2,2,2],"children":[1]}"#.to_string());
+        b.nodes.push(r#"{"translation":[0,5,0]}"#.to_string());
+        b.nodes
+            .push(r#"{"mesh":0,"skin":0,"translation":[100,0,0]}"#.to_string());
+        b.scene_nodes = Some(vec![0, 2]);
+        b.head = format!(r#""skins":[{{"joints":[0,1],"inverseBindMatrices":{ibm}}}],"#);
+        b
+    }
+
     /// Standard base64 with padding.
     pub fn base64(data: &[u8]) -> String {
         const ALPHABET: &[u8; 64] =
@@ -1314,7 +1471,7 @@ pub mod testdata {
 
 #[cfg(test)]
 mod tests {
-    use super::testdata::{base64, cube_grid_glb, GltfBuilder};
+    use super::testdata::{base64, cube_grid_glb, skinned_triangles, GltfBuilder};
     use super::*;
     use crate::testing::TempDir;
     use std::path::PathBuf;
@@ -1859,6 +2016,133 @@ mod tests {
             (c.min, c.max),
             (Vec3::new(10.0, 5.0, 0.0), Vec3::new(11.0, 6.0, 0.0))
         );
+    }
+
+    /// The world positions of `o`'s triangles' vertices, in index order.
+    fn world_positions(scene: &Scene, o: &Object) -> Vec<Vec3> {
+        scene.indices[o.first_index as usize..(o.first_index + o.index_count) as usize]
+            .iter()
+            .map(|&i| {
+                let v = scene.vertices[(o.vertex_offset + i) as usize];
+                o.transform.transform_point3(Vec3::from_array(v.position))
+            })
+            .collect()
+    }
+
+    fn assert_near(got: &[Vec3], want: &[[f32; 3]]) {
+        assert_eq!(got.len(), want.len(), "{got:?}");
+        for (g, w) in got.iter().zip(want) {
+            assert!(
+                (*g - Vec3::from_array(*w)).abs().max_element() < 1e-4,
+                "{got:?} != {want:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn skinned_meshes_are_drawn_in_their_joints_pose_not_at_their_node() {
+        let dir = temp_dir("skin");
+        let mut joints = [0u8; 36];
+        for v in 3..6 {
+            joints[4 * v] = 1;
+        }
+        joints[4 * 6 + 1] = 1;
+        let path = write(
+            &dir,
+            "skin.gltf",
+            skinned_triangles(&joints).gltf_embedded(),
+        );
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        check_consistent(&scene);
+        assert_eq!(scene.objects.len(), 1);
+        // Joint 0: x -> (10, 0, 0) + 2x. Joint 1: its world (10, 10, 0) + 2x times its inverse
+        // bind matrix (x - (1, 0, 0)). Vertex 6 half each; vertices 7 and 8 have no weight and
+        // keep their node's transform (+100 in x), which the skinned vertices ignore.
+        assert_near(
+            &world_positions(&scene, &scene.objects[0]),
+            &[
+                [10.0, 0.0, 0.0],
+                [12.0, 0.0, 0.0],
+                [10.0, 2.0, 0.0],
+                [8.0, 10.0, 0.0],
+                [10.0, 10.0, 0.0],
+                [8.0, 12.0, 0.0],
+                [9.0, 5.0, 2.0],
+                [101.0, 0.0, 1.0],
+                [100.0, 1.0, 1.0],
+            ],
+        );
+
+        // A joint that mirrors turns its triangles' winding over, so that their fronts (counter-
+        // clockwise) still face +z as the unskinned triangle's do.
+        let mut b = skinned_triangles(&joints);
+        b.nodes[0] = b.nodes[0].replace("[2,2,2]", "[-2,2,2]");
+        let path = write(&dir, "mirrored.gltf", b.gltf_embedded());
+        let (scene, _) = load_gltf(&path).expect("load");
+        let p = world_positions(&scene, &scene.objects[0]);
+        assert_near(
+            &p[..3],
+            &[[10.0, 0.0, 0.0], [10.0, 2.0, 0.0], [8.0, 0.0, 0.0]],
+        );
+        assert!((p[1] - p[0]).cross(p[2] - p[0]).z > 0.0);
+
+        joints[4 * 6 + 1] = 2;
+        let path = write(&dir, "bad.gltf", skinned_triangles(&joints).gltf_embedded());
+        assert_scene_err(&path, "vertex 6 names joint 2 of a skin with 2 joints");
+    }
+
+    #[test]
+    fn morph_targets_move_vertices_by_the_nodes_or_the_meshs_weights() {
+        let dir = temp_dir("morph");
+        let mut b = GltfBuilder::default();
+        let pos = b.vec3(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        let nrm = b.vec3(&[[0.0, 0.0, 1.0]; 3]);
+        let dp = b.vec3(&[[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 2.0]]);
+        let dn = b.vec3(&[[2.0, 0.0, -2.0]; 3]);
+        b.meshes.push(format!(
+            r#"{{"weights":[0.5],"primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm}}},"targets":[{{"POSITION":{dp},"NORMAL":{dn}}}]}}]}}"#
+        ));
+        b.node(0, [0.0, 0.0, 0.0]);
+        b.nodes.push(r#"{"mesh":0,"weights":[2.0]}"#.to_string());
+        b.scene_nodes = Some(vec![0, 1]);
+        let path = write(&dir, "morph.gltf", b.gltf_embedded());
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        check_consistent(&scene);
+        assert_eq!(scene.objects.len(), 2);
+        assert_near(
+            &world_positions(&scene, &scene.objects[0]),
+            &[[0.0, 0.0, 0.5], [1.0, 0.0, 0.5], [0.0, 1.0, 1.0]],
+        );
+        assert_near(
+            &world_positions(&scene, &scene.objects[1]),
+            &[[0.0, 0.0, 2.0], [1.0, 0.0, 2.0], [0.0, 1.0, 4.0]],
+        );
+        // The normal (0, 0, 1) plus half of (2, 0, -2) is (1, 0, 0); plus twice, (4, 0, -3).
+        let normal = |o: &Object| Vec3::from_array(scene.vertices[o.vertex_offset as usize].normal);
+        assert!((normal(&scene.objects[0]) - Vec3::X).length() < 1e-5);
+        assert!((normal(&scene.objects[1]) - Vec3::new(0.8, 0.0, -0.6)).length() < 1e-5);
+    }
+
+    #[test]
+    fn animations_are_not_played_and_say_so() {
+        let dir = temp_dir("animation");
+        let mut b = two_cubes_and_triangle();
+        let times = b.view(&0.0f32.to_le_bytes());
+        let times = b.accessor(times, 5126, "SCALAR", 1);
+        b.accessors[times] = b.accessors[times].replace('}', r#","min":[0],"max":[0]}"#);
+        let moved = b.vec3(&[[0.0, 50.0, 0.0]]);
+        b.head = format!(
+            r#""animations":[{{"samplers":[{{"input":{times},"output":{moved}}}],"channels":[{{"sampler":0,"target":{{"node":0,"path":"translation"}}}}]}}],"#
+        );
+        let path = write(&dir, "animated.gltf", b.gltf_embedded());
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        assert_eq!(
+            warnings,
+            ["1 animation(s) not played: the scene is drawn in its default pose"]
+        );
+        assert_eq!(scene.objects[0].transform.w_axis.y, 0.0);
     }
 
     #[test]

@@ -77,6 +77,7 @@ pub mod gltf;
 mod gltf_draco;
 pub mod gltf_ext;
 mod gltf_material;
+mod gltf_skin;
 pub mod interior;
 pub mod mask;
 pub mod material;

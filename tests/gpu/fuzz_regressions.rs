@@ -8,7 +8,7 @@ use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::sync::Once;
 
-use coherent::scene::gltf::testdata::{cube_grid_glb, GltfBuilder};
+use coherent::scene::gltf::testdata::{cube_grid_glb, skinned_triangles, GltfBuilder};
 use coherent::scene::Scene;
 
 thread_local! {
@@ -116,7 +116,7 @@ fn bad_buffer_uris_are_one_line_errors() {
 /// Valid files covering the loader's paths: GLB and embedded glTF, u16/u32 and no indices,
 /// instancing (nodes and `EXT_mesh_gpu_instancing`), a hierarchy without scenes, a non-triangle
 /// mode, strips and fans, a sparse accessor, a WebP texture of a specular-glossiness
-/// material, and a Draco-compressed triangle.
+/// material, a Draco-compressed triangle, a skin and a morph target.
 fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut out = vec![("grid4.glb", cube_grid_glb(4))];
     let mut b = GltfBuilder::default();
@@ -198,6 +198,22 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
         b.gltf_embedded().replacen('{', &head, 1).into_bytes(),
     ));
     out.push(("draco.glb", draco_triangle_glb()));
+
+    // A skinned mesh (two joints, one of them mirrored) and, on a second node, a triangle
+    // with a morph target and weights of its own.
+    let mut joints = [0u8; 36];
+    joints[4 * 3] = 1;
+    joints[4 * 6 + 1] = 1;
+    let mut b = skinned_triangles(&joints);
+    b.nodes[0] = b.nodes[0].replace("[2,2,2]", "[-2,2,2]");
+    let pos = b.vec3(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let moved = b.vec3(&[[0.0, 0.0, 1.0]; 3]);
+    b.meshes.push(format!(
+        r#"{{"weights":[0.5],"primitives":[{{"attributes":{{"POSITION":{pos}}},"targets":[{{"POSITION":{moved}}}]}}]}}"#
+    ));
+    b.nodes.push(r#"{"mesh":1,"weights":[1.5]}"#.to_string());
+    b.scene_nodes = Some(vec![0, 2, 3]);
+    out.push(("skin_morph.glb", b.glb()));
     out
 }
 

@@ -1,0 +1,287 @@
+//! The default pose of glTF meshes: morph targets at their default weights and skins at their
+//! joints' node transforms, applied to the vertices once at load (nothing is animated).
+//!
+//! glTF 2.0 (sections "Morph Targets" and "Skins"): a morphed position is the base position
+//! plus the sum of each target's displacement times its weight (the node's `weights`, else the
+//! mesh's, else 0). A skinned vertex is `sum_i w_i * J_i * v` with `J_i` the world transform of
+//! joint `i` times its inverse bind matrix; the transform of the node that holds the skinned
+//! mesh is ignored, so skinned vertices come out in world space.
+
+use ::gltf::accessor::{DataType, Dimensions};
+use ::gltf::buffer::Data;
+use ::gltf::mesh::Semantic;
+use ::gltf::{Document, Node, Primitive, Skin};
+use glam::{Mat3, Mat4, Vec3};
+
+use super::gltf_draco::DracoPrimitive;
+
+/// Most `JOINTS_n`/`WEIGHTS_n` sets read per vertex (four influences each).
+const MAX_INFLUENCE_SETS: u32 = 4;
+
+/// The world transform of every node that is reachable from a node without a parent (`None`
+/// for the others, which only a cycle leaves out).
+pub(super) fn all_world_transforms(doc: &Document) -> Vec<Option<Mat4>> {
+    let mut is_child = vec![false; doc.nodes().len()];
+    for node in doc.nodes() {
+        for child in node.children() {
+            if let Some(flag) = is_child.get_mut(child.index()) {
+                *flag = true;
+            }
+        }
+    }
+    let roots: Vec<Node<'_>> = doc
+        .nodes()
+        .filter(|n| !is_child.get(n.index()).copied().unwrap_or(false))
+        .collect();
+    super::gltf_ext::world_transforms(doc, &roots)
+}
+
+/// The weights of `node`'s morph targets: its own `weights`, else its mesh's (empty: none).
+pub(super) fn morph_weights(node: &Node<'_>) -> Vec<f32> {
+    node.weights()
+        .or_else(|| node.mesh().and_then(|m| m.weights()))
+        .map(<[f32]>::to_vec)
+        .unwrap_or_default()
+}
+
+/// `J_i` of each joint of `skin`: the joint's world transform times its inverse bind matrix
+/// (the identity when the skin has none).
+pub(super) fn joint_matrices(
+    skin: &Skin<'_>,
+    world: &[Option<Mat4>],
+    buffers: &[Data],
+) -> Result<Vec<Mat4>, String> {
+    let label = format!("skin {}", skin.index());
+    let joints: Vec<Node<'_>> = skin.joints().collect();
+    let inverse_bind = match skin.inverse_bind_matrices() {
+        None => vec![Mat4::IDENTITY; joints.len()],
+        Some(acc) => {
+            let at =
+                |e: String| format!("{label}: inverseBindMatrices accessor {}: {e}", acc.index());
+            if acc.dimensions() != Dimensions::Mat4 || acc.data_type() != DataType::F32 {
+                return Err(at(format!(
+                    "{:?} {:?} elements, not float MAT4",
+                    acc.data_type(),
+                    acc.dimensions()
+                )));
+            }
+            if acc.count() < joints.len() {
+                return Err(at(format!(
+                    "{} matrices for {} joints",
+                    acc.count(),
+                    joints.len()
+                )));
+            }
+            let (bytes, stride) = super::gltf::check_accessor(&acc, buffers).map_err(at)?;
+            (0..joints.len())
+                .map(|i| {
+                    let mut m = [0.0f32; 16];
+                    for (k, c) in m.iter_mut().enumerate() {
+                        let b = &bytes[i * stride + 4 * k..];
+                        *c = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                    }
+                    Mat4::from_cols_array(&m)
+                })
+                .collect()
+        }
+    };
+    joints
+        .iter()
+        .zip(inverse_bind)
+        .map(|(joint, ibm)| {
+            let w =
+                world.get(joint.index()).copied().flatten().ok_or_else(|| {
+                    format!("{label}: joint node {} is in a cycle", joint.index())
+                })?;
+            let m = w * ibm;
+            if m.is_finite() {
+                Ok(m)
+            } else {
+                Err(format!(
+                    "{label}: joint node {} has a non-finite matrix",
+                    joint.index()
+                ))
+            }
+        })
+        .collect()
+}
+
+/// The displacements of a primitive's positions and normals under its morph targets (`None`
+/// where no target with a weight moves them).
+#[derive(Default)]
+pub(super) struct MorphDeltas {
+    pub positions: Option<Vec<Vec3>>,
+    pub normals: Option<Vec<Vec3>>,
+}
+
+/// The displacements of `prim`'s `n` vertices under its morph targets at `weights`.
+pub(super) fn morph_deltas(
+    prim: &Primitive<'_>,
+    weights: &[f32],
+    buffers: &[Data],
+    n: usize,
+    label: &str,
+) -> Result<MorphDeltas, String> {
+    let mut deltas = MorphDeltas::default();
+    for (t, target) in prim.morph_targets().enumerate() {
+        let w = weights.get(t).copied().unwrap_or(0.0);
+        if w == 0.0 {
+            continue;
+        }
+        if !w.is_finite() {
+            return Err(format!("{label}: morph target {t} has a non-finite weight"));
+        }
+        for (acc, sum, what) in [
+            (target.positions(), &mut deltas.positions, "POSITION"),
+            (target.normals(), &mut deltas.normals, "NORMAL"),
+        ] {
+            let Some(acc) = acc else { continue };
+            let at = |e: String| {
+                format!(
+                    "{label}: morph target {t} {what} accessor {}: {e}",
+                    acc.index()
+                )
+            };
+            if acc.count() != n {
+                return Err(at(format!("{} elements for {n} vertices", acc.count())));
+            }
+            let d = super::gltf::read_vec3(&acc, buffers).map_err(at)?;
+            let sum = sum.get_or_insert_with(|| vec![Vec3::ZERO; n]);
+            for (s, d) in sum.iter_mut().zip(d) {
+                *s += w * d;
+            }
+        }
+    }
+    Ok(deltas)
+}
+
+/// A skinned node's pose: its skin's joint matrices (of [`joint_matrices`]) and the node's
+/// own world transform, which vertices without weight keep.
+pub(super) struct SkinPose {
+    pub joints: Vec<Mat4>,
+    pub fallback: Mat4,
+}
+
+/// A primitive's vertices and triangles while they are loaded.
+pub(super) struct Triangles<'a> {
+    pub positions: &'a mut [Vec3],
+    pub normals: &'a mut [Vec3],
+    pub indices: &'a mut [u32],
+}
+
+/// Moves `prim`'s positions and normals by `skin` into world space, and turns over the
+/// winding of each triangle whose first vertex's skin matrix mirrors. A vertex without weight
+/// keeps the node's transform instead of collapsing to the origin. Normals that the skin makes
+/// unusable are returned as `false` in the mask for the caller to recompute.
+pub(super) fn skin_vertices(
+    prim: &Primitive<'_>,
+    skin: &SkinPose,
+    buffers: &[Data],
+    draco: Option<&DracoPrimitive>,
+    t: Triangles<'_>,
+    label: &str,
+) -> Result<Vec<bool>, String> {
+    let Triangles {
+        positions,
+        normals,
+        indices,
+    } = t;
+    let (joints, fallback) = (&skin.joints, skin.fallback);
+    let n = positions.len();
+    let mut influences: Vec<Vec<(u32, f32)>> = vec![Vec::new(); n];
+    for set in 0..MAX_INFLUENCE_SETS {
+        let (Some(js), Some(ws)) = (
+            influence_set(prim, draco, Semantic::Joints(set), n, buffers, label)?,
+            influence_set(prim, draco, Semantic::Weights(set), n, buffers, label)?,
+        ) else {
+            break;
+        };
+        for (v, (j, w)) in influences.iter_mut().zip(js.iter().zip(&ws)) {
+            for k in 0..4 {
+                if w[k].is_finite() && w[k] > 0.0 {
+                    v.push((j[k] as u32, w[k]));
+                }
+            }
+        }
+    }
+    let mut mirrors = vec![false; n];
+    let mut valid = vec![true; n];
+    for (i, inf) in influences.iter().enumerate() {
+        let total: f32 = inf.iter().map(|&(_, w)| w).sum();
+        let m = if total > 0.0 {
+            let mut m = Mat4::ZERO;
+            for &(j, w) in inf {
+                let joint = joints.get(j as usize).ok_or_else(|| {
+                    format!(
+                        "{label}: vertex {i} names joint {j} of a skin with {} joints",
+                        joints.len()
+                    )
+                })?;
+                m += *joint * (w / total);
+            }
+            m
+        } else {
+            fallback
+        };
+        let p = m.transform_point3(positions[i]);
+        if !p.is_finite() {
+            return Err(format!("{label}: vertex {i} is not finite after skinning"));
+        }
+        positions[i] = p;
+        let m3 = Mat3::from_mat4(m);
+        let det = m3.determinant();
+        mirrors[i] = det < 0.0;
+        let normal = if det.abs() > f32::MIN_POSITIVE {
+            m3.inverse().transpose() * normals[i]
+        } else {
+            m3 * normals[i]
+        };
+        match normal.try_normalize() {
+            Some(unit) => normals[i] = unit,
+            None => valid[i] = false,
+        }
+    }
+    for t in indices.chunks_exact_mut(3) {
+        if mirrors[t[0] as usize] {
+            t.swap(1, 2);
+        }
+    }
+    Ok(valid)
+}
+
+/// One `JOINTS_n` or `WEIGHTS_n` attribute of the `n` vertices (from the primitive's Draco
+/// stream when it holds it), `None` when the primitive has none.
+fn influence_set(
+    prim: &Primitive<'_>,
+    draco: Option<&DracoPrimitive>,
+    semantic: Semantic,
+    n: usize,
+    buffers: &[Data],
+    label: &str,
+) -> Result<Option<Vec<[f32; 4]>>, String> {
+    let name = semantic.to_string();
+    if let Some(values) = draco.and_then(|d| d.attribute(&name)) {
+        return Ok(Some(values.to_vec()));
+    }
+    let Some(acc) = prim.get(&semantic) else {
+        return Ok(None);
+    };
+    let at = |e: String| format!("{label}: {name} accessor {}: {e}", acc.index());
+    if acc.count() != n || acc.dimensions() != Dimensions::Vec4 {
+        return Err(at(format!(
+            "{} {:?} elements for {n} vertices (VEC4 each)",
+            acc.count(),
+            acc.dimensions()
+        )));
+    }
+    let integer = matches!(acc.data_type(), DataType::U8 | DataType::U16) && !acc.normalized();
+    if matches!(semantic, Semantic::Joints(_)) && !integer {
+        return Err(at(format!(
+            "{:?} components, not unsigned bytes or shorts",
+            acc.data_type()
+        )));
+    }
+    super::gltf_material::read_elements(&acc, buffers)
+        .map(Some)
+        .map_err(at)
+}
