@@ -26,6 +26,8 @@ const QUANTIZATION: &str = "KHR_mesh_quantization";
 pub const INSTANCING: &str = "EXT_mesh_gpu_instancing";
 /// The extension that gives a texture a WebP image (decoded like PNG and JPEG).
 pub const WEBP: &str = "EXT_texture_webp";
+/// The extension that gives a texture a KTX2 Basis Universal image (transcoded to RGBA8).
+pub const BASISU: &str = "KHR_texture_basisu";
 /// Extensions the loader honors; any other one in `extensionsUsed` gets a warning.
 pub const HONORED: &[&str] = &[
     MESHOPT,
@@ -34,13 +36,14 @@ pub const HONORED: &[&str] = &[
     "KHR_texture_transform",
     INSTANCING,
     WEBP,
+    BASISU,
     "KHR_materials_pbrSpecularGlossiness",
     super::gltf_draco::DRACO,
 ];
 /// Extensions the loader does not honor but loads a file that requires anyway: they only give
-/// textures images in formats it cannot decode, so the file is drawn without those textures
+/// textures images in a format it cannot decode (AVIF), so the file is drawn without those textures
 /// (with warnings) instead of being refused.
-pub const TOLERATED: &[&str] = &["KHR_texture_basisu", "EXT_texture_avif"];
+pub const TOLERATED: &[&str] = &["EXT_texture_avif"];
 /// Largest buffer a meshopt fallback may declare (it is allocated to receive decoded data).
 const MAX_FALLBACK_BYTES: usize = 1 << 32;
 /// Most samples taken of an animated light.

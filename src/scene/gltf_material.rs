@@ -1,9 +1,10 @@
-//! glTF materials: base color textures (PNG, JPEG, and WebP through `EXT_texture_webp`, from a
-//! GLB buffer view, a data URI or a file next to the .gltf; the diffuse texture and factor of
+//! glTF materials: base color textures (PNG, JPEG, WebP through `EXT_texture_webp`, and KTX2
+//! Basis Universal through `KHR_texture_basisu`, from a GLB buffer view, a data URI or a file
+//! next to the .gltf; the diffuse texture and factor of
 //! `KHR_materials_pbrSpecularGlossiness` stand for them) with their samplers, alpha mode MASK
 //! with its cutoff (BLEND is drawn as MASK at [`BLEND_CUTOFF`], with a warning), and the
 //! per-vertex TEXCOORD_n and COLOR_0 attributes. A texture whose image cannot be decoded
-//! (KTX2/Basis, AVIF, a broken file) is a one-line warning and the material is drawn without it.
+//! (AVIF, a broken file) is a one-line warning and the material is drawn without it.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -15,7 +16,7 @@ use ::gltf::texture::{MagFilter, MinFilter, WrappingMode};
 use ::gltf::{Accessor, Document};
 
 use super::gltf_draco::DracoPrimitive;
-use super::gltf_ext::WEBP;
+use super::gltf_ext::{BASISU, WEBP};
 use super::material::{
     AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
 };
@@ -292,20 +293,22 @@ fn sampler_desc(s: &::gltf::texture::Sampler<'_>) -> SamplerDesc {
     }
 }
 
-/// The image a texture reads: the `EXT_texture_webp` image when it names one, else the core
-/// `source`; an error saying why when there is none (its only images are in extensions such as
-/// `KHR_texture_basisu`, which are not decoded).
+/// The image a texture reads: the `EXT_texture_webp` or `KHR_texture_basisu` image when it
+/// names one, else the core `source`; an error saying why when there is none (its only images
+/// are in extensions that are not decoded, such as `EXT_texture_avif`).
 fn texture_image<'d>(
     t: &::gltf::Texture<'d>,
     doc: &'d Document,
 ) -> Result<::gltf::Image<'d>, String> {
     let extensions = t.extensions();
     let ext_source = |name: &str| extensions?.get(name)?.get("source");
-    if let Some(source) = ext_source(WEBP) {
-        return source
-            .as_u64()
-            .and_then(|i| doc.images().nth(usize::try_from(i).ok()?))
-            .ok_or_else(|| format!("its {WEBP} source {source} is not an image of the file"));
+    for ext in [WEBP, BASISU] {
+        if let Some(source) = ext_source(ext) {
+            return source
+                .as_u64()
+                .and_then(|i| doc.images().nth(usize::try_from(i).ok()?))
+                .ok_or_else(|| format!("its {ext} source {source} is not an image of the file"));
+        }
     }
     if let Some(image) = t.source() {
         return Ok(image);
@@ -359,13 +362,21 @@ fn image_bytes(img: &::gltf::Image<'_>, base: &Path, buffers: &[Data]) -> Result
     }
 }
 
-/// Decodes a PNG, JPEG or WebP image to sRGB RGBA8.
+/// The identifier a KTX 2.0 file starts with.
+const KTX2_MAGIC: [u8; 12] = [
+    0xAB, b'K', b'T', b'X', b' ', b'2', b'0', 0xBB, b'\r', b'\n', 0x1A, b'\n',
+];
+
+/// Decodes a PNG, JPEG, WebP or KTX2 (Basis Universal) image to sRGB RGBA8.
 fn decode_image(
     img: &::gltf::Image<'_>,
     base: &Path,
     buffers: &[Data],
 ) -> Result<TextureImage, String> {
     let bytes = image_bytes(img, base, buffers)?;
+    if bytes.starts_with(&KTX2_MAGIC) {
+        return decode_basis(&bytes);
+    }
     let format = image::guess_format(&bytes).map_err(|_| {
         let mime = match img.source() {
             ::gltf::image::Source::View { mime_type, .. } => Some(mime_type),
@@ -384,8 +395,12 @@ fn decode_image(
                     _ => "WebP",
                 }
             ),
+            Some("image/ktx2") => format!(
+                "its {} bytes are not the KTX2 image it declares",
+                bytes.len()
+            ),
             m => format!(
-                "format {} is not supported (PNG, JPEG and WebP are)",
+                "format {} is not supported (PNG, JPEG, WebP and KTX2 are)",
                 m.unwrap_or("unknown")
             ),
         }
@@ -406,6 +421,46 @@ fn decode_image(
         height,
         rgba: decoded.into_rgba8().into_raw(),
     })
+}
+
+/// Transcodes the first level of a KTX2 Basis Universal image (ETC1S or UASTC, zstd
+/// supercompressed or not) to RGBA8 with the pure-Rust `basisu` transcoder. The texel values
+/// are the encoded ones, sRGB for a base color texture as the glTF spec asks. A file that is not
+/// Basis (a KTX2 of a raw GPU format), a cube map, an array or a video is refused with the reason.
+fn decode_basis(bytes: &[u8]) -> Result<TextureImage, String> {
+    let basis = |e: basisu::Error| format!("cannot transcode its KTX2 Basis data: {e:?}");
+    // The transcoder is young and meets hostile bytes here: a panic in it is contained and
+    // becomes this texture's warning instead of failing the file.
+    std::panic::catch_unwind(|| {
+        let tex = basisu::Transcoder::new(bytes).map_err(basis)?;
+        if tex.face_count() > 1 || tex.layer_count() > 1 || tex.is_video() {
+            return Err(format!(
+                "its KTX2 image has {} faces and {} layers{}: a 2D texture is expected",
+                tex.face_count(),
+                tex.layer_count(),
+                if tex.is_video() { " (a video)" } else { "" }
+            ));
+        }
+        let (width, height) = tex.base_dimensions();
+        if width == 0 || height == 0 || u64::from(width) * u64::from(height) > MAX_TEXELS {
+            return Err(format!("size {width}x{height} is empty or too large"));
+        }
+        let rgba = tex
+            .transcode(0, basisu::TargetFormat::Rgba32, basisu::DecodeFlags::NONE)
+            .map_err(basis)?;
+        if rgba.len() != width as usize * height as usize * 4 {
+            return Err(format!(
+                "its KTX2 image transcoded to {} bytes for {width}x{height} texels",
+                rgba.len()
+            ));
+        }
+        Ok(TextureImage {
+            width,
+            height,
+            rgba,
+        })
+    })
+    .unwrap_or_else(|_| Err("the KTX2 transcoder failed on this image (a panic, contained)".into()))
 }
 
 /// Standard base64 (padding optional; whitespace ignored).

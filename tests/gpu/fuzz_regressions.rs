@@ -116,7 +116,7 @@ fn bad_buffer_uris_are_one_line_errors() {
 /// Valid files covering the loader's paths: GLB and embedded glTF, u16/u32 and no indices,
 /// instancing (nodes and `EXT_mesh_gpu_instancing`), a hierarchy without scenes, a non-triangle
 /// mode, strips and fans, a sparse accessor, a WebP texture of a specular-glossiness
-/// material, a Draco-compressed triangle, a skin and a morph target.
+/// material, a Draco-compressed triangle, a skin and a morph target, and a KTX2 texture.
 fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut out = vec![("grid4.glb", cube_grid_glb(4))];
     let mut b = GltfBuilder::default();
@@ -198,6 +198,20 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
         b.gltf_embedded().replacen('{', &head, 1).into_bytes(),
     ));
     out.push(("draco.glb", draco_triangle_glb()));
+    // The cube textured by a KTX2 Basis Universal (ETC1S) image through KHR_texture_basisu.
+    let head = format!(
+        r#"{{"extensionsUsed":["KHR_texture_basisu"],"extensionsRequired":["KHR_texture_basisu"],"images":[{{"uri":"data:image/ktx2;base64,{}"}}],"textures":[{{"extensions":{{"KHR_texture_basisu":{{"source":0}}}}}}],"#,
+        coherent::scene::gltf::testdata::base64(include_bytes!("data/checker_etc1s.ktx2"))
+    );
+    let mut b = GltfBuilder::default();
+    let cube = b.cube_mesh([1.0; 4]);
+    b.materials[0] = r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#.to_string();
+    b.node(cube, [0.0; 3]);
+    b.scene_nodes = Some(vec![0]);
+    out.push((
+        "ktx2.gltf",
+        b.gltf_embedded().replacen('{', &head, 1).into_bytes(),
+    ));
 
     // A skinned mesh (two joints, one of them mirrored) and, on a second node, a triangle
     // with a morph target and weights of its own.
@@ -271,8 +285,12 @@ fn seed_corpus_loads() {
     for (name, bytes) in seeds() {
         let scene = load_never_panics(&dir, name, &bytes).expect(name);
         assert!(!scene.objects.is_empty(), "{name}: no objects");
-        if name == "webp.gltf" {
-            assert_eq!(scene.images.len(), 1, "the WebP seed's texture is not read");
+        if name == "webp.gltf" || name == "ktx2.gltf" {
+            assert_eq!(
+                scene.images.len(),
+                1,
+                "{name}: the seed's texture is not read"
+            );
         }
         if let Some(out) = &out {
             std::fs::create_dir_all(out).expect("seed dir");

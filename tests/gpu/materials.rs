@@ -344,12 +344,13 @@ fn write_quad(dir: &Path, name: &str, u1: f32, transform: Option<&str>, head: &s
     path
 }
 
-/// `EXT_texture_webp` (what `gltf-transform optimize --texture-compress webp` writes): a
-/// texture whose only image is a WebP one, the extension required, draws as the same texture in
-/// PNG does. A texture whose only image is KTX2 (`KHR_texture_basisu` required) is loaded and
-/// drawn without it, with warnings that say so.
+/// `EXT_texture_webp` (what `gltf-transform optimize --texture-compress webp` writes) and
+/// `KHR_texture_basisu` (KTX2 Basis Universal, what `gltf-transform etc1s`/`uastc` and
+/// `gltfpack -tc` write): a texture whose only image is a WebP or KTX2 one, the extension
+/// required, draws as the same texture in PNG does. A KTX2 image that cannot be transcoded and
+/// an AVIF-only texture leave the file loaded and drawn without them, with warnings that say so.
 #[test]
-fn webp_textures_draw_as_png_ones_and_ktx2_only_textures_are_left_out() {
+fn webp_and_ktx2_textures_draw_as_png_ones() {
     let dir = temp_dir("webp");
     let rgba: Vec<u8> = (0..64)
         .flat_map(|i| {
@@ -362,33 +363,72 @@ fn webp_textures_draw_as_png_ones_and_ktx2_only_textures_are_left_out() {
         .encode(&rgba, 8, 8, image::ExtendedColorType::Rgba8)
         .expect("webp");
     let plain = write_checker_quad(&dir, "png.gltf", 2.0, None);
-    let head = format!(
-        r#""extensionsUsed":["EXT_texture_webp"],"extensionsRequired":["EXT_texture_webp"],"images":[{{"uri":"data:image/webp;base64,{}"}}],"textures":[{{"sampler":0,"extensions":{{"EXT_texture_webp":{{"source":0}}}}}}],"#,
-        base64(&webp)
-    );
-    let webp_path = write_quad(&dir, "webp.gltf", 2.0, None, &head);
+    let only_image = |ext: &str, mime: &str, bytes: &[u8]| {
+        format!(
+            r#""extensionsUsed":["{ext}"],"extensionsRequired":["{ext}"],"images":[{{"uri":"data:{mime};base64,{}"}}],"textures":[{{"sampler":0,"extensions":{{"{ext}":{{"source":0}}}}}}],"#,
+            base64(bytes)
+        )
+    };
     let (want, _) = coherent::scene::gltf::load_gltf(&plain).expect("png");
-    let (scene, warnings) = coherent::scene::gltf::load_gltf(&webp_path).expect("webp");
-    assert!(warnings.is_empty(), "{warnings:?}");
-    assert_eq!(scene.images, want.images);
-    let (pixels, _) = render(&scene);
-    assert!(checker_transitions(&pixels, H / 2) >= 6);
-    assert!(pixels == render(&want).0, "the WebP quad's pixels differ");
+    let want_pixels = render(&want).0;
+    // The same 8x8 checker as the PNG, encoded by the Basis Universal encoder (see
+    // tests/gpu/data/README.md): ETC1S, and UASTC with zstd supercompression.
+    for (name, ext, mime, bytes) in [
+        ("webp", "EXT_texture_webp", "image/webp", webp.as_slice()),
+        (
+            "etc1s",
+            "KHR_texture_basisu",
+            "image/ktx2",
+            include_bytes!("data/checker_etc1s.ktx2").as_slice(),
+        ),
+        (
+            "uastc",
+            "KHR_texture_basisu",
+            "image/ktx2",
+            include_bytes!("data/checker_uastc_zstd.ktx2").as_slice(),
+        ),
+    ] {
+        let path = write_quad(
+            &dir,
+            &format!("{name}.gltf"),
+            2.0,
+            None,
+            &only_image(ext, mime, bytes),
+        );
+        let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect(name);
+        assert!(warnings.is_empty(), "{name}: {warnings:?}");
+        assert_eq!(
+            scene.images, want.images,
+            "{name}: the decoded texels differ"
+        );
+        let (pixels, _) = render(&scene);
+        assert!(checker_transitions(&pixels, H / 2) >= 6, "{name}");
+        assert!(pixels == want_pixels, "the {name} quad's pixels differ");
+    }
 
-    let ktx2 = [
+    let ktx2_magic = [
         0xAB, b'K', b'T', b'X', b' ', b'2', b'0', 0xBB, b'\r', b'\n', 0x1A, b'\n',
     ];
-    let head = format!(
-        r#""extensionsUsed":["KHR_texture_basisu"],"extensionsRequired":["KHR_texture_basisu"],"images":[{{"uri":"data:image/ktx2;base64,{}"}}],"textures":[{{"sampler":0,"extensions":{{"KHR_texture_basisu":{{"source":0}}}}}}],"#,
-        base64(&ktx2)
+    let head = only_image("KHR_texture_basisu", "image/ktx2", &ktx2_magic);
+    let path = write_quad(&dir, "ktx2_cut.gltf", 2.0, None, &head);
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("cut ktx2");
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].starts_with("image 0: cannot transcode its KTX2 Basis data")
+            && warnings[0].ends_with("; drawn without this texture"),
+        "{warnings:?}"
     );
-    let path = write_quad(&dir, "ktx2.gltf", 2.0, None, &head);
-    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("ktx2 only");
+    assert!(scene.images.is_empty() && scene.textures.is_empty());
+    assert_eq!(scene.objects.len(), 1);
+
+    let head = only_image("EXT_texture_avif", "image/avif", b"not decoded");
+    let path = write_quad(&dir, "avif.gltf", 2.0, None, &head);
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("avif only");
     assert_eq!(
         warnings,
         [
-            "extension KHR_texture_basisu is not supported, ignored",
-            "texture 0: its only image is given by KHR_texture_basisu, which is not supported; \
+            "extension EXT_texture_avif is not supported, ignored",
+            "texture 0: its only image is given by EXT_texture_avif, which is not supported; \
              drawn without it"
         ]
     );
@@ -478,15 +518,24 @@ fn glb_views_jpeg_and_unsupported_images() {
     assert!(warnings.is_empty(), "{warnings:?}");
     assert_eq!((scene.images[0].width, scene.images[0].height), (8, 8));
 
-    // A KTX2 image: one warning naming the image, the material drawn untextured.
+    // A KTX2 Basis image in a buffer view decodes to the PNG's texels; one cut after its
+    // identifier is one warning naming the image, the material drawn untextured.
+    let path = write_glb(
+        &dir,
+        include_bytes!("data/checker_etc1s.ktx2"),
+        "image/ktx2",
+    );
+    let (basis, warnings) = coherent::scene::gltf::load_gltf(&path).expect("ktx2 glb");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert_eq!(basis.images, glb.images);
     let ktx2 = [
         0xAB, b'K', b'T', b'X', b' ', b'2', b'0', 0xBB, b'\r', b'\n', 0x1A, b'\n',
     ];
     let path = write_glb(&dir, &ktx2, "image/ktx2");
-    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("ktx2 glb");
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("cut ktx2 glb");
     assert_eq!(warnings.len(), 1, "{warnings:?}");
     assert!(
-        warnings[0].contains("image 0") && warnings[0].contains("image/ktx2"),
+        warnings[0].contains("image 0") && warnings[0].contains("cannot transcode its KTX2"),
         "{warnings:?}"
     );
     assert_eq!(scene.images.len(), 1);

@@ -459,12 +459,12 @@ fn unsupported_extensions_warn_or_fail_in_one_line() {
     let json = original_cubes().gltf_embedded();
     let used = write(
         &dir,
-        "basis.gltf",
-        with_top(&json, r#""extensionsUsed":["KHR_texture_basisu"]"#),
+        "avif.gltf",
+        with_top(&json, r#""extensionsUsed":["EXT_texture_avif"]"#),
     );
     let (_, warnings) = coherent::scene::gltf::load_gltf(&used).expect("loads");
     assert_eq!(warnings.len(), 1, "{warnings:?}");
-    assert!(warnings[0].contains("KHR_texture_basisu") && !warnings[0].contains('\n'));
+    assert!(warnings[0].contains("EXT_texture_avif") && !warnings[0].contains('\n'));
     let required = write(
         &dir,
         "metadata.gltf",
