@@ -391,6 +391,11 @@ fn root_nodes(doc: &Document) -> Vec<Node<'_>> {
     if let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) {
         return scene.nodes().collect();
     }
+    parentless_nodes(doc)
+}
+
+/// Every node that is nobody's child.
+pub(super) fn parentless_nodes(doc: &Document) -> Vec<Node<'_>> {
     let mut is_child = vec![false; doc.nodes().len()];
     for node in doc.nodes() {
         for child in node.children() {

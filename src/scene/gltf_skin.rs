@@ -21,19 +21,7 @@ const MAX_INFLUENCE_SETS: u32 = 4;
 /// The world transform of every node that is reachable from a node without a parent (`None`
 /// for the others, which only a cycle leaves out).
 pub(super) fn all_world_transforms(doc: &Document) -> Vec<Option<Mat4>> {
-    let mut is_child = vec![false; doc.nodes().len()];
-    for node in doc.nodes() {
-        for child in node.children() {
-            if let Some(flag) = is_child.get_mut(child.index()) {
-                *flag = true;
-            }
-        }
-    }
-    let roots: Vec<Node<'_>> = doc
-        .nodes()
-        .filter(|n| !is_child.get(n.index()).copied().unwrap_or(false))
-        .collect();
-    super::gltf_ext::world_transforms(doc, &roots)
+    super::gltf_ext::world_transforms(doc, &super::gltf::parentless_nodes(doc))
 }
 
 /// The weights of `node`'s morph targets: its own `weights`, else its mesh's (empty: none).
