@@ -95,6 +95,9 @@ struct Loader<'a> {
     world: Vec<Option<Mat4>>,
     /// The joint matrices of each skin used so far.
     skins: HashMap<usize, Vec<Mat4>>,
+    /// The `EXT_mesh_gpu_instancing` transforms of each node read so far (a node that several
+    /// parents share is visited once per parent).
+    node_instances: HashMap<usize, Option<Vec<Mat4>>>,
     /// Per primitive's first index: the first index of its copy with the winding turned over,
     /// for nodes that mirror it.
     mirrored: HashMap<u32, u32>,
@@ -129,6 +132,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
             Vec::new()
         },
         skins: HashMap::new(),
+        node_instances: HashMap::new(),
         mirrored: HashMap::new(),
         attributes: Vec::new(),
         vertex_ranges: HashMap::new(),
@@ -452,7 +456,14 @@ impl Loader<'_> {
                 return Err(format!("node {} has a non-finite transform", node.index()));
             }
             if let Some(mesh) = node.mesh() {
-                let instances = self.instances(doc, &node)?;
+                let instances = match self.node_instances.get(&node.index()) {
+                    Some(known) => known.clone(),
+                    None => {
+                        let read = self.instances(doc, &node)?;
+                        self.node_instances.insert(node.index(), read.clone());
+                        read
+                    }
+                };
                 visits += instances.as_ref().map_or(0, Vec::len);
                 if visits > MAX_NODE_VISITS {
                     return Err("node hierarchy expands to too many instances".to_string());
