@@ -507,11 +507,12 @@ fn walk_scale(
     dir: &std::path::Path,
     (w, h): (u32, u32),
 ) -> Result<coherent::app::report::WalkSummary> {
-    if a.movers > 0 {
-        return walk_scale_movers(a, ctx, cfg, scale, dir, (w, h));
-    }
     let cache_dir = a.cache.dir();
     let scene = load_scene(&a.scene, scale, &cache_dir)?;
+    // Built-in movers, or objects a glTF animation moves: the walk places them every frame.
+    if a.movers > 0 || scene.animation.is_some() {
+        return walk_scale_movers(a, ctx, cfg, (scene, scale), dir, (w, h));
+    }
     let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
     let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
     let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
@@ -583,12 +584,11 @@ fn walk_scale_movers(
     a: &WalkArgs,
     ctx: &Arc<GpuContext>,
     cfg: &WalkConfig,
-    scale: f32,
+    (fixed, scale): (Scene, f32),
     dir: &std::path::Path,
     (w, h): (u32, u32),
 ) -> Result<coherent::app::report::WalkSummary> {
     let cache_dir = a.cache.dir();
-    let fixed = load_scene(&a.scene, scale, &cache_dir)?;
     let mut scene = fixed.clone();
     let movers = Movers::add(&mut scene, a.movers);
     // The same paths as without movers: built-in names, path files, `interior`, found and

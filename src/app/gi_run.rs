@@ -485,11 +485,11 @@ struct World {
 }
 
 impl World {
-    /// `scene`'s triangles; with `movers` > 0, the scene's built-in movers are added: the static
-    /// triangles are split here (as the renderer would) and the movers' follow, so that they
-    /// are the last ones in the renderer's vertex buffer.
+    /// `scene`'s triangles; with `movers` > 0 or objects its glTF animation moves, the movers
+    /// are added: the static triangles are split here (as the renderer would) and the movers'
+    /// follow, so that they are the last ones in the renderer's vertex buffer.
     fn new(scene: &Scene, movers: usize) -> World {
-        if movers == 0 {
+        if movers == 0 && scene.animation.is_none() {
             let geometry = WorldGeometry::from_scene(scene);
             let rays = geometry.ray_scene();
             return World {

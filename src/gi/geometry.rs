@@ -420,6 +420,7 @@ mod material_tests {
                     ..SamplerDesc::default()
                 },
             }],
+            animation: None,
         }
     }
 

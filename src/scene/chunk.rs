@@ -262,6 +262,7 @@ mod tests {
             materials: Vec::new(),
             images: Vec::new(),
             textures: Vec::new(),
+            animation: None,
         }
     }
 

@@ -95,6 +95,8 @@ struct Loader<'a> {
     world: Vec<Option<Mat4>>,
     /// The joint matrices of each skin used so far.
     skins: HashMap<usize, Vec<Mat4>>,
+    /// The file's first animation and the objects it moves.
+    animation: super::animation::Animation,
     /// The `EXT_mesh_gpu_instancing` transforms of each node read so far (a node that several
     /// parents share is visited once per parent).
     node_instances: HashMap<usize, Option<Vec<Mat4>>>,
@@ -118,13 +120,14 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     let mut buffers = load_buffers(&document, base, blob)?;
     super::gltf_ext::decode_meshopt(&document, &mut buffers)?;
 
+    let mut warnings = super::gltf_ext::unsupported_warnings(&document);
     let mut loader = Loader {
         doc: &document,
         buffers: &buffers,
         vertices: Vec::new(),
         indices: Vec::new(),
         objects: Vec::new(),
-        warnings: super::gltf_ext::unsupported_warnings(&document),
+        warnings: Vec::new(),
         meshes: HashMap::new(),
         world: if document.skins().len() > 0 {
             super::gltf_skin::all_world_transforms(&document)
@@ -133,16 +136,43 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         },
         skins: HashMap::new(),
         node_instances: HashMap::new(),
+        animation: first_animation(&document, &buffers, &mut warnings),
         mirrored: HashMap::new(),
         attributes: Vec::new(),
         vertex_ranges: HashMap::new(),
         materials: MaterialLoader::new(base),
     };
+    loader.warnings = warnings;
     for root in root_nodes(&document) {
         loader.walk(&document, root)?;
     }
+    let mut animation = std::mem::take(&mut loader.animation);
     let animations = document.animations().len();
-    if animations > 0 {
+    let kept_still = loader.objects.is_empty() && !animation.objects.is_empty();
+    if kept_still {
+        // Nothing would stand still: the moving objects stay where they start, as a scene
+        // needs fixed geometry to find its paths on.
+        loader.warnings.push(format!(
+            "animation 0 moves every object: not played ({animations} animation(s) in the \
+             file), the scene is drawn where it starts"
+        ));
+        loader
+            .objects
+            .extend(animation.objects.drain(..).map(|a| a.object));
+    }
+    let moved = animation.objects.len();
+    if moved > 0 {
+        loader.warnings.push(format!(
+            "animation 0 moves {moved} object(s): they are movers, placed every frame ({} \
+             frames a second, a loop of {:.2} s){}",
+            super::animation::ANIMATION_FPS,
+            animation.duration(),
+            match animations - 1 {
+                0 => String::new(),
+                n => format!("; {n} other animation(s) not played"),
+            }
+        ));
+    } else if animations > 0 && !kept_still {
         loader.warnings.push(format!(
             "{animations} animation(s) not played: the scene is drawn in its default pose"
         ));
@@ -154,6 +184,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     let bounds = loader
         .objects
         .iter()
+        .chain(animation.objects.iter().map(|a| &a.object))
         .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
     let name = path
         .file_stem()
@@ -186,6 +217,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         materials: mats.materials,
         images: mats.images,
         textures: mats.textures,
+        animation: (moved > 0).then(|| std::sync::Arc::new(animation)),
     };
     Ok((scene, loader.warnings))
 }
@@ -413,6 +445,38 @@ pub(super) fn parentless_nodes(doc: &Document) -> Vec<Node<'_>> {
         .collect()
 }
 
+/// A node's rest translation, rotation and scale.
+fn trs(node: &Node<'_>) -> (Vec3, glam::Quat, Vec3) {
+    let (t, r, s) = node.transform().decomposed();
+    (
+        Vec3::from_array(t),
+        glam::Quat::from_array(r),
+        Vec3::from_array(s),
+    )
+}
+
+/// The translation, rotation and scale channels of the file's first animation (those that
+/// cannot be read are left out with a warning).
+fn first_animation(
+    doc: &Document,
+    buffers: &[Data],
+    warnings: &mut Vec<String>,
+) -> super::animation::Animation {
+    let mut channels = Vec::new();
+    if let Some(anim) = doc.animations().next() {
+        for ch in anim.channels() {
+            match super::gltf_ext::Channel::read(&ch, buffers) {
+                Ok(Some(c)) => channels.push(c),
+                Ok(None) => {}
+                Err(e) => {
+                    warnings.push(format!("animation 0 channel {}: {e}, left out", ch.index()))
+                }
+            }
+        }
+    }
+    super::animation::Animation::new(channels)
+}
+
 /// A camera orbit around `bounds`: four keys at 1.5x the bounding radius, looking at the center.
 fn default_path(bounds: &Aabb) -> CameraPath {
     let center = bounds.center();
@@ -438,8 +502,12 @@ impl Loader<'_> {
     fn walk(&mut self, doc: &Document, root: Node<'_>) -> Result<(), String> {
         let node_count = doc.nodes().len();
         let mut visits = 0usize;
-        let mut stack = vec![(root, Mat4::IDENTITY, 0usize)];
-        while let Some((node, parent, depth)) = stack.pop() {
+        // Per node: its parent's world transform, its depth, and when it hangs from an animated
+        // node, the world transform above the topmost such node and the nodes from it down.
+        type Animated = Option<(Mat4, Vec<(usize, (Vec3, glam::Quat, Vec3))>)>;
+        let mut stack: Vec<(Node<'_>, Mat4, usize, Animated)> =
+            vec![(root, Mat4::IDENTITY, 0usize, None)];
+        while let Some((node, parent, depth, animated)) = stack.pop() {
             visits += 1;
             if depth > node_count {
                 return Err(format!(
@@ -455,6 +523,16 @@ impl Loader<'_> {
             if !world.is_finite() {
                 return Err(format!("node {} has a non-finite transform", node.index()));
             }
+            let animated = match animated {
+                Some((above, mut chain)) => {
+                    chain.push((node.index(), trs(&node)));
+                    Some((above, chain))
+                }
+                None if self.animation.animates(node.index()) => {
+                    Some((parent, vec![(node.index(), trs(&node))]))
+                }
+                None => None,
+            };
             if let Some(mesh) = node.mesh() {
                 let instances = match self.node_instances.get(&node.index()) {
                     Some(known) => known.clone(),
@@ -515,7 +593,7 @@ impl Loader<'_> {
                                 mesh.index()
                             ));
                         }
-                        self.objects.push(Object {
+                        let object = Object {
                             first_index: geom.first_index,
                             index_count: geom.index_count,
                             vertex_offset: geom.vertex_offset,
@@ -524,13 +602,24 @@ impl Loader<'_> {
                             color: geom.color,
                             bounds,
                             material: geom.material,
-                        });
+                        };
+                        // Skinned vertices are posed once, in world space: they do not move.
+                        match (&animated, &pose.skin) {
+                            (Some((above, chain)), None) => self.animation.add(
+                                object,
+                                geom.bounds,
+                                *above,
+                                chain.clone(),
+                                instance,
+                            ),
+                            _ => self.objects.push(object),
+                        }
                     }
                 }
             }
             let children: Vec<_> = node.children().collect();
             for child in children.into_iter().rev() {
-                stack.push((child, world, depth + 1));
+                stack.push((child, world, depth + 1, animated.clone()));
             }
         }
         Ok(())
@@ -2141,16 +2230,88 @@ mod tests {
         assert!((normal(&scene.objects[1]) - Vec3::new(0.8, 0.0, -0.6)).length() < 1e-5);
     }
 
+    /// A static cube (node 0) and a cube (node 1) that the first animation moves along x from
+    /// -5 to 5 and back over 2 s, with a child cube (node 2) 2 up whose scale steps to 2 at 0.5 s.
+    fn animated_cubes() -> GltfBuilder {
+        let mut b = GltfBuilder::default();
+        let cube = b.cube_mesh([0.5, 0.5, 0.5, 1.0]);
+        b.node(cube, [0.0, 0.0, -1.0]);
+        b.nodes.push(format!(
+            r#"{{"mesh":{cube},"translation":[0,0,2],"children":[2]}}"#
+        ));
+        b.node(cube, [0.0, 2.0, 0.0]);
+        b.scene_nodes = Some(vec![0, 1]);
+        let scalar = |b: &mut GltfBuilder, values: &[f32]| {
+            let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+            let view = b.view(&bytes);
+            let i = b.accessor(view, 5126, "SCALAR", values.len());
+            let max = values.iter().copied().fold(f32::MIN, f32::max);
+            b.accessors[i] = b.accessors[i].replace('}', &format!(r#","min":[0],"max":[{max}]}}"#));
+            i
+        };
+        let times = scalar(&mut b, &[0.0, 1.0, 2.0]);
+        let steps = scalar(&mut b, &[0.0, 0.5]);
+        let moved = b.vec3(&[[-5.0, 0.0, 2.0], [5.0, 0.0, 2.0], [-5.0, 0.0, 2.0]]);
+        let scaled = b.vec3(&[[1.0; 3], [2.0; 3]]);
+        b.head = format!(
+            r#""animations":[{{"samplers":[{{"input":{times},"output":{moved}}},{{"input":{steps},"output":{scaled},"interpolation":"STEP"}}],"channels":[{{"sampler":0,"target":{{"node":1,"path":"translation"}}}},{{"sampler":1,"target":{{"node":2,"path":"scale"}}}}]}}],"#
+        );
+        b
+    }
+
     #[test]
-    fn animations_are_not_played_and_say_so() {
+    fn the_first_animation_moves_its_objects_as_movers() {
+        let dir = temp_dir("animated");
+        let path = write(&dir, "animated.gltf", animated_cubes().gltf_embedded());
+        let (mut scene, warnings) = load_gltf(&path).expect("load");
+        assert_eq!(
+            warnings,
+            [
+                "animation 0 moves 2 object(s): they are movers, placed every frame (30 frames a \
+              second, a loop of 2.00 s)"
+            ]
+        );
+        assert_eq!(scene.objects.len(), 1, "only the static cube stands still");
+        scene.magnify(2.0);
+        let movers = crate::scene::movers::Movers::add(&mut scene, 0);
+        assert_eq!((movers.len(), scene.objects.len()), (2, 3));
+        let at = |i: usize, frame: u64| {
+            let m = movers.transform_at(i, frame);
+            (
+                m.transform_point3(Vec3::ZERO),
+                m.transform_vector3(Vec3::X).length(),
+            )
+        };
+        // Frame 15 is 0.5 s: x = 0 (linear), the child's scale has stepped to 2; frame 45 is
+        // 1.5 s, on the way back; frame 60 loops to the start. All twice as large (magnify).
+        assert_eq!(at(0, 0), (Vec3::new(-10.0, 0.0, 4.0), 2.0));
+        assert_eq!(at(0, 15), (Vec3::new(0.0, 0.0, 4.0), 2.0));
+        assert_eq!(at(0, 45), (Vec3::new(0.0, 0.0, 4.0), 2.0));
+        assert_eq!(at(0, 60), at(0, 0));
+        assert_eq!(at(1, 0), (Vec3::new(-10.0, 4.0, 4.0), 2.0));
+        assert_eq!(
+            at(1, 14),
+            (Vec3::new(-10.0 + 20.0 * 14.0 / 30.0, 4.0, 4.0), 2.0)
+        );
+        assert_eq!(at(1, 15), (Vec3::new(0.0, 4.0, 4.0), 4.0));
+        // The objects start where the animation starts, boxes and all.
+        let start = &scene.objects[1];
+        assert_eq!(start.transform, movers.transform_at(0, 0));
+        assert!(start.bounds.contains(Vec3::new(-10.0, 0.0, 4.0)));
+    }
+
+    #[test]
+    fn animations_that_move_no_mesh_are_not_played_and_say_so() {
         let dir = temp_dir("animation");
         let mut b = two_cubes_and_triangle();
         let times = b.view(&0.0f32.to_le_bytes());
         let times = b.accessor(times, 5126, "SCALAR", 1);
         b.accessors[times] = b.accessors[times].replace('}', r#","min":[0],"max":[0]}"#);
         let moved = b.vec3(&[[0.0, 50.0, 0.0]]);
+        // It moves a node without a mesh (a skeleton's joints are such nodes).
+        b.nodes.push("{}".to_string());
         b.head = format!(
-            r#""animations":[{{"samplers":[{{"input":{times},"output":{moved}}}],"channels":[{{"sampler":0,"target":{{"node":0,"path":"translation"}}}}]}}],"#
+            r#""animations":[{{"samplers":[{{"input":{times},"output":{moved}}}],"channels":[{{"sampler":0,"target":{{"node":3,"path":"translation"}}}}]}}],"#
         );
         let path = write(&dir, "animated.gltf", b.gltf_embedded());
         let (scene, warnings) = load_gltf(&path).expect("load");

@@ -371,18 +371,20 @@ pub fn light_path(
     Some(keys_to_path(LIGHT_PATH, &keys))
 }
 
-/// One animation channel of a node: key times, values (translation xyz or rotation xyzw) and
-/// interpolation.
-struct Channel {
+/// One animation channel of a node: key times, values (translation or scale xyz, or rotation
+/// xyzw) and interpolation.
+#[derive(Clone, Debug)]
+pub(super) struct Channel {
+    pub node: usize,
+    pub property: Property,
     times: Vec<f32>,
     values: Vec<[f32; 4]>,
     interpolation: Interpolation,
-    rotation: bool,
 }
 
 impl Channel {
     /// The channel's value at `t` (clamped; cubic splines use their key values only).
-    fn at(&self, t: f32) -> [f32; 4] {
+    pub fn at(&self, t: f32) -> [f32; 4] {
         let cubic = self.interpolation == Interpolation::CubicSpline;
         let value = |k: usize| self.values[if cubic { 3 * k + 1 } else { k }];
         let n = self.times.len();
@@ -396,7 +398,7 @@ impl Channel {
         let (a, b) = (self.times[i - 1], self.times[i]);
         let f = ((t - a) / (b - a).max(1e-9)).clamp(0.0, 1.0);
         let (va, vb) = (value(i - 1), value(i));
-        if self.rotation {
+        if self.property == Property::Rotation {
             Quat::from_array(va)
                 .normalize()
                 .slerp(Quat::from_array(vb).normalize(), f)
@@ -404,6 +406,59 @@ impl Channel {
         } else {
             std::array::from_fn(|k| va[k] + (vb[k] - va[k]) * f)
         }
+    }
+
+    /// The time of its last key.
+    pub fn end(&self) -> f32 {
+        self.times.last().copied().unwrap_or(0.0)
+    }
+
+    /// Reads a translation, rotation or scale channel; `Ok(None)` for other properties (morph
+    /// weights) and for channels without usable keys (empty, unsorted, short or non-finite).
+    pub fn read(
+        ch: &::gltf::animation::Channel<'_>,
+        buffers: &[Data],
+    ) -> Result<Option<Channel>, String> {
+        let property = ch.target().property();
+        if !matches!(
+            property,
+            Property::Translation | Property::Rotation | Property::Scale
+        ) {
+            return Ok(None);
+        }
+        let sampler = ch.sampler();
+        [sampler.input(), sampler.output()]
+            .iter()
+            .try_for_each(|a| match a.count() {
+                0 => Err("an accessor has no elements".to_string()),
+                _ => super::gltf::check_accessor(a, buffers).map(|_| ()),
+            })?;
+        let reader = ch.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+        let times: Vec<f32> = reader
+            .read_inputs()
+            .map(|i| i.collect())
+            .unwrap_or_default();
+        let values: Vec<[f32; 4]> = match reader.read_outputs() {
+            Some(ReadOutputs::Translations(t)) => t.map(|v| [v[0], v[1], v[2], 0.0]).collect(),
+            Some(ReadOutputs::Scales(t)) => t.map(|v| [v[0], v[1], v[2], 0.0]).collect(),
+            Some(ReadOutputs::Rotations(r)) => r.into_f32().collect(),
+            _ => Vec::new(),
+        };
+        let cubic = sampler.interpolation() == Interpolation::CubicSpline;
+        let needed = times.len() * if cubic { 3 } else { 1 };
+        let sorted = times.windows(2).all(|w| w[0] < w[1]);
+        let finite =
+            times.iter().all(|t| t.is_finite()) && values.iter().flatten().all(|v| v.is_finite());
+        if times.is_empty() || values.len() < needed || !sorted || !finite {
+            return Ok(None);
+        }
+        Ok(Some(Channel {
+            node: ch.target().node().index(),
+            property,
+            times,
+            values,
+            interpolation: sampler.interpolation(),
+        }))
     }
 }
 
@@ -424,43 +479,15 @@ fn node_channels(
             {
                 continue;
             }
-            let sampler = ch.sampler();
-            let checked = [sampler.input(), sampler.output()]
-                .iter()
-                .try_for_each(|a| match a.count() {
-                    0 => Err("an accessor has no elements".to_string()),
-                    _ => super::gltf::check_accessor(a, buffers).map(|_| ()),
-                });
-            if let Err(e) = checked {
-                warnings.push(format!(
+            match Channel::read(&ch, buffers) {
+                Ok(Some(c)) => out.push(c),
+                Ok(None) => {}
+                Err(e) => warnings.push(format!(
                     "animation {} channel {}: {e}, light animation ignored",
                     anim.index(),
                     ch.index()
-                ));
-                continue;
+                )),
             }
-            let reader = ch.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-            let times: Vec<f32> = reader
-                .read_inputs()
-                .map(|i| i.collect())
-                .unwrap_or_default();
-            let values: Vec<[f32; 4]> = match reader.read_outputs() {
-                Some(ReadOutputs::Translations(t)) => t.map(|v| [v[0], v[1], v[2], 0.0]).collect(),
-                Some(ReadOutputs::Rotations(r)) => r.into_f32().collect(),
-                _ => Vec::new(),
-            };
-            let cubic = sampler.interpolation() == Interpolation::CubicSpline;
-            let needed = times.len() * if cubic { 3 } else { 1 };
-            let sorted = times.windows(2).all(|w| w[0] < w[1]);
-            if times.is_empty() || values.len() < needed || !sorted {
-                continue;
-            }
-            out.push(Channel {
-                times,
-                values,
-                interpolation: sampler.interpolation(),
-                rotation: prop == Property::Rotation,
-            });
         }
     }
     out
@@ -495,7 +522,7 @@ fn animated_keys(
             let (mut r, mut p) = (Quat::from_array(rotation), Vec3::from_array(translation));
             for c in &channels {
                 let v = c.at(t);
-                if c.rotation {
+                if c.property == Property::Rotation {
                     r = Quat::from_array(v).normalize();
                 } else {
                     p = Vec3::new(v[0], v[1], v[2]);

@@ -202,6 +202,7 @@ impl SceneBuilder {
                 materials: Vec::new(),
                 images: Vec::new(),
                 textures: Vec::new(),
+                animation: None,
             },
         }
     }

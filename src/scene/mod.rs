@@ -65,12 +65,16 @@ pub struct Scene {
     pub images: Vec<TextureImage>,
     /// Textures (an image and a sampler) the materials use.
     pub textures: Vec<Texture>,
+    /// The objects a glTF file's first animation moves (not in `objects`:
+    /// [`Movers::add`](movers::Movers::add) adds them as movers), `None` without any.
+    pub animation: Option<std::sync::Arc<animation::Animation>>,
 }
 
 pub use material::{
     AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
 };
 
+pub mod animation;
 pub mod camera;
 pub mod chunk;
 pub mod gltf;
@@ -152,6 +156,9 @@ impl Scene {
                 k.eye *= factor;
                 k.target *= factor;
             }
+        }
+        if let Some(a) = &mut self.animation {
+            std::sync::Arc::make_mut(a).magnify(factor);
         }
     }
 

@@ -1,4 +1,5 @@
-//! Built-in moving objects (`--movers N`): cars that drive along the `city` streets and turn at
+//! Moving objects: those a glTF file's first animation moves ([`Scene::animation`]), and the
+//! built-in ones (`--movers N`): cars that drive along the `city` streets and turn at
 //! crossings, cars that drive along the `parking` aisles out of the lot and back in, fans that
 //! spin in the `powerplant` (and in any other scene). Each mover's transform is a pure function
 //! of the frame number, so every algorithm of a walk sees the same scene at the same frame.
@@ -19,6 +20,8 @@ const LANE: f32 = 2.0;
 #[derive(Clone, Debug, Default)]
 pub struct Movers {
     movers: Vec<Mover>,
+    /// The glTF animation that [`Route::Animated`] movers follow.
+    animation: Option<std::sync::Arc<super::animation::Animation>>,
 }
 
 /// One mover: its object, its object-space box and its route.
@@ -53,6 +56,8 @@ enum Route {
     },
     /// Spinning about a vertical axis in place.
     Spin { at: Vec3, speed: f32, phase: f32 },
+    /// Object `index` of the scene's glTF animation.
+    Animated { index: usize },
     /// Back and forth between two points (a crane's trolley and hook).
     Shuttle {
         from: Vec3,
@@ -66,10 +71,23 @@ enum Route {
 const DIRS: [(i32, i32); 4] = [(1, 0), (0, 1), (-1, 0), (0, -1)];
 
 impl Movers {
-    /// Adds `count` movers to `scene` (new objects after the scene's own, at their frame-0
+    /// Adds the objects of the scene's glTF animation (taken out of `scene.animation`), then
+    /// `count` built-in movers, to `scene` (new objects after the scene's own, at their frame-0
     /// places): cars on the `city` streets, cars in the `parking` aisles, spinning fans
     /// elsewhere. Their ids are `scene.objects.len()` before the call, onwards.
     pub fn add(scene: &mut Scene, count: usize) -> Movers {
+        let mut movers = Movers::default();
+        if let Some(animation) = scene.animation.take() {
+            for (index, a) in animation.objects.iter().enumerate() {
+                movers.movers.push(Mover {
+                    object: scene.objects.len() as u32,
+                    local: a.local,
+                    route: Route::Animated { index },
+                });
+                scene.objects.push(a.object.clone());
+            }
+            movers.animation = Some(animation);
+        }
         let mut rng = Rng::new(0x00D1_7A11 ^ count as u64);
         let ground = scene.objects.first().map(|o| o.bounds);
         let world = scene
@@ -87,7 +105,6 @@ impl Movers {
         } else {
             first.clone()
         };
-        let mut movers = Movers::default();
         for i in 0..count {
             let route = match (scene.name.as_str(), ground) {
                 ("city", Some(g)) => street_route(&mut rng, g),
@@ -107,7 +124,7 @@ impl Movers {
                 local,
                 route,
             };
-            let transform = mover.transform_at(0);
+            let transform = movers.transform_of(&mover, 0);
             scene.objects.push(Object {
                 transform,
                 color: Vec4::from((color * tint, 1.0)),
@@ -144,7 +161,14 @@ impl Movers {
 
     /// Mover `i`'s transform at `frame`.
     pub fn transform_at(&self, i: usize, frame: u64) -> Mat4 {
-        self.movers[i].transform_at(frame)
+        self.transform_of(&self.movers[i], frame)
+    }
+
+    fn transform_of(&self, m: &Mover, frame: u64) -> Mat4 {
+        match (m.route, &self.animation) {
+            (Route::Animated { index }, Some(a)) => a.transform_at(index, frame),
+            _ => m.transform_at(frame),
+        }
     }
 
     /// Each mover's place at `frame`: `place(object, world box, transform)`, for the host to
@@ -156,7 +180,7 @@ impl Movers {
         mut place: impl FnMut(u32, Aabb, &Mat4) -> Result<()>,
     ) -> Result<()> {
         for m in &self.movers {
-            let t = m.transform_at(frame);
+            let t = self.transform_of(m, frame);
             place(m.object, m.local.transformed(&t), &t)?;
         }
         Ok(())
@@ -186,6 +210,8 @@ impl Mover {
             Route::Spin { at, speed, phase } => {
                 Mat4::from_translation(at) * Mat4::from_rotation_y(phase + speed * frame as f32)
             }
+            // Placed by `Movers::transform_of`, which holds the animation.
+            Route::Animated { .. } => Mat4::IDENTITY,
             Route::Shuttle {
                 from,
                 to,
