@@ -323,7 +323,7 @@ pub struct GiSummary {
     pub size: String,
     /// Frames per mode.
     pub frames: u32,
-    /// Moving objects (`--movers`).
+    /// Moving objects (`--movers`, and those the glTF file's animation moves).
     pub movers: usize,
     /// The frames compared with the reference (all after the first, evenly spaced).
     pub rmse_frames: Vec<u32>,
@@ -764,7 +764,7 @@ pub fn run_reporting(
         device: ctx.info.name.clone(),
         size: format!("{}x{}", opts.width, opts.height),
         frames: opts.frames,
-        movers: setup.movers,
+        movers: setup.movers + scene.animation.as_ref().map_or(0, |a| a.objects.len()),
         rmse_frames: sampled.clone(),
         algorithms: Vec::new(),
     };
