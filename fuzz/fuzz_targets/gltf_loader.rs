@@ -26,12 +26,24 @@ fuzz_target!(|data: &[u8]| {
     let path = dir().join(name);
     std::fs::write(&path, data).expect("write fuzz input");
     let path_text = path.to_string_lossy().into_owned();
-    if let Err(e) = coherent::scene::Scene::load(&path_text, 1.0, 4096) {
-        let text = e.to_string();
-        assert!(!text.contains('\n'), "error is not one line: {text}");
-        assert!(
-            text.contains(&path_text),
-            "error does not name the file: {text}"
-        );
+    match coherent::scene::Scene::load(&path_text, 1.0, 4096) {
+        Ok(mut scene) => {
+            // The objects its animation moves: placed at a few frames, boxes finite.
+            let movers = coherent::scene::movers::Movers::add(&mut scene, 0);
+            for i in 0..movers.len() {
+                for frame in [0, 7, 1000] {
+                    let m = movers.transform_at(i, frame);
+                    assert!(m.is_finite(), "mover {i} at frame {frame}: {m}");
+                }
+            }
+        }
+        Err(e) => {
+            let text = e.to_string();
+            assert!(!text.contains('\n'), "error is not one line: {text}");
+            assert!(
+                text.contains(&path_text),
+                "error does not name the file: {text}"
+            );
+        }
     }
 });

@@ -116,7 +116,7 @@ fn bad_buffer_uris_are_one_line_errors() {
 /// Valid files covering the loader's paths: GLB and embedded glTF, u16/u32 and no indices,
 /// instancing (nodes and `EXT_mesh_gpu_instancing`), a hierarchy without scenes, a non-triangle
 /// mode, strips and fans, a sparse accessor, a WebP texture of a specular-glossiness
-/// material, a Draco-compressed triangle, a skin and a morph target, and a KTX2 texture.
+/// material, a Draco-compressed triangle, a skin and a morph target, a KTX2 texture and an animation.
 fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     let mut out = vec![("grid4.glb", cube_grid_glb(4))];
     let mut b = GltfBuilder::default();
@@ -228,6 +228,28 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     b.nodes.push(r#"{"mesh":1,"weights":[1.5]}"#.to_string());
     b.scene_nodes = Some(vec![0, 2, 3]);
     out.push(("skin_morph.glb", b.glb()));
+
+    // Two cubes, one of them moved by a LINEAR translation and a STEP rotation.
+    let mut b = GltfBuilder::default();
+    let cube = b.cube_mesh([0.5; 4]);
+    b.node(cube, [0.0; 3]);
+    b.node(cube, [3.0, 0.0, 0.0]);
+    b.scene_nodes = Some(vec![0, 1]);
+    let times: Vec<u8> = [0.0f32, 1.0].iter().flat_map(|t| t.to_le_bytes()).collect();
+    let view = b.view(&times);
+    let times = b.accessor(view, 5126, "SCALAR", 2);
+    b.accessors[times] = b.accessors[times].replace('}', r#","min":[0],"max":[1]}"#);
+    let moved = b.vec3(&[[3.0, 0.0, 0.0], [3.0, 2.0, 0.0]]);
+    let turns: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.7071, 0.0, 0.7071]
+        .iter()
+        .flat_map(|t| t.to_le_bytes())
+        .collect();
+    let view = b.view(&turns);
+    let turns = b.accessor(view, 5126, "VEC4", 2);
+    b.head = format!(
+        r#""animations":[{{"samplers":[{{"input":{times},"output":{moved}}},{{"input":{times},"output":{turns},"interpolation":"STEP"}}],"channels":[{{"sampler":0,"target":{{"node":1,"path":"translation"}}}},{{"sampler":1,"target":{{"node":1,"path":"rotation"}}}}]}}],"#
+    );
+    out.push(("animated.glb", b.glb()));
     out
 }
 
@@ -291,6 +313,9 @@ fn seed_corpus_loads() {
                 1,
                 "{name}: the seed's texture is not read"
             );
+        }
+        if name == "animated.glb" {
+            assert!(scene.animation.is_some(), "the animated seed moves nothing");
         }
         if let Some(out) = &out {
             std::fs::create_dir_all(out).expect("seed dir");
