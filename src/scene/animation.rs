@@ -90,7 +90,8 @@ impl Animation {
     }
 
     /// Object `i`'s world transform at walk frame `frame` (the animation loops; a transform
-    /// that is not finite falls back to the object's start).
+    /// that is not finite, or that takes the object farther from the origin than a loaded
+    /// vertex may lie, falls back to the object's start).
     pub fn transform_at(&self, i: usize, frame: u64) -> Mat4 {
         let t = if self.duration > 0.0 {
             (frame as f32 / ANIMATION_FPS) % self.duration
@@ -114,7 +115,9 @@ impl Animation {
             m *= Mat4::from_scale_rotation_translation(sc, rot, tr);
         }
         let m = m * a.instance;
-        if m.is_finite() {
+        let b = a.local.transformed(&m);
+        let reach = b.min.abs().max(b.max.abs()).max_element();
+        if m.is_finite() && reach <= super::gltf::MAX_COORDINATE {
             m
         } else {
             a.object.transform

@@ -28,7 +28,7 @@ const MAX_NODE_VISITS: usize = 10_000_000;
 /// How far from the origin a vertex may lie, in scene units, after its node transforms. f32
 /// keeps about 7 digits, so a scene this large cannot be drawn anyway; beyond it the products
 /// of three coordinates in the path finder's ray tests would overflow.
-const MAX_COORDINATE: f32 = 1.0e12;
+pub(super) const MAX_COORDINATE: f32 = 1.0e12;
 
 /// Loads a `.gltf` or `.glb` file into a [`Scene`].
 ///
@@ -2231,8 +2231,9 @@ mod tests {
     }
 
     /// A static cube (node 0) and a cube (node 1) that the first animation moves along x from
-    /// -5 to 5 and back over 2 s, with a child cube (node 2) 2 up whose scale steps to 2 at 0.5 s.
-    fn animated_cubes() -> GltfBuilder {
+    /// -5 to `far` (5) and back over 2 s, with a child cube (node 2) 2 up whose scale steps to 2
+    /// at 0.5 s.
+    fn animated_cubes(far: f32) -> GltfBuilder {
         let mut b = GltfBuilder::default();
         let cube = b.cube_mesh([0.5, 0.5, 0.5, 1.0]);
         b.node(cube, [0.0, 0.0, -1.0]);
@@ -2251,7 +2252,7 @@ mod tests {
         };
         let times = scalar(&mut b, &[0.0, 1.0, 2.0]);
         let steps = scalar(&mut b, &[0.0, 0.5]);
-        let moved = b.vec3(&[[-5.0, 0.0, 2.0], [5.0, 0.0, 2.0], [-5.0, 0.0, 2.0]]);
+        let moved = b.vec3(&[[-5.0, 0.0, 2.0], [far, 0.0, 2.0], [-5.0, 0.0, 2.0]]);
         let scaled = b.vec3(&[[1.0; 3], [2.0; 3]]);
         b.head = format!(
             r#""animations":[{{"samplers":[{{"input":{times},"output":{moved}}},{{"input":{steps},"output":{scaled},"interpolation":"STEP"}}],"channels":[{{"sampler":0,"target":{{"node":1,"path":"translation"}}}},{{"sampler":1,"target":{{"node":2,"path":"scale"}}}}]}}],"#
@@ -2262,7 +2263,7 @@ mod tests {
     #[test]
     fn the_first_animation_moves_its_objects_as_movers() {
         let dir = temp_dir("animated");
-        let path = write(&dir, "animated.gltf", animated_cubes().gltf_embedded());
+        let path = write(&dir, "animated.gltf", animated_cubes(5.0).gltf_embedded());
         let (mut scene, warnings) = load_gltf(&path).expect("load");
         assert_eq!(
             warnings,
@@ -2298,6 +2299,13 @@ mod tests {
         let start = &scene.objects[1];
         assert_eq!(start.transform, movers.transform_at(0, 0));
         assert!(start.bounds.contains(Vec3::new(-10.0, 0.0, 4.0)));
+
+        // An animation that takes an object past MAX_COORDINATE leaves it at its start there.
+        let path = write(&dir, "far.gltf", animated_cubes(1.0e13).gltf_embedded());
+        let (mut scene, _) = load_gltf(&path).expect("load far");
+        let movers = crate::scene::movers::Movers::add(&mut scene, 0);
+        assert_eq!(movers.transform_at(0, 30), movers.transform_at(0, 0));
+        assert_ne!(movers.transform_at(0, 1), movers.transform_at(0, 0));
     }
 
     #[test]
