@@ -465,7 +465,7 @@ fn first_animation(
     let mut channels = Vec::new();
     if let Some(anim) = doc.animations().next() {
         for ch in anim.channels() {
-            match super::gltf_ext::Channel::read(&ch, buffers) {
+            match super::gltf_ext::Channel::read(doc, &ch, buffers) {
                 Ok(Some(c)) => channels.push(c),
                 Ok(None) => {}
                 Err(e) => {

@@ -4,9 +4,10 @@
 //! `gltf-cameras`, the first `KHR_lights_punctual` spot light as the light path `gltf-light`,
 //! and one warning per extension that is not honored.
 
-use ::gltf::animation::util::ReadOutputs;
+use ::gltf::accessor::Dimensions;
 use ::gltf::animation::{Interpolation, Property};
 use ::gltf::buffer::Data;
+use ::gltf::json::validation::Checked;
 use ::gltf::khr_lights_punctual::Kind;
 use ::gltf::{Document, Node};
 use glam::{Mat4, Quat, Vec3};
@@ -416,35 +417,43 @@ impl Channel {
     /// Reads a translation, rotation or scale channel; `Ok(None)` for other properties (morph
     /// weights) and for channels without usable keys (empty, unsorted, short or non-finite).
     pub fn read(
+        doc: &Document,
         ch: &::gltf::animation::Channel<'_>,
         buffers: &[Data],
     ) -> Result<Option<Channel>, String> {
-        let property = ch.target().property();
-        if !matches!(
-            property,
-            Property::Translation | Property::Rotation | Property::Scale
-        ) {
+        // A path or an interpolation the gltf crate does not know (`pointer` of
+        // KHR_animation_pointer) is not valid to it: `property()` and `interpolation()` would
+        // panic on them, so they are read from the JSON.
+        let Some(json) = channel_json(doc, ch) else {
             return Ok(None);
-        }
-        let sampler = ch.sampler();
-        [sampler.input(), sampler.output()]
-            .iter()
-            .try_for_each(|a| match a.count() {
-                0 => Err("an accessor has no elements".to_string()),
-                _ => super::gltf::check_accessor(a, buffers).map(|_| ()),
-            })?;
-        let reader = ch.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-        let times: Vec<f32> = reader
-            .read_inputs()
-            .map(|i| i.collect())
-            .unwrap_or_default();
-        let values: Vec<[f32; 4]> = match reader.read_outputs() {
-            Some(ReadOutputs::Translations(t)) => t.map(|v| [v[0], v[1], v[2], 0.0]).collect(),
-            Some(ReadOutputs::Scales(t)) => t.map(|v| [v[0], v[1], v[2], 0.0]).collect(),
-            Some(ReadOutputs::Rotations(r)) => r.into_f32().collect(),
-            _ => Vec::new(),
         };
-        let cubic = sampler.interpolation() == Interpolation::CubicSpline;
+        let (property, interpolation) = match (json.path, json.interpolation) {
+            (
+                Checked::Valid(p @ (Property::Translation | Property::Rotation | Property::Scale)),
+                Checked::Valid(i),
+            ) => (p, i),
+            _ => return Ok(None),
+        };
+        // Read with the loader's own accessor reader: the crate's reader panics on component
+        // types the spec does not allow here.
+        let (input, output) = (&json.input, &json.output);
+        let dims = match property {
+            Property::Rotation => Dimensions::Vec4,
+            _ => Dimensions::Vec3,
+        };
+        if input.dimensions() != Dimensions::Scalar || output.dimensions() != dims {
+            return Err(format!(
+                "its input is {:?} and its output {:?} ({dims:?} expected)",
+                input.dimensions(),
+                output.dimensions()
+            ));
+        }
+        let times: Vec<f32> = super::gltf_material::read_elements(input, buffers)?
+            .into_iter()
+            .map(|e| e[0])
+            .collect();
+        let values = super::gltf_material::read_elements(output, buffers)?;
+        let cubic = interpolation == Interpolation::CubicSpline;
         let needed = times.len() * if cubic { 3 } else { 1 };
         let sorted = times.windows(2).all(|w| w[0] < w[1]);
         let finite =
@@ -453,13 +462,44 @@ impl Channel {
             return Ok(None);
         }
         Ok(Some(Channel {
-            node: ch.target().node().index(),
+            node: json.node,
             property,
             times,
             values,
-            interpolation: sampler.interpolation(),
+            interpolation,
         }))
     }
+}
+
+/// An animation channel as its JSON gives it, its indices checked against the document.
+struct ChannelJson<'d> {
+    node: usize,
+    path: Checked<Property>,
+    interpolation: Checked<Interpolation>,
+    input: ::gltf::Accessor<'d>,
+    output: ::gltf::Accessor<'d>,
+}
+
+/// The JSON of an animation channel and its sampler, `None` when an index in it (target node,
+/// sampler, input or output accessor) is out of range: the crate's accessors for them unwrap.
+fn channel_json<'d>(
+    doc: &'d Document,
+    ch: &::gltf::animation::Channel<'_>,
+) -> Option<ChannelJson<'d>> {
+    let anim = doc.as_json().animations.get(ch.animation().index())?;
+    let json = anim.channels.get(ch.index())?;
+    let sampler = anim.samplers.get(json.sampler.value())?;
+    let node = json.target.node.value();
+    if node >= doc.nodes().len() {
+        return None;
+    }
+    Some(ChannelJson {
+        node,
+        path: json.target.path,
+        interpolation: sampler.interpolation,
+        input: doc.accessors().nth(sampler.input.value())?,
+        output: doc.accessors().nth(sampler.output.value())?,
+    })
 }
 
 /// Reads the translation and rotation channels that animate `node`; channels whose accessors
@@ -473,13 +513,17 @@ fn node_channels(
     let mut out = Vec::new();
     for anim in doc.animations() {
         for ch in anim.channels() {
-            let prop = ch.target().property();
-            if ch.target().node().index() != node.index()
-                || !matches!(prop, Property::Translation | Property::Rotation)
-            {
+            let json = channel_json(doc, &ch);
+            if !json.is_some_and(|j| {
+                j.node == node.index()
+                    && matches!(
+                        j.path,
+                        Checked::Valid(Property::Translation | Property::Rotation)
+                    )
+            }) {
                 continue;
             }
-            match Channel::read(&ch, buffers) {
+            match Channel::read(doc, &ch, buffers) {
                 Ok(Some(c)) => out.push(c),
                 Ok(None) => {}
                 Err(e) => warnings.push(format!(
