@@ -1352,6 +1352,18 @@ pub mod testdata {
             self.accessor(view, 5126, "VEC3", data.len())
         }
 
+        /// Adds a SCALAR float accessor over `times` (increasing, from 0: an animation
+        /// sampler's input, which must give its min and max) and returns its index.
+        pub fn key_times(&mut self, times: &[f32]) -> usize {
+            let bytes: Vec<u8> = times.iter().flat_map(|t| t.to_le_bytes()).collect();
+            let view = self.view(&bytes);
+            let i = self.accessor(view, 5126, "SCALAR", times.len());
+            let max = times.iter().copied().fold(0.0, f32::max);
+            self.accessors[i] =
+                self.accessors[i].replace('}', &format!(r#","min":[0],"max":[{max}]}}"#));
+            i
+        }
+
         /// Adds a SCALAR u32 index accessor over `data` and returns its index.
         pub fn indices_u32(&mut self, data: &[u32]) -> usize {
             let bytes: Vec<u8> = data.iter().flat_map(|i| i.to_le_bytes()).collect();
@@ -2242,16 +2254,8 @@ mod tests {
         ));
         b.node(cube, [0.0, 2.0, 0.0]);
         b.scene_nodes = Some(vec![0, 1]);
-        let scalar = |b: &mut GltfBuilder, values: &[f32]| {
-            let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-            let view = b.view(&bytes);
-            let i = b.accessor(view, 5126, "SCALAR", values.len());
-            let max = values.iter().copied().fold(f32::MIN, f32::max);
-            b.accessors[i] = b.accessors[i].replace('}', &format!(r#","min":[0],"max":[{max}]}}"#));
-            i
-        };
-        let times = scalar(&mut b, &[0.0, 1.0, 2.0]);
-        let steps = scalar(&mut b, &[0.0, 0.5]);
+        let times = b.key_times(&[0.0, 1.0, 2.0]);
+        let steps = b.key_times(&[0.0, 0.5]);
         let moved = b.vec3(&[[-5.0, 0.0, 2.0], [far, 0.0, 2.0], [-5.0, 0.0, 2.0]]);
         let scaled = b.vec3(&[[1.0; 3], [2.0; 3]]);
         b.head = format!(
@@ -2312,9 +2316,7 @@ mod tests {
     fn animations_that_move_no_mesh_are_not_played_and_say_so() {
         let dir = temp_dir("animation");
         let mut b = two_cubes_and_triangle();
-        let times = b.view(&0.0f32.to_le_bytes());
-        let times = b.accessor(times, 5126, "SCALAR", 1);
-        b.accessors[times] = b.accessors[times].replace('}', r#","min":[0],"max":[0]}"#);
+        let times = b.key_times(&[0.0]);
         let moved = b.vec3(&[[0.0, 50.0, 0.0]]);
         // It moves a node without a mesh (a skeleton's joints are such nodes).
         b.nodes.push("{}".to_string());

@@ -266,13 +266,7 @@ fn gltf_animated_objects_are_movers_every_algorithm_matches_vfc() {
     ));
     b.node(cube, [0.0, 1.5, -3.0]);
     b.scene_nodes = Some(vec![0, 1]);
-    let times: Vec<u8> = [0.0f32, 1.0, 2.0]
-        .iter()
-        .flat_map(|t| t.to_le_bytes())
-        .collect();
-    let view = b.view(&times);
-    let times = b.accessor(view, 5126, "SCALAR", 3);
-    b.accessors[times] = b.accessors[times].replace('}', r#","min":[0],"max":[2]}"#);
+    let times = b.key_times(&[0.0, 1.0, 2.0]);
     let moved = b.vec3(&[[-10.0, 1.5, -3.0], [10.0, 1.5, -3.0], [-10.0, 1.5, -3.0]]);
     b.head = format!(
         r#""animations":[{{"samplers":[{{"input":{times},"output":{moved}}}],"channels":[{{"sampler":0,"target":{{"node":1,"path":"translation"}}}}]}}],"#

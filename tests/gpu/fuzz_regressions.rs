@@ -235,10 +235,7 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     b.node(cube, [0.0; 3]);
     b.node(cube, [3.0, 0.0, 0.0]);
     b.scene_nodes = Some(vec![0, 1]);
-    let times: Vec<u8> = [0.0f32, 1.0].iter().flat_map(|t| t.to_le_bytes()).collect();
-    let view = b.view(&times);
-    let times = b.accessor(view, 5126, "SCALAR", 2);
-    b.accessors[times] = b.accessors[times].replace('}', r#","min":[0],"max":[1]}"#);
+    let times = b.key_times(&[0.0, 1.0]);
     let moved = b.vec3(&[[3.0, 0.0, 0.0], [3.0, 2.0, 0.0]]);
     let h = std::f32::consts::FRAC_1_SQRT_2;
     let turns: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, h, 0.0, h]

@@ -503,13 +503,7 @@ fn cameras_and_light(animated: bool) -> String {
         r#""cameras":[{"type":"perspective","perspective":{"yfov":1.0,"znear":0.1}}],"extensionsUsed":["KHR_lights_punctual"],"extensions":{"KHR_lights_punctual":{"lights":[{"type":"spot","spot":{}}]}}"#,
     );
     if animated {
-        let times: Vec<u8> = [0.0f32, 1.0, 2.0]
-            .iter()
-            .flat_map(|t| t.to_le_bytes())
-            .collect();
-        let v = b.view(&times);
-        let input = b.accessor(v, 5126, "SCALAR", 3);
-        b.accessors[input] = b.accessors[input].replace('}', r#","min":[0],"max":[2]}"#);
+        let input = b.key_times(&[0.0, 1.0, 2.0]);
         let output = b.vec3(&[[2.0, 4.0, 0.0], [3.0, 4.0, 0.0], [4.0, 4.0, 0.0]]);
         extra += &format!(
             r#","animations":[{{"channels":[{{"sampler":0,"target":{{"node":6,"path":"translation"}}}}],"samplers":[{{"input":{input},"output":{output}}}]}}]"#
