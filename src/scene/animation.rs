@@ -7,22 +7,20 @@
 //!
 //! [`Scene::objects`]: super::Scene::objects
 
-use glam::{Mat4, Quat, Vec3};
+use glam::{Mat4, Vec3};
 
-use super::gltf_ext::Channel;
+use super::gltf_ext::{local_at, Channel, Trs};
 use super::{Aabb, Object};
 
 /// Frames of a walk per second of animation time.
 pub const ANIMATION_FPS: f32 = 30.0;
-
-/// A node's rest transform: translation, rotation, scale.
-type Trs = (Vec3, Quat, Vec3);
 
 /// The objects a glTF animation moves, and its channels.
 #[derive(Clone, Debug, Default)]
 pub struct Animation {
     /// The moving objects, placed at the animation's start.
     pub objects: Vec<AnimatedObject>,
+    /// Sorted by node (stably: of two channels of one property, the later still wins).
     channels: Vec<Channel>,
     /// Seconds of one loop (the last key of any channel).
     duration: f32,
@@ -46,7 +44,8 @@ pub struct AnimatedObject {
 impl Animation {
     /// An animation of `channels` (translation, rotation and scale channels of one glTF
     /// animation) with no objects yet.
-    pub(super) fn new(channels: Vec<Channel>) -> Animation {
+    pub(super) fn new(mut channels: Vec<Channel>) -> Animation {
+        channels.sort_by_key(|c| c.node);
         let duration = channels.iter().map(Channel::end).fold(0.0, f32::max);
         Animation {
             objects: Vec::new(),
@@ -57,7 +56,14 @@ impl Animation {
 
     /// Whether a channel animates node `node`.
     pub(super) fn animates(&self, node: usize) -> bool {
-        self.channels.iter().any(|c| c.node == node)
+        !self.channels_of(node).is_empty()
+    }
+
+    /// The channels that animate node `node`.
+    fn channels_of(&self, node: usize) -> &[Channel] {
+        let start = self.channels.partition_point(|c| c.node < node);
+        let end = start + self.channels[start..].partition_point(|c| c.node == node);
+        &self.channels[start..end]
     }
 
     /// Adds an object hanging from the nodes `chain` (each with its rest transform, the first
@@ -103,16 +109,8 @@ impl Animation {
 
     fn transform_of(&self, a: &AnimatedObject, t: f32) -> Mat4 {
         let mut m = a.parent;
-        for &(node, (mut tr, mut rot, mut sc)) in &a.chain {
-            for c in self.channels.iter().filter(|c| c.node == node) {
-                let v = c.at(t);
-                match c.property {
-                    ::gltf::animation::Property::Translation => tr = Vec3::new(v[0], v[1], v[2]),
-                    ::gltf::animation::Property::Scale => sc = Vec3::new(v[0], v[1], v[2]),
-                    _ => rot = Quat::from_array(v).normalize(),
-                }
-            }
-            m *= Mat4::from_scale_rotation_translation(sc, rot, tr);
+        for &(node, rest) in &a.chain {
+            m *= local_at(rest, self.channels_of(node), t);
         }
         let m = m * a.instance;
         let b = a.local.transformed(&m);

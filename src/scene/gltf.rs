@@ -121,13 +121,14 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     super::gltf_ext::decode_meshopt(&document, &mut buffers)?;
 
     let mut warnings = super::gltf_ext::unsupported_warnings(&document);
+    let animation = first_animation(&document, &buffers, &mut warnings);
     let mut loader = Loader {
         doc: &document,
         buffers: &buffers,
         vertices: Vec::new(),
         indices: Vec::new(),
         objects: Vec::new(),
-        warnings: Vec::new(),
+        warnings,
         meshes: HashMap::new(),
         world: if document.skins().len() > 0 {
             super::gltf_skin::all_world_transforms(&document)
@@ -136,13 +137,12 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         },
         skins: HashMap::new(),
         node_instances: HashMap::new(),
-        animation: first_animation(&document, &buffers, &mut warnings),
+        animation,
         mirrored: HashMap::new(),
         attributes: Vec::new(),
         vertex_ranges: HashMap::new(),
         materials: MaterialLoader::new(base),
     };
-    loader.warnings = warnings;
     for root in root_nodes(&document) {
         loader.walk(&document, root)?;
     }
@@ -445,16 +445,6 @@ pub(super) fn parentless_nodes(doc: &Document) -> Vec<Node<'_>> {
         .collect()
 }
 
-/// A node's rest translation, rotation and scale.
-fn trs(node: &Node<'_>) -> (Vec3, glam::Quat, Vec3) {
-    let (t, r, s) = node.transform().decomposed();
-    (
-        Vec3::from_array(t),
-        glam::Quat::from_array(r),
-        Vec3::from_array(s),
-    )
-}
-
 /// The translation, rotation and scale channels of the file's first animation (those that
 /// cannot be read are left out with a warning).
 fn first_animation(
@@ -504,7 +494,7 @@ impl Loader<'_> {
         let mut visits = 0usize;
         // Per node: its parent's world transform, its depth, and when it hangs from an animated
         // node, the world transform above the topmost such node and the nodes from it down.
-        type Animated = Option<(Mat4, Vec<(usize, (Vec3, glam::Quat, Vec3))>)>;
+        type Animated = Option<(Mat4, Vec<(usize, super::gltf_ext::Trs)>)>;
         let mut stack: Vec<(Node<'_>, Mat4, usize, Animated)> =
             vec![(root, Mat4::IDENTITY, 0usize, None)];
         while let Some((node, parent, depth, animated)) = stack.pop() {
@@ -525,12 +515,13 @@ impl Loader<'_> {
             }
             let animated = match animated {
                 Some((above, mut chain)) => {
-                    chain.push((node.index(), trs(&node)));
+                    chain.push((node.index(), super::gltf_ext::rest_trs(&node)));
                     Some((above, chain))
                 }
-                None if self.animation.animates(node.index()) => {
-                    Some((parent, vec![(node.index(), trs(&node))]))
-                }
+                None if self.animation.animates(node.index()) => Some((
+                    parent,
+                    vec![(node.index(), super::gltf_ext::rest_trs(&node))],
+                )),
                 None => None,
             };
             if let Some(mesh) = node.mesh() {

@@ -372,6 +372,37 @@ pub fn light_path(
     Some(keys_to_path(LIGHT_PATH, &keys))
 }
 
+/// A node's rest translation, rotation and scale.
+pub(super) type Trs = (Vec3, Quat, Vec3);
+
+/// The rest translation, rotation and scale of `node`.
+pub(super) fn rest_trs(node: &Node<'_>) -> Trs {
+    let (t, r, s) = node.transform().decomposed();
+    (
+        Vec3::from_array(t),
+        Quat::from_array(r),
+        Vec3::from_array(s),
+    )
+}
+
+/// The local transform at time `t` of a node at rest at `rest` under `channels`, its own (of
+/// two channels of one property, the later one wins).
+pub(super) fn local_at<'c>(
+    (mut translation, mut rotation, mut scale): Trs,
+    channels: impl IntoIterator<Item = &'c Channel>,
+    t: f32,
+) -> Mat4 {
+    for c in channels {
+        let v = c.at(t);
+        match c.property {
+            Property::Rotation => rotation = Quat::from_array(v).normalize(),
+            Property::Scale => scale = Vec3::new(v[0], v[1], v[2]),
+            _ => translation = Vec3::new(v[0], v[1], v[2]),
+        }
+    }
+    Mat4::from_scale_rotation_translation(scale, rotation, translation)
+}
+
 /// One animation channel of a node: key times, values (translation or scale xyz, or rotation
 /// xyzw) and interpolation.
 #[derive(Clone, Debug)]
@@ -559,21 +590,9 @@ fn animated_keys(
             .map(|i| times[i * (n - 1) / (MAX_LIGHT_SAMPLES - 1)])
             .collect();
     }
-    let (translation, rotation, scale) = node.transform().decomposed();
+    let rest = rest_trs(node);
     times
         .iter()
-        .filter_map(|&t| {
-            let (mut r, mut p) = (Quat::from_array(rotation), Vec3::from_array(translation));
-            for c in &channels {
-                let v = c.at(t);
-                if c.property == Property::Rotation {
-                    r = Quat::from_array(v).normalize();
-                } else {
-                    p = Vec3::new(v[0], v[1], v[2]);
-                }
-            }
-            let local = Mat4::from_scale_rotation_translation(Vec3::from_array(scale), r, p);
-            key_of(&(*parent * local), t)
-        })
+        .filter_map(|&t| key_of(&(*parent * local_at(rest, &channels, t)), t))
         .collect()
 }
