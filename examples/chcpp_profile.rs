@@ -11,7 +11,6 @@
 //! then NaN)
 
 use anyhow::Result;
-use coherent::bvh::ObjectBvh;
 use coherent::culling::chcpp::{Chcpp, ChcppParams};
 use coherent::culling::create;
 use coherent::gpu::{ContextOptions, GpuContext};
@@ -41,8 +40,7 @@ fn main() -> Result<()> {
     };
     let ctx = GpuContext::new(&ContextOptions::default())?;
     let scene = Scene::load(scene_name, scale, 4096)?;
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, 1);
+    let bvh = scene.hierarchy(1);
     let path = scene.path(path_name)?.clone();
     let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
     let mut chcpp = Chcpp::new(ChcppParams::default());

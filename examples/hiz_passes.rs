@@ -6,7 +6,6 @@
 //! Run: `cargo run --release --example hiz_passes -- [scene] [path] [frames] [WxH]`
 
 use anyhow::Result;
-use coherent::bvh::ObjectBvh;
 use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::hiz::{HizCuller, HizParams, PASSES};
 use coherent::render::Renderer;
@@ -28,8 +27,7 @@ fn main() -> Result<()> {
     let (w, h) = measure::size(&args, 3, (640, 360))?;
     let ctx = GpuContext::new(&ContextOptions::default())?;
     let scene = Scene::load(scene_name, 1.0, 4096)?;
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, 1);
+    let bvh = scene.hierarchy(1);
     let path = match args.get(1) {
         Some(p) => scene.path(p)?.clone(),
         None => scene.default_path()?.clone(),

@@ -6,7 +6,6 @@
 //! Run: `cargo run --release --example multiquery -- [frames] [WxH]`
 
 use anyhow::Result;
-use coherent::bvh::ObjectBvh;
 use coherent::culling::chcpp::{Chcpp, ChcppParams};
 use coherent::gpu::{ContextOptions, GpuContext};
 use coherent::render::Renderer;
@@ -26,8 +25,7 @@ fn main() -> Result<()> {
     let (w, h) = measure::size(&args, 1, (1280, 720))?;
     let ctx = GpuContext::new(&ContextOptions::default())?;
     let scene = Scene::load("parking", 1.0, 4096)?;
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, 1);
+    let bvh = scene.hierarchy(1);
     let path = scene.default_path()?.clone();
     let mut renderer = Renderer::new(&ctx, &scene, w, h)?;
     let mut with = Chcpp::new(ChcppParams::default());

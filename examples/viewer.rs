@@ -5,7 +5,6 @@
 
 use anyhow::Result;
 use coherent::app::viewer::{self, ViewerConfig};
-use coherent::bvh::ObjectBvh;
 use coherent::culling::ChcppParams;
 use coherent::scene::Scene;
 
@@ -22,8 +21,7 @@ fn main() -> Result<()> {
     }
     let scene = Scene::load(&name, 1.0, 4096)?;
     let path = scene.default_path()?.clone();
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, 1);
+    let bvh = scene.hierarchy(1);
     viewer::run(ViewerConfig {
         scene,
         bvh,

@@ -377,8 +377,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
     // The path of the scene without movers (checked and found on the fixed geometry).
     let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
     let movers = Movers::add(&mut scene, a.movers);
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let mut bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let mut bvh = scene.hierarchy(a.scene.leaf_size);
     let ctx = context(!a.no_validation)?;
     {
         let scale = single_scale(&a.scene)?;
@@ -514,8 +513,7 @@ fn walk_scale(
         return walk_scale_movers(a, ctx, cfg, (scene, scale), dir, (w, h));
     }
     let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let bvh = scene.hierarchy(a.scene.leaf_size);
     let mut cfg = cfg.clone();
     let pvs = prepare_walk(
         a,
@@ -734,8 +732,7 @@ fn static_baseline(algorithms: &[String]) -> Vec<String> {
 
 /// The object hierarchy of a scene.
 fn bvh_of(scene: &Scene, leaf_size: u32) -> ObjectBvh {
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    ObjectBvh::build(&bounds, leaf_size)
+    scene.hierarchy(leaf_size)
 }
 
 /// Prints each algorithm's median object draws of movers (pvs draws them frustum-culled only)
@@ -794,8 +791,7 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     // The path of the scene without movers (checked and found on the fixed geometry).
     let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
     let movers = Movers::add(&mut scene, a.movers);
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let bvh = scene.hierarchy(a.scene.leaf_size);
     let resize_at = match &a.resize_at {
         Some(s) => {
             let (f, size) = s

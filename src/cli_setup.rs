@@ -185,8 +185,7 @@ pub fn pvs_command(a: &PvsCommandArgs) -> Result<()> {
     let cache_dir = a.cache.dir();
     let scene = cli_common::load_scene(&a.scene, scale, &cache_dir)?;
     let path = scene.resolve_path_cached(a.path.as_deref(), &cache_dir)?;
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, a.scene.leaf_size);
+    let bvh = scene.hierarchy(a.scene.leaf_size);
     let ctx = cli_common::context(false)?;
     let built = pvs(&ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache)?;
     let s = preprocess_summary(&built, 0);

@@ -14,7 +14,6 @@
 //! engine can implement over its own device and command buffers (see `examples/engine.rs`).
 //!
 //! ```
-//! use coherent::bvh::ObjectBvh;
 //! use coherent::culling::chcpp::{Chcpp, ChcppParams};
 //! use coherent::gpu::GpuContext;
 //! use coherent::render::Renderer;
@@ -23,8 +22,8 @@
 //! # fn main() -> coherent::Result<()> {
 //! let ctx = GpuContext::headless()?; // validation on, messages captured per context
 //! let scene = Scene::load("city", 0.1, 4096)?;
-//! let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-//! let bvh = ObjectBvh::build(&bounds, 1);
+//! // Blended (glTF BLEND) objects stay out of it: the renderer draws them after the culled pass.
+//! let bvh = scene.hierarchy(1);
 //! let mut renderer = Renderer::new(&ctx, &scene, 320, 180)?;
 //! let mut culler = Chcpp::new(ChcppParams::default());
 //! let path = scene.path("street")?.clone();

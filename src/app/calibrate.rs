@@ -216,8 +216,7 @@ pub fn parse_cache(
 /// Measures the device's costs (a few seconds on lavapipe).
 pub fn calibrate(ctx: &Arc<GpuContext>) -> Result<Calibration> {
     let scene = calibration_scene();
-    let bounds: Vec<Aabb> = scene.objects.iter().map(|o| o.bounds).collect();
-    let bvh = ObjectBvh::build(&bounds, 1);
+    let bvh = scene.hierarchy(1);
     let mut bench = Bench {
         renderer: Renderer::new(ctx, &scene, SIZE.0, SIZE.1)?,
         bvh,

@@ -301,5 +301,6 @@ fn gbuffer_desc() -> PipelineDesc<'static> {
         cull: vk::CullModeFlags::NONE,
         kind: PipelineKind::Other,
         depth_bias: (0.0, 0.0),
+        blend: false,
     }
 }

@@ -406,5 +406,6 @@ fn splat_desc() -> PipelineDesc<'static> {
         cull: vk::CullModeFlags::NONE,
         kind: PipelineKind::Other,
         depth_bias: (0.0, 0.0),
+        blend: false,
     }
 }

@@ -510,5 +510,6 @@ fn shadow_desc(ctx: &GpuContext) -> PipelineDesc<'static> {
         kind: PipelineKind::Other,
         // The bias is applied at lookup time (distance-proportional, see gi_gather.comp).
         depth_bias: (0.0, 0.0),
+        blend: false,
     }
 }

@@ -46,6 +46,9 @@ pub struct PipelineDesc<'a> {
     pub kind: PipelineKind,
     /// Constant depth bias and slope factor (0 for none).
     pub depth_bias: (f32, f32),
+    /// Whether color is blended over the attachment by the fragment's alpha (source alpha,
+    /// one minus source alpha); else written as is.
+    pub blend: bool,
 }
 
 /// A pipeline layout with one storage-buffer descriptor set and a push-constant range.
@@ -292,10 +295,20 @@ fn blend_attachments(desc: &PipelineDesc) -> Vec<vk::PipelineColorBlendAttachmen
     } else {
         vk::ColorComponentFlags::empty()
     };
-    desc.color_formats
-        .iter()
-        .map(|_| vk::PipelineColorBlendAttachmentState::default().color_write_mask(mask))
-        .collect()
+    let state = vk::PipelineColorBlendAttachmentState::default().color_write_mask(mask);
+    let state = if desc.blend {
+        state
+            .blend_enable(true)
+            .src_color_blend_factor(vk::BlendFactor::SRC_ALPHA)
+            .dst_color_blend_factor(vk::BlendFactor::ONE_MINUS_SRC_ALPHA)
+            .color_blend_op(vk::BlendOp::ADD)
+            .src_alpha_blend_factor(vk::BlendFactor::ONE)
+            .dst_alpha_blend_factor(vk::BlendFactor::ONE_MINUS_SRC_ALPHA)
+            .alpha_blend_op(vk::BlendOp::ADD)
+    } else {
+        state
+    };
+    desc.color_formats.iter().map(|_| state).collect()
 }
 
 impl Drop for Pipeline {

@@ -25,6 +25,8 @@ pub const SCENE_MAT_VERT: &[u8] = spirv!("scene_mat.vert");
 pub const SCENE_MAT_FRAG: &[u8] = spirv!("scene_mat.frag");
 /// Forward-pass fragment shader for alpha-masked materials.
 pub const SCENE_MAT_MASKED_FRAG: &[u8] = spirv!("scene_mat_masked.frag");
+/// Forward-pass fragment shader for blended materials (its alpha is the material's).
+pub const SCENE_MAT_BLEND_FRAG: &[u8] = spirv!("scene_mat_blend.frag");
 /// ID-pass fragment shader for alpha-masked materials.
 pub const ID_MASKED_FRAG: &[u8] = spirv!("id_masked.frag");
 /// The box oracle's vertex shader: one bounding box per instance, from a storage buffer.

@@ -107,6 +107,7 @@ impl BoxOracle {
             // As coherent-ash's query boxes: toward the eye, so a face lying on the surface
             // it bounds passes.
             depth_bias: (-4.0, -1.0),
+            blend: false,
         };
         let pipeline = Pipeline::graphics(ctx, &layout, &desc)?;
         let bindings = [

@@ -28,7 +28,9 @@
 //! phase draws a group with one indirect draw after binding what the group's objects bind in
 //! the forward pass. So textured, masked and two-sided objects look as they do with every
 //! other algorithm, and masked ones write depth only where they are drawn (the pyramid sees
-//! through their holes). A scene without materials is one group.
+//! through their holes). A scene without materials is one group. Blended objects (glTF BLEND)
+//! are not culled here: their ranges are empty, and phase 2's rendering ends with them, drawn
+//! by the renderer back to front as after every other algorithm's frame.
 //!
 //! Counts come from the recorder: dispatches (2 cull + one per pyramid level), an indirect
 //! draw per group and phase, pipeline and texture binds; the objects and triangles those
@@ -404,6 +406,10 @@ impl HizCuller {
                 count_offset,
                 g.size,
             );
+        }
+        if phase == 2 {
+            // After everything the culling drew: blended objects (no depth writes).
+            r.record_blended()?;
         }
         let rec = r.recorder_mut();
         rec.end_rendering();

@@ -142,6 +142,14 @@ pub struct Renderer {
     part_tests_unsupported: Option<String>,
     /// The box oracle's pass ([`Renderer::box_visible`]), made on first use.
     box_oracle: Option<box_oracle::BoxOracle>,
+    /// The scene's blended objects ([`Scene::is_blended`]): no culler draws them (they are not
+    /// in [`Scene::hierarchy`]); every frame draws those in its view after the culled pass.
+    blended: Vec<u32>,
+    /// Scratch of a frame's blended draws: (squared distance of the box centre, object).
+    blend_order: Vec<(f32, u32)>,
+    /// The view of the frame being recorded; taken when its blended objects are drawn (once
+    /// a frame, however often the culler finishes).
+    frame_view: Option<CameraView>,
 }
 
 impl Renderer {
@@ -164,6 +172,13 @@ impl Renderer {
         let mut pipelines = ScenePipelines::for_scene(ctx, scene.has_materials())?;
         if scene.materials.iter().any(|m| m.double_sided) {
             pipelines.add_two_sided(ctx)?;
+        }
+        let blended: Vec<u32> = (0..scene.objects.len())
+            .filter(|&i| scene.is_blended(i))
+            .map(|i| i as u32)
+            .collect();
+        if !blended.is_empty() {
+            pipelines.add_blended(ctx)?;
         }
         let mut oneshot = OneShot::new(ctx)?;
         let mut recorder = Recorder::new(ctx);
@@ -234,6 +249,9 @@ impl Renderer {
             part_tests: None,
             part_tests_unsupported: None,
             box_oracle: None,
+            blended,
+            blend_order: Vec::new(),
+            frame_view: None,
         })
     }
 
@@ -486,6 +504,7 @@ impl Renderer {
         self.draw_chunk = 0;
         self.draw_used = 0;
         self.ordered.begin_frame();
+        self.frame_view = Some(*view);
         let vp = raster_matrix(view);
         self.view_proj = vp.to_cols_array();
         self.push[..64].copy_from_slice(bytes_of(&self.view_proj));
@@ -1608,10 +1627,12 @@ impl OcclusionBackend for Renderer {
             // Parts (and draws of theirs) handed over with no resolve after them: tested now.
             self.resolve_predicates()?;
         }
-        if self.segments.used() == 0 {
-            // Nothing was drawn: still clear the target.
+        self.order_blended();
+        if self.segments.used() == 0 || !self.blend_order.is_empty() {
+            // Nothing was drawn (still clear the target), or blended objects are drawn now.
             self.ensure_recording()?;
         }
+        self.draw_blended_order()?;
         self.submit_segment()?;
         Ok(self.timeline.wait_all()?)
     }
@@ -1828,11 +1849,17 @@ pub(crate) struct DrawClass {
 /// orchestration (culling dispatches, indirect draws) stays with the caller.
 impl Renderer {
     /// Every object's bounds and draw range, by object index.
+    /// A blended object has an empty range: GPU-driven culling skips it, and
+    /// [`Renderer::record_blended`] draws it after the culled pass.
     pub(crate) fn draw_ranges(&self) -> impl ExactSizeIterator<Item = DrawRange> + '_ {
-        self.objects.iter().map(|o| DrawRange {
+        self.objects.iter().enumerate().map(|(i, o)| DrawRange {
             bounds: o.bounds,
             first_index: o.first_index,
-            index_count: o.index_count,
+            index_count: if self.blended.binary_search(&(i as u32)).is_ok() {
+                0
+            } else {
+                o.index_count
+            },
             vertex_offset: o.vertex_offset,
             class: DrawClass {
                 set: o.set,
@@ -1840,6 +1867,68 @@ impl Renderer {
                 double_sided: o.double_sided,
             },
         })
+    }
+
+    /// Records, inside the target's rendering, the blended objects whose boxes meet the
+    /// frame's view frustum, farthest box centre first (ties by id, so every algorithm blends
+    /// them in the same order), each blended over what is drawn, without writing depth. They
+    /// come after everything the culler drew, so they hide nothing from its queries and
+    /// nothing drawn after them; they are not occlusion-culled (a hidden one fails the depth
+    /// test and changes no pixel), so every algorithm's image has the same blended pixels.
+    pub(crate) fn record_blended(&mut self) -> Result<()> {
+        self.order_blended();
+        self.draw_blended_order()
+    }
+
+    /// Fills `blend_order` with the blended objects in the frame's view, back to front.
+    fn order_blended(&mut self) {
+        self.blend_order.clear();
+        let Some(view) = self.frame_view.take().filter(|_| !self.blended.is_empty()) else {
+            return;
+        };
+        let frustum = view.frustum();
+        let eye = view.order_point();
+        for &o in &self.blended {
+            let d = &self.objects[o as usize];
+            if d.index_count > 0 && frustum.intersects(&d.bounds) {
+                self.blend_order
+                    .push((d.bounds.center().distance_squared(eye), o));
+            }
+        }
+        self.blend_order
+            .sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    }
+
+    /// Draws `blend_order` (see [`Renderer::record_blended`]).
+    fn draw_blended_order(&mut self) -> Result<()> {
+        let order = std::mem::take(&mut self.blend_order);
+        if !order.is_empty() {
+            self.bind_scene_buffers();
+        }
+        for &(_, o) in &order {
+            let d = self.objects[o as usize];
+            let pipeline = match &self.pipelines.blended {
+                Some([one_sided, two_sided]) => {
+                    if d.double_sided {
+                        two_sided
+                    } else {
+                        one_sided
+                    }
+                }
+                None => &self.pipelines.render,
+            };
+            self.recorder.bind_pipeline(pipeline);
+            if self.pipelines.materials && d.set != self.bound_set {
+                self.recorder
+                    .bind_texture_set(&self.pipelines.layout, self.descriptors.get(d.set as usize));
+                self.bound_set = d.set;
+            }
+            self.recorder
+                .draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
+            self.log.drew(&[o], None, u64::from(d.index_count / 3));
+        }
+        self.blend_order = order;
+        Ok(())
     }
 
     /// Binds what the draws of `object`'s [`DrawClass`] need, after

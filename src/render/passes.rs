@@ -47,6 +47,8 @@ pub struct ScenePipelines {
     /// Variants without back-face culling for `doubleSided` materials (see
     /// [`ScenePipelines::add_two_sided`]).
     pub two_sided: Option<TwoSidedPipelines>,
+    /// Blended geometry, one-sided and two-sided (see [`ScenePipelines::add_blended`]).
+    pub blended: Option<[Pipeline; 2]>,
     /// Whether these are the material pipelines (set 0 binding 1 is the base color texture,
     /// vertices are interleaved with texture coordinates and colors).
     pub materials: bool,
@@ -64,6 +66,7 @@ impl ScenePipelines {
             render_masked: None,
             id_masked: None,
             two_sided: None,
+            blended: None,
             materials: false,
             layout,
         })
@@ -109,6 +112,7 @@ impl ScenePipelines {
                 &mat("id masked", shaders::ID_MASKED_FRAG, ids()),
             )?),
             two_sided: None,
+            blended: None,
             materials: true,
             layout,
         })
@@ -153,6 +157,34 @@ impl ScenePipelines {
             id: mat("id two-sided", shaders::ID_FRAG, ids())?,
             id_masked: mat("id masked two-sided", shaders::ID_MASKED_FRAG, ids())?,
         });
+        Ok(())
+    }
+
+    /// Adds the blended pipelines to material pipelines (a scene with a blended material):
+    /// depth-tested, no depth writes, color blended by the material's alpha; nothing for the
+    /// plain ones.
+    pub fn add_blended(&mut self, ctx: &Arc<GpuContext>) -> Result<()> {
+        if !self.materials || self.blended.is_some() {
+            return Ok(());
+        }
+        let layout = &self.layout;
+        let make = |name, cull| -> Result<Pipeline> {
+            let desc = PipelineDesc {
+                vert: shaders::SCENE_MAT_VERT,
+                vertex_stride: MATERIAL_VERTEX_STRIDE,
+                attributes: &MATERIAL_ATTRIBUTES,
+                frag: Some(shaders::SCENE_MAT_BLEND_FRAG),
+                cull,
+                depth_write: false,
+                blend: true,
+                ..scene_desc(name, shaded())
+            };
+            Pipeline::graphics(ctx, layout, &desc)
+        };
+        self.blended = Some([
+            make("render blended", vk::CullModeFlags::BACK)?,
+            make("render blended two-sided", vk::CullModeFlags::NONE)?,
+        ]);
         Ok(())
     }
 
@@ -214,5 +246,6 @@ fn scene_desc(name: &'static str, out: SceneOutput) -> PipelineDesc<'static> {
         cull: vk::CullModeFlags::BACK,
         kind: out.kind,
         depth_bias: (0.0, 0.0),
+        blend: false,
     }
 }

@@ -2303,6 +2303,33 @@ mod tests {
         assert_ne!(movers.transform_at(0, 1), movers.transform_at(0, 0));
     }
 
+    /// A blended material on animated nodes: the static cube blends (out of the hierarchy),
+    /// the moving copies are alpha-tested, in the hierarchy, where the culler draws them.
+    #[test]
+    fn moving_copies_of_blended_objects_are_alpha_tested_and_culled() {
+        let dir = temp_dir("animated-blend");
+        let mut b = animated_cubes(5.0);
+        for m in &mut b.materials {
+            *m = m.replacen('{', r#"{"alphaMode":"BLEND","#, 1);
+        }
+        let path = write(&dir, "animated.gltf", b.gltf_embedded());
+        let (mut scene, _) = load_gltf(&path).expect("load");
+        let movers = crate::scene::movers::Movers::add(&mut scene, 0);
+        assert_eq!((movers.len(), scene.objects.len()), (2, 3));
+        let blended: Vec<bool> = (0..3).map(|o| scene.is_blended(o)).collect();
+        assert_eq!(blended, [true, false, false]);
+        assert_eq!(
+            scene.object_material(1).map(|m| m.alpha),
+            scene.object_material(0).map(|m| m.alpha)
+        );
+        let mut bvh = scene.hierarchy(1);
+        assert_eq!(bvh.live_objects(), 2);
+        for o in 0..3u32 {
+            let b = scene.objects[o as usize].bounds;
+            assert_eq!(bvh.set_bounds(o, b).is_ok(), o > 0, "object {o} in a leaf");
+        }
+    }
+
     #[test]
     fn animations_that_move_no_mesh_are_not_played_and_say_so() {
         let dir = temp_dir("animation");

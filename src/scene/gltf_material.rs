@@ -2,7 +2,8 @@
 //! Basis Universal through `KHR_texture_basisu`, from a GLB buffer view, a data URI or a file
 //! next to the .gltf; the diffuse texture and factor of
 //! `KHR_materials_pbrSpecularGlossiness` stand for them) with their samplers, alpha mode MASK
-//! with its cutoff (BLEND is drawn as MASK at [`BLEND_CUTOFF`], with a warning), and the
+//! with its cutoff, alpha mode BLEND ([`Material::blend`]: blended in the forward pass, masked
+//! at [`BLEND_CUTOFF`] in the others, with a warning that says so), and the
 //! per-vertex TEXCOORD_n and COLOR_0 attributes. A texture whose image cannot be decoded
 //! (AVIF, a broken file) is a one-line warning and the material is drawn without it.
 
@@ -21,10 +22,10 @@ use super::material::{
     AlphaMode, Material, SamplerDesc, Texture, TextureImage, VertexAttributes, Wrap,
 };
 
-/// The alpha cutoff a BLEND material is drawn with. Without sorted, blended draws, testing alpha
-/// is the closest a depth-tested pass comes: foliage and grates, which files often mark BLEND,
-/// keep their shape instead of showing as solid quads, and a surface under half opacity lets
-/// what lies behind it be seen (and be culled by what is really in front of it).
+/// The alpha cutoff a BLEND material is drawn with in the passes that do not blend (the ID
+/// pass, `gi`, moving copies): testing alpha is the closest a depth-tested pass comes, so
+/// foliage and grates, which files often mark BLEND, keep their shape there instead of showing
+/// as solid quads.
 pub const BLEND_CUTOFF: f32 = 0.5;
 
 /// How many materials or images a warning names before it counts the rest.
@@ -112,6 +113,7 @@ impl MaterialLoader {
                 base_color_texture: texture,
                 alpha,
                 double_sided,
+                blend: m.alpha_mode() == ::gltf::material::AlphaMode::Blend,
             });
             Some(self.materials.len() as u32 - 1)
         };
@@ -149,8 +151,9 @@ impl MaterialLoader {
         }
         out.extend(named("material", &self.blended).map(|who| {
             format!(
-                "{who}: alpha mode BLEND, drawn alpha-tested at {BLEND_CUTOFF} (no blending: \
-                 cut where alpha is under {BLEND_CUTOFF}, opaque elsewhere)"
+                "{who}: alpha mode BLEND, blended after the opaque objects, back to front by \
+                 object, and not occlusion-culled; alpha-tested at {BLEND_CUTOFF} in gi and \
+                 in moving copies"
             )
         }));
         out
@@ -625,8 +628,8 @@ mod tests {
             }
             .warnings()
         };
-        let tail = "drawn alpha-tested at 0.5 (no blending: cut where alpha is under 0.5, \
-                    opaque elsewhere)";
+        let tail = "blended after the opaque objects, back to front by object, and not \
+                    occlusion-culled; alpha-tested at 0.5 in gi and in moving copies";
         assert!(warning(vec![]).is_empty());
         assert_eq!(
             warning(vec![3]),

@@ -211,7 +211,8 @@ pub enum AlphaMode {
     Mask(f32),
 }
 
-/// A material: an optional base color texture, the alpha mode and whether back faces are drawn.
+/// A material: an optional base color texture, the alpha mode, whether back faces are drawn and
+/// whether it is blended.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct Material {
     /// Index into `Scene::textures`.
@@ -221,6 +222,12 @@ pub struct Material {
     /// glTF `doubleSided`: drawn without back-face culling (back faces lit with the flipped
     /// normal).
     pub double_sided: bool,
+    /// glTF alpha mode `BLEND`: the forward pass draws the object blended over what is behind
+    /// it, after every opaque object, back to front, without writing depth; it hides nothing,
+    /// so it stays out of the culling hierarchy ([`super::Scene::hierarchy`]) and is drawn
+    /// whenever its box is in the view. Every other pass (the ID pass, `gi`, moving copies)
+    /// draws it as `alpha` says (a glTF BLEND material is masked at 0.5).
+    pub blend: bool,
 }
 
 /// Samples a `width` x `height` level at `uv` with the sampler's wrap modes and magnification

@@ -111,6 +111,20 @@ impl Scene {
         Some((self.images.get(t.image as usize)?, &t.sampler))
     }
 
+    /// Whether `object` is blended ([`Material::blend`]): drawn by the renderer after the
+    /// culled pass, and kept out of the culling hierarchy.
+    pub fn is_blended(&self, object: usize) -> bool {
+        self.object_material(object).is_some_and(|m| m.blend)
+    }
+
+    /// The culling hierarchy over the scene's objects (object `i` has id `i`) with at most
+    /// `leaf_size` per leaf, blended objects left out: they hide nothing, and the renderer
+    /// draws those in the view after the culled pass, back to front.
+    pub fn hierarchy(&self, leaf_size: u32) -> coherent_cull::ObjectBvh {
+        let bounds: Vec<Aabb> = self.objects.iter().map(|o| o.bounds).collect();
+        coherent_cull::ObjectBvh::build_where(&bounds, |o| !self.is_blended(o as usize), leaf_size)
+    }
+
     /// Total triangles over all objects.
     pub fn triangle_count(&self) -> u64 {
         self.objects.iter().map(|o| o.triangle_count()).sum()

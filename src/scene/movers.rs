@@ -84,7 +84,9 @@ impl Movers {
                     local: a.local,
                     route: Route::Animated { index },
                 });
-                scene.objects.push(a.object.clone());
+                let mut object = a.object.clone();
+                object.material = object.material.map(|m| unblended(scene, m));
+                scene.objects.push(object);
             }
             movers.animation = Some(animation);
         }
@@ -366,6 +368,29 @@ fn crane_route(rng: &mut Rng, world: &Aabb) -> Route {
         to: from + Vec3::new(15.0, 0.0, 0.0),
         speed: rng.range(0.01, 0.03),
         phase: rng.range(0.0, 6.3),
+    }
+}
+
+/// Material `m`, or a copy of it that does not blend when it does: a moving object is drawn
+/// by the culler in the culled pass, so a blended one is alpha-tested there, as its other
+/// passes draw it (the copy is made once per material).
+fn unblended(scene: &mut Scene, m: u32) -> u32 {
+    let Some(&material) = scene.materials.get(m as usize) else {
+        return m;
+    };
+    if !material.blend {
+        return m;
+    }
+    let copy = crate::scene::Material {
+        blend: false,
+        ..material
+    };
+    match scene.materials.iter().position(|x| *x == copy) {
+        Some(i) => i as u32,
+        None => {
+            scene.materials.push(copy);
+            scene.materials.len() as u32 - 1
+        }
     }
 }
 

@@ -6,7 +6,6 @@ use crate::counting_alloc;
 
 use std::sync::atomic::Ordering;
 
-use coherent::bvh::ObjectBvh;
 use coherent::scene::movers::Movers;
 use coherent::scene::Scene;
 
@@ -15,8 +14,7 @@ fn mover_updates_do_not_allocate() {
     let _serial = crate::SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let mut scene = Scene::load("city", 0.25, 4096).unwrap();
     let movers = Movers::add(&mut scene, 1000);
-    let bounds: Vec<_> = scene.objects.iter().map(|o| o.bounds).collect();
-    let mut bvh = ObjectBvh::build(&bounds, 1);
+    let mut bvh = scene.hierarchy(1);
     let mut steady = 0;
     for f in 0..120u64 {
         let before = counting_alloc::ALLOCATIONS.load(Ordering::Relaxed);

@@ -36,8 +36,7 @@ pub fn scene(name: &str, scale: f32) -> (Scene, ObjectBvh) {
 
 /// The object BVH of a scene.
 pub fn bvh_of(s: &Scene) -> ObjectBvh {
-    let b: Vec<_> = s.objects.iter().map(|o| o.bounds).collect();
-    ObjectBvh::build(&b, 1)
+    s.hierarchy(1)
 }
 
 /// Renders one frame and returns it with the pixels.

@@ -97,8 +97,7 @@ fn spies() -> Vec<Spy> {
 }
 
 fn bvh_of(s: &Scene) -> ObjectBvh {
-    let b: Vec<_> = s.objects.iter().map(|o| o.bounds).collect();
-    ObjectBvh::build(&b, 1)
+    s.hierarchy(1)
 }
 
 /// A car of the scene's movers, copied as a scripted object: returns its id and object-space box.

@@ -280,33 +280,138 @@ fn textures_masks_and_vertex_colors_render_as_authored() {
     );
 }
 
-/// A BLEND material is drawn as MASK at 0.5: the same pixels and ID pass as the masked quad it
-/// replaces (its left half cut, the wall seen through it), with one warning naming it.
-#[test]
-fn blend_materials_are_drawn_alpha_tested_at_one_half() {
-    let dir = temp_dir("blend");
-    let masked = write_gltf(&dir);
-    let json = std::fs::read_to_string(&masked).expect("read");
-    let mask = r#""alphaMode":"MASK","alphaCutoff":0.5"#;
-    assert_eq!(json.matches(mask).count(), 1);
-    let blended = dir.join("blend.gltf");
-    std::fs::write(&blended, json.replace(mask, r#""alphaMode":"BLEND""#)).expect("write");
+/// Blended quads in front of a wall and of an opaque red quad: material 0 the wall (white), 1
+/// the red quad, 2 and 3 BLEND at alpha one half (white, then green nearer the eye). Objects:
+/// 0 wall, 1 red quad, 2 white glass, 3 green glass.
+fn write_blended(dir: &Path) -> PathBuf {
+    let mut b = GltfBuilder {
+        materials: vec![
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.2,0.3,1,1]}}"#.to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,0,0,1]}}"#.to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,1,1,0.5]},"alphaMode":"BLEND"}"#
+                .to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[0,1,0,0.5]},"alphaMode":"BLEND"}"#
+                .to_string(),
+        ],
+        ..GltfBuilder::default()
+    };
+    let wall = quad(&mut b, (-6.0, -4.0, 6.0, 4.0, -1.0), 1.0, None, 0);
+    let red = quad(&mut b, (-1.5, -0.5, -0.5, 0.5, -0.5), 1.0, None, 1);
+    let white = quad(&mut b, (-2.0, -1.0, 1.0, 1.0, 0.5), 1.0, None, 2);
+    let green = quad(&mut b, (0.0, -1.0, 2.0, 1.0, 1.0), 1.0, None, 3);
+    for m in [wall, red, white, green] {
+        b.node(m, [0.0, 0.0, 0.0]);
+    }
+    let uri = format!("data:application/octet-stream;base64,{}", base64(&b.bin));
+    let path = dir.join("blended.gltf");
+    std::fs::write(&path, b.json(Some(&uri))).expect("write");
+    path
+}
 
-    let (want, _) = coherent::scene::gltf::load_gltf(&masked).expect("masked");
-    let (scene, warnings) = coherent::scene::gltf::load_gltf(&blended).expect("blended");
+/// Pixel (x, y) of the image at the world point `p` on the plane the camera of [`pose`] looks
+/// at (found by projecting it).
+fn pixel_of(r: &Renderer, bvh: &coherent::bvh::ObjectBvh, p: Vec3) -> (u32, u32) {
+    let cam = r.camera(pose(), bvh);
+    let ndc = cam.view_proj().project_point3(p);
+    let x = ((ndc.x * 0.5 + 0.5) * W as f32) as u32;
+    let y = ((ndc.y * 0.5 + 0.5) * H as f32) as u32;
+    (x.min(W - 1), y.min(H - 1))
+}
+
+/// glTF BLEND is blended: the two glass quads are drawn over the wall and over the red quad,
+/// farthest first, hide nothing (the red quad behind the glass is drawn and owns its pixels in
+/// the ID pass), and stay out of the culling hierarchy. Every algorithm's image equals vfc's.
+/// Drawn alpha-tested at 0.5 (as before), the white glass hid the red quad.
+#[test]
+fn blend_materials_are_blended_back_to_front_and_hide_nothing() {
+    let dir = temp_dir("blend");
+    let (scene, warnings) =
+        coherent::scene::gltf::load_gltf(&write_blended(&dir)).expect("blended");
     assert_eq!(warnings.len(), 1, "{warnings:?}");
     assert!(
-        warnings[0].starts_with("material 3: alpha mode BLEND, drawn alpha-tested at 0.5"),
+        warnings[0].starts_with("materials 2 and 3: alpha mode BLEND, blended after the opaque"),
         "{warnings:?}"
     );
-    assert_eq!(scene.materials, want.materials);
-    let (pixels, ids) = render(&scene);
-    let (want_pixels, want_ids) = render(&want);
-    assert_eq!(ids, want_ids, "ID pass");
-    assert!(
-        pixels == want_pixels,
-        "the BLEND quad's pixels differ from the MASK quad's"
+    let blended: Vec<bool> = (0..4).map(|o| scene.is_blended(o)).collect();
+    assert_eq!(blended, [false, false, true, true]);
+    assert!(matches!(
+        scene.object_material(2).map(|m| m.alpha),
+        Some(AlphaMode::Mask(_))
+    ));
+    let bvh = common::bvh_of(&scene);
+    assert_eq!(
+        bvh.live_objects(),
+        2,
+        "the blended quads are not in the hierarchy"
     );
+
+    let (ctx, log) = common::context();
+    {
+        let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
+        let mut vfc = culling::create("vfc", &Default::default()).expect("vfc");
+        let (res, reference) = common::frame(&mut r, vfc.as_mut(), &bvh, pose(), 0);
+        assert_eq!(res.counts.draw_calls, 4, "{:?}", res.counts);
+        let at = |p: Vec3| {
+            let (x, y) = pixel_of(&r, &bvh, p);
+            px(&reference, x, y)
+        };
+        let wall = at(Vec3::new(-4.0, 2.5, -1.0));
+        let red_behind_white = at(Vec3::new(-1.0, 0.0, -0.5));
+        let white_over_wall = at(Vec3::new(-1.8, 0.8, 0.5));
+        let green_over_wall = at(Vec3::new(1.6, 0.8, 1.0));
+        let green_over_white = at(Vec3::new(0.5, 0.8, 1.0));
+        // The red quad shows through the white glass: half red, half white.
+        let [r0, g0, b0, _] = red_behind_white;
+        assert!(
+            r0 >= g0.saturating_add(50) && g0 >= 40 && (g0 as i32 - b0 as i32).abs() < 8,
+            "red behind white glass: {red_behind_white:?}"
+        );
+        // Blending is linear in the stored values: the glass colours come out of the pixels
+        // over the wall, and the green glass, nearer, is blended last.
+        let f = |c: [u8; 4]| c.map(f32::from);
+        let (w, a, g) = (f(wall), f(white_over_wall), f(green_over_wall));
+        let want: Vec<f32> = (0..3)
+            .map(|i| 0.5 * (2.0 * g[i] - w[i]) + 0.5 * a[i])
+            .collect();
+        let wrong: Vec<f32> = (0..3)
+            .map(|i| 0.5 * (2.0 * a[i] - w[i]) + 0.5 * g[i])
+            .collect();
+        let got = f(green_over_white);
+        for i in 0..3 {
+            assert!(
+                (got[i] - want[i]).abs() <= 3.0,
+                "green over white over wall {green_over_white:?}: want {want:?} (the other order \
+                 gives {wrong:?})"
+            );
+        }
+        // The ID pass sees the red quad (the glass hides nothing) and no glass.
+        let cam = r.camera(pose(), &bvh);
+        let mut ids = Vec::new();
+        r.object_pixels(&bvh, &cam, &mut ids).expect("ids");
+        assert!(ids[1] > 0 && ids[2] == 0 && ids[3] == 0, "ID pass: {ids:?}");
+
+        // NOHC with queries cheap against rendering: it queries the red quad.
+        let setup = common::setup(common::triangles(&scene), (W, H), 1e-4);
+        for name in ["chc", "chcpp", "nohc", "oracle", "chcpp@predicated"] {
+            let mut c = culling::create_named(name, &setup).expect(name);
+            for f in 0..3 {
+                let (res, pixels) = common::frame(&mut r, c.as_mut(), &bvh, pose(), f);
+                let d = common::diff_pixels(&reference, &pixels);
+                assert_eq!(d, 0, "{name} frame {f}: {d} pixels differ from vfc");
+                assert!(res.counts.draw_calls >= 3, "{name}: {:?}", res.counts);
+            }
+        }
+        let mut hiz = HizCuller::new(&r, HizParams::default()).expect("hiz");
+        for f in 0..2 {
+            let cam = r.camera(pose(), &bvh);
+            hiz.render_frame(&mut r, &cam).expect("hiz frame");
+            let pixels = r.read_color().expect("read");
+            let d = common::diff_pixels(&reference, &pixels);
+            assert_eq!(d, 0, "hiz frame {f}: {d} pixels differ from vfc");
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
 }
 
 /// One checker quad (REPEAT, nearest) whose texture coordinates reach u = `u1`, its material's

@@ -72,8 +72,17 @@ impl ObjectBvh {
     /// that have no bounds (a sky, an endless ground plane) out of the hierarchy and draw them
     /// yourself every frame.
     pub fn build(bounds: &[Aabb], leaf_size: u32) -> ObjectBvh {
+        ObjectBvh::build_where(bounds, |_| true, leaf_size)
+    }
+
+    /// [`ObjectBvh::build`] over the objects for which `keep(id)` holds: the others keep their
+    /// ids (object `i` is still `bounds[i]`) but are in no leaf, so no traversal meets them,
+    /// and [`ObjectBvh::insert`] never hands their ids out. For objects the host draws itself
+    /// outside the culled pass, such as blended (translucent) surfaces, which occlude nothing
+    /// and are drawn back to front after everything else.
+    pub fn build_where(bounds: &[Aabb], keep: impl Fn(u32) -> bool, leaf_size: u32) -> ObjectBvh {
         let object_bounds: Vec<Aabb> = bounds.iter().map(bounds_or_point).collect();
-        let ids: Vec<u32> = (0..bounds.len() as u32).collect();
+        let ids: Vec<u32> = (0..bounds.len() as u32).filter(|&i| keep(i)).collect();
         let (nodes, leaf_objects) = build_nodes(&object_bounds, &ids, leaf_size);
         let mut out = ObjectBvh {
             nodes,
@@ -1090,6 +1099,38 @@ mod tests {
             assert!(in_leaves(&bvh, id));
         }
         assert_eq!(bvh.live_objects(), 140);
+    }
+
+    /// `build_where` leaves the objects it skips in no leaf, through updates and rebuilds,
+    /// and `insert` never hands out their ids.
+    #[test]
+    fn objects_left_out_of_the_build_stay_out() {
+        let mut rng = Rng::new(9);
+        let boxes = grid(60, &mut rng);
+        let left_out = |o: u32| o % 7 == 3;
+        let mut bvh = ObjectBvh::build_where(&boxes, |o| !left_out(o), 2);
+        bvh.validate().unwrap();
+        let in_leaves = |bvh: &ObjectBvh, o: u32| {
+            (0..bvh.nodes.len() as u32)
+                .any(|n| bvh.nodes[n as usize].is_leaf() && bvh.objects(n).contains(&o))
+        };
+        let kept = (0..60).filter(|&o| !left_out(o)).count();
+        assert_eq!(bvh.live_objects(), kept);
+        assert_eq!(bvh.object_capacity(), 60);
+        for o in 0..60 {
+            assert_eq!(in_leaves(&bvh, o), !left_out(o), "object {o}");
+        }
+        assert!(bvh.set_bounds(3, boxes[0]).is_err(), "3 is in no leaf");
+        // New ids come after the last one, never a left-out one, and survive a rebuild.
+        let ids: Vec<u32> = (0..30)
+            .map(|i| bvh.insert(unit_box(Vec3::new(-40.0 - i as f32 * 2.0, 0.0, 0.0))))
+            .collect();
+        assert_eq!(ids, (60..90).collect::<Vec<u32>>());
+        assert!(bvh.update().rebuilt);
+        bvh.validate().unwrap();
+        for o in 0..90 {
+            assert_eq!(in_leaves(&bvh, o), !(o < 60 && left_out(o)), "object {o}");
+        }
     }
 
     #[test]
