@@ -139,6 +139,16 @@
 //! test this frame's boxes. To make another algorithm mover-aware: keep per node the
 //! [`ObjectBvh::epoch`] of its last test, apply rule 2 with `changed_since` wherever it would
 //! skip a test, and refit its per-node caches when [`ObjectBvh::structure`] changes.
+//!
+//! # Objects that hide nothing
+//!
+//! Every algorithm assumes that what it draws writes depth: the boxes it queries next are
+//! tested against it. Translucent (blended) surfaces write none, and objects without bounds (a
+//! sky, an endless ground) have no box to test. Keep them out of the hierarchy with
+//! [`ObjectBvh::build_where`] (their ids stay reserved: [`ObjectBvh::insert`] never hands them
+//! out) and draw them yourself after `cull_frame`: the blended ones back to front, depth tested
+//! against what the culler drew. The built-in renderer of the `coherent` package does so with
+//! glTF BLEND materials; they are then not occlusion-culled, and a hidden one changes no pixel.
 
 #![deny(missing_docs)]
 
