@@ -199,7 +199,9 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         &buffers,
         &mut loader.warnings,
     ));
-    let mats = loader.materials;
+    let mut mats = loader.materials;
+    let moving = animation.objects.iter().filter_map(|a| a.object.material);
+    mats.settle_opaque_blends(&mut loader.objects, &loader.attributes, moving);
     loader.warnings.extend(mats.warnings());
     let attributes = if mats.attributes_used || !mats.materials.is_empty() {
         loader.attributes
@@ -2301,6 +2303,42 @@ mod tests {
         let movers = crate::scene::movers::Movers::add(&mut scene, 0);
         assert_eq!(movers.transform_at(0, 30), movers.transform_at(0, 0));
         assert_ne!(movers.transform_at(0, 1), movers.transform_at(0, 0));
+    }
+
+    /// A BLEND material whose alpha is one everywhere on an object is drawn opaque there (and
+    /// culled); alpha under one in the factor or in the vertex colors keeps it blended.
+    #[test]
+    fn blend_materials_without_alpha_under_one_are_drawn_opaque() {
+        let dir = temp_dir("opaque-blend");
+        let mut b = GltfBuilder::default();
+        let opaque = b.cube_mesh([0.5, 0.5, 0.5, 1.0]);
+        let half = b.cube_mesh([0.5, 0.5, 0.5, 0.5]);
+        b.node(opaque, [0.0, 0.0, 0.0]);
+        b.node(half, [2.0, 0.0, 0.0]);
+        for m in &mut b.materials {
+            *m = m.replacen('{', r#"{"alphaMode":"BLEND","#, 1);
+        }
+        let path = write(&dir, "blend.gltf", b.gltf_embedded());
+        let (scene, warnings) = load_gltf(&path).expect("load");
+        let blended: Vec<bool> = (0..2).map(|o| scene.is_blended(o)).collect();
+        assert_eq!(blended, [false, true]);
+        assert_eq!(
+            scene.object_material(0).map(|m| m.alpha),
+            Some(crate::scene::AlphaMode::Opaque)
+        );
+        assert_eq!(scene.hierarchy(1).live_objects(), 1);
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.starts_with("material 0: alpha mode BLEND with no alpha")),
+            "{warnings:?}"
+        );
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.starts_with("material 1: alpha mode BLEND, blended")),
+            "{warnings:?}"
+        );
     }
 
     /// A blended material on animated nodes: the static cube blends (out of the hierarchy),

@@ -64,6 +64,8 @@ pub(super) struct MaterialLoader {
     pub attributes_used: bool,
     /// The glTF materials with alpha mode BLEND, in the order they were met.
     blended: Vec<usize>,
+    /// Of those, the ones whose objects have no alpha under one: drawn opaque.
+    opaque_blends: Vec<usize>,
     /// The glTF images that could not be decoded, and why, in the order they were met.
     failed_images: Vec<(usize, String)>,
     /// The glTF textures with no image to decode, and why, in the order they were met.
@@ -121,6 +123,76 @@ impl MaterialLoader {
         ours
     }
 
+    /// Draws opaque the objects whose BLEND material never has alpha under one on them (base
+    /// color factor, texture texels and vertex colors all fully opaque; exporters mark opaque
+    /// materials BLEND often): blending them would take them out of the culling hierarchy and
+    /// draw them without depth writes, for no change in color. Each such object gets an
+    /// opaque copy of its material; a BLEND material left with no blended object is named in
+    /// the warnings as drawn opaque (`moving`: the materials of animated objects, which keep
+    /// theirs). Returns how many objects changed.
+    pub fn settle_opaque_blends(
+        &mut self,
+        objects: &mut [super::Object],
+        attributes: &[VertexAttributes],
+        moving: impl Iterator<Item = u32>,
+    ) -> usize {
+        let mut opaque_image: HashMap<u32, bool> = HashMap::new();
+        let mut copies: HashMap<u32, u32> = HashMap::new();
+        let mut still_blended = vec![false; self.materials.len()];
+        for m in moving {
+            if let Some(b) = still_blended.get_mut(m as usize) {
+                *b = true;
+            }
+        }
+        let mut changed = 0;
+        for o in objects.iter_mut() {
+            let Some(m) = o.material else { continue };
+            let Some(&material) = self.materials.get(m as usize) else {
+                continue;
+            };
+            if !material.blend {
+                continue;
+            }
+            let texture_opaque = match material.base_color_texture {
+                None => true,
+                Some(t) => match self.textures.get(t as usize) {
+                    None => true,
+                    Some(tex) => *opaque_image.entry(tex.image).or_insert_with(|| {
+                        self.images
+                            .get(tex.image as usize)
+                            .is_none_or(|i| i.rgba.chunks_exact(4).all(|p| p[3] == 255))
+                    }),
+                },
+            };
+            let start = o.vertex_offset as usize;
+            let colors_opaque = attributes
+                .get(start..start + o.vertex_count as usize)
+                .is_none_or(|a| a.iter().all(|v| v.color[3] == 255));
+            if o.color.w < 1.0 || !texture_opaque || !colors_opaque {
+                still_blended[m as usize] = true;
+                continue;
+            }
+            let copy = *copies.entry(m).or_insert_with(|| {
+                self.materials.push(Material {
+                    alpha: AlphaMode::Opaque,
+                    blend: false,
+                    ..material
+                });
+                self.materials.len() as u32 - 1
+            });
+            o.material = Some(copy);
+            changed += 1;
+        }
+        let by_material = &self.by_material;
+        let ours = |index: &usize| by_material.get(index).copied().flatten();
+        let (blended, opaque): (Vec<usize>, Vec<usize>) = self.blended.iter().partition(|index| {
+            ours(index).is_none_or(|m| still_blended.get(m as usize).copied().unwrap_or(true))
+        });
+        self.blended = blended;
+        self.opaque_blends = opaque;
+        changed
+    }
+
     /// The warnings about materials, textures and images, each kind in one line that names the
     /// first few (a file can have hundreds): the BLEND materials, the textures without an image
     /// to decode and the images that could not be decoded, grouped by reason.
@@ -154,6 +226,12 @@ impl MaterialLoader {
                 "{who}: alpha mode BLEND, blended after the opaque objects, back to front by \
                  object, and not occlusion-culled; alpha-tested at {BLEND_CUTOFF} in gi and \
                  in moving copies"
+            )
+        }));
+        out.extend(named("material", &self.opaque_blends).map(|who| {
+            format!(
+                "{who}: alpha mode BLEND with no alpha under one (factor, texture, vertex \
+                 colors): drawn opaque, and culled as opaque objects are"
             )
         }));
         out

@@ -414,6 +414,36 @@ fn blend_materials_are_blended_back_to_front_and_hide_nothing() {
     common::assert_silent(&log);
 }
 
+/// A BLEND material is blended where its texture has alpha under one (the mask), drawn
+/// opaque where it has none (the checker).
+#[test]
+fn blend_materials_blend_only_where_their_texture_has_alpha() {
+    let dir = temp_dir("blend-textures");
+    let path = write_gltf(&dir);
+    let json = std::fs::read_to_string(&path).expect("read");
+    let checker = r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#;
+    let mask = r#""alphaMode":"MASK","alphaCutoff":0.5"#;
+    assert_eq!(
+        (json.matches(checker).count(), json.matches(mask).count()),
+        (1, 1)
+    );
+    let json = json.replace(mask, r#""alphaMode":"BLEND""#).replace(
+        checker,
+        &checker.replacen('{', r#"{"alphaMode":"BLEND","#, 1),
+    );
+    std::fs::write(&path, json).expect("write");
+    let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("load");
+    // Objects: wall, repeat checker (BLEND, opaque texels), clamp checker, masked quad.
+    let blended: Vec<bool> = (0..4).map(|o| scene.is_blended(o)).collect();
+    assert_eq!(blended, [false, false, false, true], "{warnings:?}");
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.starts_with("material 1: alpha mode BLEND with no alpha under one")),
+        "{warnings:?}"
+    );
+}
+
 /// One checker quad (REPEAT, nearest) whose texture coordinates reach u = `u1`, its material's
 /// texture under `transform` (a KHR_texture_transform object, or none), as a .gltf in `dir`.
 fn write_checker_quad(dir: &Path, name: &str, u1: f32, transform: Option<&str>) -> PathBuf {
