@@ -2348,7 +2348,10 @@ mod tests {
         let dir = temp_dir("animated-blend");
         let mut b = animated_cubes(5.0);
         for m in &mut b.materials {
-            *m = m.replacen('{', r#"{"alphaMode":"BLEND","#, 1);
+            assert!(m.contains("[0.5,0.5,0.5,1]"), "{m}");
+            *m = m
+                .replacen('{', r#"{"alphaMode":"BLEND","#, 1)
+                .replace("[0.5,0.5,0.5,1]", "[0.5,0.5,0.5,0.5]");
         }
         let path = write(&dir, "animated.gltf", b.gltf_embedded());
         let (mut scene, _) = load_gltf(&path).expect("load");
