@@ -30,6 +30,12 @@ fuzz_target!(|data: &[u8]| {
         Ok(mut scene) => {
             // The objects its animation moves: placed at a few frames, boxes finite.
             let movers = coherent::scene::movers::Movers::add(&mut scene, 0);
+            // The culling hierarchy leaves out exactly the blended objects (no mover blends).
+            let bvh = scene.hierarchy(1);
+            bvh.validate().expect("a valid hierarchy");
+            let blended = (0..scene.objects.len()).filter(|&o| scene.is_blended(o)).count();
+            assert_eq!(bvh.live_objects() + blended, scene.objects.len());
+            assert!(movers.objects().all(|o| !scene.is_blended(o as usize)));
             for i in 0..movers.len() {
                 for frame in [0, 7, 1000] {
                     let m = movers.transform_at(i, frame);

@@ -147,10 +147,36 @@ pub struct Renderer {
     blended: Vec<u32>,
     /// Scratch of a frame's blended draws: (squared distance of the box centre, object).
     blend_order: Vec<(f32, u32)>,
-    /// The view of the frame being recorded; taken when its blended objects are drawn (once
-    /// a frame, however often the culler finishes).
+    /// The view of the frame being recorded.
     frame_view: Option<CameraView>,
+    /// Whether this frame's blended objects were drawn (once a frame, however often the
+    /// culler finishes).
+    blended_drawn: bool,
+    /// Which blended objects in view a frame tests against the opaque depth (one occlusion
+    /// query each, one predicate resolve) and draws under their predicates: those of at least
+    /// this many triangles, when they hold at least `.1` together
+    /// ([`Renderer::set_blended_tests`]).
+    blended_tests: (u32, u64),
+    /// This frame's queries of blended objects' boxes, with the object's index in `blended`
+    /// (read back after the frame into `blended_seen`).
+    blended_queries: Vec<(usize, QueryId)>,
+    /// Per object of `blended`: whether its last test found it visible (it is then drawn
+    /// without one, and tested again every [`BLENDED_RETEST`] frames).
+    blended_seen: Vec<bool>,
+    /// Frames begun (staggers the re-tests of visible blended objects).
+    frames_begun: u64,
 }
+
+/// A blended object its last test found visible is drawn without a test, and tested again in
+/// every this many frames (staggered by object), as CHC++ re-tests visible leaves.
+pub const BLENDED_RETEST: u64 = 8;
+
+/// Default of [`Renderer::set_blended_tests`]: a blended object is tested when it has at least
+/// this many triangles (on lavapipe at 1280x720 a query costs about what drawing 200 triangles
+/// of a hidden object does)...
+pub const BLENDED_TEST_TRIANGLES: u32 = 256;
+/// ... and the tested ones hold at least this many together (the resolve's pass break).
+pub const BLENDED_TEST_TOTAL: u64 = 8192;
 
 impl Renderer {
     /// Uploads `scene` and creates pipelines and a `width`x`height` target.
@@ -252,6 +278,11 @@ impl Renderer {
             blended,
             blend_order: Vec::new(),
             frame_view: None,
+            blended_drawn: false,
+            blended_tests: (BLENDED_TEST_TRIANGLES, BLENDED_TEST_TOTAL),
+            blended_queries: Vec::new(),
+            blended_seen: Vec::new(),
+            frames_begun: 0,
         })
     }
 
@@ -412,6 +443,11 @@ impl Renderer {
         let frame_time = start.elapsed();
         let cull: CullStats = cull?;
         finished?;
+        for (i, q) in std::mem::take(&mut self.blended_queries) {
+            // The frame has completed: what the test found decides the next frames' tests.
+            let samples = self.query_result(q)?.unwrap_or(1);
+            self.blended_seen[i] = samples > 0;
+        }
         let gpu_ms = self.gpu_time_ms()?;
         let mut counts: CommandCounts = self.recorder.take_counts();
         add_query_counts(&mut counts, &self.queries.counts());
@@ -505,6 +541,10 @@ impl Renderer {
         self.draw_used = 0;
         self.ordered.begin_frame();
         self.frame_view = Some(*view);
+        self.blended_drawn = false;
+        self.blended_queries.clear();
+        self.blended_seen.resize(self.blended.len(), false);
+        self.frames_begun += 1;
         let vp = raster_matrix(view);
         self.view_proj = vp.to_cols_array();
         self.push[..64].copy_from_slice(bytes_of(&self.view_proj));
@@ -1632,7 +1672,8 @@ impl OcclusionBackend for Renderer {
             // Nothing was drawn (still clear the target), or blended objects are drawn now.
             self.ensure_recording()?;
         }
-        self.draw_blended_order()?;
+        let test = self.supports_predicates();
+        self.draw_blended_order(test)?;
         self.submit_segment()?;
         Ok(self.timeline.wait_all()?)
     }
@@ -1848,8 +1889,8 @@ pub(crate) struct DrawClass {
 /// per frame on the renderer's timeline, its recorder, timestamps and target. The frame
 /// orchestration (culling dispatches, indirect draws) stays with the caller.
 impl Renderer {
-    /// Every object's bounds and draw range, by object index.
-    /// A blended object has an empty range: GPU-driven culling skips it, and
+    /// Every object's bounds and draw range, by object index. A blended object has an empty
+    /// range: GPU-driven culling skips it, and
     /// [`Renderer::record_blended`] draws it after the culled pass.
     pub(crate) fn draw_ranges(&self) -> impl ExactSizeIterator<Item = DrawRange> + '_ {
         self.objects.iter().enumerate().map(|(i, o)| DrawRange {
@@ -1875,17 +1916,38 @@ impl Renderer {
     /// come after everything the culler drew, so they hide nothing from its queries and
     /// nothing drawn after them; they are not occlusion-culled (a hidden one fails the depth
     /// test and changes no pixel), so every algorithm's image has the same blended pixels.
+    ///
+    /// [`OcclusionBackend::finish`] tests the heavy ones first ([`Renderer::set_blended_tests`];
+    /// on a device with conditional rendering) when their last test found them hidden (or
+    /// they have none), and the others every [`BLENDED_RETEST`] frames: each of their boxes
+    /// (unless the eye is inside it or the near plane cuts it) gets an occlusion query against
+    /// the opaque depth, one resolve turns the results into predicates, and each is drawn
+    /// under its own. Exact as the culled pass is: a box that shows no sample hides every
+    /// fragment of its object, and an object drawn without a test is drawn. Here (`hiz`,
+    /// inside its own rendering) they are all drawn.
     pub(crate) fn record_blended(&mut self) -> Result<()> {
         self.order_blended();
-        self.draw_blended_order()
+        self.draw_blended_order(false)
+    }
+
+    /// Which blended objects in a frame's view are tested before they are drawn: those of at
+    /// least `triangles` triangles, when they hold at least `total` together (defaults
+    /// [`BLENDED_TEST_TRIANGLES`] and [`BLENDED_TEST_TOTAL`]; `(0, 0)`: every one, `u64::MAX`
+    /// total: none). The others are drawn without a test: a light object costs less to draw
+    /// than its query, and a few, less than the resolve's pass break.
+    pub fn set_blended_tests(&mut self, triangles: u32, total: u64) {
+        self.blended_tests = (triangles, total);
     }
 
     /// Fills `blend_order` with the blended objects in the frame's view, back to front.
     fn order_blended(&mut self) {
         self.blend_order.clear();
-        let Some(view) = self.frame_view.take().filter(|_| !self.blended.is_empty()) else {
+        let Some(view) = self.frame_view.filter(|_| !self.blended.is_empty()) else {
             return;
         };
+        if std::mem::replace(&mut self.blended_drawn, true) {
+            return;
+        }
         let frustum = view.frustum();
         let eye = view.order_point();
         for &o in &self.blended {
@@ -1899,14 +1961,55 @@ impl Renderer {
             .sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     }
 
-    /// Draws `blend_order` (see [`Renderer::record_blended`]).
-    fn draw_blended_order(&mut self) -> Result<()> {
+    /// Draws `blend_order` (see [`Renderer::record_blended`]), each under the predicate of a
+    /// query of its box when `test`.
+    fn draw_blended_order(&mut self, test: bool) -> Result<()> {
         let order = std::mem::take(&mut self.blend_order);
+        let mut predicates = Vec::new();
+        if let Some(view) = self.frame_view.filter(|_| test) {
+            let view = coherent_cull::View::new(&view);
+            let (heavy, total) = self.blended_tests;
+            let frame = self.frames_begun;
+            let (blended, seen) = (&self.blended, &self.blended_seen);
+            // Its index in `blended`, when it is tested this frame.
+            let tested = |o: u32, d: &ObjectDraw| {
+                let i = blended.binary_search(&o).ok()?;
+                let due = !seen[i] || (frame + i as u64).is_multiple_of(BLENDED_RETEST);
+                (due && d.index_count / 3 >= heavy && !view.eye_inside(&d.bounds)).then_some(i)
+            };
+            let marked: Vec<Option<usize>> = order
+                .iter()
+                .map(|&(_, o)| tested(o, &self.objects[o as usize]))
+                .collect();
+            let sum: u64 = order
+                .iter()
+                .zip(&marked)
+                .filter(|(_, i)| i.is_some())
+                .map(|(&(_, o), _)| u64::from(self.objects[o as usize].index_count / 3))
+                .sum();
+            if sum >= total && total < u64::MAX {
+                for (&(_, o), i) in order.iter().zip(&marked) {
+                    let q = match i {
+                        Some(i) => {
+                            let q = self.record_query(&[self.objects[o as usize].bounds], None)?;
+                            self.blended_queries.push((*i, q));
+                            Some(q)
+                        }
+                        None => None,
+                    };
+                    predicates.push(q);
+                }
+            }
+            if !self.blended_queries.is_empty() {
+                OcclusionBackend::resolve_predicates(self)?;
+            }
+        }
         if !order.is_empty() {
             self.bind_scene_buffers();
         }
-        for &(_, o) in &order {
+        for (k, &(_, o)) in order.iter().enumerate() {
             let d = self.objects[o as usize];
+            let predicate = predicates.get(k).copied().flatten();
             let pipeline = match &self.pipelines.blended {
                 Some([one_sided, two_sided]) => {
                     if d.double_sided {
@@ -1923,9 +2026,15 @@ impl Renderer {
                     .bind_texture_set(&self.pipelines.layout, self.descriptors.get(d.set as usize));
                 self.bound_set = d.set;
             }
+            if let Some(q) = predicate {
+                self.begin_predicated(q)?;
+            }
             self.recorder
                 .draw_indexed(d.index_count, 1, d.first_index, d.vertex_offset, o);
-            self.log.drew(&[o], None, u64::from(d.index_count / 3));
+            self.log.drew(&[o], predicate, u64::from(d.index_count / 3));
+            if predicate.is_some() {
+                self.end_predicated();
+            }
         }
         self.blend_order = order;
         Ok(())

@@ -140,6 +140,17 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     b.scene_nodes = None;
     out.push(("noscene.glb", b.glb()));
 
+    // BLEND materials: one translucent cube, one whose alpha is one (drawn opaque).
+    let mut b = GltfBuilder::default();
+    let glass = b.cube_mesh([1.0, 1.0, 1.0, 0.5]);
+    let solid = b.cube_mesh([0.2, 0.2, 0.2, 1.0]);
+    for m in &mut b.materials {
+        *m = m.replacen('{', r#"{"alphaMode":"BLEND","#, 1);
+    }
+    b.node(glass, [0.0, 0.0, 0.0]);
+    b.node(solid, [0.0, 0.0, -3.0]);
+    out.push(("blend.gltf", b.gltf_embedded().into_bytes()));
+
     // A node whose mesh EXT_mesh_gpu_instancing places twice.
     let mut b = GltfBuilder::default();
     let cube = b.cube_mesh([0.0, 1.0, 0.0, 1.0]);
@@ -311,6 +322,10 @@ fn seed_corpus_loads() {
                 1,
                 "{name}: the seed's texture is not read"
             );
+        }
+        if name == "blend.gltf" {
+            let blended: Vec<bool> = (0..2).map(|o| scene.is_blended(o)).collect();
+            assert_eq!(blended, [true, false], "the BLEND seed");
         }
         if name == "animated.glb" {
             assert!(scene.animation.is_some(), "the animated seed moves nothing");

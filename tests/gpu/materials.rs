@@ -414,6 +414,105 @@ fn blend_materials_are_blended_back_to_front_and_hide_nothing() {
     common::assert_silent(&log);
 }
 
+/// Blended quads (BLEND, white, alpha one half): ten behind an opaque wall on the left, six
+/// in view on the right; and a blended cube around the eye (its box holds the eye; from inside
+/// only back faces, so it draws nothing).
+fn write_many_blended(dir: &Path) -> PathBuf {
+    let mut b = GltfBuilder {
+        materials: vec![
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.2,0.3,1,1]}}"#.to_string(),
+            r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,1,1,0.5]},"alphaMode":"BLEND"}"#
+                .to_string(),
+        ],
+        ..GltfBuilder::default()
+    };
+    let wall = quad(&mut b, (-6.0, -4.0, 0.0, 4.0, 0.0), 1.0, None, 0);
+    b.node(wall, [0.0, 0.0, 0.0]);
+    for i in 0..16 {
+        let x = if i < 10 {
+            -3.5 + 0.3 * i as f32
+        } else {
+            0.3 + 0.35 * (i - 10) as f32
+        };
+        let glass = quad(&mut b, (x, -1.0, x + 0.25, 1.0, -1.0), 1.0, None, 1);
+        b.node(glass, [0.0, 0.0, 0.0]);
+    }
+    let cube = b.cube_mesh([1.0, 1.0, 1.0, 0.5]);
+    b.materials[2] = b.materials[2].replacen('{', r#"{"alphaMode":"BLEND","#, 1);
+    b.node(cube, [0.0, 0.0, 5.0]);
+    let uri = format!("data:application/octet-stream;base64,{}", base64(&b.bin));
+    let path = dir.join("many_blended.gltf");
+    std::fs::write(&path, b.json(Some(&uri))).expect("write");
+    path
+}
+
+/// With `Renderer::set_blended_tests(0, 0)` every blended object in view has its box
+/// queried against the opaque depth and the object drawn under its predicate: the ten behind
+/// the wall are skipped by their predicates, the image is the one drawn without the test, and
+/// the cube whose box holds the eye is drawn without a query.
+#[test]
+fn many_blended_objects_are_tested_against_the_opaque_depth() {
+    let dir = temp_dir("many-blended");
+    let (scene, _) = coherent::scene::gltf::load_gltf(&write_many_blended(&dir)).expect("load");
+    assert_eq!(scene.objects.len(), 18);
+    assert_eq!((1..18).filter(|&o| scene.is_blended(o)).count(), 17);
+    let bvh = common::bvh_of(&scene);
+    let (ctx, log) = common::context();
+    {
+        let setup = culling::CullerSetup::default();
+        for name in ["vfc", "chcpp", "chcpp@predicated"] {
+            let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
+            // Two cullers with the same history, one frame each: all drawn, then tested.
+            let mut c = culling::create_named(name, &setup).expect(name);
+            r.set_blended_tests(0, u64::MAX);
+            let (all, reference) = common::frame(&mut r, c.as_mut(), &bvh, pose(), 0);
+            let mut c = culling::create_named(name, &setup).expect(name);
+            r.set_blended_tests(0, 0);
+            let (tested, pixels) = common::frame(&mut r, c.as_mut(), &bvh, pose(), 0);
+            let d = common::diff_pixels(&reference, &pixels);
+            assert_eq!(
+                d, 0,
+                "{name}: {d} pixels differ with the blended objects tested"
+            );
+            let (a, t) = (&all.counts, &tested.counts);
+            assert_eq!(
+                (
+                    t.conditional_blocks - a.conditional_blocks,
+                    t.predicated_objects_taken - a.predicated_objects_taken,
+                    t.queries_begun - a.queries_begun,
+                ),
+                (16, 6, 16),
+                "{name}: {a:?} against {t:?}"
+            );
+            assert!(t.predicate_resolves > a.predicate_resolves, "{name}: {t:?}");
+            assert_eq!(t.object_draws, a.object_draws, "{name}");
+            // The next frames test the ten found hidden, and the six found visible only when
+            // their turn to be tested again comes: fewer queries, the same image.
+            let mut blended_queries = Vec::new();
+            for f in 1..=8 {
+                let mut fresh = culling::create_named(name, &setup).expect(name);
+                r.set_blended_tests(0, u64::MAX);
+                let (all, _) = common::frame(&mut r, fresh.as_mut(), &bvh, pose(), 0);
+                let mut fresh = culling::create_named(name, &setup).expect(name);
+                r.set_blended_tests(0, 0);
+                let (t, px) = common::frame(&mut r, fresh.as_mut(), &bvh, pose(), 0);
+                assert_eq!(common::diff_pixels(&reference, &px), 0, "{name} frame {f}");
+                blended_queries.push(t.counts.queries_begun - all.counts.queries_begun);
+            }
+            assert!(
+                blended_queries.iter().all(|&q| (10..16).contains(&q)),
+                "{name}: blended queries a frame {blended_queries:?}"
+            );
+            assert!(
+                blended_queries.iter().sum::<u32>() >= 8 * 10 + 6,
+                "{name}: the visible ones are tested again: {blended_queries:?}"
+            );
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
 /// A BLEND material is blended where its texture has alpha under one (the mask), drawn
 /// opaque where it has none (the checker).
 #[test]
