@@ -1914,8 +1914,9 @@ impl Renderer {
     /// frame's view frustum, farthest box centre first (ties by id, so every algorithm blends
     /// them in the same order), each blended over what is drawn, without writing depth. They
     /// come after everything the culler drew, so they hide nothing from its queries and
-    /// nothing drawn after them; they are not occlusion-culled (a hidden one fails the depth
-    /// test and changes no pixel), so every algorithm's image has the same blended pixels.
+    /// nothing drawn after them; every algorithm draws the same ones (the tests below, or
+    /// none: a hidden one fails the depth test and changes no pixel), so every algorithm's
+    /// image has the same blended pixels.
     ///
     /// [`OcclusionBackend::finish`] tests the heavy ones first ([`Renderer::set_blended_tests`];
     /// on a device with conditional rendering) when their last test found them hidden (or

@@ -224,8 +224,8 @@ impl MaterialLoader {
         out.extend(named("material", &self.blended).map(|who| {
             format!(
                 "{who}: alpha mode BLEND, blended after the opaque objects, back to front by \
-                 object, and not occlusion-culled; alpha-tested at {BLEND_CUTOFF} in gi and \
-                 in moving copies"
+                 object, tested against the opaque depth when heavy; alpha-tested at \
+                 {BLEND_CUTOFF} in gi and in moving copies"
             )
         }));
         out.extend(named("material", &self.opaque_blends).map(|who| {
@@ -706,8 +706,9 @@ mod tests {
             }
             .warnings()
         };
-        let tail = "blended after the opaque objects, back to front by object, and not \
-                    occlusion-culled; alpha-tested at 0.5 in gi and in moving copies";
+        let tail = "blended after the opaque objects, back to front by object, tested \
+                    against the opaque depth when heavy; alpha-tested at 0.5 in gi and in \
+                    moving copies";
         assert!(warning(vec![]).is_empty());
         assert_eq!(
             warning(vec![3]),

@@ -224,8 +224,9 @@ pub struct Material {
     pub double_sided: bool,
     /// glTF alpha mode `BLEND`: the forward pass draws the object blended over what is behind
     /// it, after every opaque object, back to front, without writing depth; it hides nothing,
-    /// so it stays out of the culling hierarchy ([`super::Scene::hierarchy`]) and is drawn
-    /// whenever its box is in the view. Every other pass (the ID pass, `gi`, moving copies)
+    /// so it stays out of the culling hierarchy ([`super::Scene::hierarchy`]); the renderer
+    /// tests its box against the opaque depth itself when it is heavy enough to pay for the
+    /// test. Every other pass (the ID pass, `gi`, moving copies)
     /// draws it as `alpha` says (a glTF BLEND material is masked at 0.5).
     pub blend: bool,
 }

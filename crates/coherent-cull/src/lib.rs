@@ -148,7 +148,8 @@
 //! [`ObjectBvh::build_where`] (their ids stay reserved: [`ObjectBvh::insert`] never hands them
 //! out) and draw them yourself after `cull_frame`: the blended ones back to front, depth tested
 //! against what the culler drew. The built-in renderer of the `coherent` package does so with
-//! glTF BLEND materials; they are then not occlusion-culled, and a hidden one changes no pixel.
+//! glTF BLEND materials, and tests the heavy ones with occlusion queries of their boxes
+//! against the depth the culled pass left (one resolve, a predicate each) before drawing them.
 
 #![deny(missing_docs)]
 
