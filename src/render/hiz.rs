@@ -30,7 +30,8 @@
 //! other algorithm, and masked ones write depth only where they are drawn (the pyramid sees
 //! through their holes). A scene without materials is one group. Blended objects (glTF BLEND)
 //! are not culled here: their ranges are empty, and phase 2's rendering ends with them, drawn
-//! by the renderer back to front as after every other algorithm's frame.
+//! (and the heavy ones tested) by the renderer back to front as after every other
+//! algorithm's frame.
 //!
 //! Counts come from the recorder: dispatches (2 cull + one per pyramid level), an indirect
 //! draw per group and phase, pipeline and texture binds; the objects and triangles those
@@ -320,6 +321,7 @@ impl HizCuller {
         rec.memory_barrier(Access::ComputeReadWrite, Access::HostRead);
         r.submit_and_wait()?;
         let frame_time = start.elapsed();
+        r.read_blended_tests()?;
         let frame_ms = frame_time.as_secs_f64() * 1e3;
         let cpu_ms = r.cpu_ms(start, frame_time);
         self.pyramid_valid = true;
@@ -334,6 +336,7 @@ impl HizCuller {
         let gpu_ms = self.read_pass_times(r)?;
         // What the indirect draws drew is known only now, read back from the GPU.
         let mut counts = r.recorder_mut().take_counts();
+        r.add_frame_query_counts(&mut counts)?;
         counts.indirect_objects += objects;
         counts.indirect_triangles += triangles;
         counts.mover_draws += moving as u32;
@@ -408,11 +411,15 @@ impl HizCuller {
             );
         }
         if phase == 2 {
-            // After everything the culling drew: blended objects (no depth writes).
+            // After everything the culling drew: blended objects (no depth writes), the heavy
+            // ones tested against this depth as after the other algorithms' frames.
             r.record_blended()?;
         }
         let rec = r.recorder_mut();
         rec.end_rendering();
+        if phase == 2 {
+            r.copy_blended_tests();
+        }
         r.write_timestamp()
     }
 

@@ -443,11 +443,7 @@ impl Renderer {
         let frame_time = start.elapsed();
         let cull: CullStats = cull?;
         finished?;
-        for (i, q) in std::mem::take(&mut self.blended_queries) {
-            // The frame has completed: what the test found decides the next frames' tests.
-            let samples = self.query_result(q)?.unwrap_or(1);
-            self.blended_seen[i] = samples > 0;
-        }
+        self.read_blended_tests()?;
         let gpu_ms = self.gpu_time_ms()?;
         let mut counts: CommandCounts = self.recorder.take_counts();
         add_query_counts(&mut counts, &self.queries.counts());
@@ -1918,17 +1914,51 @@ impl Renderer {
     /// none: a hidden one fails the depth test and changes no pixel), so every algorithm's
     /// image has the same blended pixels.
     ///
-    /// [`OcclusionBackend::finish`] tests the heavy ones first ([`Renderer::set_blended_tests`];
-    /// on a device with conditional rendering) when their last test found them hidden (or
+    /// The heavy ones are tested first ([`Renderer::set_blended_tests`]; on a device with
+    /// conditional rendering) when their last test found them hidden (or
     /// they have none), and the others every [`BLENDED_RETEST`] frames: each of their boxes
     /// (unless the eye is inside it or the near plane cuts it) gets an occlusion query against
     /// the opaque depth, one resolve turns the results into predicates, and each is drawn
     /// under its own. Exact as the culled pass is: a box that shows no sample hides every
-    /// fragment of its object, and an object drawn without a test is drawn. Here (`hiz`,
-    /// inside its own rendering) they are all drawn.
+    /// fragment of its object, and an object drawn without a test is drawn.
+    ///
+    /// [`OcclusionBackend::finish`] does so after every culler's frame. `hiz` calls this
+    /// inside the rendering its phase 2 began in a command buffer of its own (the resolve
+    /// ends that rendering and begins it again), then [`Renderer::copy_blended_tests`] once
+    /// rendering has ended and [`Renderer::read_blended_tests`] once the frame has completed.
     pub(crate) fn record_blended(&mut self) -> Result<()> {
         self.order_blended();
-        self.draw_blended_order(false)
+        let own = std::mem::replace(&mut self.recording, true);
+        let test = self.supports_predicates();
+        let drawn = self.draw_blended_order(test);
+        self.recording = own;
+        drawn
+    }
+
+    /// Records the copy of this frame's query results into host memory (outside rendering),
+    /// for a pass that does not end with [`OcclusionBackend::finish`].
+    pub(crate) fn copy_blended_tests(&mut self) {
+        if !self.blended_queries.is_empty() {
+            // SAFETY: outside rendering, after the queries it copies.
+            unsafe { self.queries.record_copy(self.recorder.command_buffer().0) };
+        }
+    }
+
+    /// Adds a completed frame's query counts and what its predicates let draw to `counts`
+    /// (for a pass that does not go through [`Renderer::render_frame`]: `hiz`).
+    pub(crate) fn add_frame_query_counts(&mut self, counts: &mut CommandCounts) -> Result<()> {
+        add_query_counts(counts, &self.queries.counts());
+        self.read_predicates(counts)
+    }
+
+    /// After the frame has completed: what each blended object's test found decides its next
+    /// tests ([`Renderer::record_blended`]); the queries count as read.
+    pub(crate) fn read_blended_tests(&mut self) -> Result<()> {
+        for (i, q) in std::mem::take(&mut self.blended_queries) {
+            let samples = self.query_result(q)?.unwrap_or(1);
+            self.blended_seen[i] = samples > 0;
+        }
+        Ok(())
     }
 
     /// Which blended objects in a frame's view are tested before they are drawn: those of at

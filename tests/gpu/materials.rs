@@ -508,6 +508,33 @@ fn many_blended_objects_are_tested_against_the_opaque_depth() {
                 "{name}: the visible ones are tested again: {blended_queries:?}"
             );
         }
+        // hiz tests them inside its phase 2's rendering: the same image, and 16 queries in
+        // its first frame on a fresh renderer.
+        let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
+        let mut vfc = culling::create("vfc", &Default::default()).expect("vfc");
+        r.set_blended_tests(0, u64::MAX);
+        let (_, reference) = common::frame(&mut r, vfc.as_mut(), &bvh, pose(), 0);
+        r.set_blended_tests(0, 0);
+        let mut hiz = HizCuller::new(&r, HizParams::default()).expect("hiz");
+        for f in 0..3 {
+            let cam = r.camera(pose(), &bvh);
+            let h = hiz.render_frame(&mut r, &cam).expect("hiz frame");
+            let px = r.read_color().expect("read");
+            let d = common::diff_pixels(&reference, &px);
+            assert_eq!(d, 0, "hiz frame {f}: {d} pixels differ");
+            if f == 0 {
+                let c = &h.counts;
+                assert_eq!(
+                    (
+                        c.queries_begun,
+                        c.conditional_blocks,
+                        c.predicated_objects_taken
+                    ),
+                    (16, 16, 6),
+                    "hiz: {c:?}"
+                );
+            }
+        }
     }
     drop(ctx);
     common::assert_silent(&log);
