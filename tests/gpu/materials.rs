@@ -463,12 +463,16 @@ fn many_blended_objects_are_tested_against_the_opaque_depth() {
         for name in ["vfc", "chcpp", "chcpp@predicated"] {
             let mut r = Renderer::new(&ctx, &scene, W, H).expect("renderer");
             // Two cullers with the same history, one frame each: all drawn, then tested.
-            let mut c = culling::create_named(name, &setup).expect(name);
-            r.set_blended_tests(0, u64::MAX);
-            let (all, reference) = common::frame(&mut r, c.as_mut(), &bvh, pose(), 0);
-            let mut c = culling::create_named(name, &setup).expect(name);
-            r.set_blended_tests(0, 0);
-            let (tested, pixels) = common::frame(&mut r, c.as_mut(), &bvh, pose(), 0);
+            let off_then_on = |r: &mut Renderer| {
+                let mut c = culling::create_named(name, &setup).expect(name);
+                r.set_blended_tests(0, u64::MAX);
+                let (all, reference) = common::frame(r, c.as_mut(), &bvh, pose(), 0);
+                let mut c = culling::create_named(name, &setup).expect(name);
+                r.set_blended_tests(0, 0);
+                let (tested, pixels) = common::frame(r, c.as_mut(), &bvh, pose(), 0);
+                (all, reference, tested, pixels)
+            };
+            let (all, reference, tested, pixels) = off_then_on(&mut r);
             let d = common::diff_pixels(&reference, &pixels);
             assert_eq!(
                 d, 0,
@@ -490,12 +494,7 @@ fn many_blended_objects_are_tested_against_the_opaque_depth() {
             // their turn to be tested again comes: fewer queries, the same image.
             let mut blended_queries = Vec::new();
             for f in 1..=8 {
-                let mut fresh = culling::create_named(name, &setup).expect(name);
-                r.set_blended_tests(0, u64::MAX);
-                let (all, _) = common::frame(&mut r, fresh.as_mut(), &bvh, pose(), 0);
-                let mut fresh = culling::create_named(name, &setup).expect(name);
-                r.set_blended_tests(0, 0);
-                let (t, px) = common::frame(&mut r, fresh.as_mut(), &bvh, pose(), 0);
+                let (all, _, t, px) = off_then_on(&mut r);
                 assert_eq!(common::diff_pixels(&reference, &px), 0, "{name} frame {f}");
                 blended_queries.push(t.counts.queries_begun - all.counts.queries_begun);
             }
