@@ -147,6 +147,8 @@ pub struct Renderer {
     blended: Vec<u32>,
     /// Scratch of a frame's blended draws: (squared distance of the box centre, object).
     blend_order: Vec<(f32, u32)>,
+    /// Scratch: the predicate of each of `blend_order` (`None`: drawn without a test).
+    blend_predicates: Vec<Option<QueryId>>,
     /// The view of the frame being recorded.
     frame_view: Option<CameraView>,
     /// Whether this frame's blended objects were drawn (once a frame, however often the
@@ -277,6 +279,7 @@ impl Renderer {
             box_oracle: None,
             blended,
             blend_order: Vec::new(),
+            blend_predicates: Vec::new(),
             frame_view: None,
             blended_drawn: false,
             blended_tests: (BLENDED_TEST_TRIANGLES, BLENDED_TEST_TOTAL),
@@ -1954,10 +1957,13 @@ impl Renderer {
     /// After the frame has completed: what each blended object's test found decides its next
     /// tests ([`Renderer::record_blended`]); the queries count as read.
     pub(crate) fn read_blended_tests(&mut self) -> Result<()> {
-        for (i, q) in std::mem::take(&mut self.blended_queries) {
+        for k in 0..self.blended_queries.len() {
+            let (i, q) = self.blended_queries[k];
             let samples = self.query_result(q)?.unwrap_or(1);
             self.blended_seen[i] = samples > 0;
         }
+        // Cleared, not dropped: its room serves the next frame.
+        self.blended_queries.clear();
         Ok(())
     }
 
@@ -1993,65 +1999,78 @@ impl Renderer {
     }
 
     /// Draws `blend_order` (see [`Renderer::record_blended`]), each under the predicate of a
-    /// query of its box when `test`.
+    /// query of its box when `test` (and the object is due a test).
     fn draw_blended_order(&mut self, test: bool) -> Result<()> {
+        // Scratch kept by the renderer: nothing allocates once they have grown.
         let order = std::mem::take(&mut self.blend_order);
-        let mut predicates = Vec::new();
-        if let Some(view) = self.frame_view.filter(|_| test) {
-            let view = coherent_cull::View::new(&view);
-            let (heavy, total) = self.blended_tests;
-            let frame = self.frames_begun;
-            let (blended, seen) = (&self.blended, &self.blended_seen);
-            // Its index in `blended`, when it is tested this frame.
-            let tested = |o: u32, d: &ObjectDraw| {
-                let i = blended.binary_search(&o).ok()?;
-                let due = !seen[i] || (frame + i as u64).is_multiple_of(BLENDED_RETEST);
-                (due && d.index_count / 3 >= heavy && !view.eye_inside(&d.bounds)).then_some(i)
-            };
-            let marked: Vec<Option<usize>> = order
-                .iter()
-                .map(|&(_, o)| tested(o, &self.objects[o as usize]))
-                .collect();
-            let sum: u64 = order
-                .iter()
-                .zip(&marked)
-                .filter(|(_, i)| i.is_some())
-                .map(|(&(_, o), _)| u64::from(self.objects[o as usize].index_count / 3))
-                .sum();
-            if sum >= total && total < u64::MAX {
-                for (&(_, o), i) in order.iter().zip(&marked) {
-                    let q = match i {
-                        Some(i) => {
-                            let q = self.record_query(&[self.objects[o as usize].bounds], None)?;
-                            self.blended_queries.push((*i, q));
-                            Some(q)
-                        }
-                        None => None,
-                    };
-                    predicates.push(q);
-                }
-            }
-            if !self.blended_queries.is_empty() {
-                OcclusionBackend::resolve_predicates(self)?;
-            }
+        let mut predicates = std::mem::take(&mut self.blend_predicates);
+        predicates.clear();
+        let drawn = match self.frame_view.filter(|_| test) {
+            Some(view) => self.test_blended(&order, &view, &mut predicates),
+            None => Ok(()),
         }
+        .and_then(|()| self.draw_blended(&order, &predicates));
+        self.blend_order = order;
+        self.blend_predicates = predicates;
+        drawn
+    }
+
+    /// Queries the boxes of the objects of `order` that are due a test (heavy enough, last
+    /// found hidden or due a re-test, the eye outside), when they hold enough triangles
+    /// together, and resolves them: `predicates` gets each object's query, `None` for one
+    /// drawn without a test.
+    fn test_blended(
+        &mut self,
+        order: &[(f32, u32)],
+        view: &CameraView,
+        predicates: &mut Vec<Option<QueryId>>,
+    ) -> Result<()> {
+        let view = coherent_cull::View::new(view);
+        let (heavy, total) = self.blended_tests;
+        let frame = self.frames_begun;
+        // Object `o`'s index in `blended`, when it is tested this frame.
+        let due = |r: &Renderer, o: u32| {
+            let d = &r.objects[o as usize];
+            let i = r.blended.binary_search(&o).ok()?;
+            let again = !r.blended_seen[i] || (frame + i as u64).is_multiple_of(BLENDED_RETEST);
+            (again && d.index_count / 3 >= heavy && !view.eye_inside(&d.bounds)).then_some(i)
+        };
+        let sum: u64 = order
+            .iter()
+            .filter(|&&(_, o)| due(self, o).is_some())
+            .map(|&(_, o)| u64::from(self.objects[o as usize].index_count / 3))
+            .sum();
+        if sum < total || total == u64::MAX {
+            return Ok(());
+        }
+        for &(_, o) in order {
+            let q = match due(self, o) {
+                Some(i) => {
+                    let q = self.record_query(&[self.objects[o as usize].bounds], None)?;
+                    self.blended_queries.push((i, q));
+                    Some(q)
+                }
+                None => None,
+            };
+            predicates.push(q);
+        }
+        if !self.blended_queries.is_empty() {
+            OcclusionBackend::resolve_predicates(self)?;
+        }
+        Ok(())
+    }
+
+    /// Draws the objects of `order`, blended, each in a conditional block on its entry of
+    /// `predicates` when it has one.
+    fn draw_blended(&mut self, order: &[(f32, u32)], predicates: &[Option<QueryId>]) -> Result<()> {
         if !order.is_empty() {
             self.bind_scene_buffers();
         }
         for (k, &(_, o)) in order.iter().enumerate() {
             let d = self.objects[o as usize];
             let predicate = predicates.get(k).copied().flatten();
-            let pipeline = match &self.pipelines.blended {
-                Some([one_sided, two_sided]) => {
-                    if d.double_sided {
-                        two_sided
-                    } else {
-                        one_sided
-                    }
-                }
-                None => &self.pipelines.render,
-            };
-            self.recorder.bind_pipeline(pipeline);
+            self.recorder
+                .bind_pipeline(self.pipelines.blended_pipeline(d.double_sided));
             if self.pipelines.materials && d.set != self.bound_set {
                 self.recorder
                     .bind_texture_set(&self.pipelines.layout, self.descriptors.get(d.set as usize));
@@ -2067,7 +2086,6 @@ impl Renderer {
                 self.end_predicated();
             }
         }
-        self.blend_order = order;
         Ok(())
     }
 

@@ -188,6 +188,21 @@ impl ScenePipelines {
         Ok(())
     }
 
+    /// The pipeline a blended object is drawn with: blended, two-sided or not; the render
+    /// pipeline in a scene without the blended ones (no materials).
+    pub fn blended_pipeline(&self, two_sided: bool) -> &Pipeline {
+        match &self.blended {
+            Some([one_sided, both]) => {
+                if two_sided {
+                    both
+                } else {
+                    one_sided
+                }
+            }
+            None => &self.render,
+        }
+    }
+
     /// The material pipeline for an object: masked or not, two-sided or not (when the
     /// two-sided variants exist), the render or the ID pass.
     pub fn material_pipeline(&self, masked: bool, two_sided: bool, ids: bool) -> &Pipeline {
