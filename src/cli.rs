@@ -597,7 +597,13 @@ fn walk_scale_movers(
         bvh_of(&scene, a.scene.leaf_size),
         bvh_of(&fixed, a.scene.leaf_size),
     );
-    let baseline = static_baseline(&a.algorithms);
+    // Without fixed objects (a glTF file whose animation moves everything) there is no
+    // static scene to compare with.
+    let baseline = if fixed.objects.is_empty() {
+        Vec::new()
+    } else {
+        static_baseline(&a.algorithms)
+    };
     let mut cfg = cfg.clone();
     // pvs is built on the scene without movers: it cannot know where they go, so it draws
     // them frustum-culled only (their ids lie past the PVS's objects).
@@ -613,7 +619,7 @@ fn walk_scale_movers(
     )?;
     let cfg = &cfg;
     println!(
-        "walk: {} (scale {scale}: {} objects, {} of them movers), path {}, {} frames + {} warm-up, {w}x{h}, {} (+ {} without movers) on {}",
+        "walk: {} (scale {scale}: {} objects, {} of them movers), path {}, {} frames + {} warm-up, {w}x{h}, {}{} on {}",
         scene.name,
         scene.objects.len(),
         movers.len(),
@@ -621,7 +627,11 @@ fn walk_scale_movers(
         a.frames,
         a.warmup,
         a.algorithms.join(", "),
-        baseline.join(", "),
+        if baseline.is_empty() {
+            String::new()
+        } else {
+            format!(" (+ {} without movers)", baseline.join(", "))
+        },
         ctx.info.name
     );
     let (records, stats) = run_movers_walk(
@@ -650,6 +660,9 @@ fn walk_scale_movers(
         stats.rebuilds,
         &records,
     );
+    let mut ms = ms;
+    ms.skinned_meshes = movers.skinned_meshes();
+    ms.pose_ms_median = coherent::app::report::median(&mut stats.pose_ms.clone());
     summary.movers = Some(ms.clone());
     summary.write_json(&dir.join("summary.json"))?;
     let reference = a.algorithms.iter().any(|x| x == "oracle");
@@ -752,8 +765,15 @@ fn print_mover_draws(summary: &coherent::app::report::WalkSummary, dir: &std::pa
 
 /// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.
 fn print_movers(ms: &coherent::app::report::summary::MoverSummary) {
+    let skinned = match ms.skinned_meshes {
+        0 => String::new(),
+        n => format!(
+            ", {n} skinned mesh(es) posed in pose_ms_median {:.3}",
+            ms.pose_ms_median
+        ),
+    };
     println!(
-        "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}",
+        "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}{skinned}",
         ms.movers, ms.refit_ms_median, ms.refit_ms_max, ms.rebuilds
     );
     for (name, s) in &ms.vs_static {

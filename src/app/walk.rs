@@ -205,6 +205,18 @@ pub struct MoverStats {
     pub refit_ms: Vec<f64>,
     /// Full rebuilds during the walk.
     pub rebuilds: u32,
+    /// Per recorded frame: milliseconds to pose the skinned meshes of a glTF animation and
+    /// write their vertices (0 without them).
+    pub pose_ms: Vec<f64>,
+}
+
+/// What [`place_movers`] spent.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Placed {
+    /// Milliseconds on the hierarchy (set_bounds and update).
+    pub hierarchy_ms: f64,
+    /// Milliseconds posing skinned meshes and writing their vertices.
+    pub pose_ms: f64,
 }
 
 /// [`run`] with movers: before each pose, every mover goes to its place for that frame (its
@@ -247,9 +259,10 @@ pub fn run_with_movers(
             None => Vec::new(),
         };
         for i in 0..total {
-            let ms = place_movers(walk.movers, i as u64, bvh, renderer)?;
+            let placed = place_movers(walk.movers, i as u64, bvh, renderer)?;
             if i >= cfg.warmup {
-                stats.refit_ms.push(ms);
+                stats.refit_ms.push(placed.hierarchy_ms);
+                stats.pose_ms.push(placed.pose_ms);
             }
             let pose = path.sample(i, total);
             let camera = renderer.camera(pose, bvh);
@@ -373,15 +386,20 @@ fn create_all(
         .collect()
 }
 
-/// Puts every mover at its place for `frame` (box into `bvh`, transform into the renderer),
-/// updates `bvh`, and returns the milliseconds spent on the hierarchy (set_bounds + update).
+/// Puts every mover at its place for `frame` (skinned vertices and transform into the
+/// renderer, box into `bvh`), updates `bvh`, and returns what that took.
 pub fn place_movers(
     movers: &crate::scene::movers::Movers,
     frame: u64,
     bvh: &mut ObjectBvh,
     renderer: &mut Renderer,
-) -> Result<f64> {
+) -> Result<Placed> {
     let mut hierarchy = std::time::Duration::ZERO;
+    let t = std::time::Instant::now();
+    movers.for_each_deformed(frame, |first, vertices| {
+        renderer.set_vertices(first, vertices)
+    })?;
+    let pose = t.elapsed();
     movers.for_each_at(frame, |object, bounds, transform| {
         let t = std::time::Instant::now();
         bvh.set_bounds(object, bounds)?;
@@ -392,7 +410,10 @@ pub fn place_movers(
     let t = std::time::Instant::now();
     bvh.update();
     hierarchy += t.elapsed();
-    Ok(hierarchy.as_secs_f64() * 1e3)
+    Ok(Placed {
+        hierarchy_ms: hierarchy.as_secs_f64() * 1e3,
+        pose_ms: pose.as_secs_f64() * 1e3,
+    })
 }
 
 #[cfg(test)]

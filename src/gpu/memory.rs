@@ -119,6 +119,11 @@ impl Buffer {
         self.allocation.as_ref().and_then(|a| a.mapped_slice())
     }
 
+    /// The mapped bytes for writing, if host-visible.
+    pub fn mapped_mut(&mut self) -> Option<&mut [u8]> {
+        self.allocation.as_mut().and_then(|a| a.mapped_slice_mut())
+    }
+
     /// Writes `data` at `offset` into a host-visible buffer.
     pub fn write(&mut self, offset: usize, data: &[u8]) -> Result<()> {
         let slice = self

@@ -94,6 +94,8 @@ pub struct Renderer {
     /// The descriptor set bound in the segment being recorded.
     bound_set: u32,
     vertex_buffer: Buffer,
+    /// Bytes of one vertex in `vertex_buffer` (position and normal first).
+    vertex_stride: usize,
     index_buffer: Buffer,
     /// Per-object data (the descriptor set points at it); host-visible, rewritten between
     /// frames for objects that move.
@@ -247,6 +249,11 @@ impl Renderer {
             materials,
             bound_set: 0,
             vertex_buffer: uploaded.vertices,
+            vertex_stride: if scene.has_materials() {
+                passes::MATERIAL_VERTEX_STRIDE as usize
+            } else {
+                std::mem::size_of::<crate::scene::Vertex>()
+            },
             index_buffer: uploaded.indices,
             object_buffer: uploaded.objects,
             object_slots: (scene.objects.len() + spare).max(1),
@@ -301,6 +308,35 @@ impl Renderer {
         let offset = object as usize * upload::OBJECT_FLOATS * 4;
         let data = upload::object_data(transform, glam::Vec4::ZERO);
         self.object_buffer.write(offset, bytes_of(&data[..32]))
+    }
+
+    /// Rewrites the positions and normals of the scene's vertices from `first_vertex` on (a
+    /// skinned mesh posed anew, [`Movers::for_each_deformed`]); their other attributes stay.
+    /// Call between frames, as [`Renderer::set_object_transform`].
+    ///
+    /// [`Movers::for_each_deformed`]: crate::scene::movers::Movers::for_each_deformed
+    pub fn set_vertices(
+        &mut self,
+        first_vertex: u32,
+        vertices: &[crate::scene::Vertex],
+    ) -> Result<()> {
+        let stride = self.vertex_stride;
+        let start = first_vertex as usize * stride;
+        let end = start + vertices.len() * stride;
+        let Some(mapped) = self.vertex_buffer.mapped_mut() else {
+            return Err(Error::Alloc("the vertex buffer is not host-visible".into()));
+        };
+        let Some(range) = mapped.get_mut(start..end) else {
+            return Err(Error::Input(format!(
+                "vertices {first_vertex}..{} are past the scene's {}",
+                first_vertex as usize + vertices.len(),
+                mapped.len() / stride
+            )));
+        };
+        for (dst, v) in range.chunks_exact_mut(stride).zip(vertices) {
+            dst[..24].copy_from_slice(bytemuck::bytes_of(v));
+        }
+        Ok(())
     }
 
     /// Sets the world-space bounds of `object` (after it moved), for GPU-driven culling, which

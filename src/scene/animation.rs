@@ -2,15 +2,17 @@
 //! a translation, rotation or scale channel animates are kept out of [`Scene::objects`] and
 //! become movers when [`Movers::add`](super::movers::Movers::add) places them, so every
 //! algorithm culls them as it culls the built-in movers (exactly, with their boxes in the
-//! hierarchy each frame). Skinned meshes stay in their default pose; morph weights are not
-//! animated.
+//! hierarchy each frame). A skinned mesh whose joints it moves is played too: its vertices
+//! are skinned again on the CPU for each frame ([`Animation::pose_skins`]) and its object is a
+//! mover whose box is that of its posed vertices. Morph weights are not animated.
 //!
 //! [`Scene::objects`]: super::Scene::objects
 
 use glam::{Mat4, Vec3};
 
 use super::gltf_ext::{local_at, Channel, Trs};
-use super::{Aabb, Object};
+use super::gltf_skin::{pose_vertex, Influences};
+use super::{Aabb, Object, Vertex};
 
 /// Frames of a walk per second of animation time.
 pub const ANIMATION_FPS: f32 = 30.0;
@@ -24,6 +26,85 @@ pub struct Animation {
     channels: Vec<Channel>,
     /// Seconds of one loop (the last key of any channel).
     duration: f32,
+    /// The objects that draw skinned meshes it deforms.
+    pub skinned: Vec<SkinnedObject>,
+    /// The skinned meshes it deforms.
+    meshes: Vec<SkinnedMesh>,
+    /// The skins of those meshes.
+    rigs: Vec<Rig>,
+    /// Every node of the file: its parent and rest transform (empty without skinned meshes).
+    nodes: Vec<RestNode>,
+    /// The nodes reachable from a root, each after its parent.
+    order: Vec<usize>,
+    /// Whether a channel animates the node or a node above it.
+    moved: Vec<bool>,
+}
+
+/// A node of the file, for posing joints: its parent and its rest transform.
+#[derive(Clone, Debug)]
+pub(super) struct RestNode {
+    pub parent: Option<usize>,
+    pub rest: Trs,
+}
+
+/// A skin that the animation plays: its joints' nodes and their inverse bind matrices.
+#[derive(Clone, Debug)]
+pub(super) struct Rig {
+    pub joints: Vec<usize>,
+    pub inverse_bind: Vec<Mat4>,
+}
+
+/// The vertices of one skinned primitive that the animation deforms: its own range of the
+/// scene's vertices.
+#[derive(Clone, Debug)]
+pub(super) struct SkinnedMesh {
+    /// Its first vertex in the scene's vertices.
+    pub first_vertex: u32,
+    /// Positions and normals before skinning (morphed by the default weights).
+    pub rest: Vec<Vertex>,
+    /// Positions and normals in the default pose, as loaded (kept where a pose fails).
+    pub loaded: Vec<Vertex>,
+    pub influences: Influences,
+    pub rig: usize,
+    /// The node that holds it: vertices without weight follow it.
+    pub node: usize,
+}
+
+/// An object that draws a skinned mesh the animation deforms.
+#[derive(Clone, Debug)]
+pub struct SkinnedObject {
+    /// The object in the default pose (its transform places the skinned vertices: the
+    /// identity, or its `EXT_mesh_gpu_instancing` transform, times `--scale`).
+    pub object: Object,
+    /// Its mesh in [`Animation::pose_skins`]' meshes.
+    pub mesh: usize,
+}
+
+/// The skinned meshes at one frame, from [`Animation::pose_skins`]: scratch that is reused.
+#[derive(Clone, Debug, Default)]
+pub struct SkinPose {
+    /// The frame posed (`None`: nothing posed yet).
+    pub frame: Option<u64>,
+    world: Vec<Mat4>,
+    joints: Vec<Mat4>,
+    /// Every mesh's posed vertices, mesh after mesh.
+    vertices: Vec<Vertex>,
+    /// Mesh `i`'s vertices are `vertices[start[i]..start[i + 1]]`.
+    start: Vec<usize>,
+    /// Each mesh's box, posed.
+    bounds: Vec<Aabb>,
+}
+
+impl SkinPose {
+    /// Mesh `i`'s first vertex in the scene and its posed vertices.
+    pub fn mesh(&self, i: usize) -> &[Vertex] {
+        &self.vertices[self.start[i]..self.start[i + 1]]
+    }
+
+    /// Mesh `i`'s box, posed.
+    pub fn bounds(&self, i: usize) -> Aabb {
+        self.bounds[i]
+    }
 }
 
 /// One object under an animated node.
@@ -51,6 +132,122 @@ impl Animation {
             objects: Vec::new(),
             channels,
             duration,
+            ..Animation::default()
+        }
+    }
+
+    /// Gives the file's nodes (each with its parent and rest transform) and the order in which
+    /// they are posed (each after its parent), for the skins it may play.
+    pub(super) fn set_nodes(&mut self, nodes: Vec<RestNode>, order: Vec<usize>) {
+        let mut moved = vec![false; nodes.len()];
+        for &n in &order {
+            moved[n] =
+                self.animates(n) || nodes[n].parent.is_some_and(|p| moved.get(p) == Some(&true));
+        }
+        self.nodes = nodes;
+        self.order = order;
+        self.moved = moved;
+    }
+
+    /// Whether the animation moves a joint among `joints` (nodes), which a skin then follows.
+    pub(super) fn moves_any(&self, joints: &[usize]) -> bool {
+        joints.iter().any(|&j| self.moved.get(j) == Some(&true))
+    }
+
+    /// Adds a skin the animation plays; returns its index.
+    pub(super) fn add_rig(&mut self, rig: Rig) -> usize {
+        self.rigs.push(rig);
+        self.rigs.len() - 1
+    }
+
+    /// Adds a skinned mesh the animation deforms; returns its index.
+    pub(super) fn add_skinned_mesh(&mut self, mesh: SkinnedMesh) -> usize {
+        self.meshes.push(mesh);
+        self.meshes.len() - 1
+    }
+
+    /// Adds an object that draws skinned mesh `mesh`.
+    pub(super) fn add_skinned(&mut self, object: Object, mesh: usize) {
+        self.skinned.push(SkinnedObject { object, mesh });
+    }
+
+    /// The number of skinned meshes it deforms.
+    pub fn skinned_meshes(&self) -> usize {
+        self.meshes.len()
+    }
+
+    /// Skinned mesh `i`'s first vertex in the scene's vertices.
+    pub fn skinned_first_vertex(&self, i: usize) -> u32 {
+        self.meshes[i].first_vertex
+    }
+
+    /// Poses every skinned mesh at walk frame `frame` into `pose` (nothing to do when it
+    /// holds that frame already): the joints' nodes at the animation's time, then each
+    /// vertex by its joints' matrices. A mesh whose pose is not finite, or reaches farther
+    /// than a loaded vertex may lie, keeps its loaded vertices.
+    pub fn pose_skins(&self, frame: u64, pose: &mut SkinPose) {
+        if pose.frame == Some(frame) && pose.start.len() == self.meshes.len() + 1 {
+            return;
+        }
+        pose.frame = Some(frame);
+        let t = self.time_at(frame);
+        pose.world.clear();
+        pose.world.resize(self.nodes.len(), Mat4::IDENTITY);
+        for &n in &self.order {
+            let node = &self.nodes[n];
+            let parent = node.parent.map_or(Mat4::IDENTITY, |p| pose.world[p]);
+            pose.world[n] = parent * local_at(node.rest, self.channels_of(n), t);
+        }
+        pose.vertices.clear();
+        pose.start.clear();
+        pose.bounds.clear();
+        pose.start.push(0);
+        for mesh in &self.meshes {
+            let rig = &self.rigs[mesh.rig];
+            pose.joints.clear();
+            pose.joints.extend(
+                rig.joints
+                    .iter()
+                    .zip(&rig.inverse_bind)
+                    .map(|(&j, ibm)| pose.world[j] * *ibm),
+            );
+            let fallback = pose.world[mesh.node];
+            let first = pose.vertices.len();
+            let mut bounds = Aabb::EMPTY;
+            let mut finite = true;
+            for (i, v) in mesh.rest.iter().enumerate() {
+                let m = mesh.influences.matrix(i, &pose.joints, fallback);
+                let (p, normal, _) =
+                    pose_vertex(&m, Vec3::from_array(v.position), Vec3::from_array(v.normal));
+                finite &= p.is_finite();
+                bounds.grow(p);
+                pose.vertices.push(Vertex {
+                    position: p.to_array(),
+                    normal: normal
+                        .unwrap_or(Vec3::from_array(mesh.loaded[i].normal))
+                        .to_array(),
+                });
+            }
+            let reach = bounds.min.abs().max(bounds.max.abs()).max_element();
+            if !finite || reach.is_nan() || reach > super::gltf::MAX_COORDINATE {
+                pose.vertices.truncate(first);
+                pose.vertices.extend_from_slice(&mesh.loaded);
+                bounds = mesh.loaded.iter().fold(Aabb::EMPTY, |mut b, v| {
+                    b.grow(Vec3::from_array(v.position));
+                    b
+                });
+            }
+            pose.start.push(pose.vertices.len());
+            pose.bounds.push(bounds);
+        }
+    }
+
+    /// The animation's time at walk frame `frame`, in seconds (it loops).
+    fn time_at(&self, frame: u64) -> f32 {
+        if self.duration > 0.0 {
+            (frame as f32 / ANIMATION_FPS) % self.duration
+        } else {
+            0.0
         }
     }
 
@@ -99,12 +296,7 @@ impl Animation {
     /// that is not finite, or that takes the object farther from the origin than a loaded
     /// vertex may lie, falls back to the object's start).
     pub fn transform_at(&self, i: usize, frame: u64) -> Mat4 {
-        let t = if self.duration > 0.0 {
-            (frame as f32 / ANIMATION_FPS) % self.duration
-        } else {
-            0.0
-        };
-        self.transform_of(&self.objects[i], t)
+        self.transform_of(&self.objects[i], self.time_at(frame))
     }
 
     fn transform_of(&self, a: &AnimatedObject, t: f32) -> Mat4 {
@@ -129,6 +321,13 @@ impl Animation {
             a.parent = m * a.parent;
             a.object.transform = m * a.object.transform;
             a.object.bounds = a.local.transformed(&a.object.transform);
+        }
+        for s in &mut self.skinned {
+            s.object.transform = m * s.object.transform;
+            s.object.bounds = Aabb {
+                min: s.object.bounds.min * factor,
+                max: s.object.bounds.max * factor,
+            };
         }
     }
 }

@@ -63,6 +63,8 @@ struct PrimGeom {
     bounds: Aabb,
     color: Vec4,
     material: Option<u32>,
+    /// For a skinned mesh that the animation deforms, its index there.
+    skinned: Option<usize>,
 }
 
 /// A mesh in one pose: its index, for a skinned node that node (its skinned vertices are its
@@ -80,6 +82,8 @@ struct MeshKey {
 struct Pose {
     weights: Vec<f32>,
     skin: Option<super::gltf_skin::SkinPose>,
+    /// For a skinned node whose joints the animation moves: the node and its rig there.
+    played: Option<(usize, usize)>,
 }
 
 /// Accumulates shared geometry and objects while walking the document.
@@ -95,6 +99,8 @@ struct Loader<'a> {
     world: Vec<Option<Mat4>>,
     /// The joint matrices of each skin used so far.
     skins: HashMap<usize, Vec<Mat4>>,
+    /// The animation's rig of each skin it plays, by skin index.
+    rigs: HashMap<usize, usize>,
     /// The file's first animation and the objects it moves.
     animation: super::animation::Animation,
     /// The `EXT_mesh_gpu_instancing` transforms of each node read so far (a node that several
@@ -121,7 +127,11 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     super::gltf_ext::decode_meshopt(&document, &mut buffers)?;
 
     let mut warnings = super::gltf_ext::unsupported_warnings(&document);
-    let animation = first_animation(&document, &buffers, &mut warnings);
+    let mut animation = first_animation(&document, &buffers, &mut warnings);
+    if document.skins().len() > 0 {
+        let (nodes, order) = rest_nodes(&document);
+        animation.set_nodes(nodes, order);
+    }
     let mut loader = Loader {
         doc: &document,
         buffers: &buffers,
@@ -136,6 +146,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
             Vec::new()
         },
         skins: HashMap::new(),
+        rigs: HashMap::new(),
         node_instances: HashMap::new(),
         animation,
         mirrored: HashMap::new(),
@@ -146,25 +157,22 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     for root in root_nodes(&document) {
         loader.walk(&document, root)?;
     }
-    let mut animation = std::mem::take(&mut loader.animation);
+    let animation = std::mem::take(&mut loader.animation);
     let animations = document.animations().len();
-    let kept_still = loader.objects.is_empty() && !animation.objects.is_empty();
-    if kept_still {
-        // Nothing would stand still: the moving objects stay where they start, as a scene
-        // needs fixed geometry to find its paths on.
-        loader.warnings.push(format!(
-            "animation 0 moves every object: not played ({animations} animation(s) in the \
-             file), the scene is drawn where it starts"
-        ));
-        loader
-            .objects
-            .extend(animation.objects.drain(..).map(|a| a.object));
-    }
-    let moved = animation.objects.len();
+    let moved = animation.objects.len() + animation.skinned.len();
     if moved > 0 {
+        let skinned = match animation.skinned_meshes() {
+            0 => String::new(),
+            n => format!(", {n} skinned mesh(es) posed on the CPU each frame"),
+        };
+        let still = if loader.objects.is_empty() {
+            " (nothing stands still: paths are found on their start)"
+        } else {
+            ""
+        };
         loader.warnings.push(format!(
             "animation 0 moves {moved} object(s): they are movers, placed every frame ({} \
-             frames a second, a loop of {:.2} s){}",
+             frames a second, a loop of {:.2} s{skinned}){still}{}",
             super::animation::ANIMATION_FPS,
             animation.duration(),
             match animations - 1 {
@@ -172,12 +180,12 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
                 n => format!("; {n} other animation(s) not played"),
             }
         ));
-    } else if animations > 0 && !kept_still {
+    } else if animations > 0 {
         loader.warnings.push(format!(
             "{animations} animation(s) not played: the scene is drawn in its default pose"
         ));
     }
-    if loader.objects.is_empty() {
+    if loader.objects.is_empty() && moved == 0 {
         return Err("no triangle geometry".to_string());
     }
 
@@ -185,6 +193,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         .objects
         .iter()
         .chain(animation.objects.iter().map(|a| &a.object))
+        .chain(animation.skinned.iter().map(|a| &a.object))
         .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
     let name = path
         .file_stem()
@@ -200,7 +209,12 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         &mut loader.warnings,
     ));
     let mut mats = loader.materials;
-    let moving = animation.objects.iter().filter_map(|a| a.object.material);
+    let moving = animation
+        .objects
+        .iter()
+        .map(|a| &a.object)
+        .chain(animation.skinned.iter().map(|a| &a.object))
+        .filter_map(|o| o.material);
     mats.settle_opaque_blends(&mut loader.objects, &loader.attributes, moving);
     loader.warnings.extend(mats.warnings());
     let attributes = if mats.attributes_used || !mats.materials.is_empty() {
@@ -433,6 +447,52 @@ fn root_nodes(doc: &Document) -> Vec<Node<'_>> {
 }
 
 /// Every node that is nobody's child.
+/// Vertices of `positions` and `normals`, pairwise.
+fn vertices_of(positions: &[Vec3], normals: &[Vec3]) -> Vec<Vertex> {
+    positions
+        .iter()
+        .zip(normals)
+        .map(|(p, n)| Vertex {
+            position: p.to_array(),
+            normal: n.to_array(),
+        })
+        .collect()
+}
+
+/// Every node's parent and rest transform, and the nodes reachable from a parentless node in
+/// an order that puts each after its parent (a node under several parents keeps the first;
+/// nodes only a cycle reaches are left out of the order).
+fn rest_nodes(doc: &Document) -> (Vec<super::animation::RestNode>, Vec<usize>) {
+    let mut nodes: Vec<super::animation::RestNode> = doc
+        .nodes()
+        .map(|n| super::animation::RestNode {
+            parent: None,
+            rest: super::gltf_ext::rest_trs(&n),
+        })
+        .collect();
+    let mut seen = vec![false; nodes.len()];
+    let mut order = Vec::new();
+    let mut stack: Vec<(Node<'_>, Option<usize>)> = parentless_nodes(doc)
+        .into_iter()
+        .rev()
+        .map(|n| (n, None))
+        .collect();
+    while let Some((node, parent)) = stack.pop() {
+        let i = node.index();
+        if seen.get(i) != Some(&false) {
+            continue;
+        }
+        seen[i] = true;
+        nodes[i].parent = parent;
+        order.push(i);
+        let children: Vec<_> = node.children().collect();
+        for c in children.into_iter().rev() {
+            stack.push((c, Some(i)));
+        }
+    }
+    (nodes, order)
+}
+
 pub(super) fn parentless_nodes(doc: &Document) -> Vec<Node<'_>> {
     let mut is_child = vec![false; doc.nodes().len()];
     for node in doc.nodes() {
@@ -548,6 +608,12 @@ impl Loader<'_> {
                         }),
                         None => None,
                     },
+                    played: match node.skin() {
+                        Some(skin) => self
+                            .rig(&skin, node.index())?
+                            .map(|rig| (node.index(), rig)),
+                        None => None,
+                    },
                 };
                 let geoms = self.mesh_geometry(&mesh, &node, &pose)?;
                 // glTF: the transform of a node that holds a skinned mesh is ignored; its
@@ -596,9 +662,11 @@ impl Loader<'_> {
                             bounds,
                             material: geom.material,
                         };
-                        // Skinned vertices are posed once, in world space: they do not move.
-                        match (&animated, &pose.skin) {
-                            (Some((above, chain)), None) => self.animation.add(
+                        // Skinned vertices are in world space: they move only when the
+                        // animation moves their joints (and then each frame is skinned anew).
+                        match (&animated, &pose.skin, geom.skinned) {
+                            (_, Some(_), Some(mesh)) => self.animation.add_skinned(object, mesh),
+                            (Some((above, chain)), None, _) => self.animation.add(
                                 object,
                                 geom.bounds,
                                 *above,
@@ -728,6 +796,26 @@ impl Loader<'_> {
         bounds
     }
 
+    /// The animation's rig for `skin` held by node `node` when the animation moves one of
+    /// the skin's joints or the node (which its vertices without weight follow); `None` when
+    /// it leaves them still. Each skin's rig is made once.
+    fn rig(&mut self, skin: &::gltf::Skin<'_>, node: usize) -> Result<Option<usize>, String> {
+        let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+        if !self.animation.moves_any(&joints) && !self.animation.moves_any(&[node]) {
+            return Ok(None);
+        }
+        if let Some(&r) = self.rigs.get(&skin.index()) {
+            return Ok(Some(r));
+        }
+        let inverse_bind = super::gltf_skin::inverse_bind_matrices(skin, self.buffers)?;
+        let r = self.animation.add_rig(super::animation::Rig {
+            joints,
+            inverse_bind,
+        });
+        self.rigs.insert(skin.index(), r);
+        Ok(Some(r))
+    }
+
     /// The joint matrices of `skin`, computed on first use.
     fn joint_matrices(&mut self, skin: &::gltf::Skin<'_>) -> Result<Vec<Mat4>, String> {
         if let Some(m) = self.skins.get(&skin.index()) {
@@ -820,14 +908,20 @@ impl Loader<'_> {
             draco,
             morph.normals.as_deref(),
         )?;
+        let mut played = None;
         if let Some(skin) = &pose.skin {
+            let rest: Vec<Vertex> = match pose.played {
+                Some(_) => vertices_of(&positions, &normals),
+                None => Vec::new(),
+            };
             let triangles = super::gltf_skin::Triangles {
                 positions: &mut positions,
                 normals: &mut normals,
                 indices: &mut indices,
             };
-            let valid =
+            let (valid, influences) =
                 super::gltf_skin::skin_vertices(prim, skin, self.buffers, draco, triangles, label)?;
+            played = pose.played.map(|(node, rig)| (node, rig, rest, influences));
             if valid.contains(&false) {
                 let computed = computed_normals(&positions, &indices);
                 for ((n, c), ok) in normals.iter_mut().zip(computed).zip(valid) {
@@ -843,8 +937,25 @@ impl Loader<'_> {
             primitive_attributes(prim, self.buffers, positions.len(), label, draco)?;
         self.materials.attributes_used |= found;
         let material = self.materials.material(&gm, self.doc, self.buffers);
-        let mut geom = self.append_geometry(&positions, &normals, &attributes, &indices, color)?;
+        let own = played.is_some();
+        let mut geom =
+            self.append_geometry(&positions, &normals, &attributes, &indices, color, own)?;
         geom.material = material;
+        if let Some((node, rig, rest, influences)) = played {
+            let range =
+                geom.vertex_offset as usize..(geom.vertex_offset + geom.vertex_count) as usize;
+            geom.skinned = Some(
+                self.animation
+                    .add_skinned_mesh(super::animation::SkinnedMesh {
+                        first_vertex: geom.vertex_offset,
+                        rest,
+                        loaded: self.vertices[range].to_vec(),
+                        influences,
+                        rig,
+                        node,
+                    }),
+            );
+        }
         Ok(Some(geom))
     }
 
@@ -929,15 +1040,9 @@ impl Loader<'_> {
         attributes: &[VertexAttributes],
         indices: &[u32],
         color: Vec4,
+        own: bool,
     ) -> Result<PrimGeom, String> {
-        let vertices: Vec<Vertex> = positions
-            .iter()
-            .zip(normals)
-            .map(|(p, nrm)| Vertex {
-                position: p.to_array(),
-                normal: nrm.to_array(),
-            })
-            .collect();
+        let vertices = vertices_of(positions, normals);
         let n = vertices.len();
         let key = {
             use std::hash::{Hash, Hasher};
@@ -953,9 +1058,9 @@ impl Loader<'_> {
                     == bytemuck::cast_slice::<Vertex, u8>(&vertices)
                 && self.attributes[range] == *attributes
         };
-        let shared = self
-            .vertex_ranges
-            .get(&key)
+        let shared = (!own)
+            .then(|| self.vertex_ranges.get(&key))
+            .flatten()
             .and_then(|ranges| ranges.iter().find(|r| same(r)))
             .map(|&(offset, _)| offset);
         let appended = if shared.is_some() { 0 } else { n };
@@ -987,10 +1092,12 @@ impl Loader<'_> {
             self.attributes
                 .resize(vertex_offset as usize, VertexAttributes::default());
             self.attributes.extend_from_slice(attributes);
-            self.vertex_ranges
-                .entry(key)
-                .or_default()
-                .push((vertex_offset, n as u32));
+            if !own {
+                self.vertex_ranges
+                    .entry(key)
+                    .or_default()
+                    .push((vertex_offset, n as u32));
+            }
         }
         self.indices.extend_from_slice(indices);
         Ok(PrimGeom {
@@ -1001,6 +1108,7 @@ impl Loader<'_> {
             bounds,
             color,
             material: None,
+            skinned: None,
         })
     }
 
@@ -1552,6 +1660,54 @@ pub mod testdata {
             .push(r#"{"mesh":0,"skin":0,"translation":[100,0,0]}"#.to_string());
         b.scene_nodes = Some(vec![0, 2]);
         b.head = format!(r#""skins":[{{"joints":[0,1],"inverseBindMatrices":{ibm}}}],"#);
+        b
+    }
+
+    /// A wall (node 0: a cube scaled to 6 x 3 x 0.5 at (0, 1.5, 0)) and, 3 m behind it, a
+    /// unit column skinned to two joints: its bottom four corners to joint node 1 at (0, 0.5,
+    /// -3), its top four to joint node 2, a child of node 1 that the first animation lifts by
+    /// `lift` and back over 2 s (node 3 holds the mesh). In the default pose the column hides
+    /// behind the wall; lifted by 4 its top shows above it from a camera at (0, 1.5, 8).
+    pub fn skinned_column(lift: f32) -> GltfBuilder {
+        let mut b = GltfBuilder::default();
+        let wall = b.cube_mesh([0.8, 0.8, 0.8, 1.0]);
+        b.nodes.push(format!(
+            r#"{{"mesh":{wall},"translation":[0,1.5,0],"scale":[6,3,0.5]}}"#
+        ));
+        let (positions, normals, indices) = cube();
+        let pos = b.vec3(&positions);
+        let nrm = b.vec3(&normals);
+        let idx = b.indices_u16(&indices);
+        let joints: Vec<u8> = positions
+            .iter()
+            .flat_map(|p| [u8::from(p[1] > 0.0), 0, 0, 0])
+            .collect();
+        let j = b.view(&joints);
+        let j = b.accessor(j, 5121, "VEC4", positions.len());
+        let weights: Vec<u8> = positions
+            .iter()
+            .flat_map(|_| [1.0f32, 0.0, 0.0, 0.0])
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        let w = b.view(&weights);
+        let w = b.accessor(w, 5126, "VEC4", positions.len());
+        b.materials
+            .push(r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.9,0.2,0.1,1]}}"#.to_string());
+        let material = b.materials.len() - 1;
+        b.meshes.push(format!(
+            r#"{{"name":"column","primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm},"JOINTS_0":{j},"WEIGHTS_0":{w}}},"indices":{idx},"material":{material}}}]}}"#
+        ));
+        let column = b.meshes.len() - 1;
+        b.nodes
+            .push(r#"{"translation":[0,0.5,-3],"children":[2]}"#.to_string());
+        b.nodes.push(r#"{"translation":[0,0,0]}"#.to_string());
+        b.nodes.push(format!(r#"{{"mesh":{column},"skin":0}}"#));
+        b.scene_nodes = Some(vec![0, 1, 3]);
+        let times = b.key_times(&[0.0, 1.0, 2.0]);
+        let lifted = b.vec3(&[[0.0; 3], [0.0, lift, 0.0], [0.0; 3]]);
+        b.head = format!(
+            r#""skins":[{{"joints":[1,2]}}],"animations":[{{"samplers":[{{"input":{times},"output":{lifted}}}],"channels":[{{"sampler":0,"target":{{"node":2,"path":"translation"}}}}]}}],"#
+        );
         b
     }
 
@@ -2303,6 +2459,105 @@ mod tests {
         let movers = crate::scene::movers::Movers::add(&mut scene, 0);
         assert_eq!(movers.transform_at(0, 30), movers.transform_at(0, 0));
         assert_ne!(movers.transform_at(0, 1), movers.transform_at(0, 0));
+    }
+
+    /// A skinned mesh whose joint the first animation moves is a mover: each frame its
+    /// vertices are skinned again at the animation's time and its box is theirs.
+    #[test]
+    fn skinned_meshes_follow_the_joints_their_animation_moves() {
+        use super::testdata::skinned_column;
+        let dir = temp_dir("skin_anim");
+        let path = write(&dir, "column.gltf", skinned_column(4.0).gltf_embedded());
+        let (mut scene, warnings) = load_gltf(&path).expect("load");
+        assert_eq!(
+            warnings,
+            [
+                "animation 0 moves 1 object(s): they are movers, placed every frame (30 frames a \
+              second, a loop of 2.00 s, 1 skinned mesh(es) posed on the CPU each frame)"
+            ]
+        );
+        assert_eq!(scene.objects.len(), 1, "the wall stands still");
+        scene.magnify(2.0);
+        let movers = crate::scene::movers::Movers::add(&mut scene, 0);
+        assert_eq!(movers.skinned_meshes(), 1);
+        assert_eq!((movers.len(), scene.objects.len()), (1, 2));
+        let column = &scene.objects[1];
+        let range =
+            column.vertex_offset as usize..(column.vertex_offset + column.vertex_count) as usize;
+        let pose = |frame: u64| {
+            let mut posed = Vec::new();
+            movers
+                .for_each_deformed(frame, |first, v| {
+                    assert_eq!(first as usize, range.start);
+                    posed = v.to_vec();
+                    Ok(())
+                })
+                .unwrap();
+            let mut placed = None;
+            movers
+                .for_each_at(frame, |object, bounds, transform| {
+                    placed = Some((object, bounds, *transform));
+                    Ok(())
+                })
+                .unwrap();
+            (posed, placed.unwrap())
+        };
+        let top = |v: &[Vertex]| v.iter().map(|v| v.position[1]).fold(f32::MIN, f32::max);
+        // Frame 0: the default pose (y 0..1, 3 m behind the wall); the scene's vertices hold it.
+        let (v0, (object, b0, t0)) = pose(0);
+        assert_eq!(object, 1);
+        assert_eq!(v0.len(), range.len());
+        assert_eq!(scene.vertices[range.clone()], v0[..]);
+        assert_eq!(top(&v0), 1.0);
+        // Frame 15 is 0.5 s: the top corners are lifted by 2, the bottom ones stay; frame 30
+        // (1 s) lifts them by 4; frame 60 loops to the start. `--scale 2` is the transform.
+        let (v15, (_, b15, _)) = pose(15);
+        assert_eq!(top(&v15), 3.0);
+        for (a, b) in v0.iter().zip(&v15) {
+            let lifted = if a.position[1] > 0.5 { 2.0 } else { 0.0 };
+            assert_eq!(b.position[1], a.position[1] + lifted);
+            assert_eq!(
+                (b.position[0], b.position[2]),
+                (a.position[0], a.position[2])
+            );
+        }
+        assert_eq!(top(&pose(30).0), 5.0);
+        assert_eq!(pose(60).0, v0);
+        assert_eq!(t0, glam::Mat4::from_scale(Vec3::splat(2.0)));
+        // The boxes are the posed vertices' (twice as large): the default one is 0..2 high,
+        // the one at 0.5 s 0..6.
+        assert_eq!((b0.min.y, b0.max.y), (0.0, 2.0));
+        assert_eq!((b15.min.y, b15.max.y), (0.0, 6.0));
+        assert_eq!((b15.min.z, b15.max.z), (-7.0, -5.0));
+        // Posing the same frame again gives the same vertices.
+        assert_eq!(pose(15).0, v15);
+
+        // A pose that takes the column past MAX_COORDINATE keeps its loaded vertices there.
+        let path = write(&dir, "far.gltf", skinned_column(1.0e13).gltf_embedded());
+        let (mut scene, _) = load_gltf(&path).expect("load far");
+        let movers = crate::scene::movers::Movers::add(&mut scene, 0);
+        let posed = |frame: u64| {
+            let mut posed = Vec::new();
+            movers
+                .for_each_deformed(frame, |_, v| {
+                    posed = v.to_vec();
+                    Ok(())
+                })
+                .unwrap();
+            posed
+        };
+        assert_eq!(posed(30), posed(0));
+        assert_ne!(posed(1), posed(0));
+
+        // Without the animation the column is posed once and stands still.
+        let mut b = skinned_column(4.0);
+        b.head = r#""skins":[{"joints":[1,2]}],"#.to_string();
+        let path = write(&dir, "still.gltf", b.gltf_embedded());
+        let (mut scene, warnings) = load_gltf(&path).expect("load still");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        let movers = crate::scene::movers::Movers::add(&mut scene, 0);
+        assert!(movers.skinned_meshes() == 0 && movers.is_empty());
+        assert_eq!(scene.objects.len(), 2);
     }
 
     /// A BLEND material whose alpha is one everywhere on an object is drawn opaque there (and

@@ -1,5 +1,7 @@
 //! The default pose of glTF meshes: morph targets at their default weights and skins at their
-//! joints' node transforms, applied to the vertices once at load (nothing is animated).
+//! joints' node transforms, applied to the vertices once at load. A skin whose joints the
+//! first animation moves keeps its vertices' influences ([`Influences`]) and is posed again
+//! each frame ([`super::animation::Animation::pose_skins`]).
 //!
 //! glTF 2.0 (sections "Morph Targets" and "Skins"): a morphed position is the base position
 //! plus the sum of each target's displacement times its weight (the node's `weights`, else the
@@ -40,41 +42,8 @@ pub(super) fn joint_matrices(
     buffers: &[Data],
 ) -> Result<Vec<Mat4>, String> {
     let label = format!("skin {}", skin.index());
-    let joints: Vec<Node<'_>> = skin.joints().collect();
-    let inverse_bind = match skin.inverse_bind_matrices() {
-        None => vec![Mat4::IDENTITY; joints.len()],
-        Some(acc) => {
-            let at =
-                |e: String| format!("{label}: inverseBindMatrices accessor {}: {e}", acc.index());
-            if acc.dimensions() != Dimensions::Mat4 || acc.data_type() != DataType::F32 {
-                return Err(at(format!(
-                    "{:?} {:?} elements, not float MAT4",
-                    acc.data_type(),
-                    acc.dimensions()
-                )));
-            }
-            if acc.count() < joints.len() {
-                return Err(at(format!(
-                    "{} matrices for {} joints",
-                    acc.count(),
-                    joints.len()
-                )));
-            }
-            let (bytes, stride) = super::gltf::check_accessor(&acc, buffers).map_err(at)?;
-            (0..joints.len())
-                .map(|i| {
-                    let mut m = [0.0f32; 16];
-                    for (k, c) in m.iter_mut().enumerate() {
-                        let b = &bytes[i * stride + 4 * k..];
-                        *c = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                    }
-                    Mat4::from_cols_array(&m)
-                })
-                .collect()
-        }
-    };
-    joints
-        .iter()
+    let inverse_bind = inverse_bind_matrices(skin, buffers)?;
+    skin.joints()
         .zip(inverse_bind)
         .map(|(joint, ibm)| {
             let w =
@@ -92,6 +61,40 @@ pub(super) fn joint_matrices(
             }
         })
         .collect()
+}
+
+/// The inverse bind matrix of each joint of `skin` (the identity when it has none).
+pub(super) fn inverse_bind_matrices(
+    skin: &Skin<'_>,
+    buffers: &[Data],
+) -> Result<Vec<Mat4>, String> {
+    let label = format!("skin {}", skin.index());
+    let joints = skin.joints().len();
+    let Some(acc) = skin.inverse_bind_matrices() else {
+        return Ok(vec![Mat4::IDENTITY; joints]);
+    };
+    let at = |e: String| format!("{label}: inverseBindMatrices accessor {}: {e}", acc.index());
+    if acc.dimensions() != Dimensions::Mat4 || acc.data_type() != DataType::F32 {
+        return Err(at(format!(
+            "{:?} {:?} elements, not float MAT4",
+            acc.data_type(),
+            acc.dimensions()
+        )));
+    }
+    if acc.count() < joints {
+        return Err(at(format!("{} matrices for {joints} joints", acc.count())));
+    }
+    let (bytes, stride) = super::gltf::check_accessor(&acc, buffers).map_err(at)?;
+    Ok((0..joints)
+        .map(|i| {
+            let mut m = [0.0f32; 16];
+            for (k, c) in m.iter_mut().enumerate() {
+                let b = &bytes[i * stride + 4 * k..];
+                *c = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            }
+            Mat4::from_cols_array(&m)
+        })
+        .collect())
 }
 
 /// The displacements of a primitive's positions and normals under its morph targets (`None`
@@ -157,10 +160,93 @@ pub(super) struct Triangles<'a> {
     pub indices: &'a mut [u32],
 }
 
+/// Each vertex's joint influences: the (joint, weight) pairs of its `JOINTS_n`/`WEIGHTS_n`
+/// sets whose weight is finite and positive.
+#[derive(Clone, Debug, Default)]
+pub(super) struct Influences {
+    /// Vertex `i`'s pairs are `pairs[start[i]..start[i + 1]]`.
+    start: Vec<u32>,
+    pairs: Vec<(u32, f32)>,
+}
+
+impl Influences {
+    /// The influences of `prim`'s `n` vertices.
+    pub fn read(
+        prim: &Primitive<'_>,
+        draco: Option<&DracoPrimitive>,
+        n: usize,
+        buffers: &[Data],
+        label: &str,
+    ) -> Result<Influences, String> {
+        let mut per_vertex: Vec<Vec<(u32, f32)>> = vec![Vec::new(); n];
+        for set in 0..MAX_INFLUENCE_SETS {
+            let (Some(js), Some(ws)) = (
+                influence_set(prim, draco, Semantic::Joints(set), n, buffers, label)?,
+                influence_set(prim, draco, Semantic::Weights(set), n, buffers, label)?,
+            ) else {
+                break;
+            };
+            for (v, (j, w)) in per_vertex.iter_mut().zip(js.iter().zip(&ws)) {
+                for k in 0..4 {
+                    if w[k].is_finite() && w[k] > 0.0 {
+                        v.push((j[k] as u32, w[k]));
+                    }
+                }
+            }
+        }
+        let mut out = Influences {
+            start: Vec::with_capacity(n + 1),
+            pairs: Vec::new(),
+        };
+        out.start.push(0);
+        for v in per_vertex {
+            out.pairs.extend(v);
+            let end = u32::try_from(out.pairs.len())
+                .map_err(|_| format!("{label}: too many joint influences"))?;
+            out.start.push(end);
+        }
+        Ok(out)
+    }
+
+    /// Vertex `i`'s (joint, weight) pairs.
+    pub fn of(&self, i: usize) -> &[(u32, f32)] {
+        &self.pairs[self.start[i] as usize..self.start[i + 1] as usize]
+    }
+
+    /// Vertex `i`'s skin matrix: its joints' matrices weighted by their share of its total
+    /// weight, or `fallback` when it has no weight. Every joint must be in `joints`.
+    pub fn matrix(&self, i: usize, joints: &[Mat4], fallback: Mat4) -> Mat4 {
+        let inf = self.of(i);
+        let total: f32 = inf.iter().map(|&(_, w)| w).sum();
+        if total > 0.0 {
+            inf.iter().fold(Mat4::ZERO, |m, &(j, w)| {
+                m + joints[j as usize] * (w / total)
+            })
+        } else {
+            fallback
+        }
+    }
+}
+
+/// `position` and `normal` moved by skin matrix `m`: the normal by its inverse transpose and
+/// normalized (`None` where `m` makes it unusable), and whether `m` mirrors.
+pub(super) fn pose_vertex(m: &Mat4, position: Vec3, normal: Vec3) -> (Vec3, Option<Vec3>, bool) {
+    let p = m.transform_point3(position);
+    let m3 = Mat3::from_mat4(*m);
+    let det = m3.determinant();
+    let n = if det.abs() > f32::MIN_POSITIVE {
+        m3.inverse().transpose() * normal
+    } else {
+        m3 * normal
+    };
+    (p, n.try_normalize(), det < 0.0)
+}
+
 /// Moves `prim`'s positions and normals by `skin` into world space, and turns over the
 /// winding of each triangle whose first vertex's skin matrix mirrors. A vertex without weight
 /// keeps the node's transform instead of collapsing to the origin. Normals that the skin makes
-/// unusable are returned as `false` in the mask for the caller to recompute.
+/// unusable are returned as `false` in the mask for the caller to recompute. Returns the
+/// vertices' influences too (for a skin that an animation plays).
 pub(super) fn skin_vertices(
     prim: &Primitive<'_>,
     skin: &SkinPose,
@@ -168,7 +254,7 @@ pub(super) fn skin_vertices(
     draco: Option<&DracoPrimitive>,
     t: Triangles<'_>,
     label: &str,
-) -> Result<Vec<bool>, String> {
+) -> Result<(Vec<bool>, Influences), String> {
     let Triangles {
         positions,
         normals,
@@ -176,55 +262,30 @@ pub(super) fn skin_vertices(
     } = t;
     let (joints, fallback) = (&skin.joints, skin.fallback);
     let n = positions.len();
-    let mut influences: Vec<Vec<(u32, f32)>> = vec![Vec::new(); n];
-    for set in 0..MAX_INFLUENCE_SETS {
-        let (Some(js), Some(ws)) = (
-            influence_set(prim, draco, Semantic::Joints(set), n, buffers, label)?,
-            influence_set(prim, draco, Semantic::Weights(set), n, buffers, label)?,
-        ) else {
-            break;
-        };
-        for (v, (j, w)) in influences.iter_mut().zip(js.iter().zip(&ws)) {
-            for k in 0..4 {
-                if w[k].is_finite() && w[k] > 0.0 {
-                    v.push((j[k] as u32, w[k]));
-                }
-            }
+    let influences = Influences::read(prim, draco, n, buffers, label)?;
+    for i in 0..n {
+        if let Some(&(j, _)) = influences
+            .of(i)
+            .iter()
+            .find(|&&(j, _)| j as usize >= joints.len())
+        {
+            return Err(format!(
+                "{label}: vertex {i} names joint {j} of a skin with {} joints",
+                joints.len()
+            ));
         }
     }
     let mut mirrors = vec![false; n];
     let mut valid = vec![true; n];
-    for (i, inf) in influences.iter().enumerate() {
-        let total: f32 = inf.iter().map(|&(_, w)| w).sum();
-        let m = if total > 0.0 {
-            let mut m = Mat4::ZERO;
-            for &(j, w) in inf {
-                let joint = joints.get(j as usize).ok_or_else(|| {
-                    format!(
-                        "{label}: vertex {i} names joint {j} of a skin with {} joints",
-                        joints.len()
-                    )
-                })?;
-                m += *joint * (w / total);
-            }
-            m
-        } else {
-            fallback
-        };
-        let p = m.transform_point3(positions[i]);
+    for i in 0..n {
+        let m = influences.matrix(i, joints, fallback);
+        let (p, normal, mirrored) = pose_vertex(&m, positions[i], normals[i]);
         if !p.is_finite() {
             return Err(format!("{label}: vertex {i} is not finite after skinning"));
         }
         positions[i] = p;
-        let m3 = Mat3::from_mat4(m);
-        let det = m3.determinant();
-        mirrors[i] = det < 0.0;
-        let normal = if det.abs() > f32::MIN_POSITIVE {
-            m3.inverse().transpose() * normals[i]
-        } else {
-            m3 * normals[i]
-        };
-        match normal.try_normalize() {
+        mirrors[i] = mirrored;
+        match normal {
             Some(unit) => normals[i] = unit,
             None => valid[i] = false,
         }
@@ -234,7 +295,7 @@ pub(super) fn skin_vertices(
             t.swap(1, 2);
         }
     }
-    Ok(valid)
+    Ok((valid, influences))
 }
 
 /// One `JOINTS_n` or `WEIGHTS_n` attribute of the `n` vertices (from the primitive's Draco
