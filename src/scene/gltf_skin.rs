@@ -228,16 +228,18 @@ impl Influences {
     }
 }
 
-/// `position` and `normal` moved by skin matrix `m`: the normal by its inverse transpose and
+/// `position` and `normal` moved by skin matrix `m`: the normal by its inverse transpose (as
+/// the cofactor matrix times the sign of the determinant, which needs no division) and
 /// normalized (`None` where `m` makes it unusable), and whether `m` mirrors.
 pub(super) fn pose_vertex(m: &Mat4, position: Vec3, normal: Vec3) -> (Vec3, Option<Vec3>, bool) {
     let p = m.transform_point3(position);
-    let m3 = Mat3::from_mat4(*m);
-    let det = m3.determinant();
+    let (a, b, c) = (m.x_axis.truncate(), m.y_axis.truncate(), m.z_axis.truncate());
+    let cofactor = Mat3::from_cols(b.cross(c), c.cross(a), a.cross(b));
+    let det = a.dot(b.cross(c));
     let n = if det.abs() > f32::MIN_POSITIVE {
-        m3.inverse().transpose() * normal
+        cofactor * normal * det.signum()
     } else {
-        m3 * normal
+        Mat3::from_cols(a, b, c) * normal
     };
     (p, n.try_normalize(), det < 0.0)
 }
