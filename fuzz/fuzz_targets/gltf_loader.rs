@@ -42,6 +42,26 @@ fuzz_target!(|data: &[u8]| {
                     assert!(m.is_finite(), "mover {i} at frame {frame}: {m}");
                 }
             }
+            // Skinned meshes posed at a few frames: finite vertices inside the scene's, finite
+            // boxes.
+            for frame in [0, 7, 1000] {
+                movers
+                    .for_each_deformed(frame, |first, vertices| {
+                        let end = first as usize + vertices.len();
+                        assert!(end <= scene.vertices.len(), "posed vertices past the scene's");
+                        assert!(vertices
+                            .iter()
+                            .all(|v| v.position.iter().chain(&v.normal).all(|c| c.is_finite())));
+                        Ok(())
+                    })
+                    .expect("posed");
+                movers
+                    .for_each_at(frame, |_, bounds, _| {
+                        assert!(bounds.min.is_finite() && bounds.max.is_finite());
+                        Ok(())
+                    })
+                    .expect("placed");
+            }
         }
         Err(e) => {
             let text = e.to_string();

@@ -8,7 +8,9 @@ use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::sync::Once;
 
-use coherent::scene::gltf::testdata::{cube_grid_glb, skinned_triangles, GltfBuilder};
+use coherent::scene::gltf::testdata::{
+    cube_grid_glb, skinned_column, skinned_triangles, GltfBuilder,
+};
 use coherent::scene::Scene;
 
 thread_local! {
@@ -150,6 +152,11 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     b.node(glass, [0.0, 0.0, 0.0]);
     b.node(solid, [0.0, 0.0, -3.0]);
     out.push(("blend.gltf", b.gltf_embedded().into_bytes()));
+    // A skinned column whose animation lifts one of its joints: posed every frame.
+    out.push((
+        "skinned_anim.gltf",
+        skinned_column(4.0).gltf_embedded().into_bytes(),
+    ));
 
     // A node whose mesh EXT_mesh_gpu_instancing places twice.
     let mut b = GltfBuilder::default();
@@ -326,6 +333,10 @@ fn seed_corpus_loads() {
         if name == "blend.gltf" {
             let blended: Vec<bool> = (0..2).map(|o| scene.is_blended(o)).collect();
             assert_eq!(blended, [true, false], "the BLEND seed");
+        }
+        if name == "skinned_anim.gltf" {
+            let skinned = scene.animation.as_ref().map_or(0, |a| a.skinned.len());
+            assert_eq!(skinned, 1, "the skinned seed plays no skin");
         }
         if name == "animated.glb" {
             assert!(scene.animation.is_some(), "the animated seed moves nothing");
