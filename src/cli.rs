@@ -661,7 +661,7 @@ fn walk_scale_movers(
         &records,
     );
     let mut ms = ms;
-    ms.skinned_meshes = movers.skinned_meshes();
+    ms.deformed_meshes = movers.deformed_meshes();
     ms.pose_ms_median = coherent::app::report::median(&mut stats.pose_ms.clone());
     summary.movers = Some(ms.clone());
     summary.write_json(&dir.join("summary.json"))?;
@@ -765,10 +765,10 @@ fn print_mover_draws(summary: &coherent::app::report::WalkSummary, dir: &std::pa
 
 /// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.
 fn print_movers(ms: &coherent::app::report::summary::MoverSummary) {
-    let skinned = match ms.skinned_meshes {
+    let skinned = match ms.deformed_meshes {
         0 => String::new(),
         n => format!(
-            ", {n} skinned mesh(es) posed in pose_ms_median {:.3}",
+            ", {n} mesh(es) skinned or morphed in pose_ms_median {:.3}",
             ms.pose_ms_median
         ),
     };

@@ -205,7 +205,7 @@ pub struct MoverStats {
     pub refit_ms: Vec<f64>,
     /// Full rebuilds during the walk.
     pub rebuilds: u32,
-    /// Per recorded frame: milliseconds to pose the skinned meshes of a glTF animation and
+    /// Per recorded frame: milliseconds to pose the deformed meshes of a glTF animation and
     /// write their vertices (0 without them).
     pub pose_ms: Vec<f64>,
 }
@@ -215,7 +215,7 @@ pub struct MoverStats {
 pub struct Placed {
     /// Milliseconds on the hierarchy (set_bounds and update).
     pub hierarchy_ms: f64,
-    /// Milliseconds posing skinned meshes and writing their vertices.
+    /// Milliseconds posing deformed meshes (skins, morph weights) and writing their vertices.
     pub pose_ms: f64,
 }
 
@@ -386,7 +386,7 @@ fn create_all(
         .collect()
 }
 
-/// Puts every mover at its place for `frame` (skinned vertices and transform into the
+/// Puts every mover at its place for `frame` (deformed vertices and transform into the
 /// renderer, box into `bvh`), updates `bvh`, and returns what that took.
 pub fn place_movers(
     movers: &crate::scene::movers::Movers,

@@ -2,15 +2,16 @@
 //! a translation, rotation or scale channel animates are kept out of [`Scene::objects`] and
 //! become movers when [`Movers::add`](super::movers::Movers::add) places them, so every
 //! algorithm culls them as it culls the built-in movers (exactly, with their boxes in the
-//! hierarchy each frame). A skinned mesh whose joints it moves is played too: its vertices
-//! are skinned again on the CPU for each frame ([`Animation::pose_skins`]) and its object is a
-//! mover whose box is that of its posed vertices. Morph weights are not animated.
+//! hierarchy each frame). A mesh it deforms is played too: a skinned mesh whose joints (or
+//! node) it moves, or a mesh whose morph weights it animates. Its vertices are morphed and
+//! skinned again on the CPU for each frame ([`Animation::pose_meshes`]) and its object is a
+//! mover whose box is that of its posed vertices.
 //!
 //! [`Scene::objects`]: super::Scene::objects
 
 use glam::{Mat4, Vec3};
 
-use super::gltf_ext::{local_at, Channel, Trs};
+use super::gltf_ext::{local_at, Channel, Trs, WeightsChannel};
 use super::gltf_skin::{pose_vertex, Influences};
 use super::{Aabb, Object, Vertex};
 
@@ -24,12 +25,14 @@ pub struct Animation {
     pub objects: Vec<AnimatedObject>,
     /// Sorted by node (stably: of two channels of one property, the later still wins).
     channels: Vec<Channel>,
+    /// Morph-weights channels, sorted by node (the first of a node is played).
+    weights: Vec<WeightsChannel>,
     /// Seconds of one loop (the last key of any channel).
     duration: f32,
-    /// The objects that draw skinned meshes it deforms.
-    pub skinned: Vec<SkinnedObject>,
-    /// The skinned meshes it deforms.
-    meshes: Vec<SkinnedMesh>,
+    /// The objects that draw meshes it deforms.
+    pub deformed: Vec<DeformedObject>,
+    /// The meshes it deforms.
+    meshes: Vec<DeformedMesh>,
     /// The skins of those meshes.
     rigs: Vec<Rig>,
     /// Every node of the file: its parent and rest transform (empty without skinned meshes).
@@ -54,39 +57,55 @@ pub(super) struct Rig {
     pub inverse_bind: Vec<Mat4>,
 }
 
-/// The vertices of one skinned primitive that the animation deforms: its own range of the
-/// scene's vertices.
+/// The vertices of one primitive that the animation deforms: its own range of the scene's
+/// vertices.
 #[derive(Clone, Debug)]
-pub(super) struct SkinnedMesh {
+pub(super) struct DeformedMesh {
     /// Its first vertex in the scene's vertices.
     pub first_vertex: u32,
-    /// Positions and normals before skinning (morphed by the default weights).
+    /// Positions and normals before skinning, and before morphing when its weights are
+    /// animated (else morphed by the default weights).
     pub rest: Vec<Vertex>,
-    /// Positions and normals in the default pose, as loaded (kept where a pose fails).
+    /// Positions and normals as loaded (kept where a pose fails).
     pub loaded: Vec<Vertex>,
-    pub influences: Influences,
-    pub rig: usize,
-    /// The node that holds it: vertices without weight follow it.
+    /// Its vertices' joint influences and its rig, when skinned.
+    pub skin: Option<(Influences, usize)>,
+    /// Its morph targets' displacements (positions, normals), when its weights are animated.
+    pub targets: Vec<TargetDeltas>,
+    /// The node that holds it: vertices without weight follow it, its weights are its.
     pub node: usize,
 }
 
-/// An object that draws a skinned mesh the animation deforms.
+/// Where an object hangs from animated nodes: the world transform above the topmost one, the
+/// nodes from it down (index and rest transform), its instance transform and its
+/// object-space box.
+pub(super) type Place = (Mat4, Vec<(usize, Trs)>, Mat4, Aabb);
+
+/// One morph target's displacements of a primitive's positions and normals.
+pub(super) type TargetDeltas = (Option<Vec<Vec3>>, Option<Vec<Vec3>>);
+
+/// An object that draws a mesh the animation deforms.
 #[derive(Clone, Debug)]
-pub struct SkinnedObject {
-    /// The object in the default pose (its transform places the skinned vertices: the
-    /// identity, or its `EXT_mesh_gpu_instancing` transform, times `--scale`).
+pub struct DeformedObject {
+    /// The object at the animation's start (for a skinned mesh its transform is the
+    /// identity, or its `EXT_mesh_gpu_instancing` transform, times `--scale`; for a morphed
+    /// one its node's).
     pub object: Object,
-    /// Its mesh in [`Animation::pose_skins`]' meshes.
+    /// Its mesh in [`Animation::pose_meshes`]' meshes.
     pub mesh: usize,
+    /// Where it hangs when a channel moves a node above an unskinned morphed mesh.
+    place: Option<AnimatedObject>,
 }
 
-/// The skinned meshes at one frame, from [`Animation::pose_skins`]: scratch that is reused.
+/// The deformed meshes at one frame, from [`Animation::pose_meshes`]: scratch that is reused.
 #[derive(Clone, Debug, Default)]
-pub struct SkinPose {
+pub struct MeshPose {
     /// The frame posed (`None`: nothing posed yet).
     pub frame: Option<u64>,
     world: Vec<Mat4>,
     joints: Vec<Mat4>,
+    weights: Vec<f32>,
+    morphed: Vec<Vertex>,
     /// Every mesh's posed vertices, mesh after mesh.
     vertices: Vec<Vertex>,
     /// Mesh `i`'s vertices are `vertices[start[i]..start[i + 1]]`.
@@ -95,7 +114,7 @@ pub struct SkinPose {
     bounds: Vec<Aabb>,
 }
 
-impl SkinPose {
+impl MeshPose {
     /// Mesh `i`'s first vertex in the scene and its posed vertices.
     pub fn mesh(&self, i: usize) -> &[Vertex] {
         &self.vertices[self.start[i]..self.start[i + 1]]
@@ -124,16 +143,28 @@ pub struct AnimatedObject {
 
 impl Animation {
     /// An animation of `channels` (translation, rotation and scale channels of one glTF
-    /// animation) with no objects yet.
-    pub(super) fn new(mut channels: Vec<Channel>) -> Animation {
+    /// animation) and `weights` (its morph-weights channels) with no objects yet.
+    pub(super) fn new(mut channels: Vec<Channel>, mut weights: Vec<WeightsChannel>) -> Animation {
         channels.sort_by_key(|c| c.node);
-        let duration = channels.iter().map(Channel::end).fold(0.0, f32::max);
+        weights.sort_by_key(|w| w.node);
+        let duration = channels
+            .iter()
+            .map(Channel::end)
+            .chain(weights.iter().map(WeightsChannel::end))
+            .fold(0.0, f32::max);
         Animation {
             objects: Vec::new(),
             channels,
+            weights,
             duration,
             ..Animation::default()
         }
+    }
+
+    /// The morph-weights channel of node `node`, if it has one.
+    pub(super) fn weights_of(&self, node: usize) -> Option<&WeightsChannel> {
+        let i = self.weights.partition_point(|w| w.node < node);
+        self.weights.get(i).filter(|w| w.node == node)
     }
 
     /// Gives the file's nodes (each with its parent and rest transform) and the order in which
@@ -160,32 +191,57 @@ impl Animation {
         self.rigs.len() - 1
     }
 
-    /// Adds a skinned mesh the animation deforms; returns its index.
-    pub(super) fn add_skinned_mesh(&mut self, mesh: SkinnedMesh) -> usize {
+    /// Adds a mesh the animation deforms; returns its index.
+    pub(super) fn add_deformed_mesh(&mut self, mesh: DeformedMesh) -> usize {
         self.meshes.push(mesh);
         self.meshes.len() - 1
     }
 
-    /// Adds an object that draws skinned mesh `mesh`.
-    pub(super) fn add_skinned(&mut self, object: Object, mesh: usize) {
-        self.skinned.push(SkinnedObject { object, mesh });
+    /// Adds an object that draws deformed mesh `mesh`; `place` (the world transform above
+    /// the topmost animated node, the nodes from it down, the instance transform and the
+    /// object-space box) when a channel moves a node above an unskinned morphed mesh.
+    pub(super) fn add_deformed(&mut self, mut object: Object, mesh: usize, place: Option<Place>) {
+        let place = place.map(|(parent, chain, instance, local)| AnimatedObject {
+            object: object.clone(),
+            local,
+            parent,
+            chain,
+            instance,
+        });
+        if let Some(a) = &place {
+            object.transform = self.transform_of(a, 0.0);
+        }
+        self.deformed.push(DeformedObject {
+            object,
+            mesh,
+            place,
+        });
     }
 
-    /// The number of skinned meshes it deforms.
-    pub fn skinned_meshes(&self) -> usize {
+    /// The number of meshes it deforms.
+    pub fn deformed_meshes(&self) -> usize {
         self.meshes.len()
     }
 
-    /// Skinned mesh `i`'s first vertex in the scene's vertices.
-    pub fn skinned_first_vertex(&self, i: usize) -> u32 {
+    /// Deformed mesh `i`'s first vertex in the scene's vertices.
+    pub fn deformed_first_vertex(&self, i: usize) -> u32 {
         self.meshes[i].first_vertex
     }
 
-    /// Poses every skinned mesh at walk frame `frame` into `pose` (nothing to do when it
-    /// holds that frame already): the joints' nodes at the animation's time, then each
-    /// vertex by its joints' matrices. A mesh whose pose is not finite, or reaches farther
-    /// than a loaded vertex may lie, keeps its loaded vertices.
-    pub fn pose_skins(&self, frame: u64, pose: &mut SkinPose) {
+    /// Deformed object `i`'s world transform at walk frame `frame`.
+    pub fn deformed_transform(&self, i: usize, frame: u64) -> Mat4 {
+        let d = &self.deformed[i];
+        match &d.place {
+            Some(a) => self.transform_of(a, self.time_at(frame)),
+            None => d.object.transform,
+        }
+    }
+
+    /// Poses every deformed mesh at walk frame `frame` into `pose` (nothing to do when it
+    /// holds that frame already): its weights at the animation's time morph it, then its
+    /// joints' nodes at that time skin it. A mesh whose pose is not finite, or reaches
+    /// farther than a loaded vertex may lie, keeps its loaded vertices.
+    pub fn pose_meshes(&self, frame: u64, pose: &mut MeshPose) {
         if pose.frame == Some(frame) && pose.start.len() == self.meshes.len() + 1 {
             return;
         }
@@ -202,43 +258,78 @@ impl Animation {
         pose.start.clear();
         pose.bounds.clear();
         pose.start.push(0);
+        let MeshPose {
+            world,
+            joints,
+            weights,
+            morphed,
+            vertices,
+            start,
+            bounds: boxes,
+            ..
+        } = pose;
         for mesh in &self.meshes {
-            let rig = &self.rigs[mesh.rig];
-            pose.joints.clear();
-            pose.joints.extend(
-                rig.joints
-                    .iter()
-                    .zip(&rig.inverse_bind)
-                    .map(|(&j, ibm)| pose.world[j] * *ibm),
-            );
-            let fallback = pose.world[mesh.node];
-            let first = pose.vertices.len();
+            let source = if mesh.targets.is_empty() {
+                &mesh.rest
+            } else {
+                match self.weights_of(mesh.node) {
+                    Some(w) => w.at(t, weights),
+                    None => weights.clear(),
+                }
+                morph(&mesh.rest, &mesh.targets, weights, morphed);
+                &*morphed
+            };
+            let first = vertices.len();
             let mut bounds = Aabb::EMPTY;
             let mut finite = true;
-            for (i, v) in mesh.rest.iter().enumerate() {
-                let m = mesh.influences.matrix(i, &pose.joints, fallback);
-                let (p, normal, _) =
-                    pose_vertex(&m, Vec3::from_array(v.position), Vec3::from_array(v.normal));
-                finite &= p.is_finite();
-                bounds.grow(p);
-                pose.vertices.push(Vertex {
-                    position: p.to_array(),
-                    normal: normal
-                        .unwrap_or(Vec3::from_array(mesh.loaded[i].normal))
-                        .to_array(),
-                });
+            match &mesh.skin {
+                Some((influences, rig)) => {
+                    let rig = &self.rigs[*rig];
+                    joints.clear();
+                    joints.extend(
+                        rig.joints
+                            .iter()
+                            .zip(&rig.inverse_bind)
+                            .map(|(&j, ibm)| world[j] * *ibm),
+                    );
+                    let fallback = world[mesh.node];
+                    for (i, v) in source.iter().enumerate() {
+                        let m = influences.matrix(i, joints, fallback);
+                        let (p, normal, _) = pose_vertex(
+                            &m,
+                            Vec3::from_array(v.position),
+                            Vec3::from_array(v.normal),
+                        );
+                        finite &= p.is_finite();
+                        bounds.grow(p);
+                        vertices.push(Vertex {
+                            position: p.to_array(),
+                            normal: normal
+                                .unwrap_or(Vec3::from_array(mesh.loaded[i].normal))
+                                .to_array(),
+                        });
+                    }
+                }
+                None => {
+                    for v in source {
+                        let p = Vec3::from_array(v.position);
+                        finite &= p.is_finite();
+                        bounds.grow(p);
+                        vertices.push(*v);
+                    }
+                }
             }
             let reach = bounds.min.abs().max(bounds.max.abs()).max_element();
             if !finite || reach.is_nan() || reach > super::gltf::MAX_COORDINATE {
-                pose.vertices.truncate(first);
-                pose.vertices.extend_from_slice(&mesh.loaded);
+                vertices.truncate(first);
+                vertices.extend_from_slice(&mesh.loaded);
                 bounds = mesh.loaded.iter().fold(Aabb::EMPTY, |mut b, v| {
                     b.grow(Vec3::from_array(v.position));
                     b
                 });
             }
-            pose.start.push(pose.vertices.len());
-            pose.bounds.push(bounds);
+            start.push(vertices.len());
+            boxes.push(bounds);
         }
     }
 
@@ -322,12 +413,42 @@ impl Animation {
             a.object.transform = m * a.object.transform;
             a.object.bounds = a.local.transformed(&a.object.transform);
         }
-        for s in &mut self.skinned {
-            s.object.transform = m * s.object.transform;
-            s.object.bounds = Aabb {
-                min: s.object.bounds.min * factor,
-                max: s.object.bounds.max * factor,
+        for d in &mut self.deformed {
+            d.object.transform = m * d.object.transform;
+            d.object.bounds = Aabb {
+                min: d.object.bounds.min * factor,
+                max: d.object.bounds.max * factor,
             };
+            if let Some(a) = &mut d.place {
+                a.parent = m * a.parent;
+            }
+        }
+    }
+}
+
+/// `rest` morphed by `targets` at `weights` into `out`: each position plus its targets'
+/// displacements times their weights, each normal the same and normalized (kept where the sum
+/// vanishes). Targets without a weight count as weight 0.
+fn morph(rest: &[Vertex], targets: &[TargetDeltas], weights: &[f32], out: &mut Vec<Vertex>) {
+    out.clear();
+    out.extend_from_slice(rest);
+    for ((positions, normals), &w) in targets.iter().zip(weights) {
+        if w == 0.0 {
+            continue;
+        }
+        for (v, d) in out.iter_mut().zip(positions.iter().flatten()) {
+            v.position = (Vec3::from_array(v.position) + w * *d).to_array();
+        }
+        for (v, d) in out.iter_mut().zip(normals.iter().flatten()) {
+            v.normal = (Vec3::from_array(v.normal) + w * *d).to_array();
+        }
+    }
+    if targets.iter().any(|(_, n)| n.is_some()) {
+        for (v, r) in out.iter_mut().zip(rest) {
+            v.normal = Vec3::from_array(v.normal)
+                .try_normalize()
+                .unwrap_or(Vec3::from_array(r.normal))
+                .to_array();
         }
     }
 }

@@ -63,16 +63,16 @@ struct PrimGeom {
     bounds: Aabb,
     color: Vec4,
     material: Option<u32>,
-    /// For a skinned mesh that the animation deforms, its index there.
-    skinned: Option<usize>,
+    /// For a mesh that the animation deforms, its index there.
+    deformed: Option<usize>,
 }
 
-/// A mesh in one pose: its index, for a skinned node that node (its skinned vertices are its
-/// own), and the bits of its morph weights.
+/// A mesh in one pose: its index, for a skinned node or one the animation deforms that node
+/// (its vertices are its own), and the bits of its morph weights.
 #[derive(Clone, PartialEq, Eq, Hash)]
 struct MeshKey {
     mesh: usize,
-    skinned_node: Option<usize>,
+    own_node: Option<usize>,
     weights: Vec<u32>,
 }
 
@@ -82,8 +82,18 @@ struct MeshKey {
 struct Pose {
     weights: Vec<f32>,
     skin: Option<super::gltf_skin::SkinPose>,
-    /// For a skinned node whose joints the animation moves: the node and its rig there.
-    played: Option<(usize, usize)>,
+    /// For a node whose mesh the animation deforms: how.
+    deform: Option<Deform>,
+}
+
+/// How the animation deforms a node's mesh.
+#[derive(Clone, Copy)]
+struct Deform {
+    node: usize,
+    /// The rig of its skin (when skinned).
+    rig: Option<usize>,
+    /// Whether its morph weights are animated.
+    morph: bool,
 }
 
 /// Accumulates shared geometry and objects while walking the document.
@@ -159,11 +169,11 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     }
     let animation = std::mem::take(&mut loader.animation);
     let animations = document.animations().len();
-    let moved = animation.objects.len() + animation.skinned.len();
+    let moved = animation.objects.len() + animation.deformed.len();
     if moved > 0 {
-        let skinned = match animation.skinned_meshes() {
+        let skinned = match animation.deformed_meshes() {
             0 => String::new(),
-            n => format!(", {n} skinned mesh(es) posed on the CPU each frame"),
+            n => format!(", {n} mesh(es) skinned or morphed on the CPU each frame"),
         };
         let still = if loader.objects.is_empty() {
             " (nothing stands still: paths are found on their start)"
@@ -193,7 +203,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         .objects
         .iter()
         .chain(animation.objects.iter().map(|a| &a.object))
-        .chain(animation.skinned.iter().map(|a| &a.object))
+        .chain(animation.deformed.iter().map(|a| &a.object))
         .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
     let name = path
         .file_stem()
@@ -213,7 +223,7 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
         .objects
         .iter()
         .map(|a| &a.object)
-        .chain(animation.skinned.iter().map(|a| &a.object))
+        .chain(animation.deformed.iter().map(|a| &a.object))
         .filter_map(|o| o.material);
     mats.settle_opaque_blends(&mut loader.objects, &loader.attributes, moving);
     loader.warnings.extend(mats.warnings());
@@ -507,26 +517,31 @@ pub(super) fn parentless_nodes(doc: &Document) -> Vec<Node<'_>> {
         .collect()
 }
 
-/// The translation, rotation and scale channels of the file's first animation (those that
+/// The translation, rotation, scale and morph-weights channels of the file's first animation (those that
 /// cannot be read are left out with a warning).
 fn first_animation(
     doc: &Document,
     buffers: &[Data],
     warnings: &mut Vec<String>,
 ) -> super::animation::Animation {
-    let mut channels = Vec::new();
+    let (mut channels, mut weights) = (Vec::new(), Vec::new());
     if let Some(anim) = doc.animations().next() {
         for ch in anim.channels() {
-            match super::gltf_ext::Channel::read(doc, &ch, buffers) {
-                Ok(Some(c)) => channels.push(c),
-                Ok(None) => {}
-                Err(e) => {
-                    warnings.push(format!("animation 0 channel {}: {e}, left out", ch.index()))
+            let read = match super::gltf_ext::Channel::read(doc, &ch, buffers) {
+                Ok(Some(c)) => {
+                    channels.push(c);
+                    Ok(())
                 }
+                Ok(None) => super::gltf_ext::WeightsChannel::read(doc, &ch, buffers)
+                    .map(|w| weights.extend(w)),
+                Err(e) => Err(e),
+            };
+            if let Err(e) = read {
+                warnings.push(format!("animation 0 channel {}: {e}, left out", ch.index()))
             }
         }
     }
-    super::animation::Animation::new(channels)
+    super::animation::Animation::new(channels, weights)
 }
 
 /// A camera orbit around `bounds`: four keys at 1.5x the bounding radius, looking at the center.
@@ -608,12 +623,7 @@ impl Loader<'_> {
                         }),
                         None => None,
                     },
-                    played: match node.skin() {
-                        Some(skin) => self
-                            .rig(&skin, node.index())?
-                            .map(|rig| (node.index(), rig)),
-                        None => None,
-                    },
+                    deform: self.deform(&node, &mesh)?,
                 };
                 let geoms = self.mesh_geometry(&mesh, &node, &pose)?;
                 // glTF: the transform of a node that holds a skinned mesh is ignored; its
@@ -664,9 +674,19 @@ impl Loader<'_> {
                         };
                         // Skinned vertices are in world space: they move only when the
                         // animation moves their joints (and then each frame is skinned anew).
-                        match (&animated, &pose.skin, geom.skinned) {
-                            (_, Some(_), Some(mesh)) => self.animation.add_skinned(object, mesh),
-                            (Some((above, chain)), None, _) => self.animation.add(
+                        // An unskinned morphed mesh keeps its node's (animated) transform.
+                        match (&animated, &pose.skin, geom.deformed) {
+                            (_, Some(_), Some(mesh)) | (None, None, Some(mesh)) => {
+                                self.animation.add_deformed(object, mesh, None)
+                            }
+                            (Some((above, chain)), None, Some(mesh)) => {
+                                self.animation.add_deformed(
+                                    object,
+                                    mesh,
+                                    Some((*above, chain.clone(), instance, geom.bounds)),
+                                )
+                            }
+                            (Some((above, chain)), None, None) => self.animation.add(
                                 object,
                                 geom.bounds,
                                 *above,
@@ -796,24 +816,49 @@ impl Loader<'_> {
         bounds
     }
 
-    /// The animation's rig for `skin` held by node `node` when the animation moves one of
-    /// the skin's joints or the node (which its vertices without weight follow); `None` when
-    /// it leaves them still. Each skin's rig is made once.
-    fn rig(&mut self, skin: &::gltf::Skin<'_>, node: usize) -> Result<Option<usize>, String> {
-        let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
-        if !self.animation.moves_any(&joints) && !self.animation.moves_any(&[node]) {
+    /// How the animation deforms `node`'s `mesh`: when it moves a joint of the node's skin
+    /// or the node itself (which the skin's vertices without weight follow), or animates the
+    /// node's morph weights and the mesh has morph targets. `None` when it leaves the mesh's
+    /// shape still.
+    fn deform(
+        &mut self,
+        node: &Node<'_>,
+        mesh: &::gltf::Mesh<'_>,
+    ) -> Result<Option<Deform>, String> {
+        let morph = self.animation.weights_of(node.index()).is_some()
+            && mesh.primitives().any(|p| p.morph_targets().len() > 0);
+        let skin = node.skin();
+        let skin_moves = skin.as_ref().is_some_and(|skin| {
+            let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+            self.animation.moves_any(&joints) || self.animation.moves_any(&[node.index()])
+        });
+        if !morph && !skin_moves {
             return Ok(None);
         }
+        let rig = match skin {
+            Some(skin) => Some(self.rig(&skin)?),
+            None => None,
+        };
+        Ok(Some(Deform {
+            node: node.index(),
+            rig,
+            morph,
+        }))
+    }
+
+    /// The animation's rig for `skin`, made once.
+    fn rig(&mut self, skin: &::gltf::Skin<'_>) -> Result<usize, String> {
         if let Some(&r) = self.rigs.get(&skin.index()) {
-            return Ok(Some(r));
+            return Ok(r);
         }
+        let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
         let inverse_bind = super::gltf_skin::inverse_bind_matrices(skin, self.buffers)?;
         let r = self.animation.add_rig(super::animation::Rig {
             joints,
             inverse_bind,
         });
         self.rigs.insert(skin.index(), r);
-        Ok(Some(r))
+        Ok(r)
     }
 
     /// The joint matrices of `skin`, computed on first use.
@@ -836,7 +881,7 @@ impl Loader<'_> {
     ) -> Result<Vec<PrimGeom>, String> {
         let key = MeshKey {
             mesh: mesh.index(),
-            skinned_node: pose.skin.as_ref().map(|_| node.index()),
+            own_node: (pose.skin.is_some() || pose.deform.is_some()).then_some(node.index()),
             weights: pose.weights.iter().map(|w| w.to_bits()).collect(),
         };
         if let Some(geoms) = self.meshes.get(&key) {
@@ -877,13 +922,24 @@ impl Loader<'_> {
             .map_err(|e| format!("{label}: {e}"))?;
         let draco = draco.as_ref();
         let mut positions = self.primitive_positions(prim, label, draco)?;
-        let morph = super::gltf_skin::morph_deltas(
-            prim,
-            &pose.weights,
-            self.buffers,
-            positions.len(),
-            label,
-        )?;
+        // Targets whose weights the animation plays are kept, and applied each frame.
+        let targets = match pose.deform {
+            Some(d) if d.morph && prim.morph_targets().len() > 0 => {
+                super::gltf_skin::morph_targets(prim, self.buffers, positions.len(), label)?
+            }
+            _ => Vec::new(),
+        };
+        let morph = if targets.is_empty() {
+            super::gltf_skin::morph_deltas(
+                prim,
+                &pose.weights,
+                self.buffers,
+                positions.len(),
+                label,
+            )?
+        } else {
+            super::gltf_skin::MorphDeltas::default()
+        };
         for (p, d) in positions.iter_mut().zip(morph.positions.iter().flatten()) {
             *p += *d;
             if !p.is_finite() {
@@ -908,20 +964,23 @@ impl Loader<'_> {
             draco,
             morph.normals.as_deref(),
         )?;
-        let mut played = None;
+        let deform = pose
+            .deform
+            .filter(|d| d.rig.is_some() || !targets.is_empty());
+        let rest: Vec<Vertex> = match deform {
+            Some(_) => vertices_of(&positions, &normals),
+            None => Vec::new(),
+        };
+        let mut influences = None;
         if let Some(skin) = &pose.skin {
-            let rest: Vec<Vertex> = match pose.played {
-                Some(_) => vertices_of(&positions, &normals),
-                None => Vec::new(),
-            };
             let triangles = super::gltf_skin::Triangles {
                 positions: &mut positions,
                 normals: &mut normals,
                 indices: &mut indices,
             };
-            let (valid, influences) =
+            let (valid, read) =
                 super::gltf_skin::skin_vertices(prim, skin, self.buffers, draco, triangles, label)?;
-            played = pose.played.map(|(node, rig)| (node, rig, rest, influences));
+            influences = Some(read);
             if valid.contains(&false) {
                 let computed = computed_normals(&positions, &indices);
                 for ((n, c), ok) in normals.iter_mut().zip(computed).zip(valid) {
@@ -937,24 +996,24 @@ impl Loader<'_> {
             primitive_attributes(prim, self.buffers, positions.len(), label, draco)?;
         self.materials.attributes_used |= found;
         let material = self.materials.material(&gm, self.doc, self.buffers);
-        let own = played.is_some();
+        let own = deform.is_some();
         let mut geom =
             self.append_geometry(&positions, &normals, &attributes, &indices, color, own)?;
         geom.material = material;
-        if let Some((node, rig, rest, influences)) = played {
+        if let Some(d) = deform {
             let range =
                 geom.vertex_offset as usize..(geom.vertex_offset + geom.vertex_count) as usize;
-            geom.skinned = Some(
-                self.animation
-                    .add_skinned_mesh(super::animation::SkinnedMesh {
-                        first_vertex: geom.vertex_offset,
-                        rest,
-                        loaded: self.vertices[range].to_vec(),
-                        influences,
-                        rig,
-                        node,
-                    }),
-            );
+            let skin = d.rig.zip(influences).map(|(rig, inf)| (inf, rig));
+            geom.deformed = Some(self.animation.add_deformed_mesh(
+                super::animation::DeformedMesh {
+                    first_vertex: geom.vertex_offset,
+                    rest,
+                    loaded: self.vertices[range].to_vec(),
+                    skin,
+                    targets,
+                    node: d.node,
+                },
+            ));
         }
         Ok(Some(geom))
     }
@@ -1108,7 +1167,7 @@ impl Loader<'_> {
             bounds,
             color,
             material: None,
-            skinned: None,
+            deformed: None,
         })
     }
 
@@ -2473,13 +2532,13 @@ mod tests {
             warnings,
             [
                 "animation 0 moves 1 object(s): they are movers, placed every frame (30 frames a \
-              second, a loop of 2.00 s, 1 skinned mesh(es) posed on the CPU each frame)"
+              second, a loop of 2.00 s, 1 mesh(es) skinned or morphed on the CPU each frame)"
             ]
         );
         assert_eq!(scene.objects.len(), 1, "the wall stands still");
         scene.magnify(2.0);
         let movers = crate::scene::movers::Movers::add(&mut scene, 0);
-        assert_eq!(movers.skinned_meshes(), 1);
+        assert_eq!(movers.deformed_meshes(), 1);
         assert_eq!((movers.len(), scene.objects.len()), (1, 2));
         let column = &scene.objects[1];
         let range =
@@ -2556,8 +2615,93 @@ mod tests {
         let (mut scene, warnings) = load_gltf(&path).expect("load still");
         assert!(warnings.is_empty(), "{warnings:?}");
         let movers = crate::scene::movers::Movers::add(&mut scene, 0);
-        assert!(movers.skinned_meshes() == 0 && movers.is_empty());
+        assert!(movers.deformed_meshes() == 0 && movers.is_empty());
         assert_eq!(scene.objects.len(), 2);
+    }
+
+    /// A mesh whose morph weights the first animation plays is a mover: each frame its
+    /// vertices are morphed at the animation's weights (and its node's animated transform
+    /// places it), its box is theirs.
+    #[test]
+    fn morph_weights_the_animation_plays_move_vertices_each_frame() {
+        let mut b = GltfBuilder::default();
+        let tri = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let pos = b.vec3(&tri);
+        let up = b.vec3(&[[0.0, 0.0, 2.0]; 3]);
+        let side = b.vec3(&[[4.0, 0.0, 0.0]; 3]);
+        b.meshes.push(format!(
+            r#"{{"weights":[0,1],"primitives":[{{"attributes":{{"POSITION":{pos}}},"targets":[{{"POSITION":{up}}},{{"POSITION":{side}}}]}}]}}"#
+        ));
+        let still = b.cube_mesh([0.5; 4]);
+        b.node(still, [0.0, 0.0, -5.0]);
+        // Node 1 (moved along x over 2 s) holds node 2, the morphed triangle.
+        b.nodes
+            .push(r#"{"translation":[0,0,0],"children":[2]}"#.to_string());
+        b.nodes
+            .push(r#"{"mesh":0,"translation":[0,3,0]}"#.to_string());
+        b.scene_nodes = Some(vec![0, 1]);
+        let times = b.key_times(&[0.0, 1.0, 2.0]);
+        // Two weights per key: target 0 goes 0 -> 1 -> 0, target 1 stays 0.
+        let w: Vec<u8> = [0.0f32, 0.0, 1.0, 0.0, 0.0, 0.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let w = b.view(&w);
+        let weights = b.accessor(w, 5126, "SCALAR", 6);
+        let moved = b.vec3(&[[0.0; 3], [10.0, 0.0, 0.0], [0.0; 3]]);
+        b.head = format!(
+            r#""animations":[{{"samplers":[{{"input":{times},"output":{weights}}},{{"input":{times},"output":{moved}}}],"channels":[{{"sampler":0,"target":{{"node":2,"path":"weights"}}}},{{"sampler":1,"target":{{"node":1,"path":"translation"}}}}]}}],"#
+        );
+        let dir = temp_dir("morph_anim");
+        let path = write(&dir, "morph.gltf", b.gltf_embedded());
+        let (mut scene, warnings) = load_gltf(&path).expect("load");
+        assert_eq!(
+            warnings,
+            [
+                "animation 0 moves 1 object(s): they are movers, placed every frame (30 frames a \
+              second, a loop of 2.00 s, 1 mesh(es) skinned or morphed on the CPU each frame)"
+            ]
+        );
+        let movers = crate::scene::movers::Movers::add(&mut scene, 0);
+        assert_eq!((movers.deformed_meshes(), movers.len()), (1, 1));
+        let pose = |frame: u64| {
+            let mut posed = Vec::new();
+            movers
+                .for_each_deformed(frame, |_, v| {
+                    posed = v.iter().map(|v| Vec3::from_array(v.position)).collect();
+                    Ok(())
+                })
+                .unwrap();
+            let mut placed = None;
+            movers
+                .for_each_at(frame, |_, bounds, t| {
+                    placed = Some((bounds, *t));
+                    Ok(())
+                })
+                .unwrap();
+            (posed, placed.unwrap())
+        };
+        // The animation's weights replace the mesh's default ones ([0, 1]) from frame 0 on.
+        let (v0, (b0, t0)) = pose(0);
+        assert_eq!(v0, tri.map(Vec3::from_array));
+        assert_eq!(t0, Mat4::from_translation(Vec3::new(0.0, 3.0, 0.0)));
+        assert_eq!(
+            (b0.min, b0.max),
+            (Vec3::new(0.0, 3.0, 0.0), Vec3::new(1.0, 4.0, 0.0))
+        );
+        // 0.5 s: weight 0.5 lifts z by 1; the parent has moved 5 along x.
+        let (v15, (b15, t15)) = pose(15);
+        assert!(v15
+            .iter()
+            .zip(&v0)
+            .all(|(a, b)| *a == *b + Vec3::new(0.0, 0.0, 1.0)));
+        assert_eq!(t15, Mat4::from_translation(Vec3::new(5.0, 3.0, 0.0)));
+        assert_eq!(
+            (b15.min, b15.max),
+            (Vec3::new(5.0, 3.0, 1.0), Vec3::new(6.0, 4.0, 1.0))
+        );
+        assert!(pose(30).0.iter().all(|p| p.z == 2.0));
+        assert_eq!(pose(60).0, v0);
     }
 
     /// A BLEND material whose alpha is one everywhere on an object is drawn opaque there (and

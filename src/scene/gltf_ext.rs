@@ -502,6 +502,106 @@ impl Channel {
     }
 }
 
+/// A morph-weights channel of a node: key times, each key's weights (one per morph target)
+/// and interpolation.
+#[derive(Clone, Debug)]
+pub(super) struct WeightsChannel {
+    pub node: usize,
+    times: Vec<f32>,
+    /// `targets` weights per key; a cubic spline holds three groups per key (in-tangents,
+    /// values, out-tangents).
+    values: Vec<f32>,
+    targets: usize,
+    interpolation: Interpolation,
+}
+
+impl WeightsChannel {
+    /// Writes the weights at `t` into `out` (one per target; clamped in time; cubic splines
+    /// use their key values only).
+    pub fn at(&self, t: f32, out: &mut Vec<f32>) {
+        let n = self.targets;
+        let cubic = self.interpolation == Interpolation::CubicSpline;
+        let key = |k: usize| {
+            let start = if cubic { (3 * k + 1) * n } else { k * n };
+            &self.values[start..start + n]
+        };
+        let keys = self.times.len();
+        let i = self.times.partition_point(|&x| x <= t);
+        out.clear();
+        if i == 0 {
+            out.extend_from_slice(key(0));
+        } else if i >= keys || self.interpolation == Interpolation::Step {
+            out.extend_from_slice(key(i.min(keys) - 1));
+        } else {
+            let (a, b) = (self.times[i - 1], self.times[i]);
+            let f = ((t - a) / (b - a).max(1e-9)).clamp(0.0, 1.0);
+            out.extend(key(i - 1).iter().zip(key(i)).map(|(x, y)| x + (y - x) * f));
+        }
+    }
+
+    /// The time of its last key.
+    pub fn end(&self) -> f32 {
+        self.times.last().copied().unwrap_or(0.0)
+    }
+
+    /// Reads a morph-weights channel; `Ok(None)` for other properties and for channels
+    /// without usable keys (empty, unsorted, non-finite, or outputs that are not a whole
+    /// number of weights per key).
+    pub fn read(
+        doc: &Document,
+        ch: &::gltf::animation::Channel<'_>,
+        buffers: &[Data],
+    ) -> Result<Option<WeightsChannel>, String> {
+        let Some(json) = channel_json(doc, ch) else {
+            return Ok(None);
+        };
+        let (Checked::Valid(Property::MorphTargetWeights), Checked::Valid(interpolation)) =
+            (json.path, json.interpolation)
+        else {
+            return Ok(None);
+        };
+        let (input, output) = (&json.input, &json.output);
+        if input.dimensions() != Dimensions::Scalar || output.dimensions() != Dimensions::Scalar {
+            return Err(format!(
+                "its input is {:?} and its output {:?} (Scalar expected)",
+                input.dimensions(),
+                output.dimensions()
+            ));
+        }
+        let times: Vec<f32> = super::gltf_material::read_elements(input, buffers)?
+            .into_iter()
+            .map(|e| e[0])
+            .collect();
+        let values: Vec<f32> = super::gltf_material::read_elements(output, buffers)?
+            .into_iter()
+            .map(|e| e[0])
+            .collect();
+        let per_key = times.len()
+            * if interpolation == Interpolation::CubicSpline {
+                3
+            } else {
+                1
+            };
+        let sorted = times.windows(2).all(|w| w[0] < w[1]);
+        let finite = times.iter().chain(&values).all(|v| v.is_finite());
+        if per_key == 0
+            || values.is_empty()
+            || !values.len().is_multiple_of(per_key)
+            || !sorted
+            || !finite
+        {
+            return Ok(None);
+        }
+        Ok(Some(WeightsChannel {
+            node: json.node,
+            targets: values.len() / per_key,
+            times,
+            values,
+            interpolation,
+        }))
+    }
+}
+
 /// An animation channel as its JSON gives it, its indices checked against the document.
 struct ChannelJson<'d> {
     node: usize,

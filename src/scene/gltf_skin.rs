@@ -122,11 +122,48 @@ pub(super) fn morph_deltas(
         if !w.is_finite() {
             return Err(format!("{label}: morph target {t} has a non-finite weight"));
         }
-        for (acc, sum, what) in [
-            (target.positions(), &mut deltas.positions, "POSITION"),
-            (target.normals(), &mut deltas.normals, "NORMAL"),
+        let (positions, normals) = target_deltas(&target, t, buffers, n, label)?;
+        for (d, sum) in [
+            (positions, &mut deltas.positions),
+            (normals, &mut deltas.normals),
         ] {
-            let Some(acc) = acc else { continue };
+            let Some(d) = d else { continue };
+            let sum = sum.get_or_insert_with(|| vec![Vec3::ZERO; n]);
+            for (s, d) in sum.iter_mut().zip(d) {
+                *s += w * d;
+            }
+        }
+    }
+    Ok(deltas)
+}
+
+/// Every morph target's displacements of `prim`'s `n` positions and normals (`None` where a
+/// target moves neither), for weights that an animation plays.
+pub(super) fn morph_targets(
+    prim: &Primitive<'_>,
+    buffers: &[Data],
+    n: usize,
+    label: &str,
+) -> Result<Vec<super::animation::TargetDeltas>, String> {
+    prim.morph_targets()
+        .enumerate()
+        .map(|(t, target)| target_deltas(&target, t, buffers, n, label))
+        .collect()
+}
+
+/// Morph target `t`'s displacements of `n` positions and normals.
+fn target_deltas(
+    target: &::gltf::mesh::MorphTarget<'_>,
+    t: usize,
+    buffers: &[Data],
+    n: usize,
+    label: &str,
+) -> Result<super::animation::TargetDeltas, String> {
+    let read =
+        |acc: Option<::gltf::Accessor<'_>>, what: &str| -> Result<Option<Vec<Vec3>>, String> {
+            let Some(acc) = acc else {
+                return Ok(None);
+            };
             let at = |e: String| {
                 format!(
                     "{label}: morph target {t} {what} accessor {}: {e}",
@@ -136,14 +173,12 @@ pub(super) fn morph_deltas(
             if acc.count() != n {
                 return Err(at(format!("{} elements for {n} vertices", acc.count())));
             }
-            let d = super::gltf::read_vec3(&acc, buffers).map_err(at)?;
-            let sum = sum.get_or_insert_with(|| vec![Vec3::ZERO; n]);
-            for (s, d) in sum.iter_mut().zip(d) {
-                *s += w * d;
-            }
-        }
-    }
-    Ok(deltas)
+            super::gltf::read_vec3(&acc, buffers).map(Some).map_err(at)
+        };
+    Ok((
+        read(target.positions(), "POSITION")?,
+        read(target.normals(), "NORMAL")?,
+    ))
 }
 
 /// A skinned node's pose: its skin's joint matrices (of [`joint_matrices`]) and the node's
@@ -233,7 +268,11 @@ impl Influences {
 /// normalized (`None` where `m` makes it unusable), and whether `m` mirrors.
 pub(super) fn pose_vertex(m: &Mat4, position: Vec3, normal: Vec3) -> (Vec3, Option<Vec3>, bool) {
     let p = m.transform_point3(position);
-    let (a, b, c) = (m.x_axis.truncate(), m.y_axis.truncate(), m.z_axis.truncate());
+    let (a, b, c) = (
+        m.x_axis.truncate(),
+        m.y_axis.truncate(),
+        m.z_axis.truncate(),
+    );
     let cofactor = Mat3::from_cols(b.cross(c), c.cross(a), a.cross(b));
     let det = a.dot(b.cross(c));
     let n = if det.abs() > f32::MIN_POSITIVE {

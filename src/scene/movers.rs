@@ -6,7 +6,7 @@
 
 use glam::{Mat4, Vec3, Vec4};
 
-use super::animation::SkinPose;
+use super::animation::MeshPose;
 use super::mesh::{Mesh, Rng};
 use super::{Aabb, Object, Scene, Vertex};
 use crate::error::Result;
@@ -21,10 +21,10 @@ const LANE: f32 = 2.0;
 #[derive(Clone, Debug, Default)]
 pub struct Movers {
     movers: Vec<Mover>,
-    /// The glTF animation that [`Route::Animated`] and [`Route::Skinned`] movers follow.
+    /// The glTF animation that [`Route::Animated`] and [`Route::Deformed`] movers follow.
     animation: Option<std::sync::Arc<super::animation::Animation>>,
-    /// The animation's skinned meshes as last posed (scratch, reused from frame to frame).
-    skins: std::cell::RefCell<SkinPose>,
+    /// The animation's deformed meshes as last posed (scratch, reused from frame to frame).
+    skins: std::cell::RefCell<MeshPose>,
 }
 
 /// One mover: its object, its object-space box and its route.
@@ -61,9 +61,9 @@ enum Route {
     Spin { at: Vec3, speed: f32, phase: f32 },
     /// Object `index` of the scene's glTF animation.
     Animated { index: usize },
-    /// Skinned object `index` of the scene's glTF animation: placed by its own transform,
-    /// its vertices posed each frame.
-    Skinned { index: usize },
+    /// Deformed object `index` of the scene's glTF animation (skinned or morphed): its
+    /// vertices posed each frame.
+    Deformed { index: usize },
     /// Back and forth between two points (a crane's trolley and hook).
     Shuttle {
         from: Vec3,
@@ -94,22 +94,23 @@ impl Movers {
                 object.material = object.material.map(|m| unblended(scene, m));
                 scene.objects.push(object);
             }
-            let mut pose = SkinPose::default();
-            animation.pose_skins(0, &mut pose);
-            for (index, a) in animation.skinned.iter().enumerate() {
+            let mut pose = MeshPose::default();
+            animation.pose_meshes(0, &mut pose);
+            for (index, a) in animation.deformed.iter().enumerate() {
                 let mesh = a.mesh;
-                let first = animation.skinned_first_vertex(mesh) as usize;
+                let first = animation.deformed_first_vertex(mesh) as usize;
                 let posed = pose.mesh(mesh);
                 if let Some(range) = scene.vertices.get_mut(first..first + posed.len()) {
                     range.copy_from_slice(posed);
                 }
                 let mut object = a.object.clone();
+                object.transform = animation.deformed_transform(index, 0);
                 object.bounds = pose.bounds(mesh).transformed(&object.transform);
                 object.material = object.material.map(|m| unblended(scene, m));
                 movers.movers.push(Mover {
                     object: scene.objects.len() as u32,
                     local: object.bounds,
-                    route: Route::Skinned { index },
+                    route: Route::Deformed { index },
                 });
                 scene.objects.push(object);
             }
@@ -195,21 +196,25 @@ impl Movers {
     fn transform_of(&self, m: &Mover, frame: u64) -> Mat4 {
         match (m.route, &self.animation) {
             (Route::Animated { index }, Some(a)) => a.transform_at(index, frame),
-            (Route::Skinned { index }, Some(a)) => a.skinned[index].object.transform,
+            (Route::Deformed { index }, Some(a)) => a.deformed_transform(index, frame),
             _ => m.transform_at(frame),
         }
     }
 
-    /// Poses the animation's skinned meshes at `frame` (once per frame) and calls `f` with
-    /// the pose; `None` without skinned meshes.
-    fn with_skins<R>(&self, frame: u64, f: impl FnOnce(&SkinPose) -> R) -> Option<R> {
-        let a = self.animation.as_ref().filter(|a| a.skinned_meshes() > 0)?;
+    /// Poses the animation's deformed meshes at `frame` (once per frame) and calls `f` with
+    /// the pose; `None` without deformed meshes.
+    fn with_skins<R>(&self, frame: u64, f: impl FnOnce(&MeshPose) -> R) -> Option<R> {
+        let a = self
+            .animation
+            .as_ref()
+            .filter(|a| a.deformed_meshes() > 0)?;
         let mut pose = self.skins.borrow_mut();
-        a.pose_skins(frame, &mut pose);
+        a.pose_meshes(frame, &mut pose);
         Some(f(&pose))
     }
 
-    /// The vertices of each skinned mesh that the glTF animation deforms, posed at `frame`:
+    /// The vertices of each mesh that the glTF animation deforms (skins, morph weights),
+    /// posed at `frame`:
     /// `deform(first_vertex, vertices)`, for the host to write into its vertex buffer from
     /// the scene's vertex `first_vertex` on (positions and normals; the other attributes do not
     /// change). Nothing without such meshes. Allocates nothing once the first frame is posed.
@@ -222,15 +227,15 @@ impl Movers {
             return Ok(());
         };
         self.with_skins(frame, |pose| {
-            (0..a.skinned_meshes())
-                .try_for_each(|i| deform(a.skinned_first_vertex(i), pose.mesh(i)))
+            (0..a.deformed_meshes())
+                .try_for_each(|i| deform(a.deformed_first_vertex(i), pose.mesh(i)))
         })
         .unwrap_or(Ok(()))
     }
 
-    /// The skinned meshes of the glTF animation, posed every frame.
-    pub fn skinned_meshes(&self) -> usize {
-        self.animation.as_ref().map_or(0, |a| a.skinned_meshes())
+    /// The meshes the glTF animation deforms (skins, morph weights), posed every frame.
+    pub fn deformed_meshes(&self) -> usize {
+        self.animation.as_ref().map_or(0, |a| a.deformed_meshes())
     }
 
     /// Each mover's place at `frame`: `place(object, world box, transform)`, for the host to
@@ -241,17 +246,17 @@ impl Movers {
         frame: u64,
         mut place: impl FnMut(u32, Aabb, &Mat4) -> Result<()>,
     ) -> Result<()> {
-        let skins = self.animation.as_ref().filter(|a| a.skinned_meshes() > 0);
+        let skins = self.animation.as_ref().filter(|a| a.deformed_meshes() > 0);
         let pose = skins.map(|a| {
             let mut pose = self.skins.borrow_mut();
-            a.pose_skins(frame, &mut pose);
+            a.pose_meshes(frame, &mut pose);
             pose
         });
         for m in &self.movers {
             let t = self.transform_of(m, frame);
             let bounds = match (m.route, skins, &pose) {
-                (Route::Skinned { index }, Some(a), Some(pose)) => {
-                    pose.bounds(a.skinned[index].mesh).transformed(&t)
+                (Route::Deformed { index }, Some(a), Some(pose)) => {
+                    pose.bounds(a.deformed[index].mesh).transformed(&t)
                 }
                 _ => m.local.transformed(&t),
             };
@@ -285,7 +290,7 @@ impl Mover {
                 Mat4::from_translation(at) * Mat4::from_rotation_y(phase + speed * frame as f32)
             }
             // Placed by `Movers::transform_of`, which holds the animation.
-            Route::Animated { .. } | Route::Skinned { .. } => Mat4::IDENTITY,
+            Route::Animated { .. } | Route::Deformed { .. } => Mat4::IDENTITY,
             Route::Shuttle {
                 from,
                 to,

@@ -335,7 +335,7 @@ fn seed_corpus_loads() {
             assert_eq!(blended, [true, false], "the BLEND seed");
         }
         if name == "skinned_anim.gltf" {
-            let skinned = scene.animation.as_ref().map_or(0, |a| a.skinned.len());
+            let skinned = scene.animation.as_ref().map_or(0, |a| a.deformed.len());
             assert_eq!(skinned, 1, "the skinned seed plays no skin");
         }
         if name == "animated.glb" {

@@ -177,8 +177,8 @@ pub struct MoverSummary {
     pub refit_ms_max: f64,
     /// Full rebuilds of the hierarchy during the walk.
     pub rebuilds: u32,
-    /// Skinned meshes of a glTF animation, posed on the CPU every frame.
-    pub skinned_meshes: usize,
+    /// Meshes a glTF animation deforms (skins, morph weights), posed on the CPU every frame.
+    pub deformed_meshes: usize,
     /// Median milliseconds per frame to pose them and write their vertices (0 without them).
     pub pose_ms_median: f64,
     /// For each algorithm that also ran on the scene without movers (as `NAME-static`): its
@@ -232,7 +232,7 @@ pub fn mover_summary(
         refit_ms_median: crate::app::report::median(&mut refit),
         refit_ms_max,
         rebuilds,
-        skinned_meshes: 0,
+        deformed_meshes: 0,
         pose_ms_median: 0.0,
         vs_static,
     }
