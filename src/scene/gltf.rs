@@ -1770,6 +1770,47 @@ pub mod testdata {
         b
     }
 
+    /// The scene of [`skinned_column`] with the column morphed instead of skinned: one morph
+    /// target moves its top four corners up by `lift`, and the first animation takes the
+    /// target's weight from 0 to 1 and back over 2 s (node 1 holds the column at (0, 0.5, -3)).
+    pub fn morphed_column(lift: f32) -> GltfBuilder {
+        let mut b = GltfBuilder::default();
+        let wall = b.cube_mesh([0.8, 0.8, 0.8, 1.0]);
+        b.nodes.push(format!(
+            r#"{{"mesh":{wall},"translation":[0,1.5,0],"scale":[6,3,0.5]}}"#
+        ));
+        let (positions, normals, indices) = cube();
+        let pos = b.vec3(&positions);
+        let nrm = b.vec3(&normals);
+        let idx = b.indices_u16(&indices);
+        let up: Vec<[f32; 3]> = positions
+            .iter()
+            .map(|p| [0.0, if p[1] > 0.0 { lift } else { 0.0 }, 0.0])
+            .collect();
+        let up = b.vec3(&up);
+        b.materials
+            .push(r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.9,0.2,0.1,1]}}"#.to_string());
+        let material = b.materials.len() - 1;
+        b.meshes.push(format!(
+            r#"{{"name":"column","primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm}}},"targets":[{{"POSITION":{up}}}],"indices":{idx},"material":{material}}}]}}"#
+        ));
+        let column = b.meshes.len() - 1;
+        b.nodes
+            .push(format!(r#"{{"mesh":{column},"translation":[0,0.5,-3]}}"#));
+        b.scene_nodes = Some(vec![0, 1]);
+        let times = b.key_times(&[0.0, 1.0, 2.0]);
+        let w: Vec<u8> = [0.0f32, 1.0, 0.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let w = b.view(&w);
+        let weights = b.accessor(w, 5126, "SCALAR", 3);
+        b.head = format!(
+            r#""animations":[{{"samplers":[{{"input":{times},"output":{weights}}}],"channels":[{{"sampler":0,"target":{{"node":1,"path":"weights"}}}}]}}],"#
+        );
+        b
+    }
+
     /// Standard base64 with padding.
     pub fn base64(data: &[u8]) -> String {
         const ALPHABET: &[u8; 64] =

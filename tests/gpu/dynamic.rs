@@ -305,26 +305,29 @@ fn gltf_animated_objects_are_movers_every_algorithm_matches_vfc() {
     common::assert_silent(&log);
 }
 
-/// A glTF column skinned to two joints, 3 m behind a wall: the first animation lifts its top
-/// joint by 4 m and back over 2 s, so the column stretches up out of the wall's shadow while
-/// its default pose (and box) stays hidden. 60 frames from a fixed camera: the column is
-/// hidden, seen (only through its posed vertices and box) and hidden again; every algorithm
-/// misses no visible object and its image equals vfc's; the lifted column's red shows.
+/// A glTF column 3 m behind a wall whose first animation stretches it 4 m up and back over
+/// 2 s, once skinned (its top joint lifted) and once morphed (a morph target's weight
+/// animated), so that it rises out of the wall's shadow while its default shape (and box)
+/// stays hidden. 60 frames from a fixed camera each: the column is hidden, seen (only through
+/// its posed vertices and box) and hidden again; every algorithm misses no visible object and
+/// its image equals vfc's; the lifted column's red shows.
 #[test]
-fn gltf_skinned_objects_are_posed_each_frame_every_algorithm_matches_vfc() {
-    let dir = coherent::testing::TempDir::new("skinned");
-    let path = dir.join("column.gltf");
-    let b = coherent::scene::gltf::testdata::skinned_column(4.0);
-    std::fs::write(&path, b.gltf_embedded()).unwrap();
-
+fn gltf_deformed_objects_are_posed_each_frame_every_algorithm_matches_vfc() {
+    use coherent::scene::gltf::testdata::{morphed_column, skinned_column};
+    let dir = coherent::testing::TempDir::new("deformed");
     let (ctx, log) = common::context();
-    {
+    for (name, b) in [
+        ("skinned", skinned_column(4.0)),
+        ("morphed", morphed_column(4.0)),
+    ] {
+        let path = dir.join(format!("{name}.gltf"));
+        std::fs::write(&path, b.gltf_embedded()).unwrap();
         let mut scene = Scene::load(path.to_str().unwrap(), 1.0, 4096).unwrap();
         let movers = Movers::add(&mut scene, 0);
         assert_eq!(
             movers.deformed_meshes(),
             1,
-            "the column is posed each frame"
+            "{name}: the column is posed each frame"
         );
         let column = movers.object(0);
         let mut bvh = bvh_of(&scene);
@@ -354,12 +357,15 @@ fn gltf_skinned_objects_are_posed_each_frame_every_algorithm_matches_vfc() {
         }
         assert!(
             hidden && seen && hidden_again,
-            "the column rose above the wall and sank back"
+            "{name}: the column rose above the wall and sank back"
         );
-        assert_eq!(red[0], 0, "the column hides behind the wall at frame 0");
+        assert_eq!(
+            red[0], 0,
+            "{name}: the column hides behind the wall at frame 0"
+        );
         assert!(
             red[1] > 20,
-            "the lifted column shows red pixels at frame 30: {red:?}"
+            "{name}: the lifted column shows red pixels at frame 30: {red:?}"
         );
     }
     common::assert_silent(&log);

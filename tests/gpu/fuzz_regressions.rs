@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Once;
 
 use coherent::scene::gltf::testdata::{
-    cube_grid_glb, skinned_column, skinned_triangles, GltfBuilder,
+    cube_grid_glb, morphed_column, skinned_column, skinned_triangles, GltfBuilder,
 };
 use coherent::scene::Scene;
 
@@ -156,6 +156,11 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
     out.push((
         "skinned_anim.gltf",
         skinned_column(4.0).gltf_embedded().into_bytes(),
+    ));
+    // A column whose animation plays a morph target's weight.
+    out.push((
+        "morphed_anim.gltf",
+        morphed_column(4.0).gltf_embedded().into_bytes(),
     ));
 
     // A node whose mesh EXT_mesh_gpu_instancing places twice.
@@ -334,9 +339,9 @@ fn seed_corpus_loads() {
             let blended: Vec<bool> = (0..2).map(|o| scene.is_blended(o)).collect();
             assert_eq!(blended, [true, false], "the BLEND seed");
         }
-        if name == "skinned_anim.gltf" {
+        if name == "skinned_anim.gltf" || name == "morphed_anim.gltf" {
             let skinned = scene.animation.as_ref().map_or(0, |a| a.deformed.len());
-            assert_eq!(skinned, 1, "the skinned seed plays no skin");
+            assert_eq!(skinned, 1, "{name} deforms nothing");
         }
         if name == "animated.glb" {
             assert!(scene.animation.is_some(), "the animated seed moves nothing");
