@@ -311,7 +311,7 @@ impl Renderer {
     }
 
     /// Rewrites the positions and normals of the scene's vertices from `first_vertex` on (a
-    /// skinned mesh posed anew, [`Movers::for_each_deformed`]); their other attributes stay.
+    /// deformed mesh posed anew, [`Movers::for_each_deformed`]); their other attributes stay.
     /// Call between frames, as [`Renderer::set_object_transform`].
     ///
     /// [`Movers::for_each_deformed`]: crate::scene::movers::Movers::for_each_deformed

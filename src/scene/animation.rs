@@ -201,15 +201,16 @@ impl Animation {
     /// the topmost animated node, the nodes from it down, the instance transform and the
     /// object-space box) when a channel moves a node above an unskinned morphed mesh.
     pub(super) fn add_deformed(&mut self, mut object: Object, mesh: usize, place: Option<Place>) {
-        let place = place.map(|(parent, chain, instance, local)| AnimatedObject {
+        let mut place = place.map(|(parent, chain, instance, local)| AnimatedObject {
             object: object.clone(),
             local,
             parent,
             chain,
             instance,
         });
-        if let Some(a) = &place {
+        if let Some(a) = &mut place {
             object.transform = self.transform_of(a, 0.0);
+            a.object.transform = object.transform;
         }
         self.deformed.push(DeformedObject {
             object,
@@ -421,6 +422,7 @@ impl Animation {
             };
             if let Some(a) = &mut d.place {
                 a.parent = m * a.parent;
+                a.object.transform = d.object.transform;
             }
         }
     }
