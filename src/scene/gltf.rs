@@ -1722,12 +1722,10 @@ pub mod testdata {
         b
     }
 
-    /// A wall (node 0: a cube scaled to 6 x 3 x 0.5 at (0, 1.5, 0)) and, 3 m behind it, a
-    /// unit column skinned to two joints: its bottom four corners to joint node 1 at (0, 0.5,
-    /// -3), its top four to joint node 2, a child of node 1 that the first animation lifts by
-    /// `lift` and back over 2 s (node 3 holds the mesh). In the default pose the column hides
-    /// behind the wall; lifted by 4 its top shows above it from a camera at (0, 1.5, 8).
-    pub fn skinned_column(lift: f32) -> GltfBuilder {
+    /// A wall (node 0: a cube scaled to 6 x 3 x 0.5 at (0, 1.5, 0)) and the accessors of a
+    /// red unit column: the JSON of its POSITION and NORMAL attributes, and of its indices
+    /// and material, for the primitive its caller writes.
+    fn wall_and_column() -> (GltfBuilder, String, String) {
         let mut b = GltfBuilder::default();
         let wall = b.cube_mesh([0.8, 0.8, 0.8, 1.0]);
         b.nodes.push(format!(
@@ -1737,6 +1735,24 @@ pub mod testdata {
         let pos = b.vec3(&positions);
         let nrm = b.vec3(&normals);
         let idx = b.indices_u16(&indices);
+        b.materials
+            .push(r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.9,0.2,0.1,1]}}"#.to_string());
+        let material = b.materials.len() - 1;
+        (
+            b,
+            format!(r#""POSITION":{pos},"NORMAL":{nrm}"#),
+            format!(r#""indices":{idx},"material":{material}"#),
+        )
+    }
+
+    /// The wall of [`wall_and_column`] and, 3 m behind it, the column skinned to two joints:
+    /// its bottom four corners to joint node 1 at (0, 0.5, -3), its top four to joint node 2,
+    /// a child of node 1 that the first animation lifts by `lift` and back over 2 s (node 3
+    /// holds the mesh). In the default pose the column hides behind the wall; lifted by 4 its
+    /// top shows above it from a camera at (0, 1.5, 8).
+    pub fn skinned_column(lift: f32) -> GltfBuilder {
+        let (mut b, attributes, rest) = wall_and_column();
+        let positions = cube().0;
         let joints: Vec<u8> = positions
             .iter()
             .flat_map(|p| [u8::from(p[1] > 0.0), 0, 0, 0])
@@ -1750,11 +1766,8 @@ pub mod testdata {
             .collect();
         let w = b.view(&weights);
         let w = b.accessor(w, 5126, "VEC4", positions.len());
-        b.materials
-            .push(r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.9,0.2,0.1,1]}}"#.to_string());
-        let material = b.materials.len() - 1;
         b.meshes.push(format!(
-            r#"{{"name":"column","primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm},"JOINTS_0":{j},"WEIGHTS_0":{w}}},"indices":{idx},"material":{material}}}]}}"#
+            r#"{{"name":"column","primitives":[{{"attributes":{{{attributes},"JOINTS_0":{j},"WEIGHTS_0":{w}}},{rest}}}]}}"#
         ));
         let column = b.meshes.len() - 1;
         b.nodes
@@ -1774,25 +1787,15 @@ pub mod testdata {
     /// target moves its top four corners up by `lift`, and the first animation takes the
     /// target's weight from 0 to 1 and back over 2 s (node 1 holds the column at (0, 0.5, -3)).
     pub fn morphed_column(lift: f32) -> GltfBuilder {
-        let mut b = GltfBuilder::default();
-        let wall = b.cube_mesh([0.8, 0.8, 0.8, 1.0]);
-        b.nodes.push(format!(
-            r#"{{"mesh":{wall},"translation":[0,1.5,0],"scale":[6,3,0.5]}}"#
-        ));
-        let (positions, normals, indices) = cube();
-        let pos = b.vec3(&positions);
-        let nrm = b.vec3(&normals);
-        let idx = b.indices_u16(&indices);
-        let up: Vec<[f32; 3]> = positions
+        let (mut b, attributes, rest) = wall_and_column();
+        let up: Vec<[f32; 3]> = cube()
+            .0
             .iter()
             .map(|p| [0.0, if p[1] > 0.0 { lift } else { 0.0 }, 0.0])
             .collect();
         let up = b.vec3(&up);
-        b.materials
-            .push(r#"{"pbrMetallicRoughness":{"baseColorFactor":[0.9,0.2,0.1,1]}}"#.to_string());
-        let material = b.materials.len() - 1;
         b.meshes.push(format!(
-            r#"{{"name":"column","primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm}}},"targets":[{{"POSITION":{up}}}],"indices":{idx},"material":{material}}}]}}"#
+            r#"{{"name":"column","primitives":[{{"attributes":{{{attributes}}},"targets":[{{"POSITION":{up}}}],{rest}}}]}}"#
         ));
         let column = b.meshes.len() - 1;
         b.nodes
