@@ -1745,10 +1745,10 @@ pub mod testdata {
         )
     }
 
-    /// The wall of [`wall_and_column`] and, 3 m behind it, the column skinned to two joints:
-    /// its bottom four corners to joint node 1 at (0, 0.5, -3), its top four to joint node 2,
-    /// a child of node 1 that the first animation lifts by `lift` and back over 2 s (node 3
-    /// holds the mesh). In the default pose the column hides behind the wall; lifted by 4 its
+    /// A wall (node 0: a cube scaled to 6 x 3 x 0.5 at (0, 1.5, 0)) and, 3 m behind it, a
+    /// red unit column skinned to two joints: its bottom four corners to joint node 1 at (0,
+    /// 0.5, -3), its top four to joint node 2, a child of node 1 that the first animation
+    /// lifts by `lift` and back over 2 s (node 3 holds the mesh). In the default pose the column hides behind the wall; lifted by 4 its
     /// top shows above it from a camera at (0, 1.5, 8).
     pub fn skinned_column(lift: f32) -> GltfBuilder {
         let (mut b, attributes, rest) = wall_and_column();
