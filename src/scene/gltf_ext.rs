@@ -403,46 +403,117 @@ pub(super) fn local_at<'c>(
     Mat4::from_scale_rotation_translation(scale, rotation, translation)
 }
 
+/// A sampler's key times and interpolation, and where a time falls among them: what the
+/// transform and the morph-weights channels share.
+#[derive(Clone, Debug)]
+struct Keys {
+    times: Vec<f32>,
+    interpolation: Interpolation,
+}
+
+/// Where a time falls among the keys: on key `k` (before the first, after the last, or
+/// between two STEP keys), or between keys `k` and `k + 1` at fraction `f`.
+enum Span {
+    Key(usize),
+    Between(usize, f32),
+}
+
+impl Keys {
+    /// The times of the sampler input `input` (a SCALAR accessor).
+    fn read(
+        input: &::gltf::Accessor<'_>,
+        interpolation: Interpolation,
+        buffers: &[Data],
+    ) -> Result<Keys, String> {
+        let times = super::gltf_material::read_elements(input, buffers)?
+            .into_iter()
+            .map(|e| e[0])
+            .collect();
+        Ok(Keys {
+            times,
+            interpolation,
+        })
+    }
+
+    /// Whether the times can be played: some, increasing and finite.
+    fn usable(&self) -> bool {
+        !self.times.is_empty()
+            && self.times.windows(2).all(|w| w[0] < w[1])
+            && self.times.iter().all(|t| t.is_finite())
+    }
+
+    /// Output groups the keys need: one per key, three for a cubic spline (in-tangent, value,
+    /// out-tangent).
+    fn groups(&self) -> usize {
+        self.times.len() * if self.cubic() { 3 } else { 1 }
+    }
+
+    fn cubic(&self) -> bool {
+        self.interpolation == Interpolation::CubicSpline
+    }
+
+    /// The output group that holds key `k`'s value (cubic splines use their key values only).
+    fn value_group(&self, k: usize) -> usize {
+        if self.cubic() {
+            3 * k + 1
+        } else {
+            k
+        }
+    }
+
+    /// Where `t` falls (clamped to the first and last keys).
+    fn span(&self, t: f32) -> Span {
+        let n = self.times.len();
+        let i = self.times.partition_point(|&x| x <= t);
+        if i == 0 {
+            return Span::Key(0);
+        }
+        if i >= n || self.interpolation == Interpolation::Step {
+            return Span::Key(i.min(n) - 1);
+        }
+        let (a, b) = (self.times[i - 1], self.times[i]);
+        Span::Between(i - 1, ((t - a) / (b - a).max(1e-9)).clamp(0.0, 1.0))
+    }
+
+    /// The time of the last key.
+    fn end(&self) -> f32 {
+        self.times.last().copied().unwrap_or(0.0)
+    }
+}
+
 /// One animation channel of a node: key times, values (translation or scale xyz, or rotation
 /// xyzw) and interpolation.
 #[derive(Clone, Debug)]
 pub(super) struct Channel {
     pub node: usize,
     pub property: Property,
-    times: Vec<f32>,
+    keys: Keys,
     values: Vec<[f32; 4]>,
-    interpolation: Interpolation,
 }
 
 impl Channel {
     /// The channel's value at `t` (clamped; cubic splines use their key values only).
     pub fn at(&self, t: f32) -> [f32; 4] {
-        let cubic = self.interpolation == Interpolation::CubicSpline;
-        let value = |k: usize| self.values[if cubic { 3 * k + 1 } else { k }];
-        let n = self.times.len();
-        let i = self.times.partition_point(|&x| x <= t);
-        if i == 0 {
-            return value(0);
-        }
-        if i >= n || self.interpolation == Interpolation::Step {
-            return value(i.min(n) - 1);
-        }
-        let (a, b) = (self.times[i - 1], self.times[i]);
-        let f = ((t - a) / (b - a).max(1e-9)).clamp(0.0, 1.0);
-        let (va, vb) = (value(i - 1), value(i));
-        if self.property == Property::Rotation {
-            Quat::from_array(va)
-                .normalize()
-                .slerp(Quat::from_array(vb).normalize(), f)
-                .to_array()
-        } else {
-            std::array::from_fn(|k| va[k] + (vb[k] - va[k]) * f)
+        let value = |k: usize| self.values[self.keys.value_group(k)];
+        match self.keys.span(t) {
+            Span::Key(k) => value(k),
+            Span::Between(k, f) => {
+                let (va, vb) = (value(k), value(k + 1));
+                if self.property == Property::Rotation {
+                    Quat::from_array(va)
+                        .normalize()
+                        .slerp(Quat::from_array(vb).normalize(), f)
+                        .to_array()
+                } else {
+                    std::array::from_fn(|c| va[c] + (vb[c] - va[c]) * f)
+                }
+            }
         }
     }
 
     /// The time of its last key.
     pub fn end(&self) -> f32 {
-        self.times.last().copied().unwrap_or(0.0)
+        self.keys.end()
     }
 
     /// Reads a translation, rotation or scale channel; `Ok(None)` for other properties (morph
@@ -479,25 +550,17 @@ impl Channel {
                 output.dimensions()
             ));
         }
-        let times: Vec<f32> = super::gltf_material::read_elements(input, buffers)?
-            .into_iter()
-            .map(|e| e[0])
-            .collect();
+        let keys = Keys::read(input, interpolation, buffers)?;
         let values = super::gltf_material::read_elements(output, buffers)?;
-        let cubic = interpolation == Interpolation::CubicSpline;
-        let needed = times.len() * if cubic { 3 } else { 1 };
-        let sorted = times.windows(2).all(|w| w[0] < w[1]);
-        let finite =
-            times.iter().all(|t| t.is_finite()) && values.iter().flatten().all(|v| v.is_finite());
-        if times.is_empty() || values.len() < needed || !sorted || !finite {
+        let finite = values.iter().flatten().all(|v| v.is_finite());
+        if !keys.usable() || values.len() < keys.groups() || !finite {
             return Ok(None);
         }
         Ok(Some(Channel {
             node: json.node,
             property,
-            times,
+            keys,
             values,
-            interpolation,
         }))
     }
 }
@@ -507,12 +570,10 @@ impl Channel {
 #[derive(Clone, Debug)]
 pub(super) struct WeightsChannel {
     pub node: usize,
-    times: Vec<f32>,
-    /// `targets` weights per key; a cubic spline holds three groups per key (in-tangents,
-    /// values, out-tangents).
+    keys: Keys,
+    /// `targets` weights per output group ([`Keys::groups`]).
     values: Vec<f32>,
     targets: usize,
-    interpolation: Interpolation,
 }
 
 impl WeightsChannel {
@@ -520,28 +581,22 @@ impl WeightsChannel {
     /// use their key values only).
     pub fn at(&self, t: f32, out: &mut Vec<f32>) {
         let n = self.targets;
-        let cubic = self.interpolation == Interpolation::CubicSpline;
         let key = |k: usize| {
-            let start = if cubic { (3 * k + 1) * n } else { k * n };
+            let start = self.keys.value_group(k) * n;
             &self.values[start..start + n]
         };
-        let keys = self.times.len();
-        let i = self.times.partition_point(|&x| x <= t);
         out.clear();
-        if i == 0 {
-            out.extend_from_slice(key(0));
-        } else if i >= keys || self.interpolation == Interpolation::Step {
-            out.extend_from_slice(key(i.min(keys) - 1));
-        } else {
-            let (a, b) = (self.times[i - 1], self.times[i]);
-            let f = ((t - a) / (b - a).max(1e-9)).clamp(0.0, 1.0);
-            out.extend(key(i - 1).iter().zip(key(i)).map(|(x, y)| x + (y - x) * f));
+        match self.keys.span(t) {
+            Span::Key(k) => out.extend_from_slice(key(k)),
+            Span::Between(k, f) => {
+                out.extend(key(k).iter().zip(key(k + 1)).map(|(x, y)| x + (y - x) * f))
+            }
         }
     }
 
     /// The time of its last key.
     pub fn end(&self) -> f32 {
-        self.times.last().copied().unwrap_or(0.0)
+        self.keys.end()
     }
 
     /// Reads a morph-weights channel; `Ok(None)` for other properties and for channels
@@ -568,36 +623,21 @@ impl WeightsChannel {
                 output.dimensions()
             ));
         }
-        let times: Vec<f32> = super::gltf_material::read_elements(input, buffers)?
-            .into_iter()
-            .map(|e| e[0])
-            .collect();
+        let keys = Keys::read(input, interpolation, buffers)?;
         let values: Vec<f32> = super::gltf_material::read_elements(output, buffers)?
             .into_iter()
             .map(|e| e[0])
             .collect();
-        let per_key = times.len()
-            * if interpolation == Interpolation::CubicSpline {
-                3
-            } else {
-                1
-            };
-        let sorted = times.windows(2).all(|w| w[0] < w[1]);
-        let finite = times.iter().chain(&values).all(|v| v.is_finite());
-        if per_key == 0
-            || values.is_empty()
-            || !values.len().is_multiple_of(per_key)
-            || !sorted
-            || !finite
-        {
+        let groups = keys.groups();
+        let finite = values.iter().all(|v| v.is_finite());
+        if !keys.usable() || values.is_empty() || !values.len().is_multiple_of(groups) || !finite {
             return Ok(None);
         }
         Ok(Some(WeightsChannel {
             node: json.node,
-            targets: values.len() / per_key,
-            times,
+            targets: values.len() / groups,
+            keys,
             values,
-            interpolation,
         }))
     }
 }
@@ -679,7 +719,7 @@ fn animated_keys(
     let channels = node_channels(doc, node, buffers, warnings);
     let mut times: Vec<f32> = channels
         .iter()
-        .flat_map(|c| c.times.iter().copied())
+        .flat_map(|c| c.keys.times.iter().copied())
         .filter(|t| t.is_finite())
         .collect();
     times.sort_by(f32::total_cmp);

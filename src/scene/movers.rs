@@ -96,20 +96,23 @@ impl Movers {
             }
             let mut pose = MeshPose::default();
             animation.pose_meshes(0, &mut pose);
-            for (index, a) in animation.deformed.iter().enumerate() {
-                let mesh = a.mesh;
+            // The scene's vertices start in the pose of frame 0, each mesh once.
+            for mesh in 0..animation.deformed_meshes() {
                 let first = animation.deformed_first_vertex(mesh) as usize;
                 let posed = pose.mesh(mesh);
                 if let Some(range) = scene.vertices.get_mut(first..first + posed.len()) {
                     range.copy_from_slice(posed);
                 }
+            }
+            for (index, a) in animation.deformed.iter().enumerate() {
+                let mesh = a.mesh;
                 let mut object = a.object.clone();
                 object.transform = animation.deformed_transform(index, 0);
                 object.bounds = pose.bounds(mesh).transformed(&object.transform);
                 object.material = object.material.map(|m| unblended(scene, m));
                 movers.movers.push(Mover {
                     object: scene.objects.len() as u32,
-                    local: object.bounds,
+                    local: pose.bounds(mesh),
                     route: Route::Deformed { index },
                 });
                 scene.objects.push(object);
@@ -201,16 +204,22 @@ impl Movers {
         }
     }
 
-    /// Poses the animation's deformed meshes at `frame` (once per frame) and calls `f` with
-    /// the pose; `None` without deformed meshes.
-    fn with_skins<R>(&self, frame: u64, f: impl FnOnce(&MeshPose) -> R) -> Option<R> {
+    /// The glTF animation with its deformed meshes posed at `frame` (posed once per frame,
+    /// into the movers' scratch); `None` without deformed meshes.
+    fn posed(
+        &self,
+        frame: u64,
+    ) -> Option<(
+        &super::animation::Animation,
+        std::cell::RefMut<'_, MeshPose>,
+    )> {
         let a = self
             .animation
-            .as_ref()
+            .as_deref()
             .filter(|a| a.deformed_meshes() > 0)?;
         let mut pose = self.skins.borrow_mut();
         a.pose_meshes(frame, &mut pose);
-        Some(f(&pose))
+        Some((a, pose))
     }
 
     /// The vertices of each mesh that the glTF animation deforms (skins, morph weights),
@@ -223,14 +232,10 @@ impl Movers {
         frame: u64,
         mut deform: impl FnMut(u32, &[Vertex]) -> Result<()>,
     ) -> Result<()> {
-        let Some(a) = &self.animation else {
+        let Some((a, pose)) = self.posed(frame) else {
             return Ok(());
         };
-        self.with_skins(frame, |pose| {
-            (0..a.deformed_meshes())
-                .try_for_each(|i| deform(a.deformed_first_vertex(i), pose.mesh(i)))
-        })
-        .unwrap_or(Ok(()))
+        (0..a.deformed_meshes()).try_for_each(|i| deform(a.deformed_first_vertex(i), pose.mesh(i)))
     }
 
     /// The meshes the glTF animation deforms (skins, morph weights), posed every frame.
@@ -246,16 +251,11 @@ impl Movers {
         frame: u64,
         mut place: impl FnMut(u32, Aabb, &Mat4) -> Result<()>,
     ) -> Result<()> {
-        let skins = self.animation.as_ref().filter(|a| a.deformed_meshes() > 0);
-        let pose = skins.map(|a| {
-            let mut pose = self.skins.borrow_mut();
-            a.pose_meshes(frame, &mut pose);
-            pose
-        });
+        let posed = self.posed(frame);
         for m in &self.movers {
             let t = self.transform_of(m, frame);
-            let bounds = match (m.route, skins, &pose) {
-                (Route::Deformed { index }, Some(a), Some(pose)) => {
+            let bounds = match (m.route, &posed) {
+                (Route::Deformed { index }, Some((a, pose))) => {
                     pose.bounds(a.deformed[index].mesh).transformed(&t)
                 }
                 _ => m.local.transformed(&t),
