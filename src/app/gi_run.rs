@@ -482,6 +482,9 @@ struct World {
     /// The movers at frame 0 (each mode and the reference move a copy).
     movers: Option<GiMovers>,
     first_mover: u32,
+    /// The scene's objects and triangles, the movers included.
+    objects: usize,
+    triangles: u64,
 }
 
 impl World {
@@ -497,11 +500,14 @@ impl World {
                 rays,
                 movers: None,
                 first_mover: 0,
+                objects: scene.objects.len(),
+                triangles: scene.triangle_count(),
             };
         }
         let mut scene = scene.clone();
         let statics = scene.objects.len();
         let added = Movers::add(&mut scene, movers);
+        let (objects, triangles) = (scene.objects.len(), scene.triangle_count());
         let fixed = WorldGeometry::from_objects(&scene, 0..statics);
         let moving = WorldGeometry::from_objects(&scene, statics..scene.objects.len());
         let mut bounds = fixed.bounds.union(&moving.bounds);
@@ -525,6 +531,8 @@ impl World {
             rays,
             movers: Some(gi_movers),
             first_mover,
+            objects,
+            triangles,
         }
     }
 
@@ -563,7 +571,7 @@ impl World {
         let Some(movers) = movers else {
             return Ok(Vec::new());
         };
-        let moves = movers.advance(u64::from(frame));
+        let moves = movers.advance(u64::from(frame))?;
         if !moves.is_empty() {
             let placed = movers.geometry();
             renderer.move_triangles(self.first_mover, &placed)?;
@@ -759,12 +767,12 @@ pub fn run_reporting(
     }
     let mut summary = GiSummary {
         scene: scene.name.clone(),
-        objects: scene.objects.len(),
-        triangles: scene.triangle_count(),
+        objects: world.objects,
+        triangles: world.triangles,
         device: ctx.info.name.clone(),
         size: format!("{}x{}", opts.width, opts.height),
         frames: opts.frames,
-        movers: setup.movers + scene.animation.as_ref().map_or(0, |a| a.objects.len()),
+        movers: world.movers.as_ref().map_or(0, GiMovers::len),
         rmse_frames: sampled.clone(),
         algorithms: Vec::new(),
     };

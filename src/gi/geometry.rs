@@ -29,6 +29,16 @@ fn material_albedo(
 /// Floats per GPU vertex: position (vec4), normal (vec4), albedo (vec4), std430 layout.
 pub const VERTEX_FLOATS: usize = 12;
 
+/// One piece of a tessellated triangle: its source triangle and its corners as barycentric
+/// weights of the source's corners.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Piece {
+    /// Index of the triangle the piece was split from.
+    pub source: u32,
+    /// Each corner of the piece as weights of the source's three corners.
+    pub weights: [Vec3; 3],
+}
+
 /// World-space triangles of a scene with one albedo each.
 #[derive(Clone, Debug)]
 pub struct WorldGeometry {
@@ -116,6 +126,15 @@ impl WorldGeometry {
     /// most 2^12 pieces per triangle). The paraboloid shadow maps interpolate straight edges in a
     /// non-linear projection, so long triangles cast visibly wrong shadows; short ones don't.
     pub fn tessellated(&self, max_edge: f32) -> WorldGeometry {
+        self.tessellated_pieces(max_edge).0
+    }
+
+    /// [`WorldGeometry::tessellated`], and where each piece lies in the triangle it came
+    /// from: the source triangle and the piece's corners as barycentric weights of the
+    /// source's corners. [`WorldGeometry::reshaped`] places the same pieces on the source
+    /// triangles' new corners (a deformed mesh keeps its split from pose to pose).
+    pub fn tessellated_pieces(&self, max_edge: f32) -> (WorldGeometry, Vec<Piece>) {
+        let mut pieces = Vec::with_capacity(self.triangles.len());
         let mut out = WorldGeometry {
             triangles: Vec::with_capacity(self.triangles.len()),
             normals: Vec::with_capacity(self.triangles.len()),
@@ -161,6 +180,10 @@ impl WorldGeometry {
                     out.triangles.push(p);
                     out.normals.push(m);
                     out.albedo.push(*a);
+                    pieces.push(Piece {
+                        source: index as u32,
+                        weights: w,
+                    });
                     continue;
                 }
                 // Split edge (k, k+1) at its midpoint; the opposite corner is k+2.
@@ -178,6 +201,43 @@ impl WorldGeometry {
                 second.3[i] = mid_w;
                 stack.push(first);
                 stack.push(second);
+            }
+        }
+        (out, pieces)
+    }
+
+    /// The pieces `pieces` (from [`WorldGeometry::tessellated_pieces`] of a geometry with the
+    /// same triangles) placed on `corners`, the source triangles' new corners, with
+    /// normals interpolated from `normals` (theirs); albedo and masks are taken from
+    /// `self`, the tessellated geometry at rest. Pieces whose source is not in `corners`
+    /// keep their place.
+    pub fn reshaped(
+        &self,
+        pieces: &[Piece],
+        corners: &[[Vec3; 3]],
+        normals: &[[Vec3; 3]],
+    ) -> WorldGeometry {
+        let mut out = self.clone();
+        out.bounds = Aabb::EMPTY;
+        for (k, piece) in pieces.iter().enumerate() {
+            let s = piece.source as usize;
+            let (Some(p), Some(n), Some(t), Some(m)) = (
+                corners.get(s),
+                normals.get(s),
+                out.triangles.get_mut(k),
+                out.normals.get_mut(k),
+            ) else {
+                continue;
+            };
+            for c in 0..3 {
+                let w = piece.weights[c];
+                t[c] = p[0] * w.x + p[1] * w.y + p[2] * w.z;
+                m[c] = (n[0] * w.x + n[1] * w.y + n[2] * w.z).normalize_or(n[0]);
+            }
+        }
+        for t in &out.triangles {
+            for &p in t {
+                out.bounds.grow(p);
             }
         }
         out

@@ -1,14 +1,18 @@
-//! Moving objects in GI (`gi --movers N`): the scene's built-in movers as world-space triangles
-//! that follow their transforms frame by frame (the renderer's vertex tail, the ray scene's
-//! mover hierarchy, the imperfect shadow maps' points), and which VPLs a move affects.
+//! Moving objects in GI (`gi --movers N`, and what a glTF file's animation moves): the movers
+//! as world-space triangles that follow their transforms frame by frame (the renderer's vertex
+//! tail, the ray scene's mover hierarchy, the imperfect shadow maps' points), and which VPLs a
+//! move affects. A mesh that the animation deforms (a skin, morph weights) is posed each frame:
+//! its triangles keep the split of its first pose ([`Piece`]s placed on the posed corners), so
+//! the renderer's triangle count never changes.
 //! Incremental instant radiosity deletes the VPLs that lay on a moved object (their surface is
 //! gone) and re-renders the shadow maps of the VPLs whose hemisphere holds the object's old or
 //! new box (the map may have changed there); every other map is kept.
 
 use glam::{Mat3, Mat4, Vec3};
 
-use super::geometry::WorldGeometry;
+use super::geometry::{Piece, WorldGeometry};
 use super::vpl::Vpl;
+use crate::error::Result;
 use crate::scene::movers::Movers;
 use crate::scene::{Aabb, Scene};
 
@@ -22,6 +26,47 @@ pub struct GiMovers {
     transforms: Vec<Mat4>,
     /// Each mover's current world box.
     boxes: Vec<Aabb>,
+    /// For each mover whose mesh the animation deforms: how to pose its triangles.
+    shapes: Vec<Option<Shape>>,
+}
+
+/// How a deformed mover's triangles follow its posed vertices.
+#[derive(Clone, Debug)]
+struct Shape {
+    /// The scene's vertex where the deformed mesh starts (as [`Movers::for_each_deformed`]
+    /// passes it).
+    first_vertex: u32,
+    /// The object's triangles as scene vertex indices.
+    corners: Vec<[u32; 3]>,
+    /// The pieces the first pose's triangles were split into.
+    pieces: Vec<Piece>,
+    /// Scratch: the posed triangles and their normals.
+    posed: (Vec<[Vec3; 3]>, Vec<[Vec3; 3]>),
+}
+
+impl Shape {
+    /// The mover's triangles (`rest`: split, with albedo and masks) on `vertices`, the posed
+    /// vertices of the mesh that starts at `first_vertex`.
+    fn pose(&mut self, rest: &WorldGeometry, vertices: &[crate::scene::Vertex]) -> WorldGeometry {
+        let (triangles, normals) = &mut self.posed;
+        triangles.clear();
+        normals.clear();
+        for c in &self.corners {
+            let v = c.map(|i| {
+                (i.checked_sub(self.first_vertex))
+                    .and_then(|k| vertices.get(k as usize))
+                    .map_or((Vec3::ZERO, Vec3::Y), |v| {
+                        (
+                            Vec3::from(v.position),
+                            Vec3::from(v.normal).normalize_or_zero(),
+                        )
+                    })
+            });
+            triangles.push(v.map(|(p, _)| p));
+            normals.push(v.map(|(_, n)| n));
+        }
+        rest.reshaped(&self.pieces, triangles, normals)
+    }
 }
 
 /// One mover's move between two frames: its world box before and after.
@@ -40,12 +85,38 @@ impl GiMovers {
         let mut local = Vec::with_capacity(movers.len());
         let mut transforms = Vec::with_capacity(movers.len());
         let mut boxes = Vec::with_capacity(movers.len());
+        let mut shapes = Vec::with_capacity(movers.len());
         for i in 0..movers.len() {
             let object = movers.object(i) as usize;
             let geometry = WorldGeometry::object_local(scene, object);
             // Slightly shorter than the static edges, so that placing the pieces (a rigid
             // motion, exact only up to rounding) never makes the renderer split them again.
-            local.push(geometry.tessellated(max_edge * 0.999));
+            let (split, pieces) = geometry.tessellated_pieces(max_edge * 0.999);
+            let shape = movers.deformed_first_vertex(i).map(|first_vertex| {
+                let o = &scene.objects[object];
+                let range = o.first_index as usize..(o.first_index + o.index_count) as usize;
+                let corners = scene.indices.get(range).unwrap_or_default();
+                let mut shape = Shape {
+                    first_vertex,
+                    corners: corners
+                        .chunks_exact(3)
+                        .map(|t| [0, 1, 2].map(|k| o.vertex_offset + t[k]))
+                        .collect(),
+                    pieces,
+                    posed: Default::default(),
+                };
+                // The first pose through the same interpolation as every later one, so that
+                // an unchanged pose reads as unchanged.
+                let first = shape.first_vertex as usize;
+                let rest = shape.pose(&split, scene.vertices.get(first..).unwrap_or_default());
+                (shape, rest)
+            });
+            let (shape, split) = match shape {
+                Some((shape, rest)) => (Some(shape), rest),
+                None => (None, split),
+            };
+            local.push(split);
+            shapes.push(shape);
             let t = movers.transform_at(i, 0);
             boxes.push(local[i].bounds.transformed(&t));
             transforms.push(t);
@@ -55,6 +126,7 @@ impl GiMovers {
             local,
             transforms,
             boxes,
+            shapes,
         }
     }
 
@@ -77,13 +149,30 @@ impl GiMovers {
         out
     }
 
-    /// Moves every mover to its place at `frame`; returns the moves of those whose transform
-    /// changed.
-    pub fn advance(&mut self, frame: u64) -> Vec<Move> {
+    /// Moves every mover to its place at `frame` and poses the meshes the animation deforms;
+    /// returns the moves of those whose transform or shape changed.
+    pub fn advance(&mut self, frame: u64) -> Result<Vec<Move>> {
+        let mut reshaped = vec![false; self.movers.len()];
+        if self.shapes.iter().any(Option::is_some) {
+            let (shapes, local) = (&mut self.shapes, &mut self.local);
+            self.movers.for_each_deformed(frame, |first, vertices| {
+                for (i, shape) in shapes.iter_mut().enumerate() {
+                    let Some(shape) = shape.as_mut().filter(|s| s.first_vertex == first) else {
+                        continue;
+                    };
+                    let posed = shape.pose(&local[i], vertices);
+                    if posed.triangles != local[i].triangles || posed.normals != local[i].normals {
+                        local[i] = posed;
+                        reshaped[i] = true;
+                    }
+                }
+                Ok(())
+            })?;
+        }
         let mut moves = Vec::new();
-        for i in 0..self.movers.len() {
+        for (i, reshaped) in reshaped.into_iter().enumerate() {
             let t = self.movers.transform_at(i, frame);
-            if t == self.transforms[i] {
+            if t == self.transforms[i] && !reshaped {
                 continue;
             }
             let new = self.local[i].bounds.transformed(&t);
@@ -94,7 +183,7 @@ impl GiMovers {
             self.transforms[i] = t;
             self.boxes[i] = new;
         }
-        moves
+        Ok(moves)
     }
 }
 
@@ -180,6 +269,66 @@ mod tests {
             disk_point: glam::Vec2::ZERO,
             weight: 0.1,
             layer,
+        }
+    }
+
+    fn area(g: &WorldGeometry) -> f32 {
+        g.triangles
+            .iter()
+            .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
+            .sum()
+    }
+
+    /// A skinned and a morphed column (1 x 1 x 1, its top lifted by 4 at 1 s): split into
+    /// pieces, its triangles follow the pose each frame with the same count, its surface is
+    /// the posed column's, and a pose that changes nothing moves nothing.
+    #[test]
+    fn deformed_movers_keep_their_pieces_on_the_posed_shape() {
+        use crate::scene::gltf::testdata::{morphed_column, skinned_column};
+        let dir = crate::testing::TempDir::new("gi_deformed");
+        for (name, b) in [
+            ("skinned", skinned_column(4.0)),
+            ("morphed", morphed_column(4.0)),
+        ] {
+            let path = dir.path().join(format!("{name}.gltf"));
+            std::fs::write(&path, b.gltf_embedded()).unwrap();
+            let mut scene = Scene::load(path.to_str().unwrap(), 1.0, 0).unwrap();
+            let movers = Movers::add(&mut scene, 0);
+            assert!(movers.deformed_first_vertex(0).is_some(), "{name}");
+            let mut gi = GiMovers::new(&scene, movers, 0.3);
+            let count = gi.geometry().triangles.len();
+            assert!(count > 12 * 8, "{name}: split into pieces ({count})");
+            let rest = gi.geometry();
+            assert!((area(&rest) - 6.0).abs() < 1e-4, "{name}: {}", area(&rest));
+            assert!(
+                gi.advance(0).unwrap().is_empty(),
+                "{name}: frame 0 is the rest pose"
+            );
+            // 1 s: the top lifted by 4, the box 5 high; the pieces cover the posed column.
+            let moves = gi.advance(30).unwrap();
+            assert_eq!(moves.len(), 1, "{name}");
+            assert_eq!(moves[0].old, rest.bounds, "{name}");
+            assert!((moves[0].new.max.y - moves[0].old.max.y - 4.0).abs() < 1e-5);
+            let posed = gi.geometry();
+            assert_eq!(posed.triangles.len(), count, "{name}");
+            assert_eq!(posed.bounds, moves[0].new, "{name}");
+            assert!(
+                (area(&posed) - 22.0).abs() < 1e-3,
+                "{name}: {}",
+                area(&posed)
+            );
+            // The side pieces' normals stay horizontal; the same frame again moves nothing.
+            for (t, n) in posed.triangles.iter().zip(&posed.normals) {
+                let side = t.iter().any(|p| p.y > 0.1 + moves[0].new.min.y)
+                    && t.iter().any(|p| p.y < moves[0].new.max.y - 0.1);
+                if side {
+                    assert!(n.iter().all(|n| n.y.abs() < 1e-5), "{name}: {n:?}");
+                }
+            }
+            assert!(gi.advance(30).unwrap().is_empty(), "{name}");
+            // Back at the start of the loop: the rest shape again.
+            assert_eq!(gi.advance(60).unwrap().len(), 1, "{name}");
+            assert_eq!(gi.geometry().triangles, rest.triangles, "{name}");
         }
     }
 

@@ -238,6 +238,19 @@ impl Movers {
         (0..a.deformed_meshes()).try_for_each(|i| deform(a.deformed_first_vertex(i), pose.mesh(i)))
     }
 
+    /// For a mover whose mesh the glTF animation deforms (skin, morph weights): the
+    /// scene's vertex where that mesh starts, the `first_vertex` that
+    /// [`Movers::for_each_deformed`] passes with its posed vertices. `None` for the others.
+    pub fn deformed_first_vertex(&self, i: usize) -> Option<u32> {
+        match (self.movers.get(i)?.route, &self.animation) {
+            (Route::Deformed { index }, Some(a)) => {
+                let mesh = a.deformed.get(index)?.mesh;
+                (mesh < a.deformed_meshes()).then(|| a.deformed_first_vertex(mesh))
+            }
+            _ => None,
+        }
+    }
+
     /// The meshes the glTF animation deforms (skins, morph weights), posed every frame.
     pub fn deformed_meshes(&self) -> usize {
         self.animation.as_ref().map_or(0, |a| a.deformed_meshes())

@@ -273,6 +273,55 @@ fn gi_with_movers_runs_all_modes_and_incremental_renders_the_touched_maps() {
     common::assert_silent(&log);
 }
 
+/// A glTF column that its skin's joint lifts (its transform never changes): GI poses it each
+/// frame, so the incremental mode renders again the maps of the VPLs that see it, which it
+/// would not do for a column that stands still; every mode still matches the reference.
+#[test]
+fn gi_poses_skinned_meshes_and_incremental_renders_the_maps_they_touch() {
+    use coherent::scene::gltf::testdata::skinned_column;
+    let dir = coherent::testing::TempDir::new("gi_skinned");
+    let (ctx, log) = common::context();
+    {
+        let opts = GiRunOptions {
+            vpls: 32,
+            budget: 2,
+            frames: 6,
+            width: 64,
+            height: 48,
+            modes: vec![GiMode::Incremental, GiMode::Full],
+            shadow_size: 64,
+            sample_frames: 1,
+            ism: IsmOptions::default(),
+        };
+        let run = |lift: f32| {
+            let path = dir.join(format!("column_{lift}.gltf"));
+            std::fs::write(&path, skinned_column(lift).gltf_embedded()).unwrap();
+            let scene = Scene::load(path.to_str().unwrap(), 1.0, 0).expect("scene");
+            gi_run::run_with(&ctx, &scene, &opts, None, &GiSetup::default()).expect("gi run")
+        };
+        let maps = |s: &gi_run::GiSummary, mode: &str| {
+            s.algorithms
+                .iter()
+                .find(|(name, _)| name == mode)
+                .map(|(_, m)| m.shadow_maps_rendered_median)
+                .expect("mode")
+        };
+        let still = run(0.0);
+        let lifted = run(4.0);
+        eprintln!("{}{}", still.table(), lifted.table());
+        assert_eq!((lifted.movers, lifted.objects), (1, 2));
+        assert!(
+            maps(&lifted, "incremental") > maps(&still, "incremental"),
+            "the posed column makes incremental render more maps"
+        );
+        for (name, m) in &lifted.algorithms {
+            assert!(m.rmse_vs_reference.is_some_and(f64::is_finite), "{name}");
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
 #[test]
 fn movers_geometry_follows_the_transform() {
     let g = occluder(&Mat4::IDENTITY);
