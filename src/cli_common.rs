@@ -8,6 +8,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 
 use coherent::gpu::{ContextOptions, GpuContext};
+use coherent::scene::gltf::AnimationChoice;
 use coherent::scene::Scene;
 
 /// Flags shared by commands that load a scene.
@@ -27,6 +28,10 @@ pub struct SceneArgs {
     /// Objects per BVH leaf.
     #[arg(long, default_value_t = 1)]
     pub leaf_size: u32,
+    /// A glTF file's animation to play, by index or name, or `none` (every object static);
+    /// the file's first by default. Its moving objects are movers.
+    #[arg(long, value_name = "INDEX|NAME|none")]
+    pub animation: Option<AnimationChoice>,
 }
 
 /// The Vulkan context, echoing validation messages as they come.
@@ -41,11 +46,12 @@ pub fn context(validation: bool) -> Result<Arc<GpuContext>> {
 /// The scene of the flags at `scale`; the interior walk of a glTF file is kept in
 /// `cache_dir`.
 pub fn load_scene(a: &SceneArgs, scale: f32, cache_dir: &Path) -> Result<Scene> {
-    Ok(Scene::load_cached(
+    Ok(Scene::load_with(
         &a.scene,
         scale,
         a.chunk_triangles,
-        cache_dir,
+        Some(cache_dir),
+        &a.animation.clone().unwrap_or_default(),
     )?)
 }
 

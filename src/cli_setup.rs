@@ -261,8 +261,12 @@ fn scene_id(a: &SceneArgs) -> String {
                 .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
                 .map(|d| d.as_secs())
                 .unwrap_or(0);
+            let animation = match &a.animation {
+                None => String::new(),
+                Some(choice) => format!(":{choice:?}"),
+            };
             format!(
-                "{}:{}:{mtime}:{}",
+                "{}:{}:{mtime}:{}{animation}",
                 canon.display(),
                 m.len(),
                 a.chunk_triangles

@@ -42,9 +42,48 @@ pub(super) const MAX_COORDINATE: f32 = 1.0e12;
 /// out-of-range accessors or indices, non-finite positions, no triangles at all) gives
 /// [`Error::Scene`] with a single line `"<path>: <problem>"`.
 pub fn load_gltf(path: &Path) -> Result<(Scene, Vec<String>), Error> {
+    load_gltf_playing(path, &AnimationChoice::First)
+}
+
+/// Which of a glTF file's animations is played (`--animation`): its objects become movers
+/// and the meshes it deforms are posed each frame; the others are not played.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum AnimationChoice {
+    /// The file's first animation (the default).
+    #[default]
+    First,
+    /// None: the scene is drawn in its default pose, every object static.
+    Nothing,
+    /// The animation at this index of the file's list.
+    Index(usize),
+    /// The first animation with this name.
+    Name(String),
+}
+
+impl std::str::FromStr for AnimationChoice {
+    type Err = std::convert::Infallible;
+
+    /// `none`, an index (`0`, `1`, ...) or a name.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(match s {
+            "none" => AnimationChoice::Nothing,
+            _ => match s.parse() {
+                Ok(i) => AnimationChoice::Index(i),
+                Err(_) => AnimationChoice::Name(s.to_string()),
+            },
+        })
+    }
+}
+
+/// [`load_gltf`] playing the animation `choice` names instead of the first; a choice the file
+/// does not have is an [`Error::Scene`] that lists the file's animations.
+pub fn load_gltf_playing(
+    path: &Path,
+    choice: &AnimationChoice,
+) -> Result<(Scene, Vec<String>), Error> {
     // Known panics of the `gltf` crate are checked for before it runs (see `parse` and
     // `check_external_uri`); any other is contained here and becomes the same one-line error.
-    let loaded = std::panic::catch_unwind(|| load(path))
+    let loaded = std::panic::catch_unwind(|| load(path, choice))
         .unwrap_or_else(|_| Err("the glTF crate failed on this file (a panic, contained)".into()));
     loaded.map_err(|problem| {
         let problem = problem.replace(['\n', '\r'], " ");
@@ -128,7 +167,7 @@ struct Loader<'a> {
     materials: MaterialLoader,
 }
 
-fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
+fn load(path: &Path, choice: &AnimationChoice) -> Result<(Scene, Vec<String>), String> {
     let bytes = std::fs::read(path).map_err(|e| format!("cannot read file: {e}"))?;
     let Gltf { document, blob } = parse(&bytes)?;
     drop(bytes);
@@ -137,7 +176,8 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
     super::gltf_ext::decode_meshopt(&document, &mut buffers)?;
 
     let mut warnings = super::gltf_ext::unsupported_warnings(&document);
-    let mut animation = first_animation(&document, &buffers, &mut warnings);
+    let played = chosen_animation(&document, choice)?;
+    let mut animation = read_animation(&document, played, &buffers, &mut warnings);
     if document.skins().len() > 0 {
         let (nodes, order) = rest_nodes(&document);
         animation.set_nodes(nodes, order);
@@ -181,18 +221,26 @@ fn load(path: &Path) -> Result<(Scene, Vec<String>), String> {
             ""
         };
         loader.warnings.push(format!(
-            "animation 0 moves {moved} object(s): they are movers, placed every frame ({} \
+            "animation {} moves {moved} object(s): they are movers, placed every frame ({} \
              frames a second, a loop of {:.2} s{skinned}){still}{}",
+            played.unwrap_or(0),
             super::animation::ANIMATION_FPS,
             animation.duration(),
             match animations - 1 {
                 0 => String::new(),
-                n => format!("; {n} other animation(s) not played"),
+                n => format!(
+                    "; {n} other animation(s) not played ({}; --animation picks one)",
+                    animation_list(&document, played)
+                ),
             }
         ));
     } else if animations > 0 {
         loader.warnings.push(format!(
-            "{animations} animation(s) not played: the scene is drawn in its default pose"
+            "{animations} animation(s) not played{}: the scene is drawn in its default pose",
+            match played {
+                Some(_) => String::new(),
+                None => " (--animation none)".to_string(),
+            }
         ));
     }
     if loader.objects.is_empty() && moved == 0 {
@@ -517,15 +565,63 @@ pub(super) fn parentless_nodes(doc: &Document) -> Vec<Node<'_>> {
         .collect()
 }
 
-/// The translation, rotation, scale and morph-weights channels of the file's first animation (those that
-/// cannot be read are left out with a warning).
-fn first_animation(
+/// The index of the animation `choice` names (`None` for none; the first of a file without
+/// animations is none), or an error listing the file's animations.
+fn chosen_animation(doc: &Document, choice: &AnimationChoice) -> Result<Option<usize>, String> {
+    let count = doc.animations().len();
+    let found = match choice {
+        AnimationChoice::First => return Ok((count > 0).then_some(0)),
+        AnimationChoice::Nothing => return Ok(None),
+        AnimationChoice::Index(i) => (*i < count).then_some(*i),
+        AnimationChoice::Name(name) => doc
+            .animations()
+            .position(|a| a.name() == Some(name.as_str())),
+    };
+    found.map(Some).ok_or_else(|| {
+        let what = match choice {
+            AnimationChoice::Name(name) => format!("no animation named \"{name}\""),
+            AnimationChoice::Index(i) => format!("no animation {i}"),
+            _ => "no such animation".to_string(),
+        };
+        match count {
+            0 => format!("{what}: the file has no animation"),
+            _ => format!(
+                "{what}: the file's animations are {}",
+                animation_list(doc, None)
+            ),
+        }
+    })
+}
+
+/// The file's animations but `except` as `--animation` takes them: "0 \"Survey\", 1
+/// \"Walk\", ..." (the first 12).
+fn animation_list(doc: &Document, except: Option<usize>) -> String {
+    let mut list: Vec<String> = doc
+        .animations()
+        .filter(|a| Some(a.index()) != except)
+        .take(12)
+        .map(|a| match a.name() {
+            Some(name) => format!("{} \"{}\"", a.index(), name.escape_debug()),
+            None => a.index().to_string(),
+        })
+        .collect();
+    if doc.animations().len() > 12 + usize::from(except.is_some()) {
+        list.push("...".to_string());
+    }
+    list.join(", ")
+}
+
+/// The translation, rotation, scale and morph-weights channels of animation `index` (those
+/// that cannot be read are left out with a warning); an animation that moves nothing without
+/// one.
+fn read_animation(
     doc: &Document,
+    index: Option<usize>,
     buffers: &[Data],
     warnings: &mut Vec<String>,
 ) -> super::animation::Animation {
     let (mut channels, mut weights) = (Vec::new(), Vec::new());
-    if let Some(anim) = doc.animations().next() {
+    if let Some(anim) = index.and_then(|i| doc.animations().nth(i)) {
         for ch in anim.channels() {
             let read = match super::gltf_ext::Channel::read(doc, &ch, buffers) {
                 Ok(Some(c)) => {
@@ -537,7 +633,11 @@ fn first_animation(
                 Err(e) => Err(e),
             };
             if let Err(e) = read {
-                warnings.push(format!("animation 0 channel {}: {e}, left out", ch.index()))
+                warnings.push(format!(
+                    "animation {} channel {}: {e}, left out",
+                    anim.index(),
+                    ch.index()
+                ))
             }
         }
     }
@@ -2812,6 +2912,76 @@ mod tests {
             let b = scene.objects[o as usize].bounds;
             assert_eq!(bvh.set_bounds(o, b).is_ok(), o > 0, "object {o} in a leaf");
         }
+    }
+
+    /// `--animation`: by name or index another animation is played (its objects the movers,
+    /// the first's static), `none` plays none, and a choice the file lacks is an error that
+    /// lists the animations.
+    #[test]
+    fn the_chosen_animation_is_played_and_the_others_are_not() {
+        let dir = temp_dir("chosen");
+        let mut b = animated_cubes(5.0);
+        let times = b.key_times(&[0.0, 1.0]);
+        let lifted = b.vec3(&[[0.0, 0.0, -1.0], [0.0, 3.0, -1.0]]);
+        // Two animations: "slide" (animated_cubes's: nodes 1 and 2) and "lift" (node 0 up).
+        let slide = b
+            .head
+            .replacen(r#""animations":[{"#, r#""animations":[{"name":"slide","#, 1);
+        let slide = slide
+            .strip_suffix("],")
+            .expect("the animations list ends the head");
+        b.head = format!(
+            r#"{slide},{{"name":"lift","samplers":[{{"input":{times},"output":{lifted}}}],"channels":[{{"sampler":0,"target":{{"node":0,"path":"translation"}}}}]}}],"#
+        );
+        let path = write(&dir, "two.gltf", b.gltf_embedded());
+        let load = |choice: &str| load_gltf_playing(&path, &choice.parse().unwrap());
+        let (first, warnings) = load_gltf(&path).expect("load");
+        assert_eq!(first.objects.len(), 1, "slide moves two of the three cubes");
+        assert!(
+            warnings[0].ends_with(
+                r#"; 1 other animation(s) not played (1 "lift"; --animation picks one)"#
+            ),
+            "{warnings:?}"
+        );
+        for choice in ["lift", "1"] {
+            let (mut scene, warnings) = load(choice).expect("lift");
+            assert!(
+                warnings[0].starts_with("animation 1 moves 1 object(s)"),
+                "{warnings:?}"
+            );
+            assert!(warnings[0].ends_with(r#"(0 "slide"; --animation picks one)"#));
+            assert_eq!(scene.objects.len(), 2, "the slid cubes stand still");
+            let movers = crate::scene::movers::Movers::add(&mut scene, 0);
+            assert_eq!(movers.len(), 1);
+            let up = movers.transform_at(0, 15).w_axis.y - movers.transform_at(0, 0).w_axis.y;
+            assert_eq!(up, 1.5, "lift raises node 0 by 1.5 in 0.5 s");
+        }
+        let (still, warnings) = load("none").expect("none");
+        assert_eq!(still.objects.len(), 3);
+        assert!(still.animation.is_none());
+        assert_eq!(
+            warnings,
+            ["2 animation(s) not played (--animation none): the scene is drawn in its default pose"]
+        );
+        for (choice, what) in [
+            ("jump", r#"no animation named "jump""#),
+            ("2", "no animation 2"),
+        ] {
+            let e = load(choice).err().unwrap().to_string();
+            assert_eq!(
+                e,
+                format!(
+                    "{}: {what}: the file's animations are 0 \"slide\", 1 \"lift\"",
+                    path.display()
+                )
+            );
+        }
+        // A built-in scene has no glTF animation to pick.
+        let e = crate::scene::Scene::load_with("cornell", 1.0, 0, None, &AnimationChoice::Nothing)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("\"cornell\" is a built-in scene"), "{e}");
     }
 
     #[test]

@@ -181,7 +181,13 @@ impl Scene {
     /// blocks, rows or rooms; (0, 64]) and a glTF file's coordinates ([`Scene::magnify`];
     /// [`GLTF_SCALES`]). Warnings are printed to stderr.
     pub fn load(name_or_path: &str, scale: f32, chunk_triangles: u32) -> crate::Result<Scene> {
-        Scene::load_with(name_or_path, scale, chunk_triangles, None)
+        Scene::load_with(
+            name_or_path,
+            scale,
+            chunk_triangles,
+            None,
+            &gltf::AnimationChoice::First,
+        )
     }
 
     /// As [`Scene::load`], with the interior walk of a glTF file read from the cache directory
@@ -193,17 +199,34 @@ impl Scene {
         chunk_triangles: u32,
         cache_dir: &std::path::Path,
     ) -> crate::Result<Scene> {
-        Scene::load_with(name_or_path, scale, chunk_triangles, Some(cache_dir))
+        Scene::load_with(
+            name_or_path,
+            scale,
+            chunk_triangles,
+            Some(cache_dir),
+            &gltf::AnimationChoice::First,
+        )
     }
 
-    fn load_with(
+    /// As [`Scene::load`], with the interior walk kept in `cache_dir` if given (see
+    /// [`Scene::load_cached`]), playing the glTF animation `animation` (the file's first by
+    /// default; see [`gltf::load_gltf_playing`]). A built-in scene takes only the default.
+    pub fn load_with(
         name_or_path: &str,
         scale: f32,
         chunk_triangles: u32,
         cache_dir: Option<&std::path::Path>,
+        animation: &gltf::AnimationChoice,
     ) -> crate::Result<Scene> {
         let lower = name_or_path.to_lowercase();
-        if lower.ends_with(".gltf") || lower.ends_with(".glb") {
+        let is_gltf = lower.ends_with(".gltf") || lower.ends_with(".glb");
+        if !is_gltf && *animation != gltf::AnimationChoice::First {
+            return Err(crate::Error::Input(format!(
+                "--animation picks one of a glTF file's animations; \"{name_or_path}\" is a \
+                 built-in scene (its movers come with --movers)"
+            )));
+        }
+        if is_gltf {
             if !(scale.is_finite() && GLTF_SCALES.contains(&scale)) {
                 return Err(crate::Error::Input(format!(
                     "scale {scale} is out of range for a glTF file ({} to {}: it multiplies \
@@ -212,7 +235,8 @@ impl Scene {
                     GLTF_SCALES.end()
                 )));
             }
-            let (mut scene, warnings) = gltf::load_gltf(std::path::Path::new(name_or_path))?;
+            let (mut scene, warnings) =
+                gltf::load_gltf_playing(std::path::Path::new(name_or_path), animation)?;
             for w in warnings {
                 eprintln!("warning: {w}");
             }
