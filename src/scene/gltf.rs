@@ -247,12 +247,7 @@ fn load(path: &Path, choice: &AnimationChoice) -> Result<(Scene, Vec<String>), S
         return Err("no triangle geometry".to_string());
     }
 
-    let bounds = loader
-        .objects
-        .iter()
-        .chain(animation.objects.iter().map(|a| &a.object))
-        .chain(animation.deformed.iter().map(|a| &a.object))
-        .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
+    let bounds = all_bounds(&loader.objects, Some(&animation));
     let name = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -644,16 +639,19 @@ fn read_animation(
     super::animation::Animation::new(channels, weights)
 }
 
-/// A camera orbit around `bounds`: four keys at 1.5x the bounding radius, looking at the center.
+/// A camera orbit around `bounds`: four keys at 1.5x the bounding radius, looking at the
+/// center; around a small model (a radius under 0.4) at least two near planes off its
+/// bounding sphere, so that the near plane never cuts it.
 fn default_path(bounds: &Aabb) -> CameraPath {
     let center = bounds.center();
     let radius = (bounds.extent().length() * 0.5).max(1e-3);
+    let distance = (1.5 * radius).max(radius + 2.0 * super::camera::NEAR_PLANE);
     let keys = (0..4)
         .map(|k| {
             let a = std::f32::consts::FRAC_PI_4 + k as f32 * std::f32::consts::FRAC_PI_2;
             let dir = Vec3::new(a.cos(), 0.35, a.sin()).normalize();
             CameraPose {
-                eye: center + dir * (1.5 * radius),
+                eye: center + dir * distance,
                 target: center,
             }
         })
@@ -661,6 +659,24 @@ fn default_path(bounds: &Aabb) -> CameraPath {
     CameraPath {
         name: "default".to_string(),
         keys,
+    }
+}
+
+/// The box of `objects` and of the objects `animation` moves (at its start).
+fn all_bounds(objects: &[Object], animation: Option<&super::animation::Animation>) -> Aabb {
+    let moved = animation.into_iter().flat_map(|a| {
+        (a.objects.iter().map(|a| &a.object)).chain(a.deformed.iter().map(|a| &a.object))
+    });
+    (objects.iter().chain(moved)).fold(Aabb::EMPTY, |b, o| b.union(&o.bounds))
+}
+
+/// Makes the "default" orbit of a loaded glTF scene again for its objects' current size (after
+/// [`Scene::magnify`], which scales the orbit with the model, and with it its distance from
+/// the near plane).
+pub(super) fn refit_default_path(scene: &mut Scene) {
+    let bounds = all_bounds(&scene.objects, scene.animation.as_deref());
+    if let Some(p) = scene.paths.iter_mut().find(|p| p.name == "default") {
+        *p = default_path(&bounds);
     }
 }
 
@@ -2167,6 +2183,23 @@ mod tests {
             for (k, l) in p.keys.iter().zip(&q.keys) {
                 assert!(close(l.eye, k.eye * f) && close(l.target, k.target * f));
             }
+        }
+        // Made as small as a can, the orbit keeps two near planes off the model's bounding
+        // sphere (scaled with it, it would stand inside the near plane's reach).
+        let small = crate::scene::Scene::load(name, 0.01, 4096).expect("load at 0.01");
+        let bounds = small
+            .objects
+            .iter()
+            .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
+        let radius = bounds.extent().length() * 0.5;
+        let orbit = small.default_path().expect("orbit");
+        for k in &orbit.keys {
+            let off = k.eye.distance(bounds.center()) - radius;
+            assert!(
+                off >= 2.0 * crate::scene::camera::NEAR_PLANE - 1e-5,
+                "{off}"
+            );
+            assert!(close(k.target, bounds.center()));
         }
         for bad in [0.0, -1.0, 1e4, f32::NAN] {
             let Err(e) = crate::scene::Scene::load(name, bad, 4096) else {

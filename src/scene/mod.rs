@@ -242,6 +242,7 @@ impl Scene {
             }
             if scale != 1.0 {
                 scene.magnify(scale);
+                gltf::refit_default_path(&mut scene);
             }
             chunk::split_large_objects(&mut scene, chunk_triangles);
             match cache_dir {

@@ -127,7 +127,7 @@ pub fn view_at(rays: &TriangleScene, pose: &CameraPose, frame: u32) -> FrameView
         sky: seen.escaped_share(),
         back: seen.back_share(),
         back_around: around.back_share(),
-        clips: rays.within(pose.eye, 0.1),
+        clips: rays.within(pose.eye, crate::scene::camera::NEAR_PLANE),
         one_colour: rays.one_colour_share(pose.eye, &view, far),
     }
 }

@@ -212,6 +212,15 @@ fn a_mover_merged_with_a_static_twin_is_drawn_where_it_moved() {
     common::assert_silent(&log);
 }
 
+/// The median shadow maps rendered a frame by `mode` in `s`.
+fn maps_median(s: &gi_run::GiSummary, mode: &str) -> f64 {
+    s.algorithms
+        .iter()
+        .find(|(name, _)| name == mode)
+        .map(|(_, m)| m.shadow_maps_rendered_median)
+        .expect("mode")
+}
+
 #[test]
 fn gi_with_movers_runs_all_modes_and_incremental_renders_the_touched_maps() {
     let (ctx, log) = common::context();
@@ -250,21 +259,14 @@ fn gi_with_movers_runs_all_modes_and_incremental_renders_the_touched_maps() {
         };
         let still = run(0);
         let moving = run(3);
-        let maps = |s: &gi_run::GiSummary, mode: &str| {
-            s.algorithms
-                .iter()
-                .find(|(name, _)| name == mode)
-                .map(|(_, m)| m.shadow_maps_rendered_median)
-                .expect("mode")
-        };
         eprintln!("{}{}", still.table(), moving.table());
         assert_eq!(moving.movers, 3);
-        assert!(maps(&still, "incremental") <= 2.0);
+        assert!(maps_median(&still, "incremental") <= 2.0);
         assert!(
-            maps(&moving, "incremental") > maps(&still, "incremental"),
+            maps_median(&moving, "incremental") > maps_median(&still, "incremental"),
             "spinning fans in the box make incremental render more maps"
         );
-        assert_eq!(maps(&moving, "full"), maps(&still, "full"));
+        assert_eq!(maps_median(&moving, "full"), maps_median(&still, "full"));
         for (name, m) in &moving.algorithms {
             assert!(m.rmse_vs_reference.is_some_and(f64::is_finite), "{name}");
         }
@@ -299,19 +301,12 @@ fn gi_poses_skinned_meshes_and_incremental_renders_the_maps_they_touch() {
             let scene = Scene::load(path.to_str().unwrap(), 1.0, 0).expect("scene");
             gi_run::run_with(&ctx, &scene, &opts, None, &GiSetup::default()).expect("gi run")
         };
-        let maps = |s: &gi_run::GiSummary, mode: &str| {
-            s.algorithms
-                .iter()
-                .find(|(name, _)| name == mode)
-                .map(|(_, m)| m.shadow_maps_rendered_median)
-                .expect("mode")
-        };
         let still = run(0.0);
         let lifted = run(4.0);
         eprintln!("{}{}", still.table(), lifted.table());
         assert_eq!((lifted.movers, lifted.objects), (1, 2));
         assert!(
-            maps(&lifted, "incremental") > maps(&still, "incremental"),
+            maps_median(&lifted, "incremental") > maps_median(&still, "incremental"),
             "the posed column makes incremental render more maps"
         );
         for (name, m) in &lifted.algorithms {

@@ -32,15 +32,19 @@ pub struct Camera {
     pub far: f32,
 }
 
+/// The near plane distance of [`Camera::from_pose`] (scene units): geometry closer to the eye
+/// than this is clipped away, so an eye this close to a surface sees through it.
+pub const NEAR_PLANE: f32 = 0.1;
+
 impl Camera {
-    /// A camera at `pose` with a 60° field of view.
+    /// A camera at `pose` with a 60° field of view and the near plane [`NEAR_PLANE`].
     pub fn from_pose(pose: CameraPose, aspect: f32, far: f32) -> Camera {
         Camera {
             eye: pose.eye,
             target: pose.target,
             fov_y: 60f32.to_radians(),
             aspect,
-            near: 0.1,
+            near: NEAR_PLANE,
             far,
         }
     }

@@ -134,7 +134,11 @@ fn small_model_hint(
             && find_at(
                 rays,
                 params,
-                &places::scale(rays, Some(at), params.margin, params.grid),
+                &places::Scale {
+                    // Magnified by n, the near plane stays 0.1: 0.1 / n here.
+                    near: crate::scene::camera::NEAR_PLANE / n,
+                    ..places::scale(rays, Some(at), params.margin, params.grid)
+                },
             )
             .is_ok()
     };

@@ -48,6 +48,9 @@ pub struct Scale {
     pub cell: f32,
     /// Most height between the floors of neighbouring cells (stairs, ramps).
     pub step: f32,
+    /// The camera's near plane ([`NEAR_PLANE`](crate::scene::camera::NEAR_PLANE) at the
+    /// model's size): an eye closer than this to geometry sees through it.
+    pub near: f32,
 }
 
 /// A floor under a grid column: its cell, height and the free height above it.
@@ -177,6 +180,7 @@ pub fn scale(
         margin,
         cell,
         step: 0.35 * eye,
+        near: crate::scene::camera::NEAR_PLANE,
     }
 }
 
@@ -249,7 +253,9 @@ pub fn places(rays: &TriangleScene, floors: &[Floor], s: &Scale) -> (Vec<Place>,
             return Verdict::Low;
         }
         let eye = f.point + Vec3::Y * s.eye_height;
-        if rays.within(eye, s.margin) {
+        // Closer to geometry than the camera's near plane, the eye would see through it (the
+        // inside of a small closed model, a can, is such a place everywhere).
+        if rays.within(eye, s.margin.max(s.near)) {
             return Verdict::Cramped;
         }
         // A few level rays first: most outside places are told apart by them alone.

@@ -678,6 +678,24 @@ fn a_closed_double_sided_solid_is_not_a_room() {
     assert!(walk.is_ok(), "{:?}", walk.err());
 }
 
+#[test]
+fn a_shell_narrower_than_the_near_plane_has_no_inside() {
+    // The room of a closed shell (above) at the size of a can: its eye would stand closer to
+    // the walls than the camera's near plane, which would cut them away, so it is no inside.
+    let mut l = Level::default();
+    l.brush(Vec3::ZERO, Vec3::new(12.0, 5.0, 12.0));
+    for t in &mut l.tris {
+        t.swap(1, 2);
+    }
+    let mut scene = l.scene(true);
+    scene.magnify(0.012);
+    let err = interior_path(&scene, &InteriorParams::default()).expect_err("no inside");
+    assert!(err.to_string().contains("too close to geometry"), "{err}");
+    // Ten times larger (a box 1.4 wide) it is a room again.
+    scene.magnify(10.0);
+    interior_path(&scene, &InteriorParams::default()).expect("a room");
+}
+
 /// Summary of the interior walk of each glTF file in `COHERENT_LEVELS` (colon-separated):
 /// `COHERENT_LEVELS=a.glb:b.gltf cargo test --release --lib interior::tests::levels -- --ignored --nocapture`.
 #[test]
