@@ -26,7 +26,15 @@ fuzz_target!(|data: &[u8]| {
     let path = dir().join(name);
     std::fs::write(&path, data).expect("write fuzz input");
     let path_text = path.to_string_lossy().into_owned();
-    match coherent::scene::Scene::load(&path_text, 1.0, 4096) {
+    // The animation played: the first, none, the second by index, or one by name.
+    use coherent::scene::gltf::AnimationChoice;
+    let choice = match data.len() % 4 {
+        0 => AnimationChoice::First,
+        1 => AnimationChoice::Nothing,
+        2 => AnimationChoice::Index(1),
+        _ => AnimationChoice::Name("Walk".to_string()),
+    };
+    match coherent::scene::Scene::load_with(&path_text, 1.0, 4096, None, &choice) {
         Ok(mut scene) => {
             // The objects its animation moves: placed at a few frames, boxes finite.
             let movers = coherent::scene::movers::Movers::add(&mut scene, 0);
@@ -61,6 +69,19 @@ fuzz_target!(|data: &[u8]| {
                         Ok(())
                     })
                     .expect("placed");
+            }
+            // GI's movers: the deformed ones keep their pieces from pose to pose.
+            let diagonal = scene
+                .objects
+                .iter()
+                .fold(coherent::scene::Aabb::EMPTY, |b, o| b.union(&o.bounds))
+                .extent()
+                .length();
+            let mut gi = coherent::gi::movers::GiMovers::new(&scene, movers, diagonal.max(1e-3));
+            let pieces = gi.geometry().triangles.len();
+            for frame in [0, 7, 1000] {
+                gi.advance(frame).expect("advanced");
+                assert_eq!(gi.geometry().triangles.len(), pieces);
             }
         }
         Err(e) => {
