@@ -292,8 +292,51 @@ impl WorldGeometry {
 /// the position, the G-buffer on the whole vertex).
 pub fn first_identical<const K: usize>(floats: &[f32], stride: usize) -> Vec<u32> {
     let mut indices = Vec::new();
-    first_identical_from::<K>(floats, stride, 0, &HashMap::new(), &mut indices);
+    first_identical_from::<K>(floats, stride, 0, &KeyMap::default(), &mut indices);
     indices
+}
+
+/// A map from vertex keys, hashed by [`KeyHasher`].
+type KeyMap<const K: usize> = HashMap<[u32; K], u32, std::hash::BuildHasherDefault<KeyHasher>>;
+
+/// A fast hasher for vertex keys (float bits, not chosen by an adversary): a multiply and
+/// rotate per 8 bytes. The standard SipHash made re-indexing the moving vertices most of a GI
+/// frame's update.
+#[derive(Default)]
+struct KeyHasher(u64);
+
+impl std::hash::Hasher for KeyHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        let mut chunks = bytes.chunks_exact(8);
+        for c in &mut chunks {
+            let mut word = [0u8; 8];
+            word.copy_from_slice(c);
+            self.add(u64::from_le_bytes(word));
+        }
+        let rest = chunks.remainder();
+        if !rest.is_empty() {
+            let mut word = [0u8; 8];
+            word[..rest.len()].copy_from_slice(rest);
+            self.add(u64::from_le_bytes(word));
+        }
+    }
+
+    fn write_usize(&mut self, n: usize) {
+        self.add(n as u64);
+    }
+
+    fn finish(&self) -> u64 {
+        // Mix the high bits down: hashbrown takes its buckets from the low bits and its tags
+        // from the top seven.
+        let h = self.0;
+        (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9) ^ (h >> 32)
+    }
+}
+
+impl KeyHasher {
+    fn add(&mut self, word: u64) {
+        self.0 = (self.0.rotate_left(5) ^ word).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
 }
 
 /// One vertex's key: the bits of its first `K` floats.
@@ -308,13 +351,14 @@ fn first_identical_from<const K: usize>(
     floats: &[f32],
     stride: usize,
     first: usize,
-    prefix: &HashMap<[u32; K], u32>,
+    prefix: &KeyMap<K>,
     indices: &mut Vec<u32>,
 ) {
     let stride = stride.max(K).max(1);
     let count = floats.len() / stride;
     indices.truncate(first);
-    let mut tail = HashMap::with_capacity(count.saturating_sub(first));
+    let mut tail =
+        KeyMap::<K>::with_capacity_and_hasher(count.saturating_sub(first), Default::default());
     for (i, v) in floats.chunks_exact(stride).enumerate().skip(first) {
         let key = corner_key::<K>(v);
         let index = match prefix.get(&key) {
@@ -334,7 +378,7 @@ pub(crate) struct CornerIndex<const K: usize> {
     stride: usize,
     indices: Vec<u32>,
     /// Key of every vertex before `hashed`, to the first vertex with that key.
-    prefix: HashMap<[u32; K], u32>,
+    prefix: KeyMap<K>,
     hashed: usize,
 }
 
@@ -344,7 +388,7 @@ impl<const K: usize> CornerIndex<K> {
         CornerIndex {
             stride: stride.max(K).max(1),
             indices: first_identical::<K>(floats, stride),
-            prefix: HashMap::new(),
+            prefix: KeyMap::default(),
             hashed: 0,
         }
     }
