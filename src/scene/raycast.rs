@@ -61,7 +61,12 @@ impl RayScene {
     /// Builds the scene from world-space triangles and one albedo per triangle.
     ///
     /// Missing albedos (if `albedo` is shorter than `triangles`) default to 0.5 grey.
-    pub fn new(triangles: Vec<[Vec3; 3]>, mut albedo: Vec<Vec3>) -> Self {
+    pub fn new(triangles: Vec<[Vec3; 3]>, albedo: Vec<Vec3>) -> Self {
+        Self::built(triangles, albedo, BvhBuildParams::fast_build())
+    }
+
+    /// [`RayScene::new`] with the hierarchy built by `params`.
+    fn built(triangles: Vec<[Vec3; 3]>, mut albedo: Vec<Vec3>, params: BvhBuildParams) -> Self {
         albedo.resize(triangles.len(), Vec3::splat(0.5));
         if triangles.is_empty() {
             return Self {
@@ -82,7 +87,7 @@ impl RayScene {
             })
             .collect();
         let mut build_time = Duration::ZERO;
-        let bvh = build_bvh2_from_tris(&tris, BvhBuildParams::fast_build(), &mut build_time);
+        let bvh = build_bvh2_from_tris(&tris, params, &mut build_time);
         let original: Box<[u32]> = bvh.primitive_indices.clone().into();
         let reordered = original.iter().map(|&i| tris[i as usize]).collect();
         Self {
@@ -117,9 +122,16 @@ impl RayScene {
 
     /// Replaces the moving objects' triangles (world space, one albedo each): rays see them
     /// beside the static triangles, and their hits' triangle indices are numbered after the
-    /// static ones. A small separate hierarchy, rebuilt here, so the static one is kept.
+    /// static ones. A small separate hierarchy, rebuilt here (quickly, without the reinsertion
+    /// pass: it is rebuilt whenever a mover moves), so the static one is kept.
     pub fn set_movers(&mut self, triangles: Vec<[Vec3; 3]>, albedo: Vec<Vec3>) {
-        self.movers = (!triangles.is_empty()).then(|| Box::new(RayScene::new(triangles, albedo)));
+        self.movers = (!triangles.is_empty()).then(|| {
+            Box::new(RayScene::built(
+                triangles,
+                albedo,
+                BvhBuildParams::very_fast_build(),
+            ))
+        });
     }
 
     /// Number of triangles in the scene.
