@@ -235,13 +235,18 @@ fn load(path: &Path, choice: &AnimationChoice) -> Result<(Scene, Vec<String>), S
             }
         ));
     } else if animations > 0 {
-        loader.warnings.push(format!(
-            "{animations} animation(s) not played{}: the scene is drawn in its default pose",
-            match played {
-                Some(_) => String::new(),
-                None => " (--animation none)".to_string(),
+        loader.warnings.push(match (choice, played) {
+            (AnimationChoice::Index(_) | AnimationChoice::Name(_), Some(i)) => {
+                format!("animation {i} moves no mesh: the scene is drawn in its default pose")
             }
-        ));
+            (_, Some(_)) => format!(
+                "{animations} animation(s) not played: the scene is drawn in its default pose"
+            ),
+            (_, None) => format!(
+                "{animations} animation(s) not played (--animation none): the scene is drawn \
+                 in its default pose"
+            ),
+        });
     }
     if loader.objects.is_empty() && moved == 0 {
         return Err("no triangle geometry".to_string());
@@ -3035,6 +3040,12 @@ mod tests {
             ["1 animation(s) not played: the scene is drawn in its default pose"]
         );
         assert_eq!(scene.objects[0].transform.w_axis.y, 0.0);
+        // Picked by `--animation 0`, it is named.
+        let (_, warnings) = load_gltf_playing(&path, &AnimationChoice::Index(0)).expect("load");
+        assert_eq!(
+            warnings,
+            ["animation 0 moves no mesh: the scene is drawn in its default pose"]
+        );
     }
 
     #[test]
