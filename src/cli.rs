@@ -662,6 +662,7 @@ fn walk_scale_movers(
     );
     let mut ms = ms;
     ms.deformed_meshes = movers.deformed_meshes();
+    ms.animation = movers.animation_label().map(String::from);
     ms.pose_ms_median = coherent::app::report::median(&mut stats.pose_ms.clone());
     summary.movers = Some(ms.clone());
     summary.write_json(&dir.join("summary.json"))?;
@@ -772,8 +773,12 @@ fn print_movers(ms: &coherent::app::report::summary::MoverSummary) {
             ms.pose_ms_median
         ),
     };
+    let animation = match &ms.animation {
+        Some(a) => format!(" (glTF animation {a})"),
+        None => String::new(),
+    };
     println!(
-        "movers: {}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}{skinned}",
+        "movers: {}{animation}, refit_ms_median {:.3}, refit_ms_max {:.3}, rebuilds {}{skinned}",
         ms.movers, ms.refit_ms_median, ms.refit_ms_max, ms.rebuilds
     );
     for (name, s) in &ms.vs_static {

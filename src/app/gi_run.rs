@@ -325,6 +325,8 @@ pub struct GiSummary {
     pub frames: u32,
     /// Moving objects (`--movers`, and those the glTF file's animation moves).
     pub movers: usize,
+    /// The glTF file's animation they play (`1 "Walk"`), if any.
+    pub animation: Option<String>,
     /// The frames compared with the reference (all after the first, evenly spaced).
     pub rmse_frames: Vec<u32>,
     /// Per mode, in run order.
@@ -347,8 +349,12 @@ fn ordered<S: serde::Serializer>(
 impl GiSummary {
     /// A short table for the terminal.
     pub fn table(&self) -> String {
+        let animation = match &self.animation {
+            Some(a) => format!(", {} movers (glTF animation {a})", self.movers),
+            None => String::new(),
+        };
         let mut out = format!(
-            "{} ({} objects, {} triangles) on {}, {}, {} frames\n{:<12} {:>10} {:>10} {:>10} {:>10} {:>10} {:>8} {:>6} {:>6} {:>8}\n",
+            "{} ({} objects, {} triangles{animation}) on {}, {}, {} frames\n{:<12} {:>10} {:>10} {:>10} {:>10} {:>10} {:>8} {:>6} {:>6} {:>8}\n",
             self.scene,
             self.objects,
             self.triangles,
@@ -773,6 +779,11 @@ pub fn run_reporting(
         size: format!("{}x{}", opts.width, opts.height),
         frames: opts.frames,
         movers: world.movers.as_ref().map_or(0, GiMovers::len),
+        animation: world
+            .movers
+            .as_ref()
+            .and_then(GiMovers::animation_label)
+            .map(String::from),
         rmse_frames: sampled.clone(),
         algorithms: Vec::new(),
     };
@@ -990,6 +1001,7 @@ mod tests {
             size: "2x1".into(),
             frames: 3,
             movers: 0,
+            animation: None,
             rmse_frames: Vec::new(),
             algorithms: vec![("incremental".into(), none)],
         };

@@ -135,6 +135,11 @@ impl GiMovers {
         self.movers.len()
     }
 
+    /// The glTF file's animation they play ([`Movers::animation_label`]).
+    pub fn animation_label(&self) -> Option<&str> {
+        self.movers.animation_label()
+    }
+
     /// Whether there are none.
     pub fn is_empty(&self) -> bool {
         self.movers.is_empty()

@@ -41,6 +41,9 @@ pub struct Animation {
     order: Vec<usize>,
     /// Whether a channel animates the node or a node above it.
     moved: Vec<bool>,
+    /// Which of the file's animations this is, as `--animation` takes it: `1 "Walk"`, or the
+    /// index alone for an animation without a name (empty when none was read).
+    label: String,
 }
 
 /// A node of the file, for posing joints: its parent and its rest transform.
@@ -382,6 +385,17 @@ impl Animation {
     /// Seconds of one loop.
     pub fn duration(&self) -> f32 {
         self.duration
+    }
+
+    /// Which of the file's animations this is: `1 "Walk"`, or the index alone for one
+    /// without a name (empty when it was not read from a file).
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// Names the file's animation this is (see [`Animation::label`]).
+    pub(super) fn set_label(&mut self, label: String) {
+        self.label = label;
     }
 
     /// Object `i`'s world transform at walk frame `frame` (the animation loops; a transform

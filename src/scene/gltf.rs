@@ -600,15 +600,20 @@ fn animation_list(doc: &Document, except: Option<usize>) -> String {
         .animations()
         .filter(|a| Some(a.index()) != except)
         .take(12)
-        .map(|a| match a.name() {
-            Some(name) => format!("{} \"{}\"", a.index(), name.escape_debug()),
-            None => a.index().to_string(),
-        })
+        .map(|a| animation_label(&a))
         .collect();
     if doc.animations().len() > 12 + usize::from(except.is_some()) {
         list.push("...".to_string());
     }
     list.join(", ")
+}
+
+/// An animation as `--animation` takes it: `1 "Walk"`, or the index alone without a name.
+fn animation_label(a: &::gltf::Animation<'_>) -> String {
+    match a.name() {
+        Some(name) => format!("{} \"{}\"", a.index(), name.escape_debug()),
+        None => a.index().to_string(),
+    }
 }
 
 /// The translation, rotation, scale and morph-weights channels of animation `index` (those
@@ -641,7 +646,11 @@ fn read_animation(
             }
         }
     }
-    super::animation::Animation::new(channels, weights)
+    let mut animation = super::animation::Animation::new(channels, weights);
+    if let Some(anim) = index.and_then(|i| doc.animations().nth(i)) {
+        animation.set_label(animation_label(&anim));
+    }
+    animation
 }
 
 /// A camera orbit around `bounds`: four keys at 1.5x the bounding radius, looking at the
@@ -2991,6 +3000,11 @@ mod tests {
             assert_eq!(scene.objects.len(), 2, "the slid cubes stand still");
             let movers = crate::scene::movers::Movers::add(&mut scene, 0);
             assert_eq!(movers.len(), 1);
+            assert_eq!(
+                movers.animation_label(),
+                Some(r#"1 "lift""#),
+                "the reports name it"
+            );
             let up = movers.transform_at(0, 15).w_axis.y - movers.transform_at(0, 0).w_axis.y;
             assert_eq!(up, 1.5, "lift raises node 0 by 1.5 in 0.5 s");
         }

@@ -251,6 +251,15 @@ impl Movers {
         }
     }
 
+    /// Which of the glTF file's animations the movers play (`1 "Walk"`; see
+    /// [`Animation::label`](super::animation::Animation::label)); `None` without one.
+    pub fn animation_label(&self) -> Option<&str> {
+        self.animation
+            .as_deref()
+            .map(|a| a.label())
+            .filter(|l| !l.is_empty())
+    }
+
     /// The meshes the glTF animation deforms (skins, morph weights), posed every frame.
     pub fn deformed_meshes(&self) -> usize {
         self.animation.as_ref().map_or(0, |a| a.deformed_meshes())

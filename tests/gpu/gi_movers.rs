@@ -305,6 +305,11 @@ fn gi_poses_skinned_meshes_and_incremental_renders_the_maps_they_touch() {
         let lifted = run(4.0);
         eprintln!("{}{}", still.table(), lifted.table());
         assert_eq!((lifted.movers, lifted.objects), (1, 2));
+        assert_eq!(
+            lifted.animation.as_deref(),
+            Some("0"),
+            "an animation without a name"
+        );
         assert!(
             maps_median(&lifted, "incremental") > maps_median(&still, "incremental"),
             "the posed column makes incremental render more maps"

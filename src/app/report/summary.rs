@@ -177,6 +177,8 @@ pub struct MoverSummary {
     pub refit_ms_max: f64,
     /// Full rebuilds of the hierarchy during the walk.
     pub rebuilds: u32,
+    /// The glTF file's animation the movers play (`1 "Walk"`), if any.
+    pub animation: Option<String>,
     /// Meshes a glTF animation deforms (skins, morph weights), posed on the CPU every frame.
     pub deformed_meshes: usize,
     /// Median milliseconds per frame to pose them and write their vertices (0 without them).
@@ -232,6 +234,7 @@ pub fn mover_summary(
         refit_ms_median: crate::app::report::median(&mut refit),
         refit_ms_max,
         rebuilds,
+        animation: None,
         deformed_meshes: 0,
         pose_ms_median: 0.0,
         vs_static,
