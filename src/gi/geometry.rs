@@ -5,6 +5,7 @@ use std::collections::HashMap;
 
 use glam::{Mat3, Mat4, Vec3};
 
+use crate::scene::interior::cache::Words;
 use crate::scene::mask::{TriangleMask, TriangleMasks};
 use crate::scene::material::surface_color;
 use crate::scene::raycast::RayScene;
@@ -296,48 +297,10 @@ pub fn first_identical<const K: usize>(floats: &[f32], stride: usize) -> Vec<u32
     indices
 }
 
-/// A map from vertex keys, hashed by [`KeyHasher`].
-type KeyMap<const K: usize> = HashMap<[u32; K], u32, std::hash::BuildHasherDefault<KeyHasher>>;
-
-/// A fast hasher for vertex keys (float bits, not chosen by an adversary): a multiply and
-/// rotate per 8 bytes. The standard SipHash made re-indexing the moving vertices most of a GI
-/// frame's update.
-#[derive(Default)]
-struct KeyHasher(u64);
-
-impl std::hash::Hasher for KeyHasher {
-    fn write(&mut self, bytes: &[u8]) {
-        let mut chunks = bytes.chunks_exact(8);
-        for c in &mut chunks {
-            let mut word = [0u8; 8];
-            word.copy_from_slice(c);
-            self.add(u64::from_le_bytes(word));
-        }
-        let rest = chunks.remainder();
-        if !rest.is_empty() {
-            let mut word = [0u8; 8];
-            word[..rest.len()].copy_from_slice(rest);
-            self.add(u64::from_le_bytes(word));
-        }
-    }
-
-    fn write_usize(&mut self, n: usize) {
-        self.add(n as u64);
-    }
-
-    fn finish(&self) -> u64 {
-        // Mix the high bits down: hashbrown takes its buckets from the low bits and its tags
-        // from the top seven.
-        let h = self.0;
-        (h ^ (h >> 29)).wrapping_mul(0xbf58_476d_1ce4_e5b9) ^ (h >> 32)
-    }
-}
-
-impl KeyHasher {
-    fn add(&mut self, word: u64) {
-        self.0 = (self.0.rotate_left(5) ^ word).wrapping_mul(0x517c_c1b7_2722_0a95);
-    }
-}
+/// A map from vertex keys (float bits, not chosen by an adversary), hashed eight bytes a
+/// step by the interior cache's [`Words`]: SipHash made re-indexing the moving vertices most
+/// of a GI frame's update.
+type KeyMap<const K: usize> = HashMap<[u32; K], u32, std::hash::BuildHasherDefault<Words>>;
 
 /// One vertex's key: the bits of its first `K` floats.
 fn corner_key<const K: usize>(vertex: &[f32]) -> [u32; K] {

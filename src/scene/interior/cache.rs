@@ -73,11 +73,11 @@ const MAX_WHY: usize = 4096;
 /// A [`Hasher`] stable across builds and platforms (unlike the standard one) that takes
 /// eight bytes per step: each word is mixed in by a multiply and a rotation (the constants of
 /// splitmix64), the bytes left over one by one, and [`finish`](Hasher::finish) mixes once
-/// more.
-struct Words(u64);
+/// more. Also the hasher of GI's vertex keys (`gi::geometry`), where SipHash was slow.
+pub(crate) struct Words(u64);
 
 impl Words {
-    fn new() -> Words {
+    pub(crate) fn new() -> Words {
         Words(FNV_BASIS)
     }
 
@@ -85,6 +85,12 @@ impl Words {
         self.0 = (self.0 ^ w)
             .wrapping_mul(0x9e37_79b9_7f4a_7c15)
             .rotate_left(29);
+    }
+}
+
+impl Default for Words {
+    fn default() -> Words {
+        Words::new()
     }
 }
 
