@@ -543,13 +543,7 @@ impl Channel {
             Property::Rotation => Dimensions::Vec4,
             _ => Dimensions::Vec3,
         };
-        if input.dimensions() != Dimensions::Scalar || output.dimensions() != dims {
-            return Err(format!(
-                "its input is {:?} and its output {:?} ({dims:?} expected)",
-                input.dimensions(),
-                output.dimensions()
-            ));
-        }
+        json.check_dimensions(dims)?;
         let keys = Keys::read(input, interpolation, buffers)?;
         let values = super::gltf_material::read_elements(output, buffers)?;
         let finite = values.iter().flatten().all(|v| v.is_finite());
@@ -616,13 +610,7 @@ impl WeightsChannel {
             return Ok(None);
         };
         let (input, output) = (&json.input, &json.output);
-        if input.dimensions() != Dimensions::Scalar || output.dimensions() != Dimensions::Scalar {
-            return Err(format!(
-                "its input is {:?} and its output {:?} (Scalar expected)",
-                input.dimensions(),
-                output.dimensions()
-            ));
-        }
+        json.check_dimensions(Dimensions::Scalar)?;
         let keys = Keys::read(input, interpolation, buffers)?;
         let values: Vec<f32> = super::gltf_material::read_elements(output, buffers)?
             .into_iter()
@@ -649,6 +637,20 @@ struct ChannelJson<'d> {
     interpolation: Checked<Interpolation>,
     input: ::gltf::Accessor<'d>,
     output: ::gltf::Accessor<'d>,
+}
+
+impl ChannelJson<'_> {
+    /// Checks the sampler: scalar key times and values of `dims` (an error saying what they
+    /// are otherwise).
+    fn check_dimensions(&self, dims: Dimensions) -> Result<(), String> {
+        let (input, output) = (self.input.dimensions(), self.output.dimensions());
+        if input != Dimensions::Scalar || output != dims {
+            return Err(format!(
+                "its input is {input:?} and its output {output:?} ({dims:?} expected)"
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The JSON of an animation channel and its sampler, `None` when an index in it (target node,
