@@ -362,6 +362,7 @@ pub fn info() -> Result<()> {
 /// `coherent render`.
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
+    coherent::image_io::prepare_png_path(&a.out)?;
     check_algorithm(&a.algorithm, &ChcppParams::default())?;
     let name = match a.algorithm.as_str() {
         alg if culling::has_latency_modes(alg) => culling::with_latency_names(
@@ -410,9 +411,7 @@ pub fn render(a: &RenderArgs) -> Result<()> {
             let cam = renderer.camera(path.pose_at(f as f32), &bvh);
             last = Some(culler.render_frame(&mut renderer, &bvh, &cam, f as u64)?);
         }
-        renderer
-            .save_png(&a.out)
-            .with_context(|| format!("writing {}", a.out.display()))?;
+        renderer.save_png(&a.out)?;
         if let Some(r) = last {
             let c = &r.counts;
             let predicated = if c.predicate_resolves > 0 {
@@ -808,6 +807,9 @@ pub fn view(a: &ViewArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
     if a.frames.is_some_and(|f| !(1..=MAX_FRAMES).contains(&f)) {
         bail!("--frames must be 1 to {MAX_FRAMES}");
+    }
+    if let Some(shot) = &a.screenshot {
+        coherent::image_io::prepare_png_path(shot)?;
     }
     let params = a.chcpp.params()?;
     check_algorithm(&a.algorithm, &params)?;

@@ -251,7 +251,11 @@ fn cli_rejects_bad_flags_cleanly() {
             "--out",
             "/tmp/x.png",
         ],
+        // The output's name is checked before the scene is loaded (or a window opened).
+        vec!["render", "--scene", "cornell", "--out", "/tmp/x"],
+        vec!["view", "--scene", "cornell", "--screenshot", "/tmp/x.jpg"],
     ] {
+        let named = args.contains(&"/tmp/x") || args.contains(&"/tmp/x.jpg");
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
             .args(&args)
             .output()
@@ -260,6 +264,10 @@ fn cli_rejects_bad_flags_cleanly() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(
             err.starts_with("error:") && err.trim().lines().count() == 1,
+            "{args:?}: {err}"
+        );
+        assert!(
+            !named || err.contains("must end in .png"),
             "{args:?}: {err}"
         );
     }
