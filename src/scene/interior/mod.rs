@@ -144,10 +144,14 @@ fn small_model_hint(
     };
     Some(match SCALE_TRIES.into_iter().find(|&n| works(n)) {
         Some(n) => format!(
-            "{said}: --scale {n} multiplies a glTF file's coordinates by {n} and finds an \
-             inside"
+            "{said}; if this is a level modelled smaller than life size, --scale {n} \
+             multiplies a glTF file's coordinates by {n} and finds an inside (a prop's is its \
+             hollow)"
         ),
-        None => format!("{said}: --scale N multiplies a glTF file's coordinates by N"),
+        None => format!(
+            "{said}; if this is a level modelled smaller than life size, --scale N \
+             multiplies a glTF file's coordinates by N"
+        ),
     })
 }
 
