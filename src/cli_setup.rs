@@ -55,9 +55,10 @@ impl CacheArgs {
 /// PVS settings on the command line.
 #[derive(Args, Clone, Debug)]
 pub struct PvsArgs {
-    /// PVS view-cell edge length in scene units.
-    #[arg(long, default_value_t = 6.0)]
-    pub cell_size: f32,
+    /// PVS view-cell edge length in scene units [default: 6, or a quarter of the scene's
+    /// diagonal when that is less (a small model)].
+    #[arg(long)]
+    pub cell_size: Option<f32>,
     /// PVS sample points per view cell (each renders six ID views).
     #[arg(long, default_value_t = 4)]
     pub samples: u32,
@@ -79,10 +80,12 @@ pub struct PvsArgs {
 }
 
 impl PvsArgs {
-    fn settings(&self) -> Result<PvsSettings> {
-        if !(self.cell_size.is_finite() && self.cell_size > 0.0) {
-            bail!("--cell-size must be a positive number");
-        }
+    fn settings(&self, scene: &Scene) -> Result<PvsSettings> {
+        let cell_size = match self.cell_size {
+            Some(c) if c.is_finite() && c > 0.0 => c,
+            Some(_) => bail!("--cell-size must be a positive number"),
+            None => pvs_build::default_cell_size(scene),
+        };
         if self.samples == 0 || self.face_size < 8 || self.face_size > 4096 {
             bail!("--samples must be at least 1 and --face-size between 8 and 4096");
         }
@@ -90,7 +93,7 @@ impl PvsArgs {
             bail!("--cell-enlarge must be between 0 and 4");
         }
         Ok(PvsSettings {
-            cell_size: self.cell_size,
+            cell_size,
             samples: self.samples,
             face_size: self.face_size,
             margin: self.cell_margin,
@@ -190,10 +193,11 @@ pub fn pvs_command(a: &PvsCommandArgs) -> Result<()> {
     let built = pvs(&ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache)?;
     let s = preprocess_summary(&built, 0);
     println!(
-        "pvs: {} path {}: {} cells, {:.1} objects per cell (max {} of {}), {:.1} s{}, {} KiB: {}",
+        "pvs: {} path {}: {} cells of {}, {:.1} objects per cell (max {} of {}), {:.1} s{}, {} KiB: {}",
         scene.name,
         path.name,
         s.cells,
+        (s.cell_size * 1000.0).round() / 1000.0,
         s.pvs_objects_mean,
         s.pvs_objects_max,
         scene.objects.len(),
@@ -217,7 +221,7 @@ pub fn pvs(
     args: &PvsArgs,
     cache: &CacheArgs,
 ) -> Result<PvsBuild> {
-    let settings = args.settings()?;
+    let settings = args.settings(scene)?;
     let dir = cache.dir();
     let id = scene_id(scene_args);
     if args.rebuild_pvs {
@@ -283,6 +287,7 @@ pub fn preprocess_summary(b: &PvsBuild, frames_outside_cells: usize) -> Preproce
         preprocess_s: b.seconds,
         from_cache: b.from_cache,
         cells: b.pvs.cells.len(),
+        cell_size: b.pvs.cell_size,
         pvs_objects_mean: mean,
         pvs_objects_max: max,
         file_bytes: b.file_bytes,

@@ -62,6 +62,25 @@ impl Default for PvsSettings {
     }
 }
 
+/// Edge length of the view cells of the command line's PVS when `--cell-size` is not given:
+/// [`PvsSettings::default`]'s 6 scene units, or a quarter of the diagonal of the scene's objects'
+/// boxes when that is less. Around a small model (a 12 cm can) cells of 6 units put the samples
+/// metres away from a camera that stands centimetres off it, where the parts it sees up close
+/// are a pixel or none.
+pub fn default_cell_size(scene: &Scene) -> f32 {
+    let mut bounds = crate::scene::Aabb::EMPTY;
+    for o in &scene.objects {
+        bounds.grow(o.bounds.min);
+        bounds.grow(o.bounds.max);
+    }
+    let quarter = 0.25 * bounds.extent().length();
+    if quarter.is_finite() && quarter > 0.0 {
+        quarter.min(PvsSettings::default().cell_size)
+    } else {
+        PvsSettings::default().cell_size
+    }
+}
+
 /// What preprocessing produced.
 pub struct PvsBuild {
     /// The sets.
@@ -475,5 +494,29 @@ impl PvsFile for Pvs {
             ))),
             other => Ok(other),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_cell_is_a_quarter_of_a_small_scene_and_six_units_at_most() {
+        let city = crate::scene::procedural::city(1.0);
+        assert_eq!(default_cell_size(&city), 6.0);
+        // The Cornell box is about 5.5 units across: its cells are a quarter of its diagonal.
+        let mut cornell = crate::scene::procedural::cornell();
+        let small = default_cell_size(&cornell);
+        assert!(small > 1.0 && small < 6.0, "{small}");
+        // A tenth of the size, a tenth of the cell.
+        cornell.magnify(0.1);
+        let tenth = default_cell_size(&cornell);
+        assert!(
+            (tenth - 0.1 * small).abs() < 1e-3 * small,
+            "{tenth} against {small}"
+        );
+        cornell.objects.clear();
+        assert_eq!(default_cell_size(&cornell), 6.0, "no objects: the default");
     }
 }

@@ -78,6 +78,8 @@ pub struct PreprocessSummary {
     pub from_cache: bool,
     /// View cells.
     pub cells: usize,
+    /// Edge length of a view cell, in scene units.
+    pub cell_size: f32,
     /// Mean objects per cell's PVS.
     pub pvs_objects_mean: f64,
     /// Largest cell PVS.
@@ -512,13 +514,18 @@ impl WalkSummary {
             if let Some(p) = &s.preprocess {
                 let _ = writeln!(
                     out,
-                    "\n{name}: {} cells, {:.1} objects per cell (max {}), {:.1} s preprocessing{}, \
-                     {} KiB cache file, {} frames outside the cells",
+                    "\n{name}: {} cells of {}, {:.1} objects per cell (max {}), {:.1} s \
+                     preprocessing{}, {} KiB cache file, {} frames outside the cells",
                     p.cells,
+                    (p.cell_size * 1000.0).round() / 1000.0,
                     p.pvs_objects_mean,
                     p.pvs_objects_max,
                     p.preprocess_s,
-                    if p.from_cache { " (loaded from cache)" } else { "" },
+                    if p.from_cache {
+                        " (loaded from cache)"
+                    } else {
+                        ""
+                    },
                     p.file_bytes / 1024,
                     p.frames_outside_cells
                 );
