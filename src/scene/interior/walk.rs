@@ -388,6 +388,8 @@ const MEND_RANK: (u32, (usize, usize)) = (6, (10, 6));
 const BACK_WEIGHT: f32 = 8.0;
 /// Candidate looks judged in full per segment mended.
 const MEND_FINALISTS: usize = 6;
+/// Candidates of [`mend_segment`] ranked in full before the others are cut short.
+const MEND_FULLY_RANKED: usize = 4 * MEND_FINALISTS;
 
 /// The views of segment `segment` (from its key's frame to the next key's, every `step` frames,
 /// both keys included) through a grid of `grid` rays, each judged by its share of one colour,
@@ -429,10 +431,28 @@ fn excess(
     judge: (u32, (usize, usize)),
     above: f32,
 ) -> f32 {
-    segments
-        .flat_map(|s| segment_views(rays, path, s, judge))
-        .map(|v| (v - above).max(0.0).powi(2))
-        .sum()
+    excess_capped(rays, path, segments, judge, above, f32::INFINITY)
+}
+
+/// [`excess`], stopping as soon as the sum passes `cap`: the same value wherever that is at
+/// most `cap`, else a partial sum over `cap` (the views are added in the same order).
+fn excess_capped(
+    rays: &TriangleScene,
+    path: &crate::scene::CameraPath,
+    segments: std::ops::Range<usize>,
+    judge: (u32, (usize, usize)),
+    above: f32,
+    cap: f32,
+) -> f32 {
+    // The empty sum of `Iterator::sum`, so that every sum is the one it would give.
+    let mut sum: f32 = std::iter::empty::<f32>().sum();
+    for v in segments.flat_map(|s| segment_views(rays, path, s, judge)) {
+        sum += (v - above).max(0.0).powi(2);
+        if sum > cap {
+            break;
+        }
+    }
+    sum
 }
 
 /// How much more of one colour than a key's look aims at (`one_colour_most`) a view between
@@ -441,18 +461,19 @@ fn excess(
 /// is within about 0.02 of the rendered image's share.
 const MEND_SLACK: f32 = 0.08;
 
-/// [`excess`] over the segments that keys `keys` shape (a Catmull-Rom spline: the two before
-/// a key and the two after).
+/// [`excess_capped`] over the segments that keys `keys` shape (a Catmull-Rom spline: the two
+/// before a key and the two after).
 fn excess_around(
     rays: &TriangleScene,
     path: &crate::scene::CameraPath,
     keys: std::ops::RangeInclusive<usize>,
     judge: (u32, (usize, usize)),
     above: f32,
+    cap: f32,
 ) -> f32 {
     let segments = path.keys.len() - 1;
     let shaped = keys.start().saturating_sub(2)..(keys.end() + 2).min(segments);
-    excess(rays, path, shaped, judge, above)
+    excess_capped(rays, path, shaped, judge, above, cap)
 }
 
 /// Where a view between two keys, judged every `MEND_STEP` frames, has more than
@@ -538,15 +559,42 @@ fn mend_segment(
     };
     // Ranked on the segments next to the turn, where a look changes the views most.
     let near = k.saturating_sub(1)..(k + 2).min(n - 1);
-    let ranked = crate::parallel::map(candidates.len(), |c| {
-        excess(rays, &with(c), near.clone(), MEND_RANK, above)
+    // Some candidates, spread over the list, are summed in full; the others stop once past
+    // the `MEND_FINALISTS`-th best of those, as they can no longer be finalists: the finalists
+    // and their order are those of full sums for every candidate.
+    let stride = (candidates.len() / MEND_FULLY_RANKED).max(1);
+    let full: Vec<usize> = (0..candidates.len()).step_by(stride).collect();
+    let summed = crate::parallel::map(full.len(), |i| {
+        excess(rays, &with(full[i]), near.clone(), MEND_RANK, above)
     });
+    let cap = {
+        let mut best = summed.clone();
+        best.sort_by(f32::total_cmp);
+        best.get(MEND_FINALISTS - 1)
+            .copied()
+            .unwrap_or(f32::INFINITY)
+    };
+    let rest: Vec<usize> = (0..candidates.len()).filter(|c| c % stride != 0).collect();
+    let capped = crate::parallel::map(rest.len(), |i| {
+        excess_capped(rays, &with(rest[i]), near.clone(), MEND_RANK, above, cap)
+    });
+    let mut ranked = vec![0.0; candidates.len()];
+    for (&c, &v) in full.iter().zip(&summed).chain(rest.iter().zip(&capped)) {
+        ranked[c] = v;
+    }
     let mut order: Vec<usize> = (0..candidates.len()).collect();
     order.sort_by(|&a, &b| ranked[a].total_cmp(&ranked[b]));
     order.truncate(MEND_FINALISTS);
     let sets = [(k, k), (k + 1, k + 1), (k, k + 1)];
     let before = crate::parallel::map(sets.len(), |i| {
-        excess_around(rays, path, sets[i].0..=sets[i].1, judge, above)
+        excess_around(
+            rays,
+            path,
+            sets[i].0..=sets[i].1,
+            judge,
+            above,
+            f32::INFINITY,
+        )
     });
     let judged = crate::parallel::map(order.len(), |i| {
         let (a, b, _) = candidates[order[i]];
@@ -554,9 +602,10 @@ fn mend_segment(
             .iter()
             .position(|&s| s == (a, b))
             .map_or(0.0, |j| before[j]);
+        // Only a look under the keys' own excess is taken: summing stops past it.
         (
             was,
-            excess_around(rays, &with(order[i]), a..=b, judge, above),
+            excess_around(rays, &with(order[i]), a..=b, judge, above, was),
         )
     });
     let best = (0..order.len())
