@@ -423,20 +423,10 @@ fn segment_worst(
 }
 
 /// How far the views of `segments` go over `above`: the sum of each view's excess squared, so
-/// that a look is judged by how many views it spoils and by how much.
+/// that a look is judged by how many views it spoils and by how much. Summing stops as soon as
+/// the sum passes `cap` (`f32::INFINITY`: never): the value is exact wherever it is at most
+/// `cap`, else a partial sum over `cap` (the views are added in the same order either way).
 fn excess(
-    rays: &TriangleScene,
-    path: &crate::scene::CameraPath,
-    segments: std::ops::Range<usize>,
-    judge: (u32, (usize, usize)),
-    above: f32,
-) -> f32 {
-    excess_capped(rays, path, segments, judge, above, f32::INFINITY)
-}
-
-/// [`excess`], stopping as soon as the sum passes `cap`: the same value wherever that is at
-/// most `cap`, else a partial sum over `cap` (the views are added in the same order).
-fn excess_capped(
     rays: &TriangleScene,
     path: &crate::scene::CameraPath,
     segments: std::ops::Range<usize>,
@@ -461,7 +451,7 @@ fn excess_capped(
 /// is within about 0.02 of the rendered image's share.
 const MEND_SLACK: f32 = 0.08;
 
-/// [`excess_capped`] over the segments that keys `keys` shape (a Catmull-Rom spline: the two
+/// [`excess`] over the segments that keys `keys` shape (a Catmull-Rom spline: the two
 /// before a key and the two after).
 fn excess_around(
     rays: &TriangleScene,
@@ -473,7 +463,7 @@ fn excess_around(
 ) -> f32 {
     let segments = path.keys.len() - 1;
     let shaped = keys.start().saturating_sub(2)..(keys.end() + 2).min(segments);
-    excess_capped(rays, path, shaped, judge, above, cap)
+    excess(rays, path, shaped, judge, above, cap)
 }
 
 /// Where a view between two keys, judged every `MEND_STEP` frames, has more than
@@ -565,7 +555,14 @@ fn mend_segment(
     let stride = (candidates.len() / MEND_FULLY_RANKED).max(1);
     let full: Vec<usize> = (0..candidates.len()).step_by(stride).collect();
     let summed = crate::parallel::map(full.len(), |i| {
-        excess(rays, &with(full[i]), near.clone(), MEND_RANK, above)
+        excess(
+            rays,
+            &with(full[i]),
+            near.clone(),
+            MEND_RANK,
+            above,
+            f32::INFINITY,
+        )
     });
     let cap = {
         let mut best = summed.clone();
@@ -576,7 +573,7 @@ fn mend_segment(
     };
     let rest: Vec<usize> = (0..candidates.len()).filter(|c| c % stride != 0).collect();
     let capped = crate::parallel::map(rest.len(), |i| {
-        excess_capped(rays, &with(rest[i]), near.clone(), MEND_RANK, above, cap)
+        excess(rays, &with(rest[i]), near.clone(), MEND_RANK, above, cap)
     });
     let mut ranked = vec![0.0; candidates.len()];
     for (&c, &v) in full.iter().zip(&summed).chain(rest.iter().zip(&capped)) {
