@@ -71,12 +71,7 @@ fuzz_target!(|data: &[u8]| {
                     .expect("placed");
             }
             // GI's movers: the deformed ones keep their pieces from pose to pose.
-            let diagonal = scene
-                .objects
-                .iter()
-                .fold(coherent::scene::Aabb::EMPTY, |b, o| b.union(&o.bounds))
-                .extent()
-                .length();
+            let diagonal = scene.bounds().extent().length();
             let mut gi = coherent::gi::movers::GiMovers::new(&scene, movers, diagonal.max(1e-3));
             let pieces = gi.geometry().triangles.len();
             for frame in [0, 7, 1000] {

@@ -68,12 +68,7 @@ impl Default for PvsSettings {
 /// metres away from a camera that stands centimetres off it, where the parts it sees up close
 /// are a pixel or none.
 pub fn default_cell_size(scene: &Scene) -> f32 {
-    let mut bounds = crate::scene::Aabb::EMPTY;
-    for o in &scene.objects {
-        bounds.grow(o.bounds.min);
-        bounds.grow(o.bounds.max);
-    }
-    let quarter = 0.25 * bounds.extent().length();
+    let quarter = 0.25 * scene.bounds().extent().length();
     if quarter.is_finite() && quarter > 0.0 {
         quarter.min(PvsSettings::default().cell_size)
     } else {

@@ -626,7 +626,8 @@ fn read_animation(
     warnings: &mut Vec<String>,
 ) -> super::animation::Animation {
     let (mut channels, mut weights) = (Vec::new(), Vec::new());
-    if let Some(anim) = index.and_then(|i| doc.animations().nth(i)) {
+    let anim = index.and_then(|i| doc.animations().nth(i));
+    if let Some(anim) = &anim {
         for ch in anim.channels() {
             let read = match super::gltf_ext::Channel::read(doc, &ch, buffers) {
                 Ok(Some(c)) => {
@@ -647,8 +648,8 @@ fn read_animation(
         }
     }
     let mut animation = super::animation::Animation::new(channels, weights);
-    if let Some(anim) = index.and_then(|i| doc.animations().nth(i)) {
-        animation.set_label(animation_label(&anim));
+    if let Some(anim) = &anim {
+        animation.set_label(animation_label(anim));
     }
     animation
 }
@@ -2077,10 +2078,7 @@ mod tests {
         assert_eq!(scene.paths.len(), 1);
         assert_eq!(scene.paths[0].name, "default");
         assert_eq!(scene.paths[0].keys.len(), 4);
-        let bounds = scene
-            .objects
-            .iter()
-            .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
+        let bounds = scene.bounds();
         for k in &scene.paths[0].keys {
             assert!(!bounds.contains(k.eye));
             assert_eq!(k.target, bounds.center());
@@ -2201,10 +2199,7 @@ mod tests {
         // Made as small as a can, the orbit keeps two near planes off the model's bounding
         // sphere (scaled with it, it would stand inside the near plane's reach).
         let small = crate::scene::Scene::load(name, 0.01, 4096).expect("load at 0.01");
-        let bounds = small
-            .objects
-            .iter()
-            .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
+        let bounds = small.bounds();
         let radius = bounds.extent().length() * 0.5;
         let orbit = small.default_path().expect("orbit");
         for k in &orbit.keys {

@@ -130,6 +130,13 @@ impl Scene {
         self.objects.iter().map(|o| o.triangle_count()).sum()
     }
 
+    /// The box of all objects' world boxes ([`Aabb::EMPTY`] without objects).
+    pub fn bounds(&self) -> Aabb {
+        self.objects
+            .iter()
+            .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds))
+    }
+
     /// The path called `name`, or an error listing the scene's paths.
     pub fn path(&self, name: &str) -> crate::Result<&CameraPath> {
         self.paths.iter().find(|p| p.name == name).ok_or_else(|| {

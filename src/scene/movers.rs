@@ -122,10 +122,7 @@ impl Movers {
         }
         let mut rng = Rng::new(0x00D1_7A11 ^ count as u64);
         let ground = scene.objects.first().map(|o| o.bounds);
-        let world = scene
-            .objects
-            .iter()
-            .fold(Aabb::EMPTY, |b, o| b.union(&o.bounds));
+        let world = scene.bounds();
         let (mesh, color) = match scene.name.as_str() {
             "city" | "parking" => (car_mesh(), Vec3::new(0.85, 0.75, 0.1)),
             _ => (fan_mesh(), Vec3::new(0.75, 0.2, 0.15)),
