@@ -65,6 +65,9 @@ pub struct PvsArgs {
     /// Pixels per side of each PVS ID view.
     #[arg(long, default_value_t = 128)]
     pub face_size: u32,
+    /// Rays per pixel side where a ray-cast PVS ID view has a far edge (1: one ray per pixel).
+    #[arg(long, default_value_t = 4)]
+    pub face_refine: u32,
     /// View cells added to each side of the path (0: the cells the path passes through).
     #[arg(long, default_value_t = 0)]
     pub cell_margin: u32,
@@ -89,6 +92,9 @@ impl PvsArgs {
         if self.samples == 0 || self.face_size < 8 || self.face_size > 4096 {
             bail!("--samples must be at least 1 and --face-size between 8 and 4096");
         }
+        if !(1..=16).contains(&self.face_refine) {
+            bail!("--face-refine must be 1 to 16");
+        }
         if !(self.cell_enlarge.is_finite() && (0.0..=4.0).contains(&self.cell_enlarge)) {
             bail!("--cell-enlarge must be between 0 and 4");
         }
@@ -96,6 +102,7 @@ impl PvsArgs {
             cell_size,
             samples: self.samples,
             face_size: self.face_size,
+            refine: self.face_refine,
             margin: self.cell_margin,
             enlarge: self.cell_enlarge,
             raster: self.pvs_raster,

@@ -251,6 +251,7 @@ fn cli_rejects_bad_flags_cleanly() {
             "--out",
             "/tmp/x.png",
         ],
+        vec!["pvs", "--scene", "cornell", "--face-refine", "0"],
         // The output's name is checked before the scene is loaded (or a window opened).
         vec!["render", "--scene", "cornell", "--out", "/tmp/x"],
         vec!["view", "--scene", "cornell", "--screenshot", "/tmp/x.jpg"],

@@ -169,6 +169,7 @@ fn pvs_of_two_rooms_is_what_can_be_seen_and_its_cache_is_checked() {
             cell_size: 2.0,
             samples: 6,
             face_size: 64,
+            refine: 4,
             margin: 0,
             enlarge: 0.0,
             raster: false,
