@@ -122,7 +122,7 @@ pub fn key(
         .map(|k| format!("{:?}{:?}", k.eye.to_array(), k.target.to_array()))
         .collect();
     format!(
-        "v3;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};face={};refine={};margin={};enlarge={};raster={}",
+        "v4;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};face={};refine={};margin={};enlarge={};raster={}",
         scene.objects.len(),
         scene.triangle_count(),
         path.name,
@@ -236,7 +236,15 @@ pub fn build(
         seen.fill(false);
         let cell = sampled_region(Pvs::cell_bounds(origin, s.cell_size, coord), heights);
         for k in 0..samples {
-            let p = free_sample_point(scene, bvh, &cell, k, samples, s.enlarge);
+            let p = match &ids {
+                IdBuffers::Rays(rays) => {
+                    let solid = |p: Vec3| rays.inside_solid(p, far);
+                    free_sample_point(scene, bvh, &cell, k, samples, s.enlarge, Some(&solid))
+                }
+                IdBuffers::Raster(..) => {
+                    free_sample_point(scene, bvh, &cell, k, samples, s.enlarge, None)
+                }
+            };
             ids.mark_visible(bvh, p, face, far, refine, &mut seen)?;
             progress(ci as u64 * u64::from(samples) + u64::from(k) + 1, total);
         }
@@ -322,6 +330,32 @@ impl ObjectRays {
             rays: crate::scene::raycast::RayScene::new(triangles, Vec::new()),
             first,
         }
+    }
+
+    /// Whether `p` lies inside a closed solid: most of 14 rays from it (along the axes and the
+    /// cube's diagonals) first meet a triangle from behind. (Rays that hit nothing count as
+    /// open.)
+    fn inside_solid(&self, p: Vec3, far: f32) -> bool {
+        let mut dirs = vec![
+            Vec3::X,
+            Vec3::NEG_X,
+            Vec3::Y,
+            Vec3::NEG_Y,
+            Vec3::Z,
+            Vec3::NEG_Z,
+        ];
+        for x in [-1.0, 1.0] {
+            for y in [-1.0, 1.0] {
+                for z in [-1.0, 1.0] {
+                    dirs.push(Vec3::new(x, y, z).normalize());
+                }
+            }
+        }
+        let behind = dirs
+            .iter()
+            .filter(|&&d| self.rays.intersect(p, d, far).is_some_and(|h| !h.front))
+            .count();
+        2 * behind > dirs.len()
     }
 
     /// The object of triangle `t`.
@@ -458,9 +492,13 @@ const DIRECTIONS: [Vec3; 6] = [
     Vec3::NEG_Z,
 ];
 
-/// Sample `k` of `samples` in a cell, outside every object's box where possible: a point
-/// inside a solid object (a building, a boiler) sees only that object's inside, so the next
-/// Halton points (`k + samples`, `k + 2 samples`, ...) are tried, up to 16 in all.
+/// Sample `k` of `samples` in a cell, outside solid objects where possible: a point inside a
+/// solid (a building, a boiler, a pillar) sees only that object's inside, so the next Halton
+/// points (`k + samples`, `k + 2 samples`, ...) are tried, up to 16 in all. With `solid` (the
+/// ray-cast views) a point is inside a solid when `solid` says so; without it, when it lies
+/// in some object's box. The box rule fails in a level split into chunks, whose boxes span
+/// its rooms: there the only points outside every box lie outside the building, and on the
+/// Sibenik cathedral two view cells saw its outer walls only.
 fn free_sample_point(
     scene: &Scene,
     bvh: &ObjectBvh,
@@ -468,10 +506,15 @@ fn free_sample_point(
     k: u32,
     samples: u32,
     enlarge: f32,
+    solid: Option<&dyn Fn(Vec3) -> bool>,
 ) -> Vec3 {
+    let inside = |p: Vec3| match solid {
+        Some(solid) => solid(p),
+        None => inside_object(scene, bvh, p),
+    };
     let mut p = sample_point(cell, k, enlarge);
     for t in 1..16 {
-        if !inside_object(scene, bvh, p) {
+        if !inside(p) {
             break;
         }
         p = sample_point(cell, k + t * samples, enlarge);
@@ -652,5 +695,54 @@ mod tests {
             ..four
         };
         assert_eq!(seen(near), vec![0, 2]);
+    }
+
+    /// A room of 13 x 4 x 13 units as one object (floor, ceiling and four walls 0.2 thick),
+    /// like a level's chunk: its box holds the whole room.
+    fn room() -> Scene {
+        use crate::scene::mesh::{Mesh, SceneBuilder};
+        let mut m = Mesh::default();
+        let v = Vec3::new;
+        for (min, max) in [
+            (v(-5.2, -0.2, -5.2), v(8.2, 0.0, 8.2)),
+            (v(-5.2, 4.0, -5.2), v(8.2, 4.2, 8.2)),
+            (v(-5.2, 0.0, -5.2), v(-5.0, 4.0, 8.2)),
+            (v(8.0, 0.0, -5.2), v(8.2, 4.0, 8.2)),
+            (v(-5.0, 0.0, -5.2), v(8.0, 4.0, -5.0)),
+            (v(-5.0, 0.0, 8.0), v(8.0, 4.0, 8.2)),
+        ] {
+            m.append(&Mesh::cuboid(min, max), glam::Mat4::IDENTITY);
+        }
+        let mut b = SceneBuilder::new("room");
+        b.add(&m, Vec3::splat(0.5));
+        b.finish()
+    }
+
+    #[test]
+    fn samples_stand_in_the_room_not_in_its_walls_nor_outside_its_box() {
+        let scene = room();
+        let bvh = scene.hierarchy(1);
+        let rays = ObjectRays::new(&scene);
+        assert!(
+            rays.inside_solid(Vec3::new(8.1, 2.0, 0.0), 100.0),
+            "in a wall"
+        );
+        assert!(
+            !rays.inside_solid(Vec3::new(1.5, 2.0, 1.5), 100.0),
+            "in the room"
+        );
+        assert!(
+            !rays.inside_solid(Vec3::new(20.0, 2.0, 20.0), 100.0),
+            "outside"
+        );
+        // A cell across the wall at z = 8: its first Halton point (5, 1.5, 2) is in the room,
+        // its third (z = 8.4) outside.
+        let cell = crate::scene::Aabb::new(Vec3::new(0.0, 0.5, 0.0), Vec3::new(10.0, 3.5, 10.0));
+        let solid = |p: Vec3| rays.inside_solid(p, 100.0);
+        let p = free_sample_point(&scene, &bvh, &cell, 0, 4, 0.0, Some(&solid));
+        assert_eq!(p, Vec3::new(5.0, 1.5, 2.0));
+        // The box rule leaves the room's box, and so the building.
+        let p = free_sample_point(&scene, &bvh, &cell, 0, 4, 0.0, None);
+        assert!(!scene.objects[0].bounds.contains(p), "{p}");
     }
 }
