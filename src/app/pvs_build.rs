@@ -106,6 +106,8 @@ pub struct PvsBuild {
     pub seconds: f64,
     /// Whether it was loaded from the cache.
     pub from_cache: bool,
+    /// The settings it was built with (part of the cache key).
+    pub settings: PvsSettings,
 }
 
 /// The cache key: scene, scale, path, settings and object count.
@@ -185,6 +187,7 @@ pub fn load_or_build(
                 file_bytes,
                 seconds: 0.0,
                 from_cache: true,
+                settings: s.clone(),
             });
         }
         Ok(None) => {}
@@ -201,6 +204,7 @@ pub fn load_or_build(
         file_bytes,
         seconds,
         from_cache: false,
+        settings: s.clone(),
     })
 }
 

@@ -338,6 +338,9 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
     assert!(pvs["missed_objects_max"].is_u64(), "{pvs}");
     assert!(pvs["cells"].as_u64().unwrap() > 0);
     assert_eq!(pvs["cell_size"].as_f64(), Some(12.0), "--cell-size: {pvs}");
+    assert_eq!(pvs["samples"].as_u64(), Some(1), "--samples: {pvs}");
+    assert_eq!(pvs["face_size"].as_u64(), Some(32), "--face-size: {pvs}");
+    assert_eq!(pvs["face_refine"].as_u64(), Some(4), "the default: {pvs}");
     assert!(pvs["pvs_objects_mean"].as_f64().unwrap() > 0.0);
     assert!(pvs["preprocess_s"].as_f64().unwrap() > 0.0);
     let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();

@@ -80,6 +80,12 @@ pub struct PreprocessSummary {
     pub cells: usize,
     /// Edge length of a view cell, in scene units.
     pub cell_size: f32,
+    /// Sample points per cell.
+    pub samples: u32,
+    /// Pixels per side of each sample's six ID views.
+    pub face_size: u32,
+    /// Rays per pixel side at the far edges of ray-cast ID views (1: none more).
+    pub face_refine: u32,
     /// Mean objects per cell's PVS.
     pub pvs_objects_mean: f64,
     /// Largest cell PVS.
