@@ -121,7 +121,7 @@ impl LightPath {
                     Vec3::Z * e.z
                 };
                 let mut top = c + Vec3::Y * (0.3 * e.y);
-                if inside_solid(rays, top, geometry.diagonal()) {
+                if rays.inside_solid(top, geometry.diagonal()) {
                     // A closed model (an object, not a room): above it, looking down at it.
                     top = Vec3::new(c.x, b.max.y + 0.5 * e.x.max(e.z), c.z);
                 }
@@ -163,28 +163,6 @@ impl LightPath {
             keys: Some(keys),
         }
     }
-}
-
-/// Whether `p` lies inside a closed solid: most of 14 rays from it (the axes and the
-/// diagonals) meet the back sides of triangles within `reach`. A point in a room meets its
-/// walls' front sides, one in the open escapes.
-fn inside_solid(rays: &RayScene, p: Vec3, reach: f32) -> bool {
-    let mut dirs: Vec<Vec3> = [Vec3::X, Vec3::Y, Vec3::Z]
-        .into_iter()
-        .flat_map(|a| [a, -a])
-        .collect();
-    for x in [-1.0, 1.0] {
-        for y in [-1.0, 1.0] {
-            for z in [-1.0, 1.0] {
-                dirs.push(Vec3::new(x, y, z).normalize());
-            }
-        }
-    }
-    let backs = dirs
-        .iter()
-        .filter(|&&d| rays.intersect(p, d, reach).is_some_and(|h| !h.front))
-        .count();
-    2 * backs > dirs.len()
 }
 
 /// What a run may take from the user instead of the scene's defaults.
@@ -937,12 +915,12 @@ mod tests {
             .collect();
         let grey = vec![Vec3::splat(0.5); triangles.len()];
         let solid = RayScene::new(triangles.clone(), grey.clone());
-        assert!(inside_solid(&solid, Vec3::new(0.3, 0.2, -0.1), 100.0));
-        assert!(!inside_solid(&solid, Vec3::new(0.0, 5.0, 0.0), 100.0));
+        assert!(solid.inside_solid(Vec3::new(0.3, 0.2, -0.1), 100.0));
+        assert!(!solid.inside_solid(Vec3::new(0.0, 5.0, 0.0), 100.0));
         // The same box turned inside out is a room: its walls face the light.
         let room: Vec<[Vec3; 3]> = triangles.iter().map(|t| [t[0], t[2], t[1]]).collect();
         let room = RayScene::new(room, grey);
-        assert!(!inside_solid(&room, Vec3::new(0.3, 0.2, -0.1), 100.0));
+        assert!(!room.inside_solid(Vec3::new(0.3, 0.2, -0.1), 100.0));
     }
 
     #[test]

@@ -242,7 +242,7 @@ pub fn build(
         for k in 0..samples {
             let p = match &ids {
                 IdBuffers::Rays(rays) => {
-                    let solid = |p: Vec3| rays.inside_solid(p, far);
+                    let solid = |p: Vec3| rays.rays.inside_solid(p, far);
                     free_sample_point(scene, bvh, &cell, k, samples, s.enlarge, Some(&solid))
                 }
                 IdBuffers::Raster(..) => {
@@ -334,32 +334,6 @@ impl ObjectRays {
             rays: crate::scene::raycast::RayScene::new(triangles, Vec::new()),
             first,
         }
-    }
-
-    /// Whether `p` lies inside a closed solid: most of 14 rays from it (along the axes and the
-    /// cube's diagonals) first meet a triangle from behind. (Rays that hit nothing count as
-    /// open.)
-    fn inside_solid(&self, p: Vec3, far: f32) -> bool {
-        let mut dirs = vec![
-            Vec3::X,
-            Vec3::NEG_X,
-            Vec3::Y,
-            Vec3::NEG_Y,
-            Vec3::Z,
-            Vec3::NEG_Z,
-        ];
-        for x in [-1.0, 1.0] {
-            for y in [-1.0, 1.0] {
-                for z in [-1.0, 1.0] {
-                    dirs.push(Vec3::new(x, y, z).normalize());
-                }
-            }
-        }
-        let behind = dirs
-            .iter()
-            .filter(|&&d| self.rays.intersect(p, d, far).is_some_and(|h| !h.front))
-            .count();
-        2 * behind > dirs.len()
     }
 
     /// The object of triangle `t`.
@@ -728,21 +702,21 @@ mod tests {
         let bvh = scene.hierarchy(1);
         let rays = ObjectRays::new(&scene);
         assert!(
-            rays.inside_solid(Vec3::new(8.1, 2.0, 0.0), 100.0),
+            rays.rays.inside_solid(Vec3::new(8.1, 2.0, 0.0), 100.0),
             "in a wall"
         );
         assert!(
-            !rays.inside_solid(Vec3::new(1.5, 2.0, 1.5), 100.0),
+            !rays.rays.inside_solid(Vec3::new(1.5, 2.0, 1.5), 100.0),
             "in the room"
         );
         assert!(
-            !rays.inside_solid(Vec3::new(20.0, 2.0, 20.0), 100.0),
+            !rays.rays.inside_solid(Vec3::new(20.0, 2.0, 20.0), 100.0),
             "outside"
         );
         // A cell across the wall at z = 8: its first Halton point (5, 1.5, 2) is in the room,
         // its third (z = 8.4) outside.
         let cell = crate::scene::Aabb::new(Vec3::new(0.0, 0.5, 0.0), Vec3::new(10.0, 3.5, 10.0));
-        let solid = |p: Vec3| rays.inside_solid(p, 100.0);
+        let solid = |p: Vec3| rays.rays.inside_solid(p, 100.0);
         let p = free_sample_point(&scene, &bvh, &cell, 0, 4, 0.0, Some(&solid));
         assert_eq!(p, Vec3::new(5.0, 1.5, 2.0));
         // The box rule leaves the room's box, and so the building.

@@ -139,6 +139,28 @@ impl RayScene {
         self.albedo.len()
     }
 
+    /// Whether `p` lies inside a closed solid: most of 14 rays from it (the axes and the
+    /// diagonals) meet the back sides of triangles within `reach`. A point in a room meets its
+    /// walls' front sides, one in the open escapes.
+    pub fn inside_solid(&self, p: Vec3, reach: f32) -> bool {
+        let mut dirs: Vec<Vec3> = [Vec3::X, Vec3::Y, Vec3::Z]
+            .into_iter()
+            .flat_map(|a| [a, -a])
+            .collect();
+        for x in [-1.0, 1.0] {
+            for y in [-1.0, 1.0] {
+                for z in [-1.0, 1.0] {
+                    dirs.push(Vec3::new(x, y, z).normalize());
+                }
+            }
+        }
+        let backs = dirs
+            .iter()
+            .filter(|&&d| self.intersect(p, d, reach).is_some_and(|h| !h.front))
+            .count();
+        2 * backs > dirs.len()
+    }
+
     /// Closest hit along `origin + t * dir` for `t` in `(0, t_max]`; `None` on a miss.
     pub fn intersect(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
         let own = self.intersect_static(origin, dir, t_max);
