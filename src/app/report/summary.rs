@@ -84,7 +84,8 @@ pub struct PreprocessSummary {
     pub samples: u32,
     /// Pixels per side of each sample's six ID views.
     pub face_size: u32,
-    /// Rays per pixel side at the far edges of ray-cast ID views (1: none more).
+    /// Rays per pixel side at the far edges of the ID views (1: none more, as in rasterized
+    /// views).
     pub face_refine: u32,
     /// Mean objects per cell's PVS.
     pub pvs_objects_mean: f64,
@@ -520,10 +521,17 @@ impl WalkSummary {
             if let Some(p) = &s.preprocess {
                 let _ = writeln!(
                     out,
-                    "\n{name}: {} cells of {}, {:.1} objects per cell (max {}), {:.1} s \
-                     preprocessing{}, {} KiB cache file, {} frames outside the cells",
+                    "\n{name}: {} cells of {}, {} samples each, {}-pixel views{}, {:.1} objects \
+                     per cell (max {}), {:.1} s preprocessing{}, {} KiB cache file, {} frames \
+                     outside the cells",
                     p.cells,
                     (p.cell_size * 1000.0).round() / 1000.0,
+                    p.samples,
+                    p.face_size,
+                    match p.face_refine {
+                        0 | 1 => String::new(),
+                        r => format!(" ({r}x{r} rays at far edges)"),
+                    },
                     p.pvs_objects_mean,
                     p.pvs_objects_max,
                     p.preprocess_s,
