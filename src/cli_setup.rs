@@ -297,11 +297,7 @@ pub fn preprocess_summary(b: &PvsBuild, frames_outside_cells: usize) -> Preproce
         cell_size: b.pvs.cell_size,
         samples: b.settings.samples,
         face_size: b.settings.face_size,
-        face_refine: if b.settings.raster {
-            1
-        } else {
-            b.settings.refine
-        },
+        face_refine: b.settings.far_edge_rays(),
         pvs_objects_mean: mean,
         pvs_objects_max: max,
         file_bytes: b.file_bytes,

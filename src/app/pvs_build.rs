@@ -74,6 +74,18 @@ impl Default for PvsSettings {
     }
 }
 
+impl PvsSettings {
+    /// Rays per pixel side that the far edges of the ID views get: [`PvsSettings::refine`]
+    /// (at least 1) for ray-cast views, 1 for rasterized ones (which cast no rays).
+    pub fn far_edge_rays(&self) -> u32 {
+        if self.raster {
+            1
+        } else {
+            self.refine.max(1)
+        }
+    }
+}
+
 /// How far, in view cells, an edge of a ray-cast ID view must reach to be refined
 /// ([`PvsSettings::refine`]). On the city's street (cells of 6, 4 rays per pixel side, 60
 /// frames) 4 cells took the build from 20 s to 48 s, 10 cells to 38 s and 20 cells to 31 s;
@@ -231,7 +243,7 @@ pub fn build(
     let mut cells = Vec::with_capacity(coords.len());
     let samples = s.samples.max(1);
     let refine = FarEdges {
-        rays: s.refine.max(1),
+        rays: s.far_edge_rays(),
         beyond: FAR_EDGE_CELLS * s.cell_size,
     };
     let total = coords.len() as u64 * u64::from(samples);
