@@ -1089,6 +1089,23 @@ mod tests {
         assert!(gi(&["--frames", "100001"]).contains("--frames at most 100000"));
     }
 
+    /// The PVS samples each cell's corners unless `--no-cell-corners` says not to.
+    #[test]
+    fn pvs_cells_are_sampled_at_their_corners_by_default() {
+        let corners = |extra: &[&str]| {
+            let mut argv = vec!["coherent", "render", "--scene", "city", "--out", "x.png"];
+            argv.extend_from_slice(extra);
+            let crate::Command::Render(r) = crate::Cli::try_parse_from(argv).unwrap().command
+            else {
+                unreachable!()
+            };
+            let scene = coherent::scene::procedural::cornell();
+            r.pvs.settings(&scene).unwrap().corners
+        };
+        assert!(corners(&[]));
+        assert!(!corners(&["--no-cell-corners"]));
+    }
+
     /// On a GPU the predicated mode keeps one predicate level unless `--refine-levels` says
     /// otherwise, and queries with tight bounds; every other parameter is the user's.
     #[test]

@@ -80,10 +80,13 @@ pub struct PvsArgs {
     /// Rasterize the PVS ID buffers (the oracle's ID pass) instead of ray casting them.
     #[arg(long)]
     pub pvs_raster: bool,
+    /// Sample only the Halton points of each view cell, not also its four corners.
+    #[arg(long)]
+    pub no_cell_corners: bool,
 }
 
 impl PvsArgs {
-    fn settings(&self, scene: &Scene) -> Result<PvsSettings> {
+    pub(crate) fn settings(&self, scene: &Scene) -> Result<PvsSettings> {
         let cell_size = match self.cell_size {
             Some(c) if c.is_finite() && c > 0.0 => c,
             Some(_) => bail!("--cell-size must be a positive number"),
@@ -106,6 +109,7 @@ impl PvsArgs {
             margin: self.cell_margin,
             enlarge: self.cell_enlarge,
             raster: self.pvs_raster,
+            corners: !self.no_cell_corners,
         })
     }
 }
@@ -296,6 +300,7 @@ pub fn preprocess_summary(b: &PvsBuild, frames_outside_cells: usize) -> Preproce
         cells: b.pvs.cells.len(),
         cell_size: b.pvs.cell_size,
         samples: b.settings.samples,
+        corners: b.settings.corners,
         face_size: b.settings.face_size,
         face_refine: b.settings.far_edge_rays(),
         pvs_objects_mean: mean,

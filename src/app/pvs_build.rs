@@ -17,12 +17,17 @@
 //! `city` path, the rooms and corridors a `powerplant` path goes through, the path's
 //! surroundings in a glTF scene). Sample points are stratified (Halton) over the cell enlarged
 //! by `enlarge` of its size on each side: a conservative setting samples more points over a
-//! larger box, at a cost proportional to `samples` × (1 + 2·enlarge)² in coverage.
-//! A sample point inside an object's box (a building, a boiler) sees only that object's inside:
-//! the next Halton points are tried instead. A cell that a wall crosses still sees only what
-//! its samples on either side see (a cell-and-portal subdivision would split such cells at
-//! the wall).
+//! larger box, at a cost proportional to `samples` × (1 + 2·enlarge)² in coverage. With
+//! `corners` (the default) the cell's four corners, at the middle of its sampled heights, are
+//! sampled too; the cells that meet at a corner share its views, so they cost about two
+//! samples a cell on a path. A camera at the side of a cell, next to a doorway, sees through
+//! it what the Halton points deeper in the cell do not.
+//! A sample point inside a solid (a building, a boiler) sees only that object's inside: the
+//! next Halton points are tried instead (a corner moves towards the cell's centre). A cell that
+//! a wall crosses still sees only what its samples on either side see (a cell-and-portal
+//! subdivision would split such cells at the wall).
 
+use std::collections::hash_map::{Entry, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -58,6 +63,10 @@ pub struct PvsSettings {
     pub enlarge: f32,
     /// Rasterize the ID buffers with the renderer's ID pass instead of ray casting them.
     pub raster: bool,
+    /// Also sample each cell's four corners (at the middle of its sampled heights), shared
+    /// with the cells that meet there (default on). A camera near a cell's side sees through
+    /// a doorway there what no point inside the cell sees.
+    pub corners: bool,
 }
 
 impl Default for PvsSettings {
@@ -70,6 +79,7 @@ impl Default for PvsSettings {
             margin: 0,
             enlarge: 0.0,
             raster: false,
+            corners: true,
         }
     }
 }
@@ -136,13 +146,14 @@ pub fn key(
         .map(|k| format!("{:?}{:?}", k.eye.to_array(), k.target.to_array()))
         .collect();
     format!(
-        "v4;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};face={};refine={};margin={};enlarge={};raster={}",
+        "v5;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};corners={};face={};refine={};margin={};enlarge={};raster={}",
         scene.objects.len(),
         scene.triangle_count(),
         path.name,
         fnv1a(keys.join(";").as_bytes()),
         s.cell_size,
         s.samples,
+        s.corners,
         s.face_size,
         s.refine,
         s.margin,
@@ -246,23 +257,51 @@ pub fn build(
         rays: s.far_edge_rays(),
         beyond: FAR_EDGE_CELLS * s.cell_size,
     };
-    let total = coords.len() as u64 * u64::from(samples);
+    let per_cell = samples + if s.corners { 4 } else { 0 };
+    let total = coords.len() as u64 * u64::from(per_cell);
     let heights = eye_heights(path);
+    // What each shared corner sees (the objects), by its lattice point.
+    let mut corner_sets: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
+    let mut corner_seen = vec![false; scene.objects.len()];
     for (ci, &coord) in coords.iter().enumerate() {
         seen.fill(false);
         let cell = sampled_region(Pvs::cell_bounds(origin, s.cell_size, coord), heights);
-        for k in 0..samples {
-            let p = match &ids {
-                IdBuffers::Rays(rays) => {
-                    let solid = |p: Vec3| rays.rays.inside_solid(p, far);
-                    free_sample_point(scene, bvh, &cell, k, samples, s.enlarge, Some(&solid))
+        let points = match &ids {
+            IdBuffers::Rays(rays) => {
+                let solid = |p: Vec3| rays.rays.inside_solid(p, far);
+                cell_sample_points(scene, bvh, &cell, coord, s, Some(&solid))
+            }
+            IdBuffers::Raster(..) => cell_sample_points(scene, bvh, &cell, coord, s, None),
+        };
+        for (k, sample) in points.iter().enumerate() {
+            match sample.corner {
+                None => ids.mark_visible(bvh, sample.point, face, far, refine, &mut seen)?,
+                Some(corner) => {
+                    let set = match corner_sets.entry(corner) {
+                        Entry::Occupied(e) => e.into_mut(),
+                        Entry::Vacant(e) => {
+                            corner_seen.fill(false);
+                            ids.mark_visible(
+                                bvh,
+                                sample.point,
+                                face,
+                                far,
+                                refine,
+                                &mut corner_seen,
+                            )?;
+                            e.insert(
+                                (0..corner_seen.len() as u32)
+                                    .filter(|&o| corner_seen[o as usize])
+                                    .collect(),
+                            )
+                        }
+                    };
+                    for &o in set.iter() {
+                        seen[o as usize] = true;
+                    }
                 }
-                IdBuffers::Raster(..) => {
-                    free_sample_point(scene, bvh, &cell, k, samples, s.enlarge, None)
-                }
-            };
-            ids.mark_visible(bvh, p, face, far, refine, &mut seen)?;
-            progress(ci as u64 * u64::from(samples) + u64::from(k) + 1, total);
+            }
+            progress(ci as u64 * u64::from(per_cell) + k as u64 + 1, total);
         }
         let objects = (0..seen.len() as u32)
             .filter(|&o| seen[o as usize])
@@ -481,6 +520,72 @@ const DIRECTIONS: [Vec3; 6] = [
     Vec3::Z,
     Vec3::NEG_Z,
 ];
+
+/// A sample point of a view cell.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct CellSample {
+    point: Vec3,
+    /// The lattice point of a cell corner that stands where the lattice puts it, so that the
+    /// cells meeting there share its views.
+    corner: Option<[i32; 3]>,
+}
+
+/// The sample points of the view cell at `coord`, whose sampled region is `cell`: `samples`
+/// Halton points and, with [`PvsSettings::corners`], the cell's four corners at the middle of
+/// its heights. A corner inside a solid moves towards the cell's centre until it is out (and
+/// is then the cell's own). On the powerplant's `difficult` path, the camera passes a doorway
+/// at the side of a cell whose Halton points stand 1.5 units or more from that side and see
+/// through the doorway only in a narrow wedge: with four Halton points a frame there missed
+/// 69,939 pixels, with the corners added 20,179 (16 Halton points: 3,820).
+fn cell_sample_points(
+    scene: &Scene,
+    bvh: &ObjectBvh,
+    cell: &crate::scene::Aabb,
+    coord: [i32; 3],
+    s: &PvsSettings,
+    solid: Option<&dyn Fn(Vec3) -> bool>,
+) -> Vec<CellSample> {
+    let samples = s.samples.max(1);
+    let mut points: Vec<CellSample> = (0..samples)
+        .map(|k| CellSample {
+            point: free_sample_point(scene, bvh, cell, k, samples, s.enlarge, solid),
+            corner: None,
+        })
+        .collect();
+    if !s.corners {
+        return points;
+    }
+    let inside = |p: Vec3| match solid {
+        Some(solid) => solid(p),
+        None => inside_object(scene, bvh, p),
+    };
+    let centre = cell.center();
+    for k in 0..4 {
+        let (dx, dz) = (k & 1, k >> 1);
+        let corner = Vec3::new(
+            if dx == 0 { cell.min.x } else { cell.max.x },
+            centre.y,
+            if dz == 0 { cell.min.z } else { cell.max.z },
+        );
+        let lattice = [coord[0] + dx, coord[1], coord[2] + dz];
+        let mut sample = CellSample {
+            point: corner,
+            corner: Some(lattice),
+        };
+        // Towards the centre in tenths of the way, the last at nine tenths.
+        for t in 1..10 {
+            if !inside(sample.point) {
+                break;
+            }
+            sample = CellSample {
+                point: corner.lerp(centre, 0.1 * t as f32),
+                corner: None,
+            };
+        }
+        points.push(sample);
+    }
+    points
+}
 
 /// Sample `k` of `samples` in a cell, outside solid objects where possible: a point inside a
 /// solid (a building, a boiler, a pillar) sees only that object's inside, so the next Halton
@@ -706,6 +811,79 @@ mod tests {
         let mut b = SceneBuilder::new("room");
         b.add(&m, Vec3::splat(0.5));
         b.finish()
+    }
+
+    /// A wall 0.2 thick at z = 6.2 with a doorway from x = 5 to 7, a crate behind it to the
+    /// north-west (x 1.5..3, z 8..9) and a pillar around the origin (objects 0 and 1 the wall,
+    /// 2 the crate, 3 the pillar).
+    fn doorway() -> Scene {
+        use crate::scene::mesh::{Mesh, SceneBuilder};
+        let v = Vec3::new;
+        let mut b = SceneBuilder::new("doorway");
+        let grey = Vec3::splat(0.5);
+        b.add(&Mesh::cuboid(v(-50.0, -5.0, 6.2), v(5.0, 5.0, 6.4)), grey);
+        b.add(&Mesh::cuboid(v(7.0, -5.0, 6.2), v(50.0, 5.0, 6.4)), grey);
+        b.add(&Mesh::cuboid(v(1.5, -5.0, 8.0), v(3.0, 5.0, 9.0)), grey);
+        b.add(&Mesh::cuboid(v(-0.5, -5.0, -0.5), v(0.5, 5.0, 0.5)), grey);
+        b.finish()
+    }
+
+    #[test]
+    fn cell_corners_see_through_a_doorway_at_the_cells_side() {
+        let scene = doorway();
+        let bvh = scene.hierarchy(1);
+        let rays = ObjectRays::new(&scene);
+        let solid = |p: Vec3| rays.rays.inside_solid(p, 100.0);
+        // The cell below the doorway: its corner (6, 6) stands under the doorway's west half.
+        let cell = crate::scene::Aabb::new(Vec3::new(0.0, 1.0, 0.0), Vec3::new(6.0, 2.0, 6.0));
+        let seen_from = |points: &[CellSample]| {
+            let mut seen = vec![false; scene.objects.len()];
+            let one = FarEdges {
+                rays: 1,
+                beyond: f32::MAX,
+            };
+            for s in points {
+                rays.mark_visible(s.point, 64, 100.0, one, &mut seen);
+            }
+            seen
+        };
+        let halton = PvsSettings {
+            corners: false,
+            ..PvsSettings::default()
+        };
+        let points = cell_sample_points(&scene, &bvh, &cell, [0, 0, 0], &halton, Some(&solid));
+        assert_eq!(points.len(), 4);
+        let seen = seen_from(&points);
+        assert!(seen[0] && seen[1], "the wall: {seen:?}");
+        assert!(
+            !seen[2],
+            "no Halton point sees the crate through the doorway"
+        );
+        let points = cell_sample_points(
+            &scene,
+            &bvh,
+            &cell,
+            [0, 0, 0],
+            &PvsSettings::default(),
+            Some(&solid),
+        );
+        assert_eq!(points.len(), 8);
+        assert!(
+            seen_from(&points)[2],
+            "the corner under the doorway sees the crate"
+        );
+        assert_eq!(
+            points[7],
+            CellSample {
+                point: Vec3::new(6.0, 1.5, 6.0),
+                corner: Some([1, 0, 1]),
+            },
+            "a free corner is shared by its lattice point"
+        );
+        // The corner in the pillar moves two tenths of the way to the centre, and is the
+        // cell's own.
+        assert_eq!(points[4].corner, None);
+        assert!((points[4].point - Vec3::new(0.6, 1.5, 0.6)).length() < 1e-5);
     }
 
     #[test]

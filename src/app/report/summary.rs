@@ -80,8 +80,11 @@ pub struct PreprocessSummary {
     pub cells: usize,
     /// Edge length of a view cell, in scene units.
     pub cell_size: f32,
-    /// Sample points per cell.
+    /// Sample points per cell (Halton points).
     pub samples: u32,
+    /// Whether each cell's four corners were sampled too (shared with the cells that meet
+    /// there).
+    pub corners: bool,
     /// Pixels per side of each sample's six ID views.
     pub face_size: u32,
     /// Rays per pixel side at the far edges of the ID views (1: none more, as in rasterized
@@ -521,12 +524,13 @@ impl WalkSummary {
             if let Some(p) = &s.preprocess {
                 let _ = writeln!(
                     out,
-                    "\n{name}: {} cells of {}, {} samples each, {}-pixel views{}, {:.1} objects \
+                    "\n{name}: {} cells of {}, {} samples{} each, {}-pixel views{}, {:.1} objects \
                      per cell (max {}), {:.1} s preprocessing{}, {} KiB cache file, {} frames \
                      outside the cells",
                     p.cells,
                     (p.cell_size * 1000.0).round() / 1000.0,
                     p.samples,
+                    if p.corners { " and 4 corners" } else { "" },
                     p.face_size,
                     match p.face_refine {
                         0 | 1 => String::new(),
