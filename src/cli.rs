@@ -36,9 +36,17 @@ pub struct RenderArgs {
     /// next-frame-conservative, with an optional `-kN` suffix (N frames in flight).
     #[arg(long, default_value = "in-frame")]
     pub latency: String,
-    /// Frame of the scene's default path (temporal algorithms render frames 0..=N).
+    /// Frame of the scene's default path (temporal algorithms render frames 0..=N); with
+    /// `--walk-frames`, the frame of a walk as its frames.csv numbers it.
     #[arg(long, default_value_t = 0)]
     pub frame: u32,
+    /// Take the camera (and the movers) of `coherent walk --frames F` at `--frame`, numbered
+    /// as the walk's frames.csv and report number them (after its warm-up frames).
+    #[arg(long, value_name = "F")]
+    pub walk_frames: Option<u32>,
+    /// With `--walk-frames`: the walk's `--warmup` [default: 10].
+    #[arg(long)]
+    pub warmup: Option<u32>,
     /// Camera path: one of the scene's paths or a path file (.json; see README "Your own
     /// scene"). Default: the scene's first path.
     #[arg(long)]
@@ -362,6 +370,7 @@ pub fn info() -> Result<()> {
 /// `coherent render`.
 pub fn render(a: &RenderArgs) -> Result<()> {
     let (w, h) = parse_size(&a.size)?;
+    let walk = render_walk_frames(a)?;
     coherent::image_io::prepare_png_path(&a.out)?;
     check_algorithm(&a.algorithm, &ChcppParams::default())?;
     let name = match a.algorithm.as_str() {
@@ -400,15 +409,21 @@ pub fn render(a: &RenderArgs) -> Result<()> {
         // Algorithms without state between frames start one frame early, so that the frame
         // printed is not the renderer's first (on lavapipe the first draws of a pipeline
         // compile its shader variants).
+        // With `--walk-frames` the frames are the walk's, warm-up included.
+        let target = walk.map_or(a.frame, |(_, warmup)| a.frame + warmup);
         let first = if culler.needs_exact_visibility() || a.algorithm == "vfc" {
-            a.frame.saturating_sub(1)
+            target.saturating_sub(1)
         } else {
             0
         };
         let mut last = None;
-        for f in first..=a.frame {
+        for f in first..=target {
             walk::place_movers(&movers, f as u64, &mut bvh, &mut renderer)?;
-            let cam = renderer.camera(path.pose_at(f as f32), &bvh);
+            let pose = match walk {
+                Some((frames, warmup)) => path.sample(f, frames + warmup),
+                None => path.pose_at(f as f32),
+            };
+            let cam = renderer.camera(pose, &bvh);
             last = Some(culler.render_frame(&mut renderer, &bvh, &cam, f as u64)?);
         }
         renderer.save_png(&a.out)?;
@@ -422,11 +437,17 @@ pub fn render(a: &RenderArgs) -> Result<()> {
             } else {
                 String::new()
             };
+            let frame = match walk {
+                Some((frames, warmup)) => format!(
+                    "frame {} of a walk of {frames} (+ {warmup} warm-up)",
+                    a.frame
+                ),
+                None => format!("frame {}", a.frame),
+            };
             println!(
-                "{}: {} frame {} with {}: {:.1} ms, {} draws, {} triangles, {} queries, {} state changes, {} submits{predicated} -> {}",
+                "{}: {} {frame} with {}: {:.1} ms, {} draws, {} triangles, {} queries, {} state changes, {} submits{predicated} -> {}",
                 scene.name,
                 path.name,
-                a.frame,
                 name,
                 r.frame_ms,
                 c.draw_calls,
@@ -443,6 +464,32 @@ pub fn render(a: &RenderArgs) -> Result<()> {
 
 /// Most frames of a walk, a `view` playback or a `gi` run (a walk keeps a record of each).
 const MAX_FRAMES: u32 = 100_000;
+
+/// `render`'s frame numbering: `Some((frames, warmup))` with `--walk-frames` (a walk's frames
+/// and warm-up frames), checked against `--frame`.
+fn render_walk_frames(a: &RenderArgs) -> Result<Option<(u32, u32)>> {
+    if a.frame > MAX_FRAMES {
+        bail!("--frame must be at most {MAX_FRAMES}");
+    }
+    let Some(frames) = a.walk_frames else {
+        if a.warmup.is_some() {
+            bail!("--warmup is for --walk-frames (the walk's warm-up frames)");
+        }
+        return Ok(None);
+    };
+    let warmup = a.warmup.unwrap_or(10);
+    if !(1..=MAX_FRAMES).contains(&frames) || warmup > MAX_FRAMES {
+        bail!("--walk-frames must be 1 to {MAX_FRAMES} and --warmup at most {MAX_FRAMES}");
+    }
+    if a.frame >= frames {
+        bail!(
+            "--frame {} is past a walk of {frames} frames (its frames are 0 to {})",
+            a.frame,
+            frames - 1
+        );
+    }
+    Ok(Some((frames, warmup)))
+}
 /// Most VPLs of `gi` (the reference renders four times as many, each with its shadow map).
 const MAX_VPLS: usize = 65_536;
 

@@ -252,6 +252,36 @@ fn cli_rejects_bad_flags_cleanly() {
             "/tmp/x.png",
         ],
         vec!["pvs", "--scene", "cornell", "--face-refine", "0"],
+        // A walk's frame past its frames, a warm-up without a walk, a frame past any walk.
+        vec![
+            "render",
+            "--scene",
+            "cornell",
+            "--walk-frames",
+            "10",
+            "--frame",
+            "10",
+            "--out",
+            "/tmp/x.png",
+        ],
+        vec![
+            "render",
+            "--scene",
+            "cornell",
+            "--warmup",
+            "5",
+            "--out",
+            "/tmp/x.png",
+        ],
+        vec![
+            "render",
+            "--scene",
+            "cornell",
+            "--frame",
+            "100001",
+            "--out",
+            "/tmp/x.png",
+        ],
         // The output's name is checked before the scene is loaded (or a window opened).
         vec!["render", "--scene", "cornell", "--out", "/tmp/x"],
         vec!["view", "--scene", "cornell", "--screenshot", "/tmp/x.jpg"],
@@ -272,6 +302,48 @@ fn cli_rejects_bad_flags_cleanly() {
             "{args:?}: {err}"
         );
     }
+}
+
+/// `render --walk-frames F --frame N` takes the camera of a walk's frame N (after its
+/// warm-up): on the powerplant's `difficult` path (14 segments of 30 path frames), a walk of
+/// 411 frames and 10 warm-up frames (421 poses over 420 path frames) steps one path frame a
+/// walk frame, so its frame 5 is path frame 15.
+#[test]
+fn render_takes_the_camera_of_a_walks_frame() {
+    let dir = tempdir("walk-frame");
+    let render = |extra: &[&str], out: &str| {
+        let out = dir.path().join(out);
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_coherent"))
+            .args([
+                "render",
+                "--scene",
+                "powerplant",
+                "--path",
+                "difficult",
+                "--size",
+                "96x54",
+                "--cache-dir",
+            ])
+            .arg(dir.path())
+            .args(extra)
+            .arg("--out")
+            .arg(&out)
+            .status()
+            .unwrap();
+        assert!(status.success(), "{extra:?}");
+        std::fs::read(out).unwrap()
+    };
+    let path_frame = render(&["--frame", "15"], "path15.png");
+    let walk_frame = render(&["--walk-frames", "411", "--frame", "5"], "walk5.png");
+    assert!(path_frame == walk_frame, "walk frame 5 is path frame 15");
+    let other = render(&["--walk-frames", "411", "--frame", "6"], "walk6.png");
+    assert!(path_frame != other, "the next walk frame has moved on");
+    // One warm-up frame less and one walk frame more: the same 420 steps, the same pose.
+    let warm = render(
+        &["--walk-frames", "412", "--warmup", "9", "--frame", "6"],
+        "warm9.png",
+    );
+    assert!(path_frame == warm, "walk frame 6 after 9 warm-up frames");
 }
 
 fn tempdir(name: &str) -> coherent::testing::TempDir {

@@ -49,6 +49,11 @@ pub struct AlgorithmSummary {
     /// With `walk --check`: the most pixels owned by missed objects in any frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub missed_pixels_max: Option<u64>,
+    /// With `walk --check`: the first frame (numbered as in `frames.csv`) that missed those
+    /// pixels; none when no frame missed a pixel. `coherent render --walk-frames F --frame N`
+    /// renders it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub missed_pixels_worst_frame: Option<u32>,
     /// With movers (`walk --movers N`): median object draws of moving objects per frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mover_draws_median: Option<f64>,
@@ -100,6 +105,20 @@ pub struct PreprocessSummary {
     pub frames_outside_cells: usize,
 }
 
+/// The first of `records` with the most missed pixels, if any missed one.
+fn worst_frame(records: &[&FrameRecord]) -> Option<u32> {
+    let mut worst: Option<(u64, u32)> = None;
+    for r in records {
+        match r.missed_pixels {
+            Some(p) if p > 0 && worst.is_none_or(|(most, _)| p > most) => {
+                worst = Some((p, r.frame));
+            }
+            _ => {}
+        }
+    }
+    worst.map(|(_, frame)| frame)
+}
+
 impl AlgorithmSummary {
     /// Computes the statistics over the given frames (all zero when empty).
     pub fn from_records(records: &[&FrameRecord]) -> Self {
@@ -124,6 +143,7 @@ impl AlgorithmSummary {
             submits_median: med(&|r| f64::from(r.submits)),
             missed_objects_max: records.iter().filter_map(|r| r.missed_objects).max(),
             missed_pixels_max: records.iter().filter_map(|r| r.missed_pixels).max(),
+            missed_pixels_worst_frame: worst_frame(records),
             mover_draws_median: {
                 let mut v: Vec<f64> = records
                     .iter()
@@ -517,7 +537,11 @@ impl WalkSummary {
                 if !std::mem::replace(&mut checked, true) {
                     out.push_str("\nexactness (walk --check): most missed in any frame\n");
                 }
-                let _ = writeln!(out, "  {name:<w$} {o} objects, {p} pixels");
+                let at = match s.missed_pixels_worst_frame {
+                    Some(f) => format!(" (frame {f})"),
+                    None => String::new(),
+                };
+                let _ = writeln!(out, "  {name:<w$} {o} objects, {p} pixels{at}");
             }
         }
         for (name, s) in &self.algorithms {
@@ -738,6 +762,43 @@ mod tests {
         let pos = |k: &str| text.find(&format!("\"{k}\": {{")).unwrap();
         assert!(pos("zeta") < pos("oracle") && pos("oracle") < pos("alpha"));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn the_worst_frame_is_the_first_with_the_most_missed_pixels() {
+        let mut records = records();
+        let frame = |r: &mut FrameRecord, objects, pixels| {
+            r.missed_objects = Some(objects);
+            r.missed_pixels = Some(pixels);
+        };
+        for r in records.iter_mut() {
+            frame(r, 0, 0);
+        }
+        let clean = summarize("city", 1, 1, "Test GPU", (64, 64), &records, &[]);
+        let z = clean.get("zeta").unwrap();
+        assert_eq!(
+            (z.missed_pixels_max, z.missed_pixels_worst_frame),
+            (Some(0), None)
+        );
+        let line = |w: &WalkSummary| {
+            let t = w.table(None);
+            let l = t
+                .lines()
+                .find(|l| l.starts_with("  zeta") && l.contains("pixels"));
+            l.unwrap().split_whitespace().collect::<Vec<_>>().join(" ")
+        };
+        assert_eq!(line(&clean), "zeta 0 objects, 0 pixels");
+        // zeta misses 40 pixels in frames 3 and 7, fewer elsewhere.
+        for (i, px) in [(2, 5), (3, 40), (5, 12), (7, 40)] {
+            frame(&mut records[i], 1, px);
+        }
+        let w = summarize("city", 1, 1, "Test GPU", (64, 64), &records, &[]);
+        let z = w.get("zeta").unwrap();
+        assert_eq!(
+            (z.missed_pixels_max, z.missed_pixels_worst_frame),
+            (Some(40), Some(3))
+        );
+        assert_eq!(line(&w), "zeta 1 objects, 40 pixels (frame 3)");
     }
 
     #[test]
