@@ -204,11 +204,10 @@ pub fn pvs_command(a: &PvsCommandArgs) -> Result<()> {
     let built = pvs(&ctx, &a.scene, scale, &scene, &bvh, &path, &a.pvs, &a.cache)?;
     let s = preprocess_summary(&built, 0);
     println!(
-        "pvs: {} path {}: {} cells of {}, {:.1} objects per cell (max {} of {}), {:.1} s{}, {} KiB: {}",
+        "pvs: {} path {}: {}, {:.1} objects per cell (max {} of {}), {:.1} s{}, {} KiB: {}",
         scene.name,
         path.name,
-        s.cells,
-        (s.cell_size * 1000.0).round() / 1000.0,
+        s.sampling(),
         s.pvs_objects_mean,
         s.pvs_objects_max,
         scene.objects.len(),

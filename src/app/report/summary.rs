@@ -105,6 +105,25 @@ pub struct PreprocessSummary {
     pub frames_outside_cells: usize,
 }
 
+impl PreprocessSummary {
+    /// How the cells were sampled, for a report line: "19 cells of 6, 4 samples and 4 corners
+    /// each, 128-pixel views (4x4 rays at far edges)".
+    pub fn sampling(&self) -> String {
+        format!(
+            "{} cells of {}, {} samples{} each, {}-pixel views{}",
+            self.cells,
+            (self.cell_size * 1000.0).round() / 1000.0,
+            self.samples,
+            if self.corners { " and 4 corners" } else { "" },
+            self.face_size,
+            match self.face_refine {
+                0 | 1 => String::new(),
+                r => format!(" ({r}x{r} rays at far edges)"),
+            }
+        )
+    }
+}
+
 /// The first of `records` with the most missed pixels, if any missed one.
 fn worst_frame(records: &[&FrameRecord]) -> Option<u32> {
     let mut worst: Option<(u64, u32)> = None;
@@ -548,18 +567,9 @@ impl WalkSummary {
             if let Some(p) = &s.preprocess {
                 let _ = writeln!(
                     out,
-                    "\n{name}: {} cells of {}, {} samples{} each, {}-pixel views{}, {:.1} objects \
-                     per cell (max {}), {:.1} s preprocessing{}, {} KiB cache file, {} frames \
-                     outside the cells",
-                    p.cells,
-                    (p.cell_size * 1000.0).round() / 1000.0,
-                    p.samples,
-                    if p.corners { " and 4 corners" } else { "" },
-                    p.face_size,
-                    match p.face_refine {
-                        0 | 1 => String::new(),
-                        r => format!(" ({r}x{r} rays at far edges)"),
-                    },
+                    "\n{name}: {}, {:.1} objects per cell (max {}), {:.1} s preprocessing{}, \
+                     {} KiB cache file, {} frames outside the cells",
+                    p.sampling(),
                     p.pvs_objects_mean,
                     p.pvs_objects_max,
                     p.preprocess_s,
