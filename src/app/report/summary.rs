@@ -812,6 +812,28 @@ mod tests {
     }
 
     #[test]
+    fn the_pvs_sampling_names_cells_samples_corners_and_views() {
+        let mut p = PreprocessSummary {
+            cells: 8,
+            cell_size: 5.625_000_5,
+            samples: 4,
+            corners: true,
+            face_size: 128,
+            face_refine: 4,
+            ..Default::default()
+        };
+        assert_eq!(
+            p.sampling(),
+            "8 cells of 5.625, 4 samples and 4 corners each, 128-pixel views (4x4 rays at far edges)"
+        );
+        (p.corners, p.face_refine) = (false, 1);
+        assert_eq!(
+            p.sampling(),
+            "8 cells of 5.625, 4 samples each, 128-pixel views"
+        );
+    }
+
+    #[test]
     fn table_has_ratio() {
         let w = walk();
         let t = w.table(Some("oracle"));
