@@ -557,7 +557,7 @@ impl WalkSummary {
                     out.push_str("\nexactness (walk --check): most missed in any frame\n");
                 }
                 let at = match s.missed_pixels_worst_frame {
-                    Some(f) => format!(" (frame {f})"),
+                    Some(f) => format!(" (the most pixels in frame {f})"),
                     None => String::new(),
                 };
                 let _ = writeln!(out, "  {name:<w$} {o} objects, {p} pixels{at}");
@@ -808,7 +808,10 @@ mod tests {
             (z.missed_pixels_max, z.missed_pixels_worst_frame),
             (Some(40), Some(3))
         );
-        assert_eq!(line(&w), "zeta 1 objects, 40 pixels (frame 3)");
+        assert_eq!(
+            line(&w),
+            "zeta 1 objects, 40 pixels (the most pixels in frame 3)"
+        );
     }
 
     #[test]
