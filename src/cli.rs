@@ -1136,10 +1136,10 @@ mod tests {
         assert!(gi(&["--frames", "100001"]).contains("--frames at most 100000"));
     }
 
-    /// The PVS samples each cell's corners unless `--no-cell-corners` says not to.
+    /// The PVS samples each cell's border unless `--no-cell-border` says not to.
     #[test]
-    fn pvs_cells_are_sampled_at_their_corners_by_default() {
-        let corners = |extra: &[&str]| {
+    fn pvs_cells_are_sampled_on_their_border_by_default() {
+        let border = |extra: &[&str]| {
             let mut argv = vec!["coherent", "render", "--scene", "city", "--out", "x.png"];
             argv.extend_from_slice(extra);
             let crate::Command::Render(r) = crate::Cli::try_parse_from(argv).unwrap().command
@@ -1147,10 +1147,10 @@ mod tests {
                 unreachable!()
             };
             let scene = coherent::scene::procedural::cornell();
-            r.pvs.settings(&scene).unwrap().corners
+            r.pvs.settings(&scene).unwrap().border
         };
-        assert!(corners(&[]));
-        assert!(!corners(&["--no-cell-corners"]));
+        assert!(border(&[]));
+        assert!(!border(&["--no-cell-border"]));
     }
 
     /// On a GPU the predicated mode keeps one predicate level unless `--refine-levels` says

@@ -80,9 +80,10 @@ pub struct PvsArgs {
     /// Rasterize the PVS ID buffers (the oracle's ID pass) instead of ray casting them.
     #[arg(long)]
     pub pvs_raster: bool,
-    /// Sample only the Halton points of each view cell, not also its four corners.
+    /// Sample only the Halton points of each view cell, not also its corners and the
+    /// midpoints of its sides.
     #[arg(long)]
-    pub no_cell_corners: bool,
+    pub no_cell_border: bool,
 }
 
 impl PvsArgs {
@@ -109,7 +110,7 @@ impl PvsArgs {
             margin: self.cell_margin,
             enlarge: self.cell_enlarge,
             raster: self.pvs_raster,
-            corners: !self.no_cell_corners,
+            border: !self.no_cell_border,
         })
     }
 }
@@ -299,7 +300,7 @@ pub fn preprocess_summary(b: &PvsBuild, frames_outside_cells: usize) -> Preproce
         cells: b.pvs.cells.len(),
         cell_size: b.pvs.cell_size,
         samples: b.settings.samples,
-        corners: b.settings.corners,
+        border: b.settings.border,
         face_size: b.settings.face_size,
         face_refine: b.settings.far_edge_rays(),
         pvs_objects_mean: mean,

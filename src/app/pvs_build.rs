@@ -18,12 +18,13 @@
 //! surroundings in a glTF scene). Sample points are stratified (Halton) over the cell enlarged
 //! by `enlarge` of its size on each side: a conservative setting samples more points over a
 //! larger box, at a cost proportional to `samples` × (1 + 2·enlarge)² in coverage. With
-//! `corners` (the default) the cell's four corners, at the middle of its sampled heights, are
-//! sampled too; the cells that meet at a corner share its views, so they cost about two
-//! samples a cell on a path. A camera at the side of a cell, next to a doorway, sees through
-//! it what the Halton points deeper in the cell do not.
+//! `border` (the default) eight points on the cell's border are sampled too, its four corners
+//! and the midpoints of its four sides, at the middle of its sampled heights; the cells that
+//! meet at such a point share its views, so on a path they cost about four samples a cell. A
+//! camera at the side of a cell, next to a doorway, sees through it what the Halton points
+//! deeper in the cell do not.
 //! A sample point inside a solid (a building, a boiler) sees only that object's inside: the
-//! next Halton points are tried instead (a corner moves towards the cell's centre). A cell that
+//! next Halton points are tried instead (a border point moves towards the cell's centre). A cell that
 //! a wall crosses still sees only what its samples on either side see (a cell-and-portal
 //! subdivision would split such cells at the wall).
 
@@ -63,10 +64,11 @@ pub struct PvsSettings {
     pub enlarge: f32,
     /// Rasterize the ID buffers with the renderer's ID pass instead of ray casting them.
     pub raster: bool,
-    /// Also sample each cell's four corners (at the middle of its sampled heights), shared
-    /// with the cells that meet there (default on). A camera near a cell's side sees through
-    /// a doorway there what no point inside the cell sees.
-    pub corners: bool,
+    /// Also sample eight points on each cell's border, its corners and the midpoints of its
+    /// sides (at the middle of its sampled heights), shared with the cells that meet there
+    /// (default on). A camera near a cell's side sees through a doorway there what no point
+    /// inside the cell sees.
+    pub border: bool,
 }
 
 impl Default for PvsSettings {
@@ -79,7 +81,7 @@ impl Default for PvsSettings {
             margin: 0,
             enlarge: 0.0,
             raster: false,
-            corners: true,
+            border: true,
         }
     }
 }
@@ -146,14 +148,14 @@ pub fn key(
         .map(|k| format!("{:?}{:?}", k.eye.to_array(), k.target.to_array()))
         .collect();
     format!(
-        "v5;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};corners={};face={};refine={};margin={};enlarge={};raster={}",
+        "v5;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};border={};face={};refine={};margin={};enlarge={};raster={}",
         scene.objects.len(),
         scene.triangle_count(),
         path.name,
         fnv1a(keys.join(";").as_bytes()),
         s.cell_size,
         s.samples,
-        s.corners,
+        s.border,
         s.face_size,
         s.refine,
         s.margin,
@@ -257,12 +259,12 @@ pub fn build(
         rays: s.far_edge_rays(),
         beyond: FAR_EDGE_CELLS * s.cell_size,
     };
-    let per_cell = samples + if s.corners { 4 } else { 0 };
+    let per_cell = samples + if s.border { BORDER_POINTS } else { 0 };
     let total = coords.len() as u64 * u64::from(per_cell);
     let heights = eye_heights(path);
-    // What each shared corner sees (the objects), by its lattice point.
-    let mut corner_sets: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
-    let mut corner_seen = vec![false; scene.objects.len()];
+    // What each shared border point sees (the objects), by its lattice point.
+    let mut shared_sets: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
+    let mut shared_seen = vec![false; scene.objects.len()];
     for (ci, &coord) in coords.iter().enumerate() {
         seen.fill(false);
         let cell = sampled_region(Pvs::cell_bounds(origin, s.cell_size, coord), heights);
@@ -274,24 +276,24 @@ pub fn build(
             IdBuffers::Raster(..) => cell_sample_points(scene, bvh, &cell, coord, s, None),
         };
         for (k, sample) in points.iter().enumerate() {
-            match sample.corner {
+            match sample.shared {
                 None => ids.mark_visible(bvh, sample.point, face, far, refine, &mut seen)?,
-                Some(corner) => {
-                    let set = match corner_sets.entry(corner) {
+                Some(lattice) => {
+                    let set = match shared_sets.entry(lattice) {
                         Entry::Occupied(e) => e.into_mut(),
                         Entry::Vacant(e) => {
-                            corner_seen.fill(false);
+                            shared_seen.fill(false);
                             ids.mark_visible(
                                 bvh,
                                 sample.point,
                                 face,
                                 far,
                                 refine,
-                                &mut corner_seen,
+                                &mut shared_seen,
                             )?;
                             e.insert(
-                                (0..corner_seen.len() as u32)
-                                    .filter(|&o| corner_seen[o as usize])
+                                (0..shared_seen.len() as u32)
+                                    .filter(|&o| shared_seen[o as usize])
                                     .collect(),
                             )
                         }
@@ -521,22 +523,27 @@ const DIRECTIONS: [Vec3; 6] = [
     Vec3::NEG_Z,
 ];
 
+/// Points on a view cell's border that [`PvsSettings::border`] samples: 4 corners and 4 side
+/// midpoints.
+pub const BORDER_POINTS: u32 = 8;
+
 /// A sample point of a view cell.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct CellSample {
     point: Vec3,
-    /// The lattice point of a cell corner that stands where the lattice puts it, so that the
+    /// A border point that stands where the lattice puts it (in half cells), so that the
     /// cells meeting there share its views.
-    corner: Option<[i32; 3]>,
+    shared: Option<[i32; 3]>,
 }
 
 /// The sample points of the view cell at `coord`, whose sampled region is `cell`: `samples`
-/// Halton points and, with [`PvsSettings::corners`], the cell's four corners at the middle of
-/// its heights. A corner inside a solid moves towards the cell's centre until it is out (and
-/// is then the cell's own). On the powerplant's `difficult` path, the camera passes a doorway
-/// at the side of a cell whose Halton points stand 1.5 units or more from that side and see
-/// through the doorway only in a narrow wedge: with four Halton points a frame there missed
-/// 69,939 pixels, with the corners added 20,179 (16 Halton points: 3,820).
+/// Halton points and, with [`PvsSettings::border`], the cell's four corners and the midpoints
+/// of its four sides, at the middle of its heights. A border point inside a solid moves
+/// towards the cell's centre until it is out (and is then the cell's own). On the
+/// powerplant's `difficult` path, the camera passes a doorway at the side of a cell whose
+/// Halton points stand 1.5 units or more from that side and see through the doorway only in
+/// a narrow wedge: with four Halton points a frame there missed 69,939 pixels, with the
+/// border points added none (the walk's worst frame: 3,797).
 fn cell_sample_points(
     scene: &Scene,
     bvh: &ObjectBvh,
@@ -549,10 +556,10 @@ fn cell_sample_points(
     let mut points: Vec<CellSample> = (0..samples)
         .map(|k| CellSample {
             point: free_sample_point(scene, bvh, cell, k, samples, s.enlarge, solid),
-            corner: None,
+            shared: None,
         })
         .collect();
-    if !s.corners {
+    if !s.border {
         return points;
     }
     let inside = |p: Vec3| match solid {
@@ -560,17 +567,27 @@ fn cell_sample_points(
         None => inside_object(scene, bvh, p),
     };
     let centre = cell.center();
-    for k in 0..4 {
-        let (dx, dz) = (k & 1, k >> 1);
-        let corner = Vec3::new(
-            if dx == 0 { cell.min.x } else { cell.max.x },
+    // In half cells: the corners, then the midpoints of the sides.
+    let halves = [
+        (0, 0),
+        (2, 0),
+        (0, 2),
+        (2, 2),
+        (1, 0),
+        (1, 2),
+        (0, 1),
+        (2, 1),
+    ];
+    for (hx, hz) in halves {
+        let on_border = Vec3::new(
+            cell.min.x + (cell.max.x - cell.min.x) * 0.5 * hx as f32,
             centre.y,
-            if dz == 0 { cell.min.z } else { cell.max.z },
+            cell.min.z + (cell.max.z - cell.min.z) * 0.5 * hz as f32,
         );
-        let lattice = [coord[0] + dx, coord[1], coord[2] + dz];
+        let lattice = [2 * coord[0] + hx, coord[1], 2 * coord[2] + hz];
         let mut sample = CellSample {
-            point: corner,
-            corner: Some(lattice),
+            point: on_border,
+            shared: Some(lattice),
         };
         // Towards the centre in tenths of the way, the last at nine tenths.
         for t in 1..10 {
@@ -578,8 +595,8 @@ fn cell_sample_points(
                 break;
             }
             sample = CellSample {
-                point: corner.lerp(centre, 0.1 * t as f32),
-                corner: None,
+                point: on_border.lerp(centre, 0.1 * t as f32),
+                shared: None,
             };
         }
         points.push(sample);
@@ -829,7 +846,7 @@ mod tests {
     }
 
     #[test]
-    fn cell_corners_see_through_a_doorway_at_the_cells_side() {
+    fn cell_borders_see_through_a_doorway_at_the_cells_side() {
         let scene = doorway();
         let bvh = scene.hierarchy(1);
         let rays = ObjectRays::new(&scene);
@@ -848,7 +865,7 @@ mod tests {
             seen
         };
         let halton = PvsSettings {
-            corners: false,
+            border: false,
             ..PvsSettings::default()
         };
         let points = cell_sample_points(&scene, &bvh, &cell, [0, 0, 0], &halton, Some(&solid));
@@ -867,22 +884,35 @@ mod tests {
             &PvsSettings::default(),
             Some(&solid),
         );
-        assert_eq!(points.len(), 8);
+        assert_eq!(points.len(), 4 + BORDER_POINTS as usize);
         assert!(
             seen_from(&points)[2],
             "the corner under the doorway sees the crate"
         );
+        let others: Vec<CellSample> = (0..points.len())
+            .filter(|&i| i != 7)
+            .map(|i| points[i])
+            .collect();
+        assert!(!seen_from(&others)[2], "only that corner sees it");
         assert_eq!(
             points[7],
             CellSample {
                 point: Vec3::new(6.0, 1.5, 6.0),
-                corner: Some([1, 0, 1]),
+                shared: Some([2, 0, 2]),
             },
-            "a free corner is shared by its lattice point"
+            "a free corner is shared by its lattice point (in half cells)"
+        );
+        assert_eq!(
+            points[8],
+            CellSample {
+                point: Vec3::new(3.0, 1.5, 0.0),
+                shared: Some([1, 0, 0]),
+            },
+            "so is the midpoint of a side"
         );
         // The corner in the pillar moves two tenths of the way to the centre, and is the
         // cell's own.
-        assert_eq!(points[4].corner, None);
+        assert_eq!(points[4].shared, None);
         assert!((points[4].point - Vec3::new(0.6, 1.5, 0.6)).length() < 1e-5);
     }
 

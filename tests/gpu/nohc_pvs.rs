@@ -173,7 +173,7 @@ fn pvs_of_two_rooms_is_what_can_be_seen_and_its_cache_is_checked() {
             margin: 0,
             enlarge: 0.0,
             raster: false,
-            corners: true,
+            border: true,
         };
         let dir = temp_dir("pvs");
         let build = |ctx| {
@@ -342,7 +342,7 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
     assert_eq!(pvs["samples"].as_u64(), Some(1), "--samples: {pvs}");
     assert_eq!(pvs["face_size"].as_u64(), Some(32), "--face-size: {pvs}");
     assert_eq!(pvs["face_refine"].as_u64(), Some(4), "the default: {pvs}");
-    assert_eq!(pvs["corners"].as_bool(), Some(true), "the default: {pvs}");
+    assert_eq!(pvs["border"].as_bool(), Some(true), "the default: {pvs}");
     assert!(pvs["pvs_objects_mean"].as_f64().unwrap() > 0.0);
     assert!(pvs["preprocess_s"].as_f64().unwrap() > 0.0);
     let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();

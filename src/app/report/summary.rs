@@ -87,9 +87,9 @@ pub struct PreprocessSummary {
     pub cell_size: f32,
     /// Sample points per cell (Halton points).
     pub samples: u32,
-    /// Whether each cell's four corners were sampled too (shared with the cells that meet
-    /// there).
-    pub corners: bool,
+    /// Whether eight points on each cell's border were sampled too, its corners and the
+    /// midpoints of its sides (shared with the cells that meet there).
+    pub border: bool,
     /// Pixels per side of each sample's six ID views.
     pub face_size: u32,
     /// Rays per pixel side at the far edges of the ID views (1: none more, as in rasterized
@@ -106,15 +106,22 @@ pub struct PreprocessSummary {
 }
 
 impl PreprocessSummary {
-    /// How the cells were sampled, for a report line: "19 cells of 6, 4 samples and 4 corners
-    /// each, 128-pixel views (4x4 rays at far edges)".
+    /// How the cells were sampled, for a report line: "19 cells of 6, 4 samples and 8 border
+    /// points each, 128-pixel views (4x4 rays at far edges)".
     pub fn sampling(&self) -> String {
         format!(
             "{} cells of {}, {} samples{} each, {}-pixel views{}",
             self.cells,
             (self.cell_size * 1000.0).round() / 1000.0,
             self.samples,
-            if self.corners { " and 4 corners" } else { "" },
+            if self.border {
+                format!(
+                    " and {} border points",
+                    crate::app::pvs_build::BORDER_POINTS
+                )
+            } else {
+                String::new()
+            },
             self.face_size,
             match self.face_refine {
                 0 | 1 => String::new(),
@@ -815,21 +822,21 @@ mod tests {
     }
 
     #[test]
-    fn the_pvs_sampling_names_cells_samples_corners_and_views() {
+    fn the_pvs_sampling_names_cells_samples_border_and_views() {
         let mut p = PreprocessSummary {
             cells: 8,
             cell_size: 5.625_000_5,
             samples: 4,
-            corners: true,
+            border: true,
             face_size: 128,
             face_refine: 4,
             ..Default::default()
         };
         assert_eq!(
             p.sampling(),
-            "8 cells of 5.625, 4 samples and 4 corners each, 128-pixel views (4x4 rays at far edges)"
+            "8 cells of 5.625, 4 samples and 8 border points each, 128-pixel views (4x4 rays at far edges)"
         );
-        (p.corners, p.face_refine) = (false, 1);
+        (p.border, p.face_refine) = (false, 1);
         assert_eq!(
             p.sampling(),
             "8 cells of 5.625, 4 samples each, 128-pixel views"
