@@ -80,7 +80,7 @@ pub struct WalkArgs {
     #[arg(long, default_value_t = 300)]
     pub frames: u32,
     /// Warm-up frames before recording (excluded from the report).
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = WALK_WARMUP)]
     pub warmup: u32,
     /// Run the whole interleaved walk this many times; ratios are reported with their median
     /// and min-max over the repeats.
@@ -465,6 +465,9 @@ pub fn render(a: &RenderArgs) -> Result<()> {
 /// Most frames of a walk, a `view` playback or a `gi` run (a walk keeps a record of each).
 const MAX_FRAMES: u32 = 100_000;
 
+/// `walk`'s warm-up frames unless `--warmup` says otherwise (and `render --walk-frames`'s).
+const WALK_WARMUP: u32 = 10;
+
 /// `render`'s frame numbering: `Some((frames, warmup))` with `--walk-frames` (a walk's frames
 /// and warm-up frames), checked against `--frame`.
 fn render_walk_frames(a: &RenderArgs) -> Result<Option<(u32, u32)>> {
@@ -477,7 +480,7 @@ fn render_walk_frames(a: &RenderArgs) -> Result<Option<(u32, u32)>> {
         }
         return Ok(None);
     };
-    let warmup = a.warmup.unwrap_or(10);
+    let warmup = a.warmup.unwrap_or(WALK_WARMUP);
     if !(1..=MAX_FRAMES).contains(&frames) || warmup > MAX_FRAMES {
         bail!("--walk-frames must be 1 to {MAX_FRAMES} and --warmup at most {MAX_FRAMES}");
     }
@@ -490,6 +493,7 @@ fn render_walk_frames(a: &RenderArgs) -> Result<Option<(u32, u32)>> {
     }
     Ok(Some((frames, warmup)))
 }
+
 /// Most VPLs of `gi` (the reference renders four times as many, each with its shadow map).
 const MAX_VPLS: usize = 65_536;
 

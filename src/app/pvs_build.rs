@@ -24,9 +24,9 @@
 //! camera at the side of a cell, next to a doorway, sees through it what the Halton points
 //! deeper in the cell do not.
 //! A sample point inside a solid (a building, a boiler) sees only that object's inside: the
-//! next Halton points are tried instead (a border point moves towards the cell's centre). A cell that
-//! a wall crosses still sees only what its samples on either side see (a cell-and-portal
-//! subdivision would split such cells at the wall).
+//! next Halton points are tried instead (a border point moves towards the cell's centre). A
+//! cell that a wall crosses still sees only what its samples on either side see (a
+//! cell-and-portal subdivision would split such cells at the wall).
 
 use std::collections::hash_map::{Entry, HashMap};
 use std::path::{Path, PathBuf};
@@ -562,10 +562,6 @@ fn cell_sample_points(
     if !s.border {
         return points;
     }
-    let inside = |p: Vec3| match solid {
-        Some(solid) => solid(p),
-        None => inside_object(scene, bvh, p),
-    };
     let centre = cell.center();
     // In half cells: the corners, then the midpoints of the sides.
     let halves = [
@@ -591,7 +587,7 @@ fn cell_sample_points(
         };
         // Towards the centre in tenths of the way, the last at nine tenths.
         for t in 1..10 {
-            if !inside(sample.point) {
+            if !in_solid(scene, bvh, solid, sample.point) {
                 break;
             }
             sample = CellSample {
@@ -620,18 +616,23 @@ fn free_sample_point(
     enlarge: f32,
     solid: Option<&dyn Fn(Vec3) -> bool>,
 ) -> Vec3 {
-    let inside = |p: Vec3| match solid {
-        Some(solid) => solid(p),
-        None => inside_object(scene, bvh, p),
-    };
     let mut p = sample_point(cell, k, enlarge);
     for t in 1..16 {
-        if !inside(p) {
+        if !in_solid(scene, bvh, solid, p) {
             break;
         }
         p = sample_point(cell, k + t * samples, enlarge);
     }
     p
+}
+
+/// Whether a sample point at `p` stands in a solid: as `solid` says (the ray-cast views),
+/// else when it lies in some object's box.
+fn in_solid(scene: &Scene, bvh: &ObjectBvh, solid: Option<&dyn Fn(Vec3) -> bool>, p: Vec3) -> bool {
+    match solid {
+        Some(solid) => solid(p),
+        None => inside_object(scene, bvh, p),
+    }
 }
 
 /// Whether `p` lies inside the box of some object.
