@@ -134,7 +134,9 @@ pub struct PvsBuild {
     pub settings: PvsSettings,
 }
 
-/// The cache key: scene, scale, path, settings and object count.
+/// The cache key: scene, scale, path, settings and object count. Its version changes with
+/// what a build finds for the same settings (v6: the view rays traced in bundles from the
+/// sample point itself, starting 5 cm out along the ray).
 pub fn key(
     scene_id: &str,
     scale: f32,
@@ -148,7 +150,7 @@ pub fn key(
         .map(|k| format!("{:?}{:?}", k.eye.to_array(), k.target.to_array()))
         .collect();
     format!(
-        "v5;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};border={};face={};refine={};margin={};enlarge={};raster={}",
+        "v6;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};border={};face={};refine={};margin={};enlarge={};raster={}",
         scene.objects.len(),
         scene.triangle_count(),
         path.name,
@@ -384,7 +386,7 @@ impl ObjectRays {
         }
         first.push(triangles.len() as u32);
         ObjectRays {
-            rays: crate::scene::raycast::RayScene::new(triangles, Vec::new()),
+            rays: crate::scene::raycast::RayScene::for_many_rays(triangles, Vec::new()),
             first,
         }
     }
@@ -429,25 +431,48 @@ impl ObjectRays {
         let right = dir.cross(up).normalize();
         let up = right.cross(dir);
         let n = face as f32;
-        // The object and distance through the point (u, v) of the face, in pixels from its
-        // top left corner.
-        let cast = |u: f32, v: f32| {
-            let d = (dir + (2.0 * u / n - 1.0) * right + (1.0 - 2.0 * v / n) * up).normalize();
-            match self.rays.intersect(p + d * 0.05, d, far) {
-                Some(hit) => (self.object_of(hit.triangle) as u32, hit.t),
+        // The direction through the point (u, v) of the face, in pixels from its top left
+        // corner.
+        let through = |u: f32, v: f32| {
+            (dir + (2.0 * u / n - 1.0) * right + (1.0 - 2.0 * v / n) * up).normalize()
+        };
+        // The objects and distances (from 5 cm out, as far as `far`) along `dirs`, traced
+        // together: rays through one tile of the face share most of the hierarchy.
+        let mut found = Vec::with_capacity(BUNDLE_SIDE * BUNDLE_SIDE);
+        let mut cast = |dirs: &[Vec3], into: &mut Vec<(u32, f32)>| {
+            self.rays
+                .closest_from(p, dirs, RAY_START, far + RAY_START, &mut found);
+            into.extend(found.iter().map(|h| match h {
+                Some((triangle, t)) => (self.object_of(*triangle) as u32, t - RAY_START),
                 None => (NOTHING, f32::INFINITY),
-            }
+            }));
         };
         let f = face as usize;
-        let mut centres = Vec::with_capacity(f * f);
-        for j in 0..f {
-            for i in 0..f {
-                centres.push(cast(i as f32 + 0.5, j as f32 + 0.5));
+        let mut centres = vec![(NOTHING, f32::INFINITY); f * f];
+        let mut dirs = Vec::with_capacity(BUNDLE_SIDE * BUNDLE_SIDE);
+        let mut tile = Vec::with_capacity(BUNDLE_SIDE * BUNDLE_SIDE);
+        let mut pixel = Vec::with_capacity(BUNDLE_SIDE * BUNDLE_SIDE);
+        for j0 in (0..f).step_by(BUNDLE_SIDE) {
+            for i0 in (0..f).step_by(BUNDLE_SIDE) {
+                dirs.clear();
+                pixel.clear();
+                for j in j0..(j0 + BUNDLE_SIDE).min(f) {
+                    for i in i0..(i0 + BUNDLE_SIDE).min(f) {
+                        dirs.push(through(i as f32 + 0.5, j as f32 + 0.5));
+                        pixel.push(j * f + i);
+                    }
+                }
+                tile.clear();
+                cast(&dirs, &mut tile);
+                for (&k, &c) in pixel.iter().zip(&tile) {
+                    centres[k] = c;
+                }
             }
         }
         hits.extend(centres.iter().map(|c| c.0).filter(|&o| o != NOTHING));
         if refine.rays > 1 {
             let r = refine.rays;
+            let mut spread = Vec::with_capacity((r * r) as usize);
             for j in 0..f {
                 for i in 0..f {
                     let around = || {
@@ -460,16 +485,17 @@ impl ObjectRays {
                     if !edge || around().all(|k| centres[k].1 <= refine.beyond) {
                         continue;
                     }
+                    dirs.clear();
                     for b in 0..r {
                         for a in 0..r {
                             let u = i as f32 + (a as f32 + 0.5) / r as f32;
                             let v = j as f32 + (b as f32 + 0.5) / r as f32;
-                            let (o, _) = cast(u, v);
-                            if o != NOTHING {
-                                hits.push(o);
-                            }
+                            dirs.push(through(u, v));
                         }
                     }
+                    spread.clear();
+                    cast(&dirs, &mut spread);
+                    hits.extend(spread.iter().map(|c| c.0).filter(|&o| o != NOTHING));
                 }
             }
         }
@@ -480,6 +506,14 @@ impl ObjectRays {
 
 /// No object hit by a ray.
 const NOTHING: u32 = u32::MAX;
+
+/// Pixels on a side of the tiles of a ray-cast view whose rays are traced together (64 rays,
+/// [`crate::scene::raycast::BUNDLE`]).
+const BUNDLE_SIDE: usize = 8;
+
+/// How far from the sample point the rays of a ray-cast view start (5 cm), so that a point
+/// on a surface does not see only that surface.
+const RAY_START: f32 = 0.05;
 
 /// Where the ray-cast ID views cast more rays than one per pixel (see
 /// [`ObjectRays::cast_face`]).

@@ -1,6 +1,7 @@
 //! CPU ray casting against the static scene: the GI places VPLs and tests light-to-VPL
 //! visibility with it, the PVS build samples visibility with it. Wraps an obvhs `Bvh2` built over
-//! world-space triangles, each carrying one diffuse albedo.
+//! world-space triangles, each carrying one diffuse albedo. Rays that leave one point in nearby
+//! directions (a tile of a view) can go down the hierarchy together ([`RayScene::closest_from`]).
 
 use std::time::Duration;
 
@@ -13,6 +14,9 @@ use obvhs::{
     triangle::Triangle,
     BvhBuildParams,
 };
+
+/// Most rays that [`RayScene::closest_from`] sends down the hierarchy together.
+pub const BUNDLE: usize = 64;
 
 /// Relative part of the epsilon used by [`RayScene::occluded`] at both ends.
 const OCCLUSION_EPS_REL: f32 = 1e-4;
@@ -63,6 +67,15 @@ impl RayScene {
     /// Missing albedos (if `albedo` is shorter than `triangles`) default to 0.5 grey.
     pub fn new(triangles: Vec<[Vec3; 3]>, albedo: Vec<Vec3>) -> Self {
         Self::built(triangles, albedo, BvhBuildParams::fast_build())
+    }
+
+    /// [`RayScene::new`] with a hierarchy that takes longer to build and that rays traverse
+    /// faster: for a scene that millions of rays are cast into (the PVS build's views). On the
+    /// built-in city (3.08M triangles) it builds in about 2 s on 2 cores; the street's PVS
+    /// build took 68 s instead of 84 s with single rays, 40 s instead of 43 s with bundles
+    /// ([`RayScene::closest_from`]).
+    pub fn for_many_rays(triangles: Vec<[Vec3; 3]>, albedo: Vec<Vec3>) -> Self {
+        Self::built(triangles, albedo, BvhBuildParams::medium_build())
     }
 
     /// [`RayScene::new`] with the hierarchy built by `params`.
@@ -213,6 +226,154 @@ impl RayScene {
         })
     }
 
+    /// The closest hit of each ray `origin + t * dirs[i]`, `t` in `[t_min, t_max]`: the
+    /// triangle (numbered as [`Hit::triangle`]) and `t`, or `None`; `out` is cleared first
+    /// and gets one entry per direction. The same hits as [`RayScene::intersect`] per ray
+    /// (but for a tie between triangles at the same distance), found faster when the rays
+    /// leave the point in nearby directions (a tile of a view): up to [`BUNDLE`] of them go
+    /// down the hierarchy together ([`RayScene::trace_bundle`]). Scenes with movers or masks
+    /// trace the rays one by one.
+    pub fn closest_from(
+        &self,
+        origin: Vec3,
+        dirs: &[Vec3],
+        t_min: f32,
+        t_max: f32,
+        out: &mut Vec<Option<(u32, f32)>>,
+    ) {
+        out.clear();
+        let usable = origin.is_finite() && t_min.is_finite() && t_min >= 0.0 && t_max >= t_min;
+        match &self.bvh {
+            Some(bvh) if usable && self.masks.is_none() && self.movers.is_none() => {
+                for chunk in dirs.chunks(BUNDLE) {
+                    self.trace_bundle(bvh, origin, chunk, t_min, t_max, out);
+                }
+            }
+            _ => out.extend(dirs.iter().map(|&d| {
+                let start = origin + d * t_min;
+                (usable && t_max > t_min)
+                    .then(|| self.intersect(start, d, t_max - t_min))
+                    .flatten()
+                    .map(|h| (h.triangle, h.t + t_min))
+            })),
+        }
+    }
+
+    /// [`RayScene::closest_from`] for at most [`BUNDLE`] rays against the static hierarchy.
+    /// A node is entered with the first ray (in `dirs`' order) that met its parent: rays
+    /// before it missed the parent, whose box holds the node's. The node is skipped without
+    /// looking at single rays when interval bounds over the bundle's inverse directions show
+    /// that no ray can meet its box within its distance; otherwise the rays from the first
+    /// are tested against the box until one meets it, and that one enters the children. A
+    /// leaf tests each of those rays that meets its box against its triangles, as a lone
+    /// ray's traversal does.
+    fn trace_bundle(
+        &self,
+        bvh: &Bvh2,
+        origin: Vec3,
+        dirs: &[Vec3],
+        t_min: f32,
+        t_max: f32,
+        out: &mut Vec<Option<(u32, f32)>>,
+    ) {
+        let n = dirs.len().min(BUNDLE);
+        let o = Vec3A::from(origin);
+        let mut rays = [Ray::new(o, Vec3A::X, t_min, t_max); BUNDLE];
+        let mut best = [u32::MAX; BUNDLE];
+        let (mut inv_lo, mut inv_hi) =
+            (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+        for (ray, d) in rays.iter_mut().zip(dirs) {
+            let d = Vec3A::from(*d);
+            if !d.is_finite() || d.length_squared() == 0.0 {
+                // Misses everything, as in `intersect`.
+                ray.tmax = f32::NEG_INFINITY;
+                continue;
+            }
+            *ray = Ray::new(o, d, t_min, t_max);
+            inv_lo = inv_lo.min(ray.inv_direction);
+            inv_hi = inv_hi.max(ray.inv_direction);
+        }
+        // An axis bounds the bundle only where every inverse direction has the same sign.
+        let same_sign = (inv_lo.cmpgt(Vec3A::ZERO) | inv_hi.cmplt(Vec3A::ZERO)).bitmask();
+        let mut far = rays[..n]
+            .iter()
+            .map(|r| r.tmax)
+            .fold(f32::NEG_INFINITY, f32::max);
+        // The bundle's entry and exit distances bounded over its rays (see `trace_bundle`).
+        let bounds = |b: &obvhs::aabb::Aabb| -> (f32, f32) {
+            let (mut enter, mut exit) = (f32::NEG_INFINITY, f32::INFINITY);
+            for a in 0..3 {
+                if same_sign & (1 << a) == 0 {
+                    continue;
+                }
+                let (near, away) = if inv_lo[a] > 0.0 {
+                    (b.min[a] - o[a], b.max[a] - o[a])
+                } else {
+                    (b.max[a] - o[a], b.min[a] - o[a])
+                };
+                enter = enter.max((near * inv_lo[a]).min(near * inv_hi[a]));
+                exit = exit.min((away * inv_lo[a]).max(away * inv_hi[a]));
+            }
+            (enter, exit)
+        };
+        let meets = |b: &obvhs::aabb::Aabb, ray: &Ray| b.intersect_ray(ray) < ray.tmax;
+        let mut stack: Vec<(u32, u32)> = Vec::with_capacity(64);
+        stack.push((0, 0));
+        while let Some((index, first)) = stack.pop() {
+            let node = &bvh.nodes[index as usize];
+            let b = node.aabb();
+            let (enter, exit) = bounds(b);
+            if enter > exit || enter >= far || exit < t_min {
+                continue;
+            }
+            let Some(first) = (first as usize..n).find(|&i| meets(b, &rays[i])) else {
+                continue;
+            };
+            if node.is_leaf() {
+                let prims =
+                    node.first_index as usize..(node.first_index + node.prim_count) as usize;
+                for (ray, hit) in rays[first..n].iter_mut().zip(&mut best[first..n]) {
+                    if !meets(b, ray) {
+                        continue;
+                    }
+                    for id in prims.clone() {
+                        let t = intersect_triangle(&self.triangles[id], ray);
+                        if t < ray.tmax {
+                            ray.tmax = t;
+                            *hit = id as u32;
+                        }
+                    }
+                }
+                far = rays[..n]
+                    .iter()
+                    .map(|r| r.tmax)
+                    .fold(f32::NEG_INFINITY, f32::max);
+                continue;
+            }
+            // The nearer child (by the bundle's entry bound, else by the entering ray's) is
+            // popped first.
+            let (l, r) = (node.first_index, node.first_index + 1);
+            let key = |c: u32| {
+                let cb = bvh.nodes[c as usize].aabb();
+                let (enter, _) = bounds(cb);
+                if enter.is_finite() {
+                    enter
+                } else {
+                    cb.intersect_ray(&rays[first])
+                }
+            };
+            let (near, away) = if key(l) <= key(r) { (l, r) } else { (r, l) };
+            stack.push((away, first as u32));
+            stack.push((near, first as u32));
+        }
+        out.extend(
+            rays[..n]
+                .iter()
+                .zip(&best[..n])
+                .map(|(ray, &id)| (id != u32::MAX).then(|| (self.original[id as usize], ray.tmax))),
+        );
+    }
+
     /// True when any triangle lies strictly between `from` and `to`, ignoring a
     /// small (relative) epsilon at both ends so surfaces at the endpoints do not count.
     pub fn occluded(&self, from: Vec3, to: Vec3) -> bool {
@@ -339,6 +500,101 @@ mod tests {
         assert!(!scene.occluded(Vec3::ZERO, Vec3::new(0.0, 0.0, 0.9)));
         let hit = scene.intersect(Vec3::ZERO, Vec3::Z, f32::INFINITY).unwrap();
         assert!((hit.t - 1.0).abs() < 1e-5 && hit.triangle < 4);
+    }
+
+    /// A soup of `n` random triangles in a 20-unit cube, some large, most small.
+    fn soup(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
+        let mut rng = coherent_cull::rng::Rng::new(seed);
+        let mut p = |s: f32| Vec3::new(rng.range(-s, s), rng.range(-s, s), rng.range(-s, s));
+        (0..n)
+            .map(|k| {
+                let c = p(10.0);
+                let size = if k % 10 == 0 { 4.0 } else { 0.6 };
+                [c + p(size), c + p(size), c + p(size)]
+            })
+            .collect()
+    }
+
+    /// The closest hit of one ray traversed alone, as `closest_from` reports it.
+    fn lone_ray(
+        scene: &RayScene,
+        origin: Vec3,
+        dir: Vec3,
+        t_min: f32,
+        t_max: f32,
+    ) -> Option<(u32, f32)> {
+        if dir.length_squared() == 0.0 {
+            return None;
+        }
+        let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), t_min, t_max);
+        let mut hit = RayHit::none();
+        let bvh = scene.bvh.as_ref()?;
+        bvh.ray_traverse(ray, &mut hit, |r, id| {
+            intersect_triangle(&scene.triangles[id], r)
+        })
+        .then(|| (scene.original[hit.primitive_id as usize], hit.t))
+    }
+
+    #[test]
+    fn bundles_find_the_hits_of_single_rays() {
+        let scene = RayScene::new(soup(3000, 7), Vec::new());
+        let mut rng = coherent_cull::rng::Rng::new(3);
+        let mut out = Vec::new();
+        let mut hits = 0;
+        for round in 0..40 {
+            let origin = Vec3::new(
+                rng.range(-12.0, 12.0),
+                rng.range(-12.0, 12.0),
+                rng.range(-12.0, 12.0),
+            );
+            // A tile of a view (nearby directions), or directions all around (round % 4 == 3),
+            // one of them along an axis, one of length 0.
+            let axis = Vec3::new(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            );
+            let spread = if round % 4 == 3 { 2.0 } else { 0.08 };
+            let mut dirs: Vec<Vec3> = (0..70)
+                .map(|_| {
+                    axis + Vec3::new(
+                        rng.range(-spread, spread),
+                        rng.range(-spread, spread),
+                        rng.range(-spread, spread),
+                    )
+                })
+                .collect();
+            dirs[5] = Vec3::X;
+            dirs[9] = Vec3::ZERO;
+            let (t_min, t_max) = if round % 2 == 0 {
+                (0.05, f32::INFINITY)
+            } else {
+                (0.5, 9.0)
+            };
+            scene.closest_from(origin, &dirs, t_min, t_max, &mut out);
+            assert_eq!(out.len(), dirs.len());
+            for (d, got) in dirs.iter().zip(&out) {
+                assert_eq!(
+                    *got,
+                    lone_ray(&scene, origin, *d, t_min, t_max),
+                    "ray {d} from {origin}"
+                );
+                hits += usize::from(got.is_some());
+            }
+        }
+        // The rays hit something most of the time, so the comparison says something.
+        assert!(hits > 1000, "{hits} hits");
+        // A scene with movers traces one ray at a time: the movers are hit too.
+        let mut moved = two_planes();
+        moved.set_movers(
+            quad(Vec3::new(0.0, 0.0, 0.5), Vec3::X, Vec3::Y).to_vec(),
+            vec![Vec3::Z; 2],
+        );
+        moved.closest_from(Vec3::ZERO, &[Vec3::Z], 0.0, f32::INFINITY, &mut out);
+        assert!(
+            matches!(out[..], [Some((t, d))] if t >= 4 && (d - 0.5).abs() < 1e-5),
+            "{out:?}"
+        );
     }
 
     #[test]
