@@ -60,7 +60,7 @@ pub struct PvsArgs {
     #[arg(long)]
     pub cell_size: Option<f32>,
     /// PVS sample points per view cell (each renders six ID views).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 8)]
     pub samples: u32,
     /// Pixels per side of each PVS ID view.
     #[arg(long, default_value_t = 128)]

@@ -48,7 +48,7 @@ use crate::scene::{CameraPath, Scene};
 pub struct PvsSettings {
     /// Edge length of a view cell in scene units (default 6).
     pub cell_size: f32,
-    /// Sample points per cell (default 4).
+    /// Sample points per cell (default 8).
     pub samples: u32,
     /// Pixels per side of each of the six ID renders (default 128).
     pub face_size: u32,
@@ -75,7 +75,7 @@ impl Default for PvsSettings {
     fn default() -> Self {
         PvsSettings {
             cell_size: 6.0,
-            samples: 4,
+            samples: 8,
             face_size: 128,
             refine: 4,
             margin: 0,
@@ -899,9 +899,14 @@ mod tests {
             }
             seen
         };
+        // Four Halton points, as the default was when the border points came in.
+        let four = PvsSettings {
+            samples: 4,
+            ..PvsSettings::default()
+        };
         let halton = PvsSettings {
             border: false,
-            ..PvsSettings::default()
+            ..four.clone()
         };
         let points = cell_sample_points(&scene, &bvh, &cell, [0, 0, 0], &halton, Some(&solid));
         assert_eq!(points.len(), 4);
@@ -911,14 +916,7 @@ mod tests {
             !seen[2],
             "no Halton point sees the crate through the doorway"
         );
-        let points = cell_sample_points(
-            &scene,
-            &bvh,
-            &cell,
-            [0, 0, 0],
-            &PvsSettings::default(),
-            Some(&solid),
-        );
+        let points = cell_sample_points(&scene, &bvh, &cell, [0, 0, 0], &four, Some(&solid));
         assert_eq!(points.len(), 4 + BORDER_POINTS as usize);
         assert!(
             seen_from(&points)[2],
