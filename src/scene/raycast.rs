@@ -231,7 +231,7 @@ impl RayScene {
     /// and gets one entry per direction. The same hits as [`RayScene::intersect`] per ray
     /// (but for a tie between triangles at the same distance), found faster when the rays
     /// leave the point in nearby directions (a tile of a view): up to [`BUNDLE`] of them go
-    /// down the hierarchy together ([`RayScene::trace_bundle`]). Scenes with movers or masks
+    /// down the hierarchy together (see `RayScene::trace_bundle`). Scenes with movers or masks
     /// trace the rays one by one.
     pub fn closest_from(
         &self,
