@@ -10,7 +10,10 @@
 //! objects far down a street, a few screen pixels wide, fall between its rays: on the city's
 //! street they were most of what the PVS missed (80 objects in the median frame). Where a ray-cast
 //! view has a far edge (a pixel whose neighbours hit another object, or nothing, and reach beyond
-//! [`FAR_EDGE_CELLS`] cells) it casts `refine` x `refine` more rays over that pixel.
+//! [`FAR_EDGE_CELLS`] cells) it casts `refine` x `refine` more rays over that pixel. Nearer than
+//! that, an object thinner than the views' ray spacing (a lamp pole between a tree and a wall)
+//! can still fall between the rays: each object within that distance of the cell that no view
+//! found is aimed at from every sample point, along the longest axis of its box.
 //!
 //! The region: a grid of cubic cells of `cell_size` around the walked camera path — every cell
 //! the path passes through plus `margin` cells to each side horizontally (the streets along a
@@ -136,7 +139,8 @@ pub struct PvsBuild {
 
 /// The cache key: scene, scale, path, settings and object count. Its version changes with
 /// what a build finds for the same settings (v6: the view rays traced in bundles from the
-/// sample point itself, starting 5 cm out along the ray).
+/// sample point itself, starting 5 cm out along the ray; v7: near objects that no view found
+/// aimed at).
 pub fn key(
     scene_id: &str,
     scale: f32,
@@ -150,7 +154,7 @@ pub fn key(
         .map(|k| format!("{:?}{:?}", k.eye.to_array(), k.target.to_array()))
         .collect();
     format!(
-        "v6;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};border={};face={};refine={};margin={};enlarge={};raster={}",
+        "v7;scene={scene_id};scale={scale};objects={};triangles={};path={}#{:016x};cell={};samples={};border={};face={};refine={};margin={};enlarge={};raster={}",
         scene.objects.len(),
         scene.triangle_count(),
         path.name,
@@ -307,6 +311,17 @@ pub fn build(
             }
             progress(ci as u64 * u64::from(per_cell) + k as u64 + 1, total);
         }
+        if let IdBuffers::Rays(rays) = &ids {
+            // Objects near the cell that no view found, aimed at from every point.
+            let reach = cell.enlarged(refine.beyond);
+            let unseen: Vec<u32> = (0..scene.objects.len() as u32)
+                .filter(|&o| !seen[o as usize] && scene.objects[o as usize].bounds.overlaps(&reach))
+                .collect();
+            let from: Vec<Vec3> = points.iter().map(|p| p.point).collect();
+            for o in rays.aimed(scene, &from, &unseen, far) {
+                seen[o as usize] = true;
+            }
+        }
         let objects = (0..seen.len() as u32)
             .filter(|&o| seen[o as usize])
             .collect();
@@ -409,6 +424,39 @@ impl ObjectRays {
         }
     }
 
+    /// Those of `objects` that a ray from one of `points` aimed at them hits first: each
+    /// object is aimed at in [`AIMS`] points along the longest axis of its box. A view's rays
+    /// are about 0.7° apart (128 pixels over 90°), so an object thinner than that seen from
+    /// nearby (a pole between a tree and a wall) can fall between them; a ray aimed at it
+    /// finds it wherever its axis shows.
+    fn aimed(&self, scene: &Scene, points: &[Vec3], objects: &[u32], far: f32) -> Vec<u32> {
+        let found = crate::parallel::map(objects.len(), |k| {
+            let o = objects[k];
+            let b = scene.objects[o as usize].bounds;
+            let e = b.extent();
+            let axis = if e.x >= e.y && e.x >= e.z {
+                Vec3::X * e.x
+            } else if e.y >= e.z {
+                Vec3::Y * e.y
+            } else {
+                Vec3::Z * e.z
+            };
+            let sees = |p: Vec3, at: Vec3| {
+                let d = (at - p).normalize_or_zero();
+                d != Vec3::ZERO
+                    && self
+                        .rays
+                        .intersect(p + d * RAY_START, d, far)
+                        .is_some_and(|h| self.object_of(h.triangle) == o as usize)
+            };
+            let seen = AIMS
+                .iter()
+                .any(|&f| points.iter().any(|&p| sees(p, b.center() + axis * f)));
+            seen.then_some(o)
+        });
+        found.into_iter().flatten().collect()
+    }
+
     /// The objects hit through the pixel centres of a `face` x `face` 90° view along `dir`,
     /// and through `refine.rays` x `refine.rays` points spread over each pixel whose 3x3
     /// neighbourhood holds more than one object (or an object and nothing) and reaches
@@ -506,6 +554,10 @@ impl ObjectRays {
 
 /// No object hit by a ray.
 const NOTHING: u32 = u32::MAX;
+
+/// Where [`ObjectRays::aimed`] aims along an object box's longest axis, as fractions of its
+/// length from the centre.
+const AIMS: [f32; 5] = [0.0, -0.4, 0.4, -0.2, 0.2];
 
 /// Pixels on a side of the tiles of a ray-cast view whose rays are traced together (64 rays,
 /// [`crate::scene::raycast::BUNDLE`]).
@@ -842,6 +894,48 @@ mod tests {
             ..four
         };
         assert_eq!(seen(near), vec![0, 2]);
+    }
+
+    #[test]
+    fn aimed_rays_find_a_thin_pole_that_falls_between_view_rays() {
+        use crate::scene::mesh::{Mesh, SceneBuilder};
+        let v = Vec3::new;
+        let grey = Vec3::splat(0.5);
+        let mut b = SceneBuilder::new("poles");
+        // 0: a wall behind; 1: a pole 5 cm thick, 10 units away; 2: a crate; 3: a pole as
+        // thin right behind the crate.
+        b.add(
+            &Mesh::cuboid(v(-50.0, -5.0, -21.0), v(50.0, 9.0, -20.0)),
+            grey,
+        );
+        b.add(
+            &Mesh::cuboid(v(0.3, 0.0, -10.05), v(0.35, 4.0, -10.0)),
+            grey,
+        );
+        b.add(&Mesh::cuboid(v(2.0, 0.0, -7.0), v(4.0, 4.0, -6.0)), grey);
+        b.add(
+            &Mesh::cuboid(v(5.8, 0.0, -12.05), v(5.85, 4.0, -12.0)),
+            grey,
+        );
+        let scene = b.finish();
+        let rays = ObjectRays::new(&scene);
+        let p = v(0.0, 2.0, 0.0);
+        let mut seen = vec![false; 4];
+        let one = FarEdges {
+            rays: 1,
+            beyond: f32::MAX,
+        };
+        rays.mark_visible(p, 16, 100.0, one, &mut seen);
+        assert_eq!(
+            seen,
+            [true, false, true, false],
+            "16-pixel views miss the poles"
+        );
+        assert_eq!(
+            rays.aimed(&scene, &[p], &[1, 3], 100.0),
+            vec![1],
+            "aimed at, the pole in the open is found, the one behind the crate is not"
+        );
     }
 
     /// A room of 13 x 4 x 13 units as one object (floor, ceiling and four walls 0.2 thick),
