@@ -519,8 +519,9 @@ impl ObjectRays {
         }
         hits.extend(centres.iter().map(|c| c.0).filter(|&o| o != NOTHING));
         if refine.rays > 1 {
+            // Every far edge's rays, cast together: four pixels' rays make a bundle.
             let r = refine.rays;
-            let mut spread = Vec::with_capacity((r * r) as usize);
+            dirs.clear();
             for j in 0..f {
                 for i in 0..f {
                     let around = || {
@@ -533,7 +534,6 @@ impl ObjectRays {
                     if !edge || around().all(|k| centres[k].1 <= refine.beyond) {
                         continue;
                     }
-                    dirs.clear();
                     for b in 0..r {
                         for a in 0..r {
                             let u = i as f32 + (a as f32 + 0.5) / r as f32;
@@ -541,11 +541,11 @@ impl ObjectRays {
                             dirs.push(through(u, v));
                         }
                     }
-                    spread.clear();
-                    cast(&dirs, &mut spread);
-                    hits.extend(spread.iter().map(|c| c.0).filter(|&o| o != NOTHING));
                 }
             }
+            let mut spread = Vec::with_capacity(dirs.len());
+            cast(&dirs, &mut spread);
+            hits.extend(spread.iter().map(|c| c.0).filter(|&o| o != NOTHING));
         }
         hits.sort_unstable();
         hits.dedup();
