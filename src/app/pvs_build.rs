@@ -449,9 +449,8 @@ impl ObjectRays {
                         .intersect(p + d * RAY_START, d, far)
                         .is_some_and(|h| self.object_of(h.triangle) == o as usize)
             };
-            let seen = AIMS
-                .iter()
-                .any(|&f| points.iter().any(|&p| sees(p, b.center() + axis * f)));
+            let aims = AIMS.map(|f| b.center() + axis * f);
+            let seen = aims.iter().any(|&at| points.iter().any(|&p| sees(p, at)));
             seen.then_some(o)
         });
         found.into_iter().flatten().collect()

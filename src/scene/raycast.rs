@@ -317,12 +317,13 @@ impl RayScene {
             (enter, exit)
         };
         let meets = |b: &obvhs::aabb::Aabb, ray: &Ray| b.intersect_ray(ray) < ray.tmax;
-        let mut stack: Vec<(u32, u32)> = Vec::with_capacity(64);
-        stack.push((0, 0));
-        while let Some((index, first)) = stack.pop() {
+        // Nodes to visit: index, the first ray that may meet it, and its bundle bounds
+        // (computed once, when it is pushed).
+        let mut stack: Vec<(u32, u32, (f32, f32))> = Vec::with_capacity(64);
+        stack.push((0, 0, bounds(bvh.nodes[0].aabb())));
+        while let Some((index, first, (enter, exit))) = stack.pop() {
             let node = &bvh.nodes[index as usize];
             let b = node.aabb();
-            let (enter, exit) = bounds(b);
             if enter > exit || enter >= far || exit < t_min {
                 continue;
             }
@@ -352,19 +353,20 @@ impl RayScene {
             }
             // The nearer child (by the bundle's entry bound, else by the entering ray's) is
             // popped first.
-            let (l, r) = (node.first_index, node.first_index + 1);
-            let key = |c: u32| {
+            let child = |c: u32| {
                 let cb = bvh.nodes[c as usize].aabb();
-                let (enter, _) = bounds(cb);
-                if enter.is_finite() {
-                    enter
+                let range = bounds(cb);
+                let key = if range.0.is_finite() {
+                    range.0
                 } else {
                     cb.intersect_ray(&rays[first])
-                }
+                };
+                (key, (c, first as u32, range))
             };
-            let (near, away) = if key(l) <= key(r) { (l, r) } else { (r, l) };
-            stack.push((away, first as u32));
-            stack.push((near, first as u32));
+            let (l, r) = (child(node.first_index), child(node.first_index + 1));
+            let (near, away) = if l.0 <= r.0 { (l.1, r.1) } else { (r.1, l.1) };
+            stack.push(away);
+            stack.push(near);
         }
         out.extend(
             rays[..n]
