@@ -334,6 +334,13 @@ pub struct Ratios {
     /// Median frame time / oracle's, over the repeats.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vs_oracle: Option<Spread>,
+    /// For a latency mode (`chcpp@predicated`): median frame time / the same algorithm's
+    /// in-frame one (`chcpp`), over the repeats.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vs_in_frame: Option<Spread>,
+    /// Median frame time / hiz's, over the repeats (not for hiz itself).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vs_hiz: Option<Spread>,
 }
 
 /// Serializes `(name, value)` pairs as a map, keeping their order.
@@ -383,9 +390,14 @@ pub fn summarize(
     let ratios = names
         .iter()
         .map(|&name| {
+            let in_frame = name.split_once('@').map(|(base, _)| base);
             let r = Ratios {
                 vs_vfc: ratio_spread(records, name, "vfc", repeats),
                 vs_oracle: ratio_spread(records, name, "oracle", repeats),
+                vs_in_frame: in_frame.and_then(|base| ratio_spread(records, name, base, repeats)),
+                vs_hiz: (name != "hiz")
+                    .then(|| ratio_spread(records, name, "hiz", repeats))
+                    .flatten(),
             };
             (name.to_owned(), r)
         })
@@ -593,7 +605,8 @@ impl WalkSummary {
         out
     }
 
-    /// Frame-time ratios to vfc and oracle with their spread over the repeats.
+    /// Frame-time ratios to vfc and oracle with their spread over the repeats, and to the
+    /// in-frame mode and hiz where the walk has them.
     fn ratio_table(&self) -> String {
         let fmt = |s: Option<Spread>| match s {
             Some(s) if self.repeats > 1 => {
@@ -607,13 +620,22 @@ impl WalkSummary {
             "\nframe-time ratios over {} repeat(s): median [min-max]\n",
             self.repeats
         );
+        let in_frame = self.ratios.iter().any(|(_, r)| r.vs_in_frame.is_some());
+        let hiz = self.ratios.iter().any(|(_, r)| r.vs_hiz.is_some());
         for (name, r) in &self.ratios {
-            let _ = writeln!(
-                out,
-                "  {name:<w$} x vfc {:<20} x oracle {}",
-                fmt(r.vs_vfc),
-                fmt(r.vs_oracle)
-            );
+            let mut line = format!("  {name:<w$} x vfc {:<20} x oracle ", fmt(r.vs_vfc));
+            if in_frame || hiz {
+                let _ = write!(line, "{:<20}", fmt(r.vs_oracle));
+            } else {
+                line.push_str(&fmt(r.vs_oracle));
+            }
+            if in_frame {
+                let _ = write!(line, " x in-frame {:<20}", fmt(r.vs_in_frame));
+            }
+            if hiz {
+                let _ = write!(line, " x hiz {}", fmt(r.vs_hiz));
+            }
+            let _ = writeln!(out, "{}", line.trim_end());
         }
         out
     }
@@ -859,6 +881,47 @@ mod tests {
             .table(Some("nope"))
             .lines()
             .any(|l| l.starts_with("oracle")));
+    }
+
+    #[test]
+    fn latency_modes_are_compared_with_in_frame_and_hiz() {
+        let mut records = Vec::new();
+        for repeat in 0..2u32 {
+            for (alg, ms) in [
+                ("chcpp", 10.0),
+                ("chcpp@predicated", 8.0 + repeat as f64),
+                ("hiz", 12.0),
+                ("oracle", 4.0),
+            ] {
+                for frame in 0..5u32 {
+                    records.push(FrameRecord {
+                        algorithm: alg.into(),
+                        frame,
+                        repeat,
+                        frame_ms: ms,
+                        ..Default::default()
+                    });
+                }
+            }
+        }
+        let w = summarize("city", 1, 1, "Test GPU", (64, 64), &records, &[]);
+        let ratios = |name: &str| w.ratios.iter().find(|(n, _)| n == name).unwrap().1;
+        let p = ratios("chcpp@predicated");
+        let in_frame = p.vs_in_frame.unwrap();
+        assert_eq!((in_frame.min, in_frame.max), (0.8, 0.9));
+        assert_eq!(p.vs_hiz.unwrap().min, 8.0 / 12.0);
+        assert!(ratios("chcpp").vs_in_frame.is_none());
+        assert!(ratios("hiz").vs_hiz.is_none());
+        assert_eq!(ratios("oracle").vs_hiz.unwrap().max, 4.0 / 12.0);
+        let table = w.ratio_table();
+        let line = table
+            .lines()
+            .find(|l| l.trim_start().starts_with("chcpp@predicated"))
+            .unwrap();
+        assert!(line.contains("x in-frame 0.85 [0.80-0.90]"), "{line}");
+        assert!(line.contains("x hiz 0.71 [0.67-0.75]"), "{line}");
+        // Without latency modes or hiz the table keeps its two columns.
+        assert!(!walk().ratio_table().contains("x hiz"));
     }
 
     #[test]
