@@ -54,6 +54,10 @@ pub struct AlgorithmSummary {
     /// renders it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub missed_pixels_worst_frame: Option<u32>,
+    /// With `walk --check`: the frames (over all repeats) that missed an object, and the
+    /// frames checked.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub missed_frames: Option<MissedFrames>,
     /// With movers (`walk --movers N`): median object draws of moving objects per frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mover_draws_median: Option<f64>,
@@ -131,6 +135,26 @@ impl PreprocessSummary {
     }
 }
 
+/// How many checked frames missed an object.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct MissedFrames {
+    /// Frames that missed at least one object.
+    pub with_a_miss: u32,
+    /// Frames checked (`walk --check`), over all repeats.
+    pub checked: u32,
+}
+
+impl MissedFrames {
+    /// Counts over `records`; none when no record was checked.
+    fn of(records: &[&FrameRecord]) -> Option<MissedFrames> {
+        let checked: Vec<u32> = records.iter().filter_map(|r| r.missed_objects).collect();
+        (!checked.is_empty()).then(|| MissedFrames {
+            with_a_miss: checked.iter().filter(|&&m| m > 0).count() as u32,
+            checked: checked.len() as u32,
+        })
+    }
+}
+
 /// The first of `records` with the most missed pixels, if any missed one.
 fn worst_frame(records: &[&FrameRecord]) -> Option<u32> {
     let mut worst: Option<(u64, u32)> = None;
@@ -170,6 +194,7 @@ impl AlgorithmSummary {
             missed_objects_max: records.iter().filter_map(|r| r.missed_objects).max(),
             missed_pixels_max: records.iter().filter_map(|r| r.missed_pixels).max(),
             missed_pixels_worst_frame: worst_frame(records),
+            missed_frames: MissedFrames::of(records),
             mover_draws_median: {
                 let mut v: Vec<f64> = records
                     .iter()
@@ -575,9 +600,13 @@ impl WalkSummary {
                 if !std::mem::replace(&mut checked, true) {
                     out.push_str("\nexactness (walk --check): most missed in any frame\n");
                 }
-                let at = match s.missed_pixels_worst_frame {
-                    Some(f) => format!(" (the most pixels in frame {f})"),
-                    None => String::new(),
+                let at = match (s.missed_pixels_worst_frame, s.missed_frames) {
+                    (Some(f), Some(m)) => format!(
+                        " (the most pixels in frame {f}); misses in {} of {} frames",
+                        m.with_a_miss, m.checked
+                    ),
+                    (Some(f), None) => format!(" (the most pixels in frame {f})"),
+                    _ => String::new(),
                 };
                 let _ = writeln!(out, "  {name:<w$} {o} objects, {p} pixels{at}");
             }
@@ -839,7 +868,18 @@ mod tests {
         );
         assert_eq!(
             line(&w),
-            "zeta 1 objects, 40 pixels (the most pixels in frame 3)"
+            "zeta 1 objects, 40 pixels (the most pixels in frame 3); misses in 4 of 10 frames"
+        );
+        assert_eq!(
+            z.missed_frames,
+            Some(MissedFrames {
+                with_a_miss: 4,
+                checked: 10
+            })
+        );
+        assert_eq!(
+            w.get("oracle").unwrap().missed_frames.unwrap().with_a_miss,
+            0
         );
     }
 
