@@ -147,11 +147,12 @@ pub struct MissedFrames {
 impl MissedFrames {
     /// Counts over `records`; none when no record was checked.
     fn of(records: &[&FrameRecord]) -> Option<MissedFrames> {
-        let checked: Vec<u32> = records.iter().filter_map(|r| r.missed_objects).collect();
-        (!checked.is_empty()).then(|| MissedFrames {
-            with_a_miss: checked.iter().filter(|&&m| m > 0).count() as u32,
-            checked: checked.len() as u32,
-        })
+        let mut frames = MissedFrames::default();
+        for missed in records.iter().filter_map(|r| r.missed_objects) {
+            frames.checked += 1;
+            frames.with_a_miss += u32::from(missed > 0);
+        }
+        (frames.checked > 0).then_some(frames)
     }
 }
 
@@ -600,14 +601,13 @@ impl WalkSummary {
                 if !std::mem::replace(&mut checked, true) {
                     out.push_str("\nexactness (walk --check): most missed in any frame\n");
                 }
-                let at = match (s.missed_pixels_worst_frame, s.missed_frames) {
-                    (Some(f), Some(m)) => format!(
-                        " (the most pixels in frame {f}); misses in {} of {} frames",
-                        m.with_a_miss, m.checked
-                    ),
-                    (Some(f), None) => format!(" (the most pixels in frame {f})"),
-                    _ => String::new(),
-                };
+                let mut at = String::new();
+                if let Some(f) = s.missed_pixels_worst_frame {
+                    let _ = write!(at, " (the most pixels in frame {f})");
+                    if let Some(m) = s.missed_frames {
+                        let _ = write!(at, "; misses in {} of {} frames", m.with_a_miss, m.checked);
+                    }
+                }
                 let _ = writeln!(out, "  {name:<w$} {o} objects, {p} pixels{at}");
             }
         }
@@ -652,12 +652,11 @@ impl WalkSummary {
         let in_frame = self.ratios.iter().any(|(_, r)| r.vs_in_frame.is_some());
         let hiz = self.ratios.iter().any(|(_, r)| r.vs_hiz.is_some());
         for (name, r) in &self.ratios {
-            let mut line = format!("  {name:<w$} x vfc {:<20} x oracle ", fmt(r.vs_vfc));
-            if in_frame || hiz {
-                let _ = write!(line, "{:<20}", fmt(r.vs_oracle));
-            } else {
-                line.push_str(&fmt(r.vs_oracle));
-            }
+            let mut line = format!(
+                "  {name:<w$} x vfc {:<20} x oracle {:<20}",
+                fmt(r.vs_vfc),
+                fmt(r.vs_oracle)
+            );
             if in_frame {
                 let _ = write!(line, " x in-frame {:<20}", fmt(r.vs_in_frame));
             }
