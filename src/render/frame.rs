@@ -36,4 +36,7 @@ pub struct Check {
     pub missed_objects: u32,
     /// Pixels owned by missed objects.
     pub missed_pixels: u64,
+    /// Drawn objects that own no pixel (hidden, or outside the view): the draws an exact
+    /// visibility oracle would have saved.
+    pub extra_objects: u32,
 }

@@ -813,6 +813,8 @@ impl Renderer {
                     check.missed_objects += 1;
                     check.missed_pixels += u64::from(p);
                 }
+            } else if d {
+                check.extra_objects += 1;
             }
         }
         check
@@ -2212,5 +2214,28 @@ impl Drop for Renderer {
     fn drop(&mut self) {
         // Nothing may be in flight when the fields (pools, sets, buffers) are destroyed.
         let _ = self.ctx.wait_idle();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Check, Renderer};
+
+    #[test]
+    fn the_check_counts_missed_and_extra_objects_once_each() {
+        // Objects 0..5 own 3, 0, 7, 0 and 1 pixels; 1, 2 and 3 were drawn (2 twice), and an
+        // id past the scene's objects is ignored.
+        let pixels = [3, 0, 7, 0, 1];
+        let check = Renderer::check_objects(&[2, 1, 2, 3, 99], &pixels);
+        assert_eq!(
+            check,
+            Check {
+                visible_objects: 3,
+                missed_objects: 2,
+                missed_pixels: 4,
+                extra_objects: 2,
+            }
+        );
+        assert_eq!(Renderer::check_objects(&[], &[]), Check::default());
     }
 }

@@ -589,9 +589,21 @@ fn mover_draws_are_counted_and_pvs_draws_movers_frustum_culled() {
             let pvs = at("pvs", f);
             assert_eq!(pvs.mover_draws, Some(vfc), "frame {f}: pvs draws as vfc");
             assert_eq!(pvs.object_draws, vfc, "frame {f}: pvs drew only movers");
+            // Every exact algorithm drew every object that owns a pixel, so its draws less
+            // those that own none are the same count for all of them; the oracle draws no
+            // object that owns none.
+            let owners =
+                |x: &coherent::app::report::FrameRecord| x.objects - x.extra_objects.unwrap();
+            let visible = owners(at("vfc", f));
+            assert_eq!(at("oracle", f).extra_objects, Some(0), "frame {f}: oracle");
             for a in exact {
                 let x = at(a, f);
                 assert_eq!(x.missed_objects, Some(0), "frame {f}: {a} missed objects");
+                assert_eq!(
+                    owners(x),
+                    visible,
+                    "frame {f}: {a} drew objects owning no pixel"
+                );
                 assert!(x.mover_draws.unwrap() <= vfc, "frame {f}: {a} drew movers");
             }
             assert_eq!(at("chcpp-static", f).mover_draws, Some(0));

@@ -57,6 +57,9 @@ pub struct FrameRecord {
     pub missed_objects: Option<u32>,
     /// With `walk --check`: pixels of the exact ID pass owned by missed objects.
     pub missed_pixels: Option<u64>,
+    /// With `walk --check`: drawn objects that own no pixel of the exact ID pass (draws an
+    /// exact oracle saves).
+    pub extra_objects: Option<u32>,
     /// With movers (`walk --movers N`): object draws of moving objects (the recorder's count;
     /// part of `object_draws`; under a predicate only where it was true).
     pub mover_draws: Option<u32>,
@@ -101,6 +104,7 @@ impl FrameRecord {
             submits: r.counts.submits,
             missed_objects: r.check.map(|c| c.missed_objects),
             missed_pixels: r.check.map(|c| c.missed_pixels),
+            extra_objects: r.check.map(|c| c.extra_objects),
             mover_draws: None,
             predicated_draws: r.counts.predicated_objects,
             predicated_taken: r.counts.predicated_objects_taken,
@@ -114,7 +118,7 @@ impl FrameRecord {
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 27] = [
+pub const CSV_HEADER: [&str; 28] = [
     "algorithm",
     "frame",
     "repeat",
@@ -133,6 +137,7 @@ pub const CSV_HEADER: [&str; 27] = [
     "submits",
     "missed_objects",
     "missed_pixels",
+    "extra_objects",
     "mover_draws",
     "predicated_draws",
     "predicated_taken",
@@ -165,7 +170,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.repeat,
@@ -184,6 +189,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             r.submits,
             optional(r.missed_objects),
             optional(r.missed_pixels),
+            optional(r.extra_objects),
             optional(r.mover_draws),
             r.predicated_draws,
             r.predicated_taken,
@@ -259,13 +265,13 @@ mod tests {
             lines[0],
             "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
              pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,\
-             missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,\
+             missed_objects,missed_pixels,extra_objects,mover_draws,predicated_draws,predicated_taken,\
              predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,cpu_ms"
         );
         assert_eq!(lines.len(), 1 + records.len());
         assert_eq!(
             lines[1],
-            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,0,0,0,0,0,0,0,0"
+            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,,0,0,0,0,0,0,0,0"
         );
         assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();

@@ -58,6 +58,10 @@ pub struct AlgorithmSummary {
     /// frames checked.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub missed_frames: Option<MissedFrames>,
+    /// With `walk --check`: median drawn objects per frame that own no pixel of the exact ID
+    /// pass (hidden or outside the view: the draws an exact visibility oracle saves).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub extra_objects_median: Option<f64>,
     /// With movers (`walk --movers N`): median object draws of moving objects per frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mover_draws_median: Option<f64>,
@@ -156,6 +160,12 @@ impl MissedFrames {
     }
 }
 
+/// The median of `values`; none when there are none (a figure that was not measured).
+fn median_of(values: impl Iterator<Item = u32>) -> Option<f64> {
+    let mut v: Vec<f64> = values.map(f64::from).collect();
+    (!v.is_empty()).then(|| median(&mut v))
+}
+
 /// The first of `records` with the most missed pixels, if any missed one.
 fn worst_frame(records: &[&FrameRecord]) -> Option<u32> {
     let mut worst: Option<(u64, u32)> = None;
@@ -196,13 +206,8 @@ impl AlgorithmSummary {
             missed_pixels_max: records.iter().filter_map(|r| r.missed_pixels).max(),
             missed_pixels_worst_frame: worst_frame(records),
             missed_frames: MissedFrames::of(records),
-            mover_draws_median: {
-                let mut v: Vec<f64> = records
-                    .iter()
-                    .filter_map(|r| r.mover_draws.map(f64::from))
-                    .collect();
-                (!v.is_empty()).then(|| median(&mut v))
-            },
+            extra_objects_median: median_of(records.iter().filter_map(|r| r.extra_objects)),
+            mover_draws_median: median_of(records.iter().filter_map(|r| r.mover_draws)),
             objects_median: med(&|r| f64::from(r.objects)),
             predicated_draws_median: med(&|r| f64::from(r.predicated_draws)),
             predicated_taken_median: med(&|r| f64::from(r.predicated_taken)),
@@ -599,7 +604,10 @@ impl WalkSummary {
         for (name, s) in &self.algorithms {
             if let (Some(o), Some(p)) = (s.missed_objects_max, s.missed_pixels_max) {
                 if !std::mem::replace(&mut checked, true) {
-                    out.push_str("\nexactness (walk --check): most missed in any frame\n");
+                    out.push_str(
+                        "\nexactness (walk --check): most missed in any frame; drawn objects \
+                         that own no pixel (median)\n",
+                    );
                 }
                 let mut at = String::new();
                 if let Some(f) = s.missed_pixels_worst_frame {
@@ -607,6 +615,9 @@ impl WalkSummary {
                     if let Some(m) = s.missed_frames {
                         let _ = write!(at, "; misses in {} of {} frames", m.with_a_miss, m.checked);
                     }
+                }
+                if let Some(e) = s.extra_objects_median {
+                    let _ = write!(at, "; {} drawn own no pixel", fmt_count(e));
                 }
                 let _ = writeln!(out, "  {name:<w$} {o} objects, {p} pixels{at}");
             }
@@ -840,6 +851,12 @@ mod tests {
         };
         for r in records.iter_mut() {
             frame(r, 0, 0);
+            // zeta draws frame + 1 objects that own no pixel: 1..=10, median 5.5.
+            r.extra_objects = Some(if r.algorithm == "zeta" {
+                r.frame + 1
+            } else {
+                0
+            });
         }
         let clean = summarize("city", 1, 1, "Test GPU", (64, 64), &records, &[]);
         let z = clean.get("zeta").unwrap();
@@ -854,7 +871,11 @@ mod tests {
                 .find(|l| l.starts_with("  zeta") && l.contains("pixels"));
             l.unwrap().split_whitespace().collect::<Vec<_>>().join(" ")
         };
-        assert_eq!(line(&clean), "zeta 0 objects, 0 pixels");
+        assert_eq!(
+            line(&clean),
+            "zeta 0 objects, 0 pixels; 5.5 drawn own no pixel"
+        );
+        assert_eq!(clean.get("oracle").unwrap().extra_objects_median, Some(0.0));
         // zeta misses 40 pixels in frames 3 and 7, fewer elsewhere.
         for (i, px) in [(2, 5), (3, 40), (5, 12), (7, 40)] {
             frame(&mut records[i], 1, px);
@@ -867,7 +888,8 @@ mod tests {
         );
         assert_eq!(
             line(&w),
-            "zeta 1 objects, 40 pixels (the most pixels in frame 3); misses in 4 of 10 frames"
+            "zeta 1 objects, 40 pixels (the most pixels in frame 3); misses in 4 of 10 frames; \
+             5.5 drawn own no pixel"
         );
         assert_eq!(
             z.missed_frames,
