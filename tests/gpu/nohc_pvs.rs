@@ -335,6 +335,12 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
         assert_eq!(algs[exact]["missed_objects_max"], 0, "{exact}: {algs}");
         assert_eq!(algs[exact]["missed_pixels_max"], 0, "{exact}");
     }
+    // The oracle draws only objects that own a pixel; vfc draws the whole frustum.
+    assert_eq!(algs["oracle"]["extra_objects_median"], 0.0, "{algs}");
+    assert!(
+        algs["vfc"]["extra_objects_median"].as_f64().unwrap() > 0.0,
+        "{algs}"
+    );
     let pvs = &algs["pvs"];
     assert!(pvs["missed_objects_max"].is_u64(), "{pvs}");
     assert!(pvs["cells"].as_u64().unwrap() > 0);
@@ -350,5 +356,5 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
         .lines()
         .next()
         .unwrap()
-        .ends_with("missed_objects,missed_pixels,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,cpu_ms"));
+        .ends_with("missed_objects,missed_pixels,extra_objects,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,cpu_ms"));
 }
