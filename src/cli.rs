@@ -619,11 +619,28 @@ fn walk_scale(
         .any(|x| x == "oracle")
         .then_some("oracle");
     println!("{}", summary.table(reference));
+    print_written(&summary, dir);
+    Ok(summary)
+}
+
+/// Names the report's files written to `dir` (with `--check` also its two exactness plots).
+fn print_written(summary: &coherent::app::report::WalkSummary, dir: &std::path::Path) {
+    let checked = summary
+        .algorithms
+        .iter()
+        .any(|(_, s)| s.missed_frames.is_some());
+    let plots = if checked {
+        format!(
+            ", {0}/missed_pixels.png, {0}/extra_objects.png",
+            dir.display()
+        )
+    } else {
+        String::new()
+    };
     println!(
-        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
+        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png{plots}",
         dir.display()
     );
-    Ok(summary)
 }
 
 /// [`walk_scale`] with `--movers N`: the scene with its movers, and the same scene without them
@@ -808,10 +825,7 @@ fn print_mover_draws(summary: &coherent::app::report::WalkSummary, dir: &std::pa
         .filter_map(|(n, s)| s.mover_draws_median.map(|d| format!("{n} {d}")))
         .collect();
     println!("mover draws (median per frame): {}", draws.join(", "));
-    println!(
-        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png",
-        dir.display()
-    );
+    print_written(summary, dir);
 }
 
 /// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.

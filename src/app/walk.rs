@@ -97,7 +97,8 @@ pub fn run(
 }
 
 /// With `--check` data in `records`: `missed_pixels.png`, the pixels of missed objects per
-/// frame (the pop of the latency modes), one line per algorithm.
+/// frame (the pop of the latency modes), and `extra_objects.png`, the drawn objects that own
+/// no pixel, one line per algorithm each.
 fn plot_missed(
     dir: &Path,
     title: &str,
@@ -113,6 +114,14 @@ fn plot_missed(
     report::plot_missed_pixels(
         &dir.join("missed_pixels.png"),
         &format!("Missed pixels: {title}"),
+        &series,
+    )?;
+    let series = first_repeat_series(records, algorithms, |r| {
+        (r.frame, f64::from(r.extra_objects.unwrap_or(0)))
+    });
+    report::plot_extra_objects(
+        &dir.join("extra_objects.png"),
+        &format!("Drawn objects that own no pixel: {title}"),
         &series,
     )?;
     Ok(())

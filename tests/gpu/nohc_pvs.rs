@@ -335,6 +335,10 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
         assert_eq!(algs[exact]["missed_objects_max"], 0, "{exact}: {algs}");
         assert_eq!(algs[exact]["missed_pixels_max"], 0, "{exact}");
     }
+    for plot in ["missed_pixels.png", "extra_objects.png"] {
+        let bytes = std::fs::metadata(out.join(plot)).map(|m| m.len());
+        assert!(bytes.is_ok_and(|b| b > 1024), "--check writes {plot}");
+    }
     // The oracle draws only objects that own a pixel; vfc draws the whole frustum.
     assert_eq!(algs["oracle"]["extra_objects_median"], 0.0, "{algs}");
     assert!(

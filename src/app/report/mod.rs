@@ -11,8 +11,8 @@ use std::path::Path;
 use crate::render::FrameResult;
 use crate::Error;
 
-pub use plot::plot_missed_pixels;
 pub use plot::{plot_counts, plot_frametime, CountSeries};
+pub use plot::{plot_extra_objects, plot_missed_pixels};
 pub use summary::{scaling_table, summarize, AlgorithmSummary, PreprocessSummary, WalkSummary};
 
 /// One frame of one algorithm.

@@ -143,6 +143,28 @@ pub fn plot_missed_pixels(
     plot_lines(path, title, "missed pixels", series)
 }
 
+/// Extra-objects plot (1280x720): per frame, the drawn objects that own no pixel of the exact
+/// ID pass (what an exact culler would not draw), one line per algorithm, on a log scale (so
+/// that VFC's thousands and an occlusion culler's tens are both readable; zero is drawn at the
+/// bottom edge).
+pub fn plot_extra_objects(
+    path: &Path,
+    title: &str,
+    series: &[(String, Vec<(u32, f64)>)],
+) -> Result<(), Error> {
+    ensure_font()?;
+    let root = BitMapBackend::new(path, (1280, 720)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+    let lines: Vec<(&str, Vec<(u32, f64)>)> = series
+        .iter()
+        .map(|(name, pts)| (name.as_str(), pts.clone()))
+        .collect();
+    let caption = format!("{title} (log)");
+    draw_log_chart(&root, &caption, "objects owning no pixel", &lines)
+        .map_err(|e| plot_err(path, e))?;
+    root.present().map_err(|e| plot_err(path, e))
+}
+
 /// Count plot (1280x1200) of `(frame, queries, wasted, state_changes)` series: queries,
 /// wasted queries and state changes per frame, one panel each, on log scales (so that CHC's
 /// hundreds and CHC++'s few are both readable; zero is drawn at the bottom edge).
@@ -342,6 +364,29 @@ mod tests {
     }
 
     #[test]
+    fn extra_objects_png() {
+        let (dir, _tmp) = out_dir("extra_objects_png");
+        let path = dir.join("extra_objects.png");
+        let series: Vec<(String, Vec<(u32, f64)>)> = walk(600)
+            .into_iter()
+            .enumerate()
+            .map(|(k, (n, pts))| {
+                // The oracle (first) draws no object that owns no pixel: its zeros lie on
+                // the bottom edge.
+                let scale = if k == 0 {
+                    0.0
+                } else {
+                    10f64.powi(k as i32 % 4)
+                };
+                (n, pts.into_iter().map(|p| (p.0, p.1 * scale)).collect())
+            })
+            .collect();
+        plot_extra_objects(&path, "city walk: drawn objects that own no pixel", &series).unwrap();
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(size > 10 * 1024, "png too small: {size}");
+    }
+
+    #[test]
     fn empty_series_do_not_panic() {
         let (dir, _tmp) = out_dir("empty_series_do_not_panic");
         plot_frametime(&dir.join("empty1.png"), "empty", &[]).unwrap();
@@ -358,6 +403,7 @@ mod tests {
         )
         .unwrap();
         plot_counts(&dir.join("empty3.png"), "empty", &[]).unwrap();
+        plot_extra_objects(&dir.join("empty5.png"), "empty", &[]).unwrap();
         plot_counts(
             &dir.join("empty4.png"),
             "one",
