@@ -115,6 +115,20 @@ pub fn plot_lines(
     y_desc: &str,
     series: &[(String, Vec<(u32, f64)>)],
 ) -> Result<(), Error> {
+    plot_one(path, series, |root, lines| {
+        draw_chart(root, title, y_desc, lines)
+    })
+}
+
+/// A 1280x720 PNG of `series`, drawn by `draw` onto the white image.
+fn plot_one(
+    path: &Path,
+    series: &[(String, Vec<(u32, f64)>)],
+    draw: impl FnOnce(
+        &DrawingArea<BitMapBackend<'_>, Shift>,
+        &[(&str, Vec<(u32, f64)>)],
+    ) -> Result<(), String>,
+) -> Result<(), Error> {
     ensure_font()?;
     let root = BitMapBackend::new(path, (1280, 720)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
@@ -122,7 +136,7 @@ pub fn plot_lines(
         .iter()
         .map(|(name, pts)| (name.as_str(), pts.clone()))
         .collect();
-    draw_chart(&root, title, y_desc, &lines).map_err(|e| plot_err(path, e))?;
+    draw(&root, &lines).map_err(|e| plot_err(path, e))?;
     root.present().map_err(|e| plot_err(path, e))
 }
 
@@ -152,17 +166,10 @@ pub fn plot_extra_objects(
     title: &str,
     series: &[(String, Vec<(u32, f64)>)],
 ) -> Result<(), Error> {
-    ensure_font()?;
-    let root = BitMapBackend::new(path, (1280, 720)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
-    let lines: Vec<(&str, Vec<(u32, f64)>)> = series
-        .iter()
-        .map(|(name, pts)| (name.as_str(), pts.clone()))
-        .collect();
     let caption = format!("{title} (log)");
-    draw_log_chart(&root, &caption, "objects owning no pixel", &lines)
-        .map_err(|e| plot_err(path, e))?;
-    root.present().map_err(|e| plot_err(path, e))
+    plot_one(path, series, |root, lines| {
+        draw_log_chart(root, &caption, "objects owning no pixel", lines)
+    })
 }
 
 /// Count plot (1280x1200) of `(frame, queries, wasted, state_changes)` series: queries,
