@@ -337,6 +337,12 @@ mod tests {
             .collect()
     }
 
+    /// `path` holds a PNG of some size (a plot, not an empty image).
+    fn assert_png(path: &Path) {
+        let size = std::fs::metadata(path).unwrap().len();
+        assert!(size > 10 * 1024, "png too small: {size}");
+    }
+
     #[test]
     fn frametime_png() {
         let (dir, _tmp) = out_dir("frametime_png");
@@ -346,8 +352,7 @@ mod tests {
             .map(|(n, pts)| (n, pts.into_iter().map(|p| (p.0, p.1)).collect()))
             .collect();
         plot_frametime(&path, "city walk, 1280x720", &series).unwrap();
-        let size = std::fs::metadata(&path).unwrap().len();
-        assert!(size > 10 * 1024, "png too small: {size}");
+        assert_png(&path);
     }
 
     #[test]
@@ -366,15 +371,14 @@ mod tests {
             })
             .collect();
         plot_counts(&path, "city walk: queries and state changes", &series).unwrap();
-        let size = std::fs::metadata(&path).unwrap().len();
-        assert!(size > 10 * 1024, "png too small: {size}");
+        assert_png(&path);
     }
 
     #[test]
     fn extra_objects_png() {
         let (dir, _tmp) = out_dir("extra_objects_png");
         let path = dir.join("extra_objects.png");
-        let series: Vec<(String, Vec<(u32, f64)>)> = walk(600)
+        let series: Vec<_> = walk(600)
             .into_iter()
             .enumerate()
             .map(|(k, (n, pts))| {
@@ -389,8 +393,7 @@ mod tests {
             })
             .collect();
         plot_extra_objects(&path, "city walk: drawn objects that own no pixel", &series).unwrap();
-        let size = std::fs::metadata(&path).unwrap().len();
-        assert!(size > 10 * 1024, "png too small: {size}");
+        assert_png(&path);
     }
 
     #[test]
