@@ -99,7 +99,7 @@ pub fn run(
 /// With `--check` data in `records`: `missed_pixels.png`, the pixels of missed objects per
 /// frame (the pop of the latency modes), and `extra_objects.png`, the drawn objects that own
 /// no pixel, one line per algorithm each.
-fn plot_missed(
+fn plot_exactness(
     dir: &Path,
     title: &str,
     records: &[FrameRecord],
@@ -189,7 +189,7 @@ pub fn write_report(
         &format!("Queries, wasted queries, state changes: {title}"),
         &counts,
     )?;
-    plot_missed(dir, &title, records, algorithms)?;
+    plot_exactness(dir, &title, records, algorithms)?;
     Ok(summary)
 }
 
