@@ -596,7 +596,7 @@ fn walk_scale(
         bar.finish();
         records
     };
-    let mut summary = walk::write_report(
+    let walk::WrittenReport { mut summary, files } = walk::write_report(
         dir,
         &scene,
         &path.name,
@@ -619,28 +619,14 @@ fn walk_scale(
         .any(|x| x == "oracle")
         .then_some("oracle");
     println!("{}", summary.table(reference));
-    print_written(&summary, dir);
+    print_written(&files);
     Ok(summary)
 }
 
-/// Names the report's files written to `dir` (with `--check` also its two exactness plots).
-fn print_written(summary: &coherent::app::report::WalkSummary, dir: &std::path::Path) {
-    let checked = summary
-        .algorithms
-        .iter()
-        .any(|(_, s)| s.missed_frames.is_some());
-    let plots = if checked {
-        format!(
-            ", {0}/missed_pixels.png, {0}/extra_objects.png",
-            dir.display()
-        )
-    } else {
-        String::new()
-    };
-    println!(
-        "wrote {0}/frames.csv, {0}/summary.json, {0}/frametime.png, {0}/counts.png{plots}",
-        dir.display()
-    );
+/// Names the report's files, as [`walk::write_report`] wrote them.
+fn print_written(files: &[std::path::PathBuf]) {
+    let names: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
+    println!("wrote {}", names.join(", "));
 }
 
 /// [`walk_scale`] with `--movers N`: the scene with its movers, and the same scene without them
@@ -712,7 +698,7 @@ fn walk_scale_movers(
     )?;
     let mut names = a.algorithms.clone();
     names.extend(baseline.iter().map(|b| format!("{b}-static")));
-    let mut summary = walk::write_report(
+    let walk::WrittenReport { mut summary, files } = walk::write_report(
         dir,
         &scene,
         &path.name,
@@ -736,7 +722,7 @@ fn walk_scale_movers(
     let reference = a.algorithms.iter().any(|x| x == "oracle");
     println!("{}", summary.table(reference.then_some("oracle")));
     print_movers(&ms);
-    print_mover_draws(&summary, dir);
+    print_mover_draws(&summary, &files);
     Ok(summary)
 }
 
@@ -817,15 +803,15 @@ fn bvh_of(scene: &Scene, leaf_size: u32) -> ObjectBvh {
 }
 
 /// Prints each algorithm's median object draws of movers (pvs draws them frustum-culled only)
-/// and the files written to `dir`.
-fn print_mover_draws(summary: &coherent::app::report::WalkSummary, dir: &std::path::Path) {
+/// and the report's files.
+fn print_mover_draws(summary: &coherent::app::report::WalkSummary, files: &[std::path::PathBuf]) {
     let draws: Vec<String> = summary
         .algorithms
         .iter()
         .filter_map(|(n, s)| s.mover_draws_median.map(|d| format!("{n} {d}")))
         .collect();
     println!("mover draws (median per frame): {}", draws.join(", "));
-    print_written(summary, dir);
+    print_written(files);
 }
 
 /// Prints what the movers cost: refit time, rebuilds, frame-time ratios to the static scene.

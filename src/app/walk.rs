@@ -1,7 +1,7 @@
 //! The walkthrough benchmark: several culling algorithms over the same camera path, interleaved
 //! frame by frame (each with its own temporal state) so machine drift hits all of them alike.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use super::report::{self, FrameRecord, WalkSummary};
 use crate::bvh::ObjectBvh;
@@ -104,27 +104,25 @@ fn plot_exactness(
     title: &str,
     records: &[FrameRecord],
     algorithms: &[String],
-) -> Result<()> {
+) -> Result<Vec<PathBuf>> {
     if !records.iter().any(|r| r.missed_pixels.is_some()) {
-        return Ok(());
+        return Ok(Vec::new());
     }
     let series = first_repeat_series(records, algorithms, |r| {
         (r.frame, r.missed_pixels.unwrap_or(0) as f64)
     });
-    report::plot_missed_pixels(
-        &dir.join("missed_pixels.png"),
-        &format!("Missed pixels: {title}"),
-        &series,
-    )?;
+    let missed = dir.join("missed_pixels.png");
+    report::plot_missed_pixels(&missed, &format!("Missed pixels: {title}"), &series)?;
     let series = first_repeat_series(records, algorithms, |r| {
         (r.frame, f64::from(r.extra_objects.unwrap_or(0)))
     });
+    let extra = dir.join("extra_objects.png");
     report::plot_extra_objects(
-        &dir.join("extra_objects.png"),
+        &extra,
         &format!("Drawn objects that own no pixel: {title}"),
         &series,
     )?;
-    Ok(())
+    Ok(vec![missed, extra])
 }
 
 /// One plot series per algorithm: `point` of each of its rows of the first repeat, in order.
@@ -144,7 +142,16 @@ fn first_repeat_series<T>(
         .collect()
 }
 
-/// Writes `frames.csv`, `summary.json`, `frametime.png` and `counts.png` into `dir`.
+/// A walk's report as [`write_report`] wrote it.
+pub struct WrittenReport {
+    /// The walk's summary, as written to `summary.json`.
+    pub summary: WalkSummary,
+    /// The files written, in the order written.
+    pub files: Vec<PathBuf>,
+}
+
+/// Writes `frames.csv`, `summary.json`, `frametime.png` and `counts.png` into `dir`, and with
+/// `--check` records (a missed-pixel count in them) `missed_pixels.png` and `extra_objects.png`.
 pub fn write_report(
     dir: &Path,
     scene: &Scene,
@@ -153,9 +160,10 @@ pub fn write_report(
     size: (u32, u32),
     records: &[FrameRecord],
     algorithms: &[String],
-) -> Result<WalkSummary> {
+) -> Result<WrittenReport> {
     std::fs::create_dir_all(dir)?;
-    report::write_frames_csv(&dir.join("frames.csv"), records)?;
+    let mut files = vec![dir.join("frames.csv")];
+    report::write_frames_csv(&files[0], records)?;
     let summary = report::summarize(
         &scene.name,
         scene.objects.len(),
@@ -165,7 +173,8 @@ pub fn write_report(
         records,
         algorithms,
     );
-    summary.write_json(&dir.join("summary.json"))?;
+    files.push(dir.join("summary.json"));
+    summary.write_json(&files[1])?;
     let title = format!(
         "{} ({} objects, {:.2}M triangles), path {path_name}, {}x{}, {device}",
         scene.name,
@@ -175,22 +184,20 @@ pub fn write_report(
         size.1
     );
     let series = first_repeat_series(records, algorithms, |r| (r.frame, r.frame_ms));
-    report::plot_frametime(
-        &dir.join("frametime.png"),
-        &format!("Frame time: {title}"),
-        &series,
-    )?;
+    files.push(dir.join("frametime.png"));
+    report::plot_frametime(&files[2], &format!("Frame time: {title}"), &series)?;
     let counts: Vec<report::CountSeries> = first_repeat_series(records, algorithms, |r| {
         let (q, w) = (r.queries as f64, r.wasted_queries as f64);
         (r.frame, q, w, r.state_changes as f64)
     });
+    files.push(dir.join("counts.png"));
     report::plot_counts(
-        &dir.join("counts.png"),
+        &files[3],
         &format!("Queries, wasted queries, state changes: {title}"),
         &counts,
     )?;
-    plot_exactness(dir, &title, records, algorithms)?;
-    Ok(summary)
+    files.extend(plot_exactness(dir, &title, records, algorithms)?);
+    Ok(WrittenReport { summary, files })
 }
 
 /// Movers in a walk: the scene's built-in movers, and a copy of the scene without them on which
@@ -450,5 +457,39 @@ mod tests {
             false,
             &algorithms(&["oracle-box", "oracle"])
         ));
+    }
+
+    /// The files [`write_report`] names are the files it wrote, with `--check` records and
+    /// without them.
+    #[test]
+    fn the_report_names_the_files_it_wrote() {
+        let scene = crate::scene::procedural::cornell();
+        let names = vec!["vfc".to_string(), "oracle".to_string()];
+        for checked in [false, true] {
+            let dir = crate::testing::TempDir::new(&format!("report-files-{checked}"));
+            let records: Vec<FrameRecord> = (0..4)
+                .flat_map(|frame| {
+                    names.iter().map(move |a| FrameRecord {
+                        algorithm: a.clone(),
+                        frame,
+                        frame_ms: 1.0 + f64::from(frame),
+                        missed_pixels: checked.then_some(0),
+                        extra_objects: checked.then_some(frame),
+                        ..FrameRecord::default()
+                    })
+                })
+                .collect();
+            let out = write_report(&dir, &scene, "test", "none", (8, 8), &records, &names)
+                .expect("write the report");
+            let mut named: Vec<_> = out.files.iter().map(|f| f.to_path_buf()).collect();
+            let mut found: Vec<_> = std::fs::read_dir(dir.path())
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .collect();
+            named.sort();
+            found.sort();
+            assert_eq!(named, found);
+            assert_eq!(out.files.len(), if checked { 6 } else { 4 });
+        }
     }
 }
