@@ -60,6 +60,91 @@ fn beats((t, facing): (f32, bool), so_far: Option<(f32, bool)>) -> bool {
 /// that faces the ray is then preferred; see [`TriangleScene::hit`]).
 const SAME_DISTANCE: f32 = 1e-5;
 
+/// The distances around a hit at `t` within which another hit is its coplanar twin (see
+/// [`TriangleScene::hit_and_twin`]).
+fn twin_window(t: f32) -> (f32, f32) {
+    let eps = 1e-4 * t.max(1.0);
+    (t - eps, t + eps)
+}
+
+/// A hit met along a ray.
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    t: f32,
+    /// Whether its triangle faces the ray.
+    facing: bool,
+    /// Instance, and triangle in the instance's mesh.
+    at: (usize, usize),
+    /// Its id in [`Hit::triangle`]'s numbering.
+    triangle: u32,
+}
+
+/// What a traversal keeps of the hits it meets, and how far it still has to look.
+trait Keep {
+    /// A hit at distance `t`, facing the ray or not, on triangle `at` (`triangle` as
+    /// [`Hit::triangle`] numbers it).
+    fn offer(&mut self, t: f32, facing: bool, at: (usize, usize), triangle: u32);
+    /// The distance beyond which no hit matters any more.
+    fn bound(&self) -> f32;
+}
+
+/// Keeps the closest hit (see [`beats`]), other than on one triangle.
+struct Closest {
+    best: Option<Candidate>,
+    skip: Option<u32>,
+}
+
+impl Keep for Closest {
+    fn offer(&mut self, t: f32, facing: bool, at: (usize, usize), triangle: u32) {
+        if Some(triangle) != self.skip && beats((t, facing), self.best.map(|b| (b.t, b.facing))) {
+            self.best = Some(Candidate {
+                t,
+                facing,
+                at,
+                triangle,
+            });
+        }
+    }
+
+    /// A little beyond the closest hit, where a coincident surface may still win.
+    fn bound(&self) -> f32 {
+        self.best
+            .map_or(f32::INFINITY, |b| b.t * (1.0 + SAME_DISTANCE))
+    }
+}
+
+/// Keeps the closest hit, as [`Closest`] does, and the hits met within [`twin_window`] of
+/// the closest one so far (which may be closer, when they lost to a hit facing the ray).
+#[derive(Default)]
+struct NearClosest {
+    best: Option<Candidate>,
+    near: Vec<Candidate>,
+}
+
+impl Keep for NearClosest {
+    fn offer(&mut self, t: f32, facing: bool, at: (usize, usize), triangle: u32) {
+        let c = Candidate {
+            t,
+            facing,
+            at,
+            triangle,
+        };
+        if beats((t, facing), self.best.map(|b| (b.t, b.facing))) {
+            self.best = Some(c);
+            let (lo, hi) = twin_window(t);
+            self.near.retain(|n| n.t >= lo && n.t <= hi);
+        }
+        if t <= self.bound() {
+            self.near.push(c);
+        }
+    }
+
+    /// The end of the window around the closest hit.
+    fn bound(&self) -> f32 {
+        self.best.map_or(f32::INFINITY, |b| twin_window(b.t).1)
+    }
+}
+
 /// World triangles with a BVH for ray casts and distance queries.
 ///
 /// In a large scene (over 4 million triangles) and for the path check, objects that share
@@ -193,36 +278,18 @@ impl TriangleScene {
         }
     }
 
-    /// The hit of `ray` (world space) on instance `inst`'s triangles other than `skip` that
-    /// beats `so_far` (the distance of the hit found so far and whether it faces the ray):
-    /// its distance, triangle (in the mesh's BVH order) and whether that triangle faces the
-    /// ray; see [`closest`](Self::closest) for which hit beats which.
-    fn instance_hit(
-        &self,
-        inst: &Instance,
-        ray: &Ray,
-        skip: Option<usize>,
-        so_far: Option<(f32, bool)>,
-    ) -> Option<(f32, usize, bool)> {
+    /// Offers `keep` the hits of `ray` (world space) on instance `i`'s triangles, met in the
+    /// order of the mesh's BVH, which prunes beyond [`Keep::bound`].
+    fn instance_hits(&self, i: usize, ray: &Ray, keep: &mut impl Keep) {
+        let inst = &self.instances[i];
         let mesh = &self.meshes[inst.mesh as usize];
-        let mut best: Option<(f32, usize, bool)> = None;
-        // The BVH prunes beyond the distance each closure returns (its ray's `tmax`): a
-        // little beyond the best hit, where a coincident surface may still win.
         let mut consider = |r: &Ray, id: usize, tri: Triangle| {
-            if Some(id) == skip {
-                return f32::INFINITY;
-            }
             let t = tri.intersect(r);
-            if !t.is_finite() {
-                return f32::INFINITY;
+            if t.is_finite() {
+                let facing = Vec3::from(tri.compute_normal()).dot(Vec3::from(ray.direction)) < 0.0;
+                keep.offer(t, facing, (i, id), inst.first.saturating_add(id as u32));
             }
-            let facing = Vec3::from(tri.compute_normal()).dot(Vec3::from(ray.direction)) < 0.0;
-            if beats((t, facing), best.map(|b| (b.0, b.2)).or(so_far)) {
-                best = Some((t, id, facing));
-                t * (1.0 + SAME_DISTANCE)
-            } else {
-                f32::INFINITY
-            }
+            keep.bound()
         };
         let mut hit = RayHit::none();
         match &inst.place {
@@ -236,7 +303,7 @@ impl TriangleScene {
                 let o = p.to_local.transform_point3(Vec3::from(ray.origin));
                 let d = p.to_local.transform_vector3(Vec3::from(ray.direction));
                 if !(o.is_finite() && d.is_finite()) {
-                    return None;
+                    return;
                 }
                 let local = Ray::new(o.into(), d.into(), ray.tmin, ray.tmax);
                 mesh.bvh.ray_traverse(local, &mut hit, |r, id| {
@@ -250,7 +317,15 @@ impl TriangleScene {
                 });
             }
         }
-        best
+    }
+
+    /// Offers `keep` the hits along `ray`, instance by instance in the order of the top BVH.
+    fn hits_along(&self, ray: Ray, keep: &mut impl Keep) {
+        let mut hit = RayHit::none();
+        self.top.ray_traverse(ray, &mut hit, |r, i| {
+            self.instance_hits(i, r, keep);
+            keep.bound()
+        });
     }
 
     /// The closest hit along `ray` other than on triangle `skip` (an id of [`Hit::triangle`]):
@@ -258,22 +333,9 @@ impl TriangleScene {
     /// same distance (to [`SAME_DISTANCE`]: coincident surfaces), one that faces the ray wins
     /// over one that does not, as the renderer shows the front of such a pair.
     fn closest(&self, ray: Ray, skip: Option<u32>) -> Option<(f32, usize, usize)> {
-        let mut best: Option<(f32, usize, usize, bool)> = None;
-        let mut hit = RayHit::none();
-        self.top.ray_traverse(ray, &mut hit, |r, i| {
-            let inst = &self.instances[i];
-            let skip = skip
-                .and_then(|s| s.checked_sub(inst.first))
-                .map(|s| s as usize);
-            match self.instance_hit(inst, r, skip, best.map(|b| (b.0, b.3))) {
-                Some((t, id, facing)) => {
-                    best = Some((t, i, id, facing));
-                    t * (1.0 + SAME_DISTANCE)
-                }
-                None => f32::INFINITY,
-            }
-        });
-        best.map(|(t, i, id, _)| (t, i, id))
+        let mut keep = Closest { best: None, skip };
+        self.hits_along(ray, &mut keep);
+        keep.best.map(|b| (b.t, b.at.0, b.at.1))
     }
 
     /// The closest hit along a unit `dir` up to `t_max`, with the side it hit; none for a ray
@@ -314,16 +376,39 @@ impl TriangleScene {
         }
     }
 
-    /// The colour of a second, coplanar side that `hit` (along the unit `dir` from `origin`)
-    /// shares its distance with, when it differs: which of two coincident surfaces the
-    /// renderer shows depends on draw order and depth precision, so both count.
-    fn coplanar_colour(&self, origin: Vec3, dir: Vec3, hit: &Hit) -> Option<[u8; 3]> {
-        let eps = 1e-4 * hit.t.max(1.0);
-        let ray = Ray::new(origin.into(), dir.into(), hit.t - eps, hit.t + eps);
-        let (t, i, id) = self.closest(ray, Some(hit.triangle))?;
-        self.side(i, id, dir, t)
-            .colour
-            .filter(|&c| Some(c) != hit.colour)
+    /// [`hit`](Self::hit), and the colour of a second, coplanar side that the hit shares its
+    /// distance with (within a relative 1e-4), when it differs: which of two coincident
+    /// surfaces the renderer shows depends on draw order and depth precision, so both count.
+    /// One traversal finds both: it keeps the hits within that distance of the closest so far.
+    pub(crate) fn hit_and_twin(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        t_max: f32,
+    ) -> Option<(Hit, Option<[u8; 3]>)> {
+        if !(origin.is_finite() && dir.is_finite()) || t_max.is_nan() {
+            return None;
+        }
+        let mut keep = NearClosest::default();
+        self.hits_along(Ray::new(origin.into(), dir.into(), 0.0, t_max), &mut keep);
+        let best = keep.best?;
+        let hit = self.side(best.at.0, best.at.1, dir, best.t);
+        // The second side: the closest of the other hits in the window, chosen as `closest`
+        // chooses, in the order they were met.
+        let (lo, hi) = twin_window(best.t);
+        let mut twin: Option<Candidate> = None;
+        for c in &keep.near {
+            let in_window = c.triangle != hit.triangle && c.t >= lo && c.t <= hi;
+            if in_window && beats((c.t, c.facing), twin.map(|b| (b.t, b.facing))) {
+                twin = Some(*c);
+            }
+        }
+        let colour = twin.and_then(|c| {
+            self.side(c.at.0, c.at.1, dir, c.t)
+                .colour
+                .filter(|&col| Some(col) != hit.colour)
+        });
+        Some((hit, colour))
     }
 
     /// Distance to the closest hit along a unit `dir` (up to `t_max`) and the triangle's front
@@ -604,10 +689,9 @@ impl TriangleScene {
         let mut colours: std::collections::HashMap<[u8; 3], usize> = Default::default();
         let (mut escaped, mut back) = (0, 0);
         for &d in dirs {
-            match self.hit(p, d, far) {
+            match self.hit_and_twin(p, d, far) {
                 None => escaped += 1,
-                Some(h) if h.front => {
-                    let second = self.coplanar_colour(p, d, &h);
+                Some((h, second)) if h.front => {
                     for c in h.colour.into_iter().chain(second) {
                         *colours.entry(c).or_default() += 1;
                     }
@@ -633,6 +717,23 @@ impl TriangleScene {
     /// reference the placed meshes are compared with.
     pub(crate) fn world_only(scene: &Scene) -> Option<TriangleScene> {
         build::of_objects(scene, |_| true, true, None, Some(false))
+    }
+
+    /// The twin colour of [`hit_and_twin`](Self::hit_and_twin) found by a second cast: the
+    /// closest hit other than `hit`'s triangle within [`twin_window`] of it, along the same
+    /// ray (the reference the one-traversal search is compared with).
+    pub(crate) fn twin_by_second_cast(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        hit: &Hit,
+    ) -> Option<[u8; 3]> {
+        let (lo, hi) = twin_window(hit.t);
+        let ray = Ray::new(origin.into(), dir.into(), lo, hi);
+        let (t, i, id) = self.closest(ray, Some(hit.triangle))?;
+        self.side(i, id, dir, t)
+            .colour
+            .filter(|&c| Some(c) != hit.colour)
     }
 
     /// Number of placed instances (objects of shared meshes).

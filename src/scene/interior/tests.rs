@@ -1154,6 +1154,72 @@ fn the_path_checks_verdict_is_kept_in_the_cache_and_said_again() {
     std::fs::remove_file(&dir).expect("clean up");
 }
 
+/// One traversal finds a hit's coplanar twin as a second cast over the window around the
+/// hit does: on triangles of random sizes and colours, half of them with a twin in their
+/// plane (the same corners in another order, or shifted along the normal by less than the
+/// window), some of another colour and some facing away, seen along rays all around.
+#[test]
+fn the_twin_of_one_traversal_is_that_of_a_second_cast() {
+    let mut rng = coherent_cull::rng::Rng::new(11);
+    let mut v = |r: f32| Vec3::new(rng.range(-r, r), rng.range(-r, r), rng.range(-r, r));
+    let palette = [[200, 40, 40], [40, 200, 40], [40, 40, 200], [90, 90, 90]];
+    let (mut tris, mut colours) = (Vec::new(), Vec::new());
+    for k in 0..1200usize {
+        let c = v(20.0);
+        let t = [c + v(2.0), c + v(2.0), c + v(2.0)];
+        let colour = |j: usize| {
+            let (a, b) = (palette[j % 4], palette[(j + 1) % 4]);
+            (j % 5 != 4).then_some([a, b])
+        };
+        tris.push(t);
+        colours.push(colour(k));
+        let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+        match k % 4 {
+            // The same plane, the same colour or another, wound the same way.
+            0 => {
+                tris.push([t[1], t[2], t[0]]);
+                colours.push(colour(k / 4));
+            }
+            // Facing away.
+            1 => {
+                tris.push([t[0], t[2], t[1]]);
+                colours.push(colour(k + 1));
+            }
+            // Shifted along the normal, inside the window or just outside it.
+            2 => {
+                let d = n * if k % 8 == 2 { 1e-5 } else { 0.05 };
+                tris.push(t.map(|p| p + d));
+                colours.push(colour(k + 2));
+            }
+            _ => {}
+        }
+    }
+    let rays = TriangleScene::build(&tris, &[], &colours).expect("triangles");
+    let (mut hits, mut twins) = (0, 0);
+    for _ in 0..30 {
+        let eye = v(24.0);
+        for d in rays::sphere_dirs(400) {
+            let one = rays.hit_and_twin(eye, d, 100.0);
+            let hit = rays.hit(eye, d, 100.0);
+            assert_eq!(one.map(|o| o.0), hit, "from {eye} along {d}");
+            if let (Some((h, twin)), Some(_)) = (one, hit) {
+                assert_eq!(
+                    twin,
+                    rays.twin_by_second_cast(eye, d, &h),
+                    "from {eye} along {d}"
+                );
+                hits += 1;
+                twins += usize::from(twin.is_some());
+            }
+        }
+    }
+    // Enough of both to mean something.
+    assert!(
+        hits > 2000 && twins > 100,
+        "{hits} hits, {twins} with a twin of another colour"
+    );
+}
+
 /// What [`same_rays`] counted.
 struct SameRays {
     hits: usize,
