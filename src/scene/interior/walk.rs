@@ -319,14 +319,53 @@ pub fn keys_through(
     let clear = (0..=frames).all(|f| !rays.within(path.pose_at(f as f32).eye, s.margin));
     let eyes = if clear { &keys[..] } else { eyes };
     path.keys = poses_of(rays, eyes, s.eye_height, reach, one_colour_most);
-    hold_views(rays, &mut path, one_colour_most);
-    mend_turns(rays, &mut path, one_colour_most + MEND_SLACK);
+    let views = Views::new(rays);
+    hold_views(&views, &mut path, one_colour_most);
+    mend_turns(&views, &mut path, one_colour_most + MEND_SLACK);
     path.keys
 }
 
+/// The views [`hold_views`] and [`mend_turns`] judge, each judged once: both judge the same
+/// views again and again (the views around a key before and after each look it tries, every
+/// segment's worst view in every pass), and a view's judgement depends only on its pose and
+/// grid.
+struct Views<'a> {
+    rays: &'a TriangleScene,
+    /// Per pose (eye and target, bit for bit) and grid: the share of one colour and of back
+    /// faces.
+    judged: std::sync::Mutex<HashMap<ViewKey, (f32, f32)>>,
+}
+
+/// A view's pose (eye and target as bits) and grid.
+type ViewKey = ([u32; 6], (usize, usize));
+
+impl<'a> Views<'a> {
+    fn new(rays: &'a TriangleScene) -> Views<'a> {
+        Views {
+            rays,
+            judged: Default::default(),
+        }
+    }
+
+    /// [`one_colour_and_back_at`] of `pose` through a grid of `grid` rays.
+    fn one_colour_and_back(&self, pose: &CameraPose, grid: (usize, usize)) -> (f32, f32) {
+        let (e, t) = (pose.eye.to_array(), pose.target.to_array());
+        let key = ([e[0], e[1], e[2], t[0], t[1], t[2]].map(f32::to_bits), grid);
+        let lock = || self.judged.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(&v) = lock().get(&key) {
+            return v;
+        }
+        // Judged outside the lock (another thread may judge the same view meanwhile: the same
+        // value).
+        let v = one_colour_and_back_at(self.rays, pose, grid);
+        lock().insert(key, v);
+        v
+    }
+}
+
 /// Most share of one colour of the views between two keys (a third and two thirds of the way).
-fn between(rays: &TriangleScene, path: &crate::scene::CameraPath, segment: usize) -> f32 {
-    most_one_colour(rays, &between_poses(path, segment))
+fn between(views: &Views, path: &crate::scene::CameraPath, segment: usize) -> f32 {
+    most_one_colour(views, &between_poses(path, segment))
 }
 
 /// The two views of [`between`].
@@ -335,29 +374,31 @@ fn between_poses(path: &crate::scene::CameraPath, segment: usize) -> [CameraPose
 }
 
 /// Most share of one colour of the views at `poses`, judged on the machine's cores.
-fn most_one_colour(rays: &TriangleScene, poses: &[CameraPose]) -> f32 {
-    crate::parallel::map(poses.len(), |i| one_colour_at(rays, &poses[i], VIEW_RAYS))
-        .into_iter()
-        .fold(0.0, f32::max)
+fn most_one_colour(views: &Views, poses: &[CameraPose]) -> f32 {
+    crate::parallel::map(poses.len(), |i| {
+        views.one_colour_and_back(&poses[i], VIEW_RAYS).0
+    })
+    .into_iter()
+    .fold(0.0, f32::max)
 }
 
 /// Where turning from one key's view to the next sweeps across a wall or a bare floor (a view
 /// between them has more than `most` of one colour), one of the two keys takes the other's
 /// look direction when that makes the worst view around them better; `HOLD_ROUNDS` passes
 /// along the path.
-fn hold_views(rays: &TriangleScene, path: &mut crate::scene::CameraPath, most: f32) {
+fn hold_views(views: &Views, path: &mut crate::scene::CameraPath, most: f32) {
     let n = path.keys.len();
     let around = |path: &crate::scene::CameraPath, k: usize| {
         let poses: Vec<CameraPose> = (k.saturating_sub(2)..(k + 3).min(n - 1))
             .flat_map(|s| between_poses(path, s))
             .chain((k.saturating_sub(1)..(k + 3).min(n)).map(|j| path.keys[j]))
             .collect();
-        most_one_colour(rays, &poses)
+        most_one_colour(views, &poses)
     };
     for _ in 0..HOLD_ROUNDS {
         let mut changed = false;
         for k in 0..n.saturating_sub(1) {
-            if between(rays, path, k) <= most {
+            if between(views, path, k) <= most {
                 continue;
             }
             let before = around(path, k);
@@ -396,7 +437,7 @@ const MEND_FULLY_RANKED: usize = 4 * MEND_FINALISTS;
 /// or `BACK_WEIGHT` times its share of back faces when that is more (a view into a solid is
 /// as bad as a wall close ahead when a twentieth of it shows back faces).
 fn segment_views<'a>(
-    rays: &'a TriangleScene,
+    views: &'a Views,
     path: &'a crate::scene::CameraPath,
     segment: usize,
     (step, grid): (u32, (usize, usize)),
@@ -407,19 +448,19 @@ fn segment_views<'a>(
         .step_by(step as usize)
         .chain(std::iter::once(frames))
         .map(move |j| {
-            let (one, back) = one_colour_and_back_at(rays, &path.pose_at(first + j as f32), grid);
+            let (one, back) = views.one_colour_and_back(&path.pose_at(first + j as f32), grid);
             one.max(BACK_WEIGHT * back)
         })
 }
 
 /// The worst view of segment `segment` (see [`segment_views`]).
 fn segment_worst(
-    rays: &TriangleScene,
+    views: &Views,
     path: &crate::scene::CameraPath,
     segment: usize,
     judge: (u32, (usize, usize)),
 ) -> f32 {
-    segment_views(rays, path, segment, judge).fold(0.0, f32::max)
+    segment_views(views, path, segment, judge).fold(0.0, f32::max)
 }
 
 /// How far the views of `segments` go over `above`: the sum of each view's excess squared, so
@@ -427,7 +468,7 @@ fn segment_worst(
 /// the sum passes `cap` (`f32::INFINITY`: never): the value is exact wherever it is at most
 /// `cap`, else a partial sum over `cap` (the views are added in the same order either way).
 fn excess(
-    rays: &TriangleScene,
+    views: &Views,
     path: &crate::scene::CameraPath,
     segments: std::ops::Range<usize>,
     judge: (u32, (usize, usize)),
@@ -436,7 +477,7 @@ fn excess(
 ) -> f32 {
     // The empty sum of `Iterator::sum`, so that every sum is the one it would give.
     let mut sum: f32 = std::iter::empty::<f32>().sum();
-    for v in segments.flat_map(|s| segment_views(rays, path, s, judge)) {
+    for v in segments.flat_map(|s| segment_views(views, path, s, judge)) {
         sum += (v - above).max(0.0).powi(2);
         if sum > cap {
             break;
@@ -454,7 +495,7 @@ const MEND_SLACK: f32 = 0.08;
 /// [`excess`] over the segments that keys `keys` shape (a Catmull-Rom spline: the two
 /// before a key and the two after).
 fn excess_around(
-    rays: &TriangleScene,
+    views: &Views,
     path: &crate::scene::CameraPath,
     keys: std::ops::RangeInclusive<usize>,
     judge: (u32, (usize, usize)),
@@ -463,7 +504,7 @@ fn excess_around(
 ) -> f32 {
     let segments = path.keys.len() - 1;
     let shaped = keys.start().saturating_sub(2)..(keys.end() + 2).min(segments);
-    excess(rays, path, shaped, judge, above, cap)
+    excess(views, path, shaped, judge, above, cap)
 }
 
 /// Where a view between two keys, judged every `MEND_STEP` frames, has more than
@@ -473,7 +514,7 @@ fn excess_around(
 /// or a neighbour's look. Candidates are ranked on the segment and its two neighbours with a
 /// coarse grid; the best few are judged on every segment the keys shape (`excess_around`), and
 /// the best is kept when it is better than the keys' own looks.
-fn mend_turns(rays: &TriangleScene, path: &mut crate::scene::CameraPath, above: f32) {
+fn mend_turns(views: &Views, path: &mut crate::scene::CameraPath, above: f32) {
     let n = path.keys.len();
     if n < 2 {
         return;
@@ -484,18 +525,18 @@ fn mend_turns(rays: &TriangleScene, path: &mut crate::scene::CameraPath, above: 
     let mut tried_at = vec![0usize; n - 1];
     let mut clock = 1;
     for _ in 0..MEND_PASSES {
-        let worst = crate::parallel::map(n - 1, |k| segment_worst(rays, path, k, judge));
+        let worst = crate::parallel::map(n - 1, |k| segment_worst(views, path, k, judge));
         for (k, &w) in worst.iter().enumerate() {
             // Skipped when tried since its keys last changed, or mended by a neighbour's key.
             if w <= above
                 || tried_at[k] > changed_at[k]
-                || segment_worst(rays, path, k, judge) <= above
+                || segment_worst(views, path, k, judge) <= above
             {
                 continue;
             }
             clock += 1;
             tried_at[k] = clock;
-            if let Some((a, b)) = mend_segment(rays, path, k, above) {
+            if let Some((a, b)) = mend_segment(views, path, k, above) {
                 clock += 1;
                 let shaped = a.saturating_sub(2)..(b + 2).min(n - 1);
                 changed_at[shaped].fill(clock);
@@ -510,7 +551,7 @@ const MEND_PASSES: usize = 2;
 
 /// One segment of [`mend_turns`]: the keys that took another look, if any.
 fn mend_segment(
-    rays: &TriangleScene,
+    views: &Views,
     path: &mut crate::scene::CameraPath,
     k: usize,
     above: f32,
@@ -556,7 +597,7 @@ fn mend_segment(
     let full: Vec<usize> = (0..candidates.len()).step_by(stride).collect();
     let summed = crate::parallel::map(full.len(), |i| {
         excess(
-            rays,
+            views,
             &with(full[i]),
             near.clone(),
             MEND_RANK,
@@ -573,7 +614,7 @@ fn mend_segment(
     };
     let rest: Vec<usize> = (0..candidates.len()).filter(|c| c % stride != 0).collect();
     let capped = crate::parallel::map(rest.len(), |i| {
-        excess(rays, &with(rest[i]), near.clone(), MEND_RANK, above, cap)
+        excess(views, &with(rest[i]), near.clone(), MEND_RANK, above, cap)
     });
     let mut ranked = vec![0.0; candidates.len()];
     for (&c, &v) in full.iter().zip(&summed).chain(rest.iter().zip(&capped)) {
@@ -585,7 +626,7 @@ fn mend_segment(
     let sets = [(k, k), (k + 1, k + 1), (k, k + 1)];
     let before = crate::parallel::map(sets.len(), |i| {
         excess_around(
-            rays,
+            views,
             path,
             sets[i].0..=sets[i].1,
             judge,
@@ -602,7 +643,7 @@ fn mend_segment(
         // Only a look under the keys' own excess is taken: summing stops past it.
         (
             was,
-            excess_around(rays, &with(order[i]), a..=b, judge, above, was),
+            excess_around(views, &with(order[i]), a..=b, judge, above, was),
         )
     });
     let best = (0..order.len())
@@ -770,4 +811,77 @@ fn poses_of(
         .zip(eyes)
         .map(|(look, &eye)| look.at(eye, reach))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A view is judged once per pose and grid, to the value a direct judgement gives.
+    #[test]
+    fn views_are_judged_once_per_pose_and_grid() {
+        // A floor of two colours under a wall.
+        let quad = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| [[a, b, c], [a, c, d]];
+        let mut tris = Vec::new();
+        tris.extend(quad(
+            Vec3::new(-10.0, 0.0, -10.0),
+            Vec3::new(-10.0, 0.0, 10.0),
+            Vec3::new(0.0, 0.0, 10.0),
+            Vec3::new(0.0, 0.0, -10.0),
+        ));
+        tris.extend(quad(
+            Vec3::new(0.0, 0.0, -10.0),
+            Vec3::new(0.0, 0.0, 10.0),
+            Vec3::new(10.0, 0.0, 10.0),
+            Vec3::new(10.0, 0.0, -10.0),
+        ));
+        tris.extend(quad(
+            Vec3::new(-10.0, 0.0, -5.0),
+            Vec3::new(10.0, 0.0, -5.0),
+            Vec3::new(10.0, 5.0, -5.0),
+            Vec3::new(-10.0, 5.0, -5.0),
+        ));
+        let sun = crate::scene::gltf::DEFAULT_SUN.normalize();
+        let flat = |c: Vec3, n: Vec3| {
+            Some([
+                super::super::rays::flat_colour(c, n, sun),
+                super::super::rays::flat_colour(c, -n, sun),
+            ])
+        };
+        let (red, blue) = (Vec3::new(0.9, 0.1, 0.1), Vec3::new(0.1, 0.2, 0.9));
+        let colours = [
+            flat(red, Vec3::Y),
+            flat(red, Vec3::Y),
+            flat(blue, Vec3::Y),
+            flat(blue, Vec3::Y),
+            flat(red, Vec3::Z),
+            flat(red, Vec3::Z),
+        ];
+        let rays = TriangleScene::build(&tris, &[], &colours).expect("triangles");
+        let views = Views::new(&rays);
+        let poses = [
+            CameraPose {
+                eye: Vec3::new(0.0, 1.7, 2.0),
+                target: Vec3::new(0.0, 1.0, -4.0),
+            },
+            CameraPose {
+                eye: Vec3::new(3.0, 1.7, 2.0),
+                target: Vec3::new(-2.0, 0.5, -1.0),
+            },
+        ];
+        let grids = [VIEW_RAYS, (10, 6)];
+        for _ in 0..2 {
+            for pose in &poses {
+                for grid in grids {
+                    let direct = one_colour_and_back_at(&rays, pose, grid);
+                    assert_eq!(views.one_colour_and_back(pose, grid), direct);
+                    assert!(direct.0 > 0.0 && direct.0 < 1.0, "{direct:?}");
+                }
+            }
+        }
+        assert_eq!(
+            views.judged.lock().unwrap().len(),
+            poses.len() * grids.len()
+        );
+    }
 }
