@@ -481,7 +481,7 @@ mod tests {
                 .collect();
             let out = write_report(&dir, &scene, "test", "none", (8, 8), &records, &names)
                 .expect("write the report");
-            let mut named: Vec<_> = out.files.iter().map(|f| f.to_path_buf()).collect();
+            let mut named = out.files.clone();
             let mut found: Vec<_> = std::fs::read_dir(dir.path())
                 .unwrap()
                 .map(|e| e.unwrap().path())

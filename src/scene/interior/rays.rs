@@ -67,6 +67,13 @@ fn twin_window(t: f32) -> (f32, f32) {
     (t - eps, t + eps)
 }
 
+/// The ray from `origin` along `dir` up to `t_max`; none for one that is not finite (it
+/// meets nothing).
+fn cast(origin: Vec3, dir: Vec3, t_max: f32) -> Option<Ray> {
+    let finite = origin.is_finite() && dir.is_finite() && !t_max.is_nan();
+    finite.then(|| Ray::new(origin.into(), dir.into(), 0.0, t_max))
+}
+
 /// A hit met along a ray.
 #[derive(Clone, Copy, Debug)]
 struct Candidate {
@@ -342,12 +349,21 @@ impl TriangleScene {
     /// that is not finite. Of two coincident surfaces (hits at the same distance, to a
     /// relative 1e-5), the one that faces the ray, as the renderer shows it.
     pub fn hit(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<Hit> {
-        if !(origin.is_finite() && dir.is_finite()) || t_max.is_nan() {
-            return None;
-        }
-        let ray = Ray::new(origin.into(), dir.into(), 0.0, t_max);
-        let (t, i, id) = self.closest(ray, None)?;
+        let (t, i, id) = self.closest(cast(origin, dir, t_max)?, None)?;
         Some(self.side(i, id, dir, t))
+    }
+
+    /// The colour of the side of triangle `id` of instance `i`, hit at `t` along `dir`, when
+    /// it has one and it differs from `hit`'s: the second colour of a coplanar pair.
+    fn other_colour(
+        &self,
+        hit: &Hit,
+        (t, i, id): (f32, usize, usize),
+        dir: Vec3,
+    ) -> Option<[u8; 3]> {
+        self.side(i, id, dir, t)
+            .colour
+            .filter(|&c| Some(c) != hit.colour)
     }
 
     /// The hit on triangle `id` of instance `i` at distance `t` along the unit `dir`: the side
@@ -386,28 +402,23 @@ impl TriangleScene {
         dir: Vec3,
         t_max: f32,
     ) -> Option<(Hit, Option<[u8; 3]>)> {
-        if !(origin.is_finite() && dir.is_finite()) || t_max.is_nan() {
-            return None;
-        }
         let mut keep = NearClosest::default();
-        self.hits_along(Ray::new(origin.into(), dir.into(), 0.0, t_max), &mut keep);
+        self.hits_along(cast(origin, dir, t_max)?, &mut keep);
         let best = keep.best?;
         let hit = self.side(best.at.0, best.at.1, dir, best.t);
-        // The second side: the closest of the other hits in the window, chosen as `closest`
-        // chooses, in the order they were met.
+        // The second side: the closest of the other hits in the window, offered in the order
+        // they were met, as `closest` over the window would meet them.
         let (lo, hi) = twin_window(best.t);
-        let mut twin: Option<Candidate> = None;
-        for c in &keep.near {
-            let in_window = c.triangle != hit.triangle && c.t >= lo && c.t <= hi;
-            if in_window && beats((c.t, c.facing), twin.map(|b| (b.t, b.facing))) {
-                twin = Some(*c);
-            }
+        let mut twin = Closest {
+            best: None,
+            skip: Some(hit.triangle),
+        };
+        for c in keep.near.iter().filter(|c| c.t >= lo && c.t <= hi) {
+            twin.offer(c.t, c.facing, c.at, c.triangle);
         }
-        let colour = twin.and_then(|c| {
-            self.side(c.at.0, c.at.1, dir, c.t)
-                .colour
-                .filter(|&col| Some(col) != hit.colour)
-        });
+        let colour = twin
+            .best
+            .and_then(|c| self.other_colour(&hit, (c.t, c.at.0, c.at.1), dir));
         Some((hit, colour))
     }
 
@@ -730,10 +741,8 @@ impl TriangleScene {
     ) -> Option<[u8; 3]> {
         let (lo, hi) = twin_window(hit.t);
         let ray = Ray::new(origin.into(), dir.into(), lo, hi);
-        let (t, i, id) = self.closest(ray, Some(hit.triangle))?;
-        self.side(i, id, dir, t)
-            .colour
-            .filter(|&c| Some(c) != hit.colour)
+        let twin = self.closest(ray, Some(hit.triangle))?;
+        self.other_colour(hit, twin, dir)
     }
 
     /// Number of placed instances (objects of shared meshes).
