@@ -708,6 +708,22 @@ pub fn run_reporting(
             "gi needs at least one VPL and one frame".into(),
         ));
     }
+    // A sky dome or box is sky here, not a surface that bounces the spotlight's light; left
+    // in, its size would set the shadow maps' range and the splitting of long triangles.
+    let trimmed;
+    let scene = match crate::scene::backdrop::find(scene) {
+        Some(b) => {
+            eprintln!(
+                "note: scene \"{}\": gi leaves out the {} object(s) that enclose the rest like \
+                 a sky dome or box",
+                scene.name,
+                b.objects.len()
+            );
+            trimmed = crate::scene::backdrop::without(scene, &b);
+            &trimmed
+        }
+        None => scene,
+    };
     let mut world = World::new(scene, setup.movers);
     // The user's keys, else the light path found with the interior walk, else the default.
     let found = scene.path(crate::scene::interior::LIGHT_PATH_NAME).ok();

@@ -687,9 +687,10 @@ fn all_bounds(objects: &[Object], animation: Option<&super::animation::Animation
 
 /// Makes the "default" orbit of a loaded glTF scene again for its objects' current size (after
 /// [`Scene::magnify`], which scales the orbit with the model, and with it its distance from
-/// the near plane).
-pub(super) fn refit_default_path(scene: &mut Scene) {
-    let bounds = all_bounds(&scene.objects, scene.animation.as_deref());
+/// the near plane), around `around` when given (the scene less its
+/// [backdrop](super::backdrop)), else around every object.
+pub(super) fn refit_default_path(scene: &mut Scene, around: Option<Aabb>) {
+    let bounds = around.unwrap_or_else(|| all_bounds(&scene.objects, scene.animation.as_deref()));
     if let Some(p) = scene.paths.iter_mut().find(|p| p.name == "default") {
         *p = default_path(&bounds);
     }
@@ -2162,6 +2163,37 @@ mod tests {
             &broken,
             "EXT_mesh_gpu_instancing: its accessors count [3, 3, 2] instances",
         );
+    }
+
+    #[test]
+    fn the_orbit_frames_the_level_inside_its_sky_box() {
+        let dir = temp_dir("sky-box");
+        let mut b = GltfBuilder::default();
+        let cube = b.cube_mesh([1.0, 1.0, 1.0, 1.0]);
+        // A level of two blocks about (2, 0.5, 0) and a sky box 2 km wide around it.
+        b.node(cube, [0.0, 0.0, 0.0]);
+        b.node(cube, [4.0, 1.0, 0.0]);
+        b.nodes
+            .push(format!(r#"{{"mesh":{cube},"scale":[2000,2000,2000]}}"#));
+        b.scene_nodes = Some(vec![0, 1, 2]);
+        let path = write(&dir, "sky-box.glb", b.glb());
+        let scene =
+            crate::scene::Scene::load(path.to_str().expect("utf-8"), 1.0, 4096).expect("load");
+        let found = crate::scene::backdrop::find(&scene).expect("the sky box is the backdrop");
+        assert_eq!(found.objects, vec![2]);
+        // The orbit stands 1.5 of the level's bounding radii from its centre, inside the sky.
+        let level = Aabb {
+            min: Vec3::new(-0.5, -0.5, -0.5),
+            max: Vec3::new(4.5, 1.5, 0.5),
+        };
+        let radius = level.extent().length() * 0.5;
+        let orbit = scene.default_path().expect("orbit");
+        for k in &orbit.keys {
+            assert!((k.target - level.center()).length() < 1e-4, "{k:?}");
+            let d = k.eye.distance(level.center());
+            assert!((d - 1.5 * radius).abs() < 1e-3, "{d} against {radius}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

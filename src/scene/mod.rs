@@ -75,6 +75,7 @@ pub use material::{
 };
 
 pub mod animation;
+pub mod backdrop;
 pub mod camera;
 pub mod chunk;
 pub mod gltf;
@@ -249,9 +250,20 @@ impl Scene {
             }
             if scale != 1.0 {
                 scene.magnify(scale);
-                gltf::refit_default_path(&mut scene);
+                gltf::refit_default_path(&mut scene, None);
             }
             chunk::split_large_objects(&mut scene, chunk_triangles);
+            if let Some(b) = backdrop::find(&scene) {
+                eprintln!(
+                    "note: scene \"{}\": {} object(s) enclose the rest like a sky dome or box \
+                     ({:.0}x its size): the orbit frames the rest, and the interior walk looks \
+                     for an inside in it",
+                    scene.name,
+                    b.objects.len(),
+                    b.ratio
+                );
+                gltf::refit_default_path(&mut scene, Some(b.rest));
+            }
             match cache_dir {
                 Some(dir) => {
                     interior::default_if_enclosed_cached(&mut scene, dir);

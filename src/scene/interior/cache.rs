@@ -30,8 +30,9 @@ use crate::Error;
 
 /// The source files whose code decides the walk and the path check; any change to them gives
 /// new keys.
-const SOURCES: [&[u8]; 6] = [
+const SOURCES: [&[u8]; 7] = [
     include_bytes!("mod.rs"),
+    include_bytes!("../backdrop.rs"),
     include_bytes!("places.rs"),
     include_bytes!("rays.rs"),
     include_bytes!("walk.rs"),

@@ -226,15 +226,26 @@ struct Placement {
 
 impl TriangleScene {
     /// The scene's world-space triangles (those of double-sided materials marked so, unless
-    /// their object is a [`closed_solid`]); `None` when it has none with finite corners.
+    /// their object is a [`closed_solid`]) less those of its backdrop (a sky dome or box far
+    /// larger than the rest, [`backdrop`](crate::scene::backdrop)): what the interior walk
+    /// searches. `None` when it has none with finite corners.
     pub fn new(scene: &Scene) -> Option<TriangleScene> {
-        build::of_objects(scene, |_| true, true, None, None)
+        match crate::scene::backdrop::find(scene) {
+            Some(b) => TriangleScene::of(scene, |i| !b.holds(i)),
+            None => TriangleScene::of(scene, |_| true),
+        }
     }
 
-    /// As [`new`](Self::new), with the triangles of the objects whose bounds meet `region`
+    /// As [`new`](Self::new), with the triangles of the objects `keep` accepts (by their
+    /// index in `Scene::objects`), backdrop or not.
+    pub fn of(scene: &Scene, keep: impl Fn(usize) -> bool) -> Option<TriangleScene> {
+        build::of_objects(scene, |i, _| keep(i), true, None, None)
+    }
+
+    /// As [`of`](Self::of), with the triangles of the objects whose bounds meet `region`
     /// only.
     pub fn near(scene: &Scene, region: &Aabb) -> Option<TriangleScene> {
-        build::of_objects(scene, |o| o.bounds.overlaps(region), true, None, None)
+        build::of_objects(scene, |_, o| o.bounds.overlaps(region), true, None, None)
     }
 
     /// The scene's shape only, for the path check's few thousand rays: as [`new`](Self::new)
@@ -243,7 +254,7 @@ impl TriangleScene {
     /// BVH build and every mesh shared by several objects placed (see [`TriangleScene`]),
     /// whatever the scene's size. Several times quicker to build, for slower rays.
     pub fn shape(scene: &Scene, region: Option<&Aabb>) -> Option<TriangleScene> {
-        let keep = |o: &Object| region.is_none_or(|r| o.bounds.overlaps(r));
+        let keep = |_, o: &Object| region.is_none_or(|r| o.bounds.overlaps(r));
         let quickest = Some(BvhBuildParams::fastest_build());
         build::of_objects(scene, keep, false, quickest, Some(true))
     }
@@ -721,13 +732,13 @@ impl TriangleScene {
     /// As [`new`](Self::new) with the meshes shared by several objects placed, whatever the
     /// scene's size.
     pub(crate) fn placing(scene: &Scene) -> Option<TriangleScene> {
-        build::of_objects(scene, |_| true, true, None, Some(true))
+        build::of_objects(scene, |_, _| true, true, None, Some(true))
     }
 
     /// As [`new`](Self::new) with every triangle in the world mesh (no placed meshes): the
     /// reference the placed meshes are compared with.
     pub(crate) fn world_only(scene: &Scene) -> Option<TriangleScene> {
-        build::of_objects(scene, |_| true, true, None, Some(false))
+        build::of_objects(scene, |_, _| true, true, None, Some(false))
     }
 
     /// The twin colour of [`hit_and_twin`](Self::hit_and_twin) found by a second cast: the

@@ -240,6 +240,53 @@ fn a_leak_to_the_outside_is_not_the_inside() {
 }
 
 #[test]
+fn a_level_inside_a_sky_dome_is_walked_as_without_it() {
+    // An open-air level (three rooms, one with a door to the open ground beside them) and,
+    // as a second object, a sky dome 2 km wide: the search leaves the dome out.
+    let mut l = Level::default();
+    let rooms = row_of_rooms(&mut l, 0.0, true);
+    l.flat((18.0, -20.0, 60.0, 26.0), 0.0, true);
+    let mut sky = Level::default();
+    let (r, rings, sides) = (1000.0f32, 8, 24);
+    let p = |i: usize, j: usize| {
+        let e = std::f32::consts::FRAC_PI_2 * i as f32 / rings as f32;
+        let a = std::f32::consts::TAU * j as f32 / sides as f32;
+        Vec3::new(
+            20.0 + r * e.cos() * a.cos(),
+            r * e.sin(),
+            r * e.cos() * a.sin(),
+        )
+    };
+    for i in 0..rings {
+        for j in 0..sides {
+            sky.tris.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
+            sky.tris.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
+        }
+    }
+    let mut scene = l.scene(false);
+    let dome = sky.scene(false);
+    let base = scene.vertices.len() as u32;
+    let first = scene.indices.len() as u32;
+    scene.vertices.extend_from_slice(&dome.vertices);
+    scene.indices.extend(dome.indices.iter().copied());
+    scene.objects.push(crate::scene::Object {
+        first_index: first,
+        vertex_offset: base,
+        ..dome.objects[0].clone()
+    });
+    let backdrop = crate::scene::backdrop::find(&scene).expect("the dome is the backdrop");
+    assert_eq!(backdrop.objects, vec![1]);
+    // With the dome, the floor grid over 2 km has a few cells over the level: no inside.
+    let all = TriangleScene::of(&scene, |_| true).expect("triangles");
+    assert!(find(&all, &InteriorParams::default()).is_err());
+    // Without it, the walk of the level alone.
+    let rays = TriangleScene::new(&scene).expect("triangles");
+    assert!(rays.bounds.extent().x < 100.0, "{:?}", rays.bounds);
+    assert_walks_rooms(&rays, &rooms, &[], 3);
+    interior_path(&scene, &InteriorParams::default()).expect("the walk");
+}
+
+#[test]
 fn a_level_floating_above_a_ground_plane_is_walked_inside() {
     let mut l = Level::default();
     let rooms = row_of_rooms(&mut l, 20.0, false);

@@ -67,7 +67,7 @@ type MeshKey = (u32, u32, u32);
 /// built, `None` for [`params_for`] their sizes.
 pub(super) fn of_objects(
     scene: &Scene,
-    keep: impl Fn(&Object) -> bool,
+    keep: impl Fn(usize, &Object) -> bool,
     colours: bool,
     params: Option<BvhBuildParams>,
     instancing: Option<bool>,
@@ -75,13 +75,19 @@ pub(super) fn of_objects(
     let key = |o: &Object| (o.first_index, o.index_count, o.vertex_offset);
     let mut uses: HashMap<MeshKey, usize> = Default::default();
     let instancing = instancing.unwrap_or_else(|| {
-        let triangles: u64 = (scene.objects.iter().filter(|o| keep(o)))
-            .map(Object::triangle_count)
+        let triangles: u64 = (scene.objects.iter().enumerate())
+            .filter(|(i, o)| keep(*i, o))
+            .map(|(_, o)| o.triangle_count())
             .sum();
         triangles > LARGE_SCENE_TRIANGLES as u64
     });
     if instancing {
-        for o in scene.objects.iter().filter(|o| keep(o)) {
+        for (_, o) in scene
+            .objects
+            .iter()
+            .enumerate()
+            .filter(|(i, o)| keep(*i, o))
+        {
             *uses.entry(key(o)).or_default() += 1;
         }
     }
@@ -89,7 +95,7 @@ pub(super) fn of_objects(
     let mut placed = Vec::new();
     let mut world = Vec::new();
     for (i, o) in scene.objects.iter().enumerate() {
-        if !keep(o) {
+        if !keep(i, o) {
             continue;
         }
         let k = key(o);
