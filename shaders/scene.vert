@@ -5,12 +5,7 @@
 layout(location = 0) in vec3 in_position;
 layout(location = 1) in vec3 in_normal;
 
-struct ObjectData {
-    mat4 model;
-    mat4 normal_matrix;
-    vec4 color;
-};
-layout(std430, set = 0, binding = 0) readonly buffer Objects { ObjectData objects[]; };
+#include "include/scene_objects.glsl"
 
 #include "include/scene_push.glsl"
 

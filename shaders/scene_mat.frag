@@ -1,6 +1,6 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Lambert as scene.frag over the material's color.
+// The material's color, shaded (lit as scene.frag, or unlit).
 
 #include "include/scene_material.glsl"
 
@@ -8,9 +8,5 @@ layout(location = 0) out vec4 out_color;
 
 void main() {
     vec4 base = material_color();
-    vec3 n = facing_normal();
-    float lambert = max(dot(n, normalize(pc.sun_dir.xyz)), 0.0);
-    float sky = 0.5 + 0.5 * n.y;
-    vec3 c = base.rgb * (0.75 * lambert + 0.25 * sky + 0.05);
-    out_color = vec4(pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)), 1.0);
+    out_color = vec4(shaded(base.rgb, facing_normal()), 1.0);
 }

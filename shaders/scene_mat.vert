@@ -7,12 +7,7 @@ layout(location = 1) in vec3 in_normal;
 layout(location = 2) in vec2 in_uv;
 layout(location = 3) in vec4 in_color;
 
-struct ObjectData {
-    mat4 model;
-    mat4 normal_matrix;
-    vec4 color;
-};
-layout(std430, set = 0, binding = 0) readonly buffer Objects { ObjectData objects[]; };
+#include "include/scene_objects.glsl"
 
 #include "include/scene_push.glsl"
 

@@ -306,7 +306,7 @@ impl Renderer {
             )));
         }
         let offset = object as usize * upload::OBJECT_FLOATS * 4;
-        let data = upload::object_data(transform, glam::Vec4::ZERO);
+        let data = upload::object_data(transform, glam::Vec4::ZERO, false);
         self.object_buffer.write(offset, bytes_of(&data[..32]))
     }
 
@@ -364,9 +364,10 @@ impl Renderer {
             )));
         }
         let stride = upload::OBJECT_FLOATS * 4;
-        let mut color = [0u8; 16];
+        // The template's color and parameters (the floats after the two matrices).
+        let mut color = [0u8; 32];
         if let Some(m) = self.object_buffer.mapped() {
-            color.copy_from_slice(&m[t * stride + 128..t * stride + 144]);
+            color.copy_from_slice(&m[t * stride + 128..t * stride + 160]);
         }
         let draw = self.objects[t];
         if slot == self.objects.len() {

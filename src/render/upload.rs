@@ -24,15 +24,17 @@ pub struct UploadedScene {
 
 pub use crate::gpu::{as_bytes, bytes_of, Pod};
 
-/// Floats of one object's data: model matrix, normal matrix, color.
-pub const OBJECT_FLOATS: usize = 36;
+/// Floats of one object's data: model matrix, normal matrix, color, parameters
+/// (`shaders/include/scene_objects.glsl`).
+pub const OBJECT_FLOATS: usize = 40;
 
-/// One object's data as the scene shaders read it.
-pub fn object_data(transform: &Mat4, color: Vec4) -> [f32; OBJECT_FLOATS] {
+/// One object's data as the scene shaders read it; `unlit`: its material is unlit.
+pub fn object_data(transform: &Mat4, color: Vec4, unlit: bool) -> [f32; OBJECT_FLOATS] {
     let mut out = [0.0; OBJECT_FLOATS];
     out[..16].copy_from_slice(&transform.to_cols_array());
     out[16..32].copy_from_slice(&transform.inverse().transpose().to_cols_array());
-    out[32..].copy_from_slice(&color.to_array());
+    out[32..36].copy_from_slice(&color.to_array());
+    out[36] = if unlit { 1.0 } else { 0.0 };
     out
 }
 
@@ -67,8 +69,9 @@ pub fn upload_scene_with_spare(
     )?;
     let slots = (scene.objects.len() + spare).max(1);
     let mut data: Vec<f32> = Vec::with_capacity(slots * OBJECT_FLOATS);
-    for o in &scene.objects {
-        data.extend_from_slice(&object_data(&o.transform, o.color));
+    for (i, o) in scene.objects.iter().enumerate() {
+        let unlit = scene.object_material(i).is_some_and(|m| m.unlit);
+        data.extend_from_slice(&object_data(&o.transform, o.color, unlit));
     }
     data.resize(slots * OBJECT_FLOATS, 0.0);
     let objects = Buffer::with_data(

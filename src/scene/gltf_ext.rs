@@ -39,6 +39,7 @@ pub const HONORED: &[&str] = &[
     WEBP,
     BASISU,
     "KHR_materials_pbrSpecularGlossiness",
+    "KHR_materials_unlit",
     super::gltf_draco::DRACO,
 ];
 /// Extensions the loader does not honor but loads a file that requires anyway: they only give

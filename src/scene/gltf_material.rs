@@ -108,7 +108,8 @@ impl MaterialLoader {
             ::gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
         };
         let double_sided = m.double_sided();
-        let ours = if texture.is_none() && alpha == AlphaMode::Opaque && !double_sided {
+        let unlit = m.unlit();
+        let ours = if texture.is_none() && alpha == AlphaMode::Opaque && !double_sided && !unlit {
             None
         } else {
             self.materials.push(Material {
@@ -116,6 +117,7 @@ impl MaterialLoader {
                 alpha,
                 double_sided,
                 blend: m.alpha_mode() == ::gltf::material::AlphaMode::Blend,
+                unlit,
             });
             Some(self.materials.len() as u32 - 1)
         };

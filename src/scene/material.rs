@@ -211,8 +211,8 @@ pub enum AlphaMode {
     Mask(f32),
 }
 
-/// A material: an optional base color texture, the alpha mode, whether back faces are drawn and
-/// whether it is blended.
+/// A material: an optional base color texture, the alpha mode, whether back faces are drawn,
+/// whether it is blended and whether it is lit.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct Material {
     /// Index into `Scene::textures`.
@@ -229,6 +229,9 @@ pub struct Material {
     /// test. Every other pass (the ID pass, `gi`, moving copies)
     /// draws it as `alpha` says (a glTF BLEND material is masked at 0.5).
     pub blend: bool,
+    /// glTF `KHR_materials_unlit`: the forward pass draws its color as it is, without the
+    /// light (lighting baked into the texture). `gi` lights it as any surface.
+    pub unlit: bool,
 }
 
 /// Samples a `width` x `height` level at `uv` with the sampler's wrap modes and magnification

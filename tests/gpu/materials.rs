@@ -860,6 +860,57 @@ fn render_from(scene: &Scene, eye: Vec3) -> (Vec<u8>, Vec<u32>, u32) {
     out
 }
 
+/// `KHR_materials_unlit` (lighting baked into the colors, as exporters of scanned and baked
+/// levels write it): the unlit quad shows its base color as it is (gamma 2.2) whatever the
+/// light, the lit one beside it with the same color changes with the light; the extension
+/// gets no warning.
+#[test]
+fn unlit_materials_draw_their_color_without_the_light() {
+    let color = r#""baseColorFactor":[0.5,0.25,0.1,1]"#;
+    let mut b = GltfBuilder {
+        materials: vec![
+            format!(r#"{{"pbrMetallicRoughness":{{{color}}}}}"#),
+            format!(
+                r#"{{"pbrMetallicRoughness":{{{color}}},"extensions":{{"KHR_materials_unlit":{{}}}}}}"#
+            ),
+        ],
+        head: r#""extensionsUsed":["KHR_materials_unlit"],"#.to_string(),
+        ..Default::default()
+    };
+    let lit = quad(&mut b, (-2.0, -1.0, -0.2, 1.0, 0.0), 1.0, None, 0);
+    let unlit = quad(&mut b, (0.2, -1.0, 2.0, 1.0, 0.0), 1.0, None, 1);
+    for m in [lit, unlit] {
+        b.node(m, [0.0, 0.0, 0.0]);
+    }
+    let dir = temp_dir("unlit");
+    let path = dir.join("unlit.gltf");
+    std::fs::write(&path, b.gltf_embedded()).expect("write");
+    let (mut scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("load");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let unlit_of = |o: usize| scene.object_material(o).is_some_and(|m| m.unlit);
+    assert!(!unlit_of(0) && unlit_of(1));
+    let want = [0.5f32, 0.25, 0.1].map(|c| (c.powf(1.0 / 2.2) * 255.0).round() as i32);
+    let eye = Vec3::new(0.0, 0.0, 5.0);
+    let mut lit_pixels = Vec::new();
+    for sun in [Vec3::new(0.0, 0.3, 1.0), Vec3::new(0.9, 0.3, -0.2)] {
+        scene.sun_dir = sun.normalize();
+        let (px_, ids, _) = render_from(&scene, eye);
+        assert!(ids[0] > 1000 && ids[1] > 1000, "{ids:?}");
+        let p = px(&px_, W * 3 / 4, H / 2);
+        for k in 0..3 {
+            assert!(
+                (i32::from(p[k]) - want[k]).abs() <= 1,
+                "unlit pixel {p:?}, want {want:?} (sun {sun})"
+            );
+        }
+        lit_pixels.push(px(&px_, W / 4, H / 2));
+    }
+    assert_ne!(
+        lit_pixels[0], lit_pixels[1],
+        "the lit quad does not follow the light"
+    );
+}
+
 #[test]
 fn double_sided_quads_are_seen_from_behind() {
     let scene = two_sided_scene();

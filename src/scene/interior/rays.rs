@@ -219,9 +219,10 @@ struct Placement {
     to_world: Mat4,
     to_local: Mat4,
     two_sided: bool,
-    /// The normal matrix and base colour of the object's flat colours; `None` when its hits
-    /// have none (a textured object, or colours not gathered).
-    shade: Option<(Mat4, Vec3)>,
+    /// The normal matrix and base colour of the object's flat colours, and whether its
+    /// material is unlit; `None` when its hits have none (a textured object, or colours not
+    /// gathered).
+    shade: Option<(Mat4, Vec3, bool)>,
 }
 
 impl TriangleScene {
@@ -388,8 +389,9 @@ impl TriangleScene {
             None => (mesh.two_sided[id], mesh.colours.get(id).copied().flatten()),
             Some(p) => (
                 p.two_sided,
-                p.shade.and_then(|(m, base)| {
-                    flat_sides(mesh.corners.get(id).copied().flatten(), m, base, self.sun)
+                p.shade.and_then(|(m, base, unlit)| {
+                    let light = (!unlit).then_some(self.sun);
+                    flat_sides(mesh.corners.get(id).copied().flatten(), m, base, light)
                 }),
             ),
         };
@@ -508,14 +510,15 @@ fn placed_corners(t: &Triangle, transform: Mat4) -> [Vec3; 3] {
 }
 
 /// The colours of the front and the back of a triangle with `corners`, of an untextured
-/// object of colour `base` whose normals `normal_matrix` takes to world space, when the
-/// built-in renderer draws each side in one colour: the same colour at its three corners
-/// from their vertex colours and normals (see [`flat_colour`]).
+/// object of colour `base` whose normals `normal_matrix` takes to world space, lit by the
+/// light towards `sun` (`None`: an unlit material), when the built-in renderer draws each
+/// side in one colour: the same colour at its three corners from their vertex colours and
+/// normals (see [`flat_colour`]).
 fn flat_sides(
     corners: Option<[Corner; 3]>,
     normal_matrix: Mat4,
     base: Vec3,
-    sun: Vec3,
+    sun: Option<Vec3>,
 ) -> Option<[[u8; 3]; 2]> {
     let mut sides: Option<[[u8; 3]; 2]> = None;
     for c in corners? {
@@ -524,7 +527,10 @@ fn flat_sides(
             base *= Vec3::new(t[0].into(), t[1].into(), t[2].into()) / 255.0;
         }
         let n = normal_matrix.transform_vector3(c.normal).try_normalize()?;
-        let corner = [flat_colour(base, n, sun), flat_colour(base, -n, sun)];
+        let corner = match sun {
+            Some(sun) => [flat_colour(base, n, sun), flat_colour(base, -n, sun)],
+            None => [gamma_bytes(base); 2],
+        };
         if sides.is_some_and(|s| s != corner) {
             return None;
         }
@@ -539,7 +545,12 @@ fn flat_sides(
 pub fn flat_colour(base: Vec3, normal: Vec3, sun: Vec3) -> [u8; 3] {
     let lambert = normal.dot(sun).max(0.0);
     let sky = 0.5 + 0.5 * normal.y;
-    let c = base * (0.75 * lambert + 0.25 * sky + 0.05);
+    gamma_bytes(base * (0.75 * lambert + 0.25 * sky + 0.05))
+}
+
+/// A linear colour as the forward pass writes it: clamped, gamma 2.2, 8 bits (an unlit
+/// material's flat colour is its base colour so written).
+fn gamma_bytes(c: Vec3) -> [u8; 3] {
     c.clamp(Vec3::ZERO, Vec3::ONE)
         .powf(1.0 / 2.2)
         .to_array()

@@ -885,6 +885,41 @@ fn one_colour_counts_flat_sides_the_sky_and_both_of_coplanar_surfaces() {
 }
 
 #[test]
+fn an_unlit_material_is_its_colour_on_either_side() {
+    // Two floor slabs of one colour side by side, the east one unlit: seen from above, the
+    // west one is lit as the forward pass lights it, the east one is its colour, gamma 2.2.
+    let mut b = SceneBuilder::new("unlit");
+    let colour = Vec3::new(0.5, 0.25, 0.1);
+    b.add(
+        &Mesh::cuboid(Vec3::new(-4.0, -0.1, -2.0), Vec3::new(0.0, 0.0, 2.0)),
+        colour,
+    );
+    b.add(
+        &Mesh::cuboid(Vec3::new(0.0, -0.1, -2.0), Vec3::new(4.0, 0.0, 2.0)),
+        colour,
+    );
+    let mut scene = b.finish();
+    scene.materials.push(Material {
+        unlit: true,
+        ..Material::default()
+    });
+    scene.objects[1].material = Some(0);
+    let rays = TriangleScene::new(&scene).expect("triangles");
+    let down = |x: f32| {
+        rays.hit(Vec3::new(x, 3.0, 0.3), Vec3::NEG_Y, 10.0)
+            .expect("a hit")
+    };
+    let gamma = colour
+        .powf(1.0 / 2.2)
+        .to_array()
+        .map(|c| (c * 255.0).round() as u8);
+    assert_eq!(down(2.0).colour, Some(gamma));
+    let lit = rays::flat_colour(colour, Vec3::Y, scene.sun_dir);
+    assert_eq!(down(-2.0).colour, Some(lit));
+    assert_ne!(lit, gamma);
+}
+
+#[test]
 fn the_walk_looks_away_from_views_of_one_colour() {
     // Untextured grey rooms: floors, ceilings and the walls facing one way are each one flat
     // colour, so many views are mostly one colour. The walk's views (from the path check's
@@ -1419,6 +1454,14 @@ fn placed_meshes_under_mirrors_and_stretches_hit_as_in_world_space() {
     // one-sided from outside; the ground slab too.
     for o in scene.objects.iter_mut().skip(1).step_by(2) {
         o.material = Some(0);
+    }
+    // Every other pipe unlit: its flat colours, placed or in world space, are its colour.
+    scene.materials.push(Material {
+        unlit: true,
+        ..Material::default()
+    });
+    for o in scene.objects.iter_mut().skip(2).step_by(4) {
+        o.material = Some(1);
     }
     let placed = TriangleScene::placing(&scene).expect("triangles");
     let world = TriangleScene::world_only(&scene).expect("triangles");

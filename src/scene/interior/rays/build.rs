@@ -146,8 +146,9 @@ pub(super) fn of_objects(
         let two_sided = scene.object_material(i).is_some_and(|m| m.double_sided)
             && !closed_solid(&parts.meshes[mesh as usize].placed_in_order(o.transform));
         let to_local = o.transform.inverse();
-        let shade =
-            flat_coloured(scene, i, colours).then(|| (to_local.transpose(), o.color.truncate()));
+        let unlit = scene.object_material(i).is_some_and(|m| m.unlit);
+        let shade = flat_coloured(scene, i, colours)
+            .then(|| (to_local.transpose(), o.color.truncate(), unlit));
         let place = Placement {
             to_world: o.transform,
             to_local,
@@ -170,6 +171,7 @@ fn gather_objects(scene: &Scene, objects: impl Iterator<Item = usize>, colours: 
         let o = &scene.objects[i];
         let normal_matrix =
             flat_coloured(scene, i, colours).then(|| o.transform.inverse().transpose());
+        let light = (!scene.object_material(i).is_some_and(|m| m.unlit)).then_some(scene.sun_dir);
         let first = o.first_index as usize;
         let Some(idx) = scene
             .indices
@@ -193,7 +195,7 @@ fn gather_objects(scene: &Scene, objects: impl Iterator<Item = usize>, colours: 
                             scene_corners(scene, o.vertex_offset, t),
                             m,
                             o.color.truncate(),
-                            scene.sun_dir,
+                            light,
                         )
                     }));
                 }
