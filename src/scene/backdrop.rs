@@ -163,29 +163,12 @@ fn sky_dirs() -> impl Iterator<Item = Vec3> {
 mod tests {
     use super::*;
     use crate::scene::mesh::{Mesh, SceneBuilder};
-    use crate::scene::Vertex;
-
-    /// The mesh of `triangles` (counter-clockwise fronts), flat normals.
-    pub(crate) fn mesh_of(triangles: &[[Vec3; 3]]) -> Mesh {
-        let mut m = Mesh::default();
-        for t in triangles {
-            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or(Vec3::Y);
-            for p in t {
-                m.indices.push(m.vertices.len() as u32);
-                m.vertices.push(Vertex {
-                    position: p.to_array(),
-                    normal: n.to_array(),
-                });
-            }
-        }
-        m
-    }
 
     /// A scene of one object per list of triangles.
     fn scene_of(objects: &[Vec<[Vec3; 3]>]) -> Scene {
         let mut b = SceneBuilder::new("backdrop-test");
         for tris in objects {
-            b.add(&mesh_of(tris), Vec3::ONE);
+            b.add(&Mesh::from_triangles(tris), Vec3::ONE);
         }
         b.finish()
     }

@@ -58,6 +58,23 @@ impl Mesh {
             .extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
     }
 
+    /// A mesh of `triangles` (counter-clockwise fronts), three vertices each with the
+    /// triangle's normal (the up axis for a degenerate one).
+    pub fn from_triangles(triangles: &[[Vec3; 3]]) -> Mesh {
+        let mut m = Mesh::default();
+        for t in triangles {
+            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or(Vec3::Y);
+            for p in t {
+                m.indices.push(m.vertices.len() as u32);
+                m.vertices.push(Vertex {
+                    position: p.to_array(),
+                    normal: n.to_array(),
+                });
+            }
+        }
+        m
+    }
+
     /// The unit cube [-0.5, 0.5]³ with outward faces (counter-clockwise seen from outside).
     pub fn cube() -> Mesh {
         let mut m = Mesh::default();

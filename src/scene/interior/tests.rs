@@ -10,7 +10,7 @@ use super::rays::TriangleScene;
 use super::*;
 use crate::scene::mesh::{Mesh, SceneBuilder};
 use crate::scene::path_check;
-use crate::scene::{Material, Vertex};
+use crate::scene::Material;
 
 /// Triangles of a level under construction (counter-clockwise fronts).
 #[derive(Default)]
@@ -123,17 +123,7 @@ impl Level {
     }
     /// The level as a scene of one object, all double-sided when `two_sided`.
     fn scene(&self, two_sided: bool) -> Scene {
-        let mut m = Mesh::default();
-        for t in &self.tris {
-            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or(Vec3::Y);
-            for p in t {
-                m.indices.push(m.vertices.len() as u32);
-                m.vertices.push(Vertex {
-                    position: p.to_array(),
-                    normal: n.to_array(),
-                });
-            }
-        }
+        let m = Mesh::from_triangles(&self.tris);
         let mut b = SceneBuilder::new("level");
         b.add(&m, Vec3::ONE);
         b.path("default", &[(Vec3::new(0.0, 50.0, 50.0), Vec3::ZERO); 2]);
