@@ -471,13 +471,34 @@ struct World {
     triangles: u64,
 }
 
+/// A ground far larger than the level (see [`crate::scene::backdrop`]): its objects and the
+/// region `gi` keeps of them.
+struct Ground {
+    /// Object indices, ascending.
+    objects: Vec<usize>,
+    region: crate::scene::Aabb,
+}
+
+/// The geometry of `scene`'s objects `0..statics`, those of `ground` cut to its region.
+fn static_geometry(scene: &Scene, statics: usize, ground: Option<&Ground>) -> WorldGeometry {
+    let Some(g) = ground else {
+        return WorldGeometry::from_objects(scene, 0..statics);
+    };
+    let is_ground = |i: &usize| g.objects.binary_search(i).is_ok();
+    let mut out = WorldGeometry::from_objects(scene, (0..statics).filter(|i| !is_ground(i)));
+    let cut = WorldGeometry::from_objects(scene, (0..statics).filter(is_ground));
+    out.append(&cut.clipped_to(&g.region));
+    out
+}
+
 impl World {
-    /// `scene`'s triangles; with `movers` > 0 or objects its glTF animation moves, the movers
-    /// are added: the static triangles are split here (as the renderer would) and the movers'
-    /// follow, so that they are the last ones in the renderer's vertex buffer.
-    fn new(scene: &Scene, movers: usize) -> World {
+    /// `scene`'s triangles (`ground`'s cut to its region); with `movers` > 0 or objects its
+    /// glTF animation moves, the movers are added: the static triangles are split here (as
+    /// the renderer would) and the movers' follow, so that they are the last ones in the
+    /// renderer's vertex buffer.
+    fn new(scene: &Scene, movers: usize, ground: Option<&Ground>) -> World {
         if movers == 0 && scene.animation.is_none() {
-            let geometry = WorldGeometry::from_scene(scene);
+            let geometry = static_geometry(scene, scene.objects.len(), ground);
             let rays = geometry.ray_scene();
             return World {
                 geometry,
@@ -492,7 +513,7 @@ impl World {
         let statics = scene.objects.len();
         let added = Movers::add(&mut scene, movers);
         let (objects, triangles) = (scene.objects.len(), scene.triangle_count());
-        let fixed = WorldGeometry::from_objects(&scene, 0..statics);
+        let fixed = static_geometry(&scene, statics, ground);
         let moving = WorldGeometry::from_objects(&scene, statics..scene.objects.len());
         let mut bounds = fixed.bounds.union(&moving.bounds);
         let diagonal = WorldGeometry {
@@ -708,23 +729,41 @@ pub fn run_reporting(
             "gi needs at least one VPL and one frame".into(),
         ));
     }
-    // A sky dome or box is sky here, not a surface that bounces the spotlight's light; left
-    // in, its size would set the shadow maps' range and the splitting of long triangles.
+    // A sky dome or box is sky here, not a surface that bounces the spotlight's light, and
+    // a ground far larger than the level is cut to the region around it: left whole, their
+    // size would set the shadow maps' range and the splitting of long triangles.
+    let backdrop = crate::scene::backdrop::find(scene);
     let trimmed;
-    let scene = match crate::scene::backdrop::find(scene) {
-        Some(b) => {
+    let scene = match &backdrop {
+        Some(b) if !b.sky.is_empty() => {
             eprintln!(
                 "note: scene \"{}\": gi leaves out the {} object(s) that enclose the rest like \
                  a sky dome or box",
                 scene.name,
-                b.objects.len()
+                b.sky.len()
             );
-            trimmed = crate::scene::backdrop::without(scene, &b);
+            trimmed = crate::scene::backdrop::without_sky(scene, b);
             &trimmed
         }
-        None => scene,
+        _ => scene,
     };
-    let mut world = World::new(scene, setup.movers);
+    let ground = backdrop.as_ref().filter(|b| !b.ground.is_empty()).map(|b| {
+        eprintln!(
+            "note: scene \"{}\": gi cuts the {} object(s) under the rest like a ground to the \
+             region around it",
+            scene.name,
+            b.ground.len()
+        );
+        // Indices in `scene`, the sky taken out.
+        let objects = (b.ground.iter())
+            .map(|&g| g - b.sky.partition_point(|&s| s < g))
+            .collect();
+        Ground {
+            objects,
+            region: b.search_region(&scene.bounds()),
+        }
+    });
+    let mut world = World::new(scene, setup.movers, ground.as_ref());
     // The user's keys, else the light path found with the interior walk, else the default.
     let found = scene.path(crate::scene::interior::LIGHT_PATH_NAME).ok();
     let path = match setup.light_keys.as_ref().or(found) {

@@ -62,7 +62,7 @@ impl WorldGeometry {
     }
 
     /// [`WorldGeometry::from_scene`] for the objects in `objects` only, in order.
-    pub fn from_objects(scene: &Scene, objects: std::ops::Range<usize>) -> WorldGeometry {
+    pub fn from_objects(scene: &Scene, objects: impl IntoIterator<Item = usize>) -> WorldGeometry {
         let mut out = WorldGeometry::empty();
         for index in objects {
             out.push_object(scene, index, &scene.objects[index].transform);
@@ -121,6 +121,56 @@ impl WorldGeometry {
                 color
             });
         }
+    }
+
+    /// A copy with only what lies inside `region`: a triangle inside it is kept, one outside
+    /// it dropped, one across its faces cut to it (a polygon, fanned into triangles whose
+    /// corners, normals and masks are interpolated from the source's). `gi` cuts a ground far
+    /// larger than the level ([`Backdrop`](crate::scene::backdrop::Backdrop)) to the region
+    /// the level stands in.
+    pub fn clipped_to(&self, region: &Aabb) -> WorldGeometry {
+        let mut out = WorldGeometry {
+            masks: TriangleMasks {
+                triangles: Vec::new(),
+                images: self.masks.images.clone(),
+            },
+            ..WorldGeometry::empty()
+        };
+        let masked = self.masks.any();
+        for (index, ((t, n), a)) in self
+            .triangles
+            .iter()
+            .zip(&self.normals)
+            .zip(&self.albedo)
+            .enumerate()
+        {
+            let mut b = Aabb::EMPTY;
+            t.iter().for_each(|&p| b.grow(p));
+            if !b.overlaps(region) {
+                continue;
+            }
+            let poly = clip_weights(t, region);
+            let at = |w: Vec3| t[0] * w.x + t[1] * w.y + t[2] * w.z;
+            for k in 1..poly.len().saturating_sub(1) {
+                let w = [poly[0], poly[k], poly[k + 1]];
+                let p = w.map(at);
+                if (p[1] - p[0]).cross(p[2] - p[0]).length_squared() <= 0.0 {
+                    continue;
+                }
+                if masked {
+                    let mask = self.masks.triangles.get(index).copied();
+                    out.masks
+                        .triangles
+                        .push(mask.unwrap_or(TriangleMask::OPAQUE).sub(w));
+                }
+                p.iter().for_each(|&q| out.bounds.grow(q));
+                out.triangles.push(p);
+                out.normals
+                    .push(w.map(|w| (n[0] * w.x + n[1] * w.y + n[2] * w.z).normalize_or(n[0])));
+                out.albedo.push(*a);
+            }
+        }
+        out
     }
 
     /// A copy whose triangles have no edge longer than `max_edge` (longest-edge bisection, at
@@ -433,6 +483,42 @@ impl<const K: usize> SharedCorners<K> {
     }
 }
 
+/// Triangle `t` cut to `region`, as a convex polygon of barycentric weights of its corners
+/// (Sutherland-Hodgman against the box's six planes); empty when nothing is left.
+fn clip_weights(t: &[Vec3; 3], region: &Aabb) -> Vec<Vec3> {
+    let mut poly = vec![Vec3::X, Vec3::Y, Vec3::Z];
+    let at = |w: Vec3| t[0] * w.x + t[1] * w.y + t[2] * w.z;
+    for axis in 0..3 {
+        for (bound, keep_below) in [(region.min[axis], false), (region.max[axis], true)] {
+            // Signed distance inside the plane: >= 0 keeps.
+            let inside = |w: Vec3| {
+                let d = at(w)[axis] - bound;
+                if keep_below {
+                    -d
+                } else {
+                    d
+                }
+            };
+            let mut next = Vec::with_capacity(poly.len() + 1);
+            for i in 0..poly.len() {
+                let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+                let (da, db) = (inside(a), inside(b));
+                if da >= 0.0 {
+                    next.push(a);
+                }
+                if (da >= 0.0) != (db >= 0.0) {
+                    next.push(a + (b - a) * (da / (da - db)));
+                }
+            }
+            poly = next;
+            if poly.is_empty() {
+                return poly;
+            }
+        }
+    }
+    poly
+}
+
 #[cfg(test)]
 mod material_tests {
     use glam::{Mat4, Vec3, Vec4};
@@ -595,5 +681,87 @@ mod index_tests {
                 "prefix before {first} kept"
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod clip_tests {
+    use glam::Vec3;
+
+    use super::WorldGeometry;
+    use crate::scene::mask::{TriangleMask, TriangleMasks};
+    use crate::scene::Aabb;
+
+    /// Twice the area of the triangles of `g`.
+    fn area2(g: &WorldGeometry) -> f32 {
+        (g.triangles.iter())
+            .map(|t| (t[1] - t[0]).cross(t[2] - t[0]).length())
+            .sum()
+    }
+
+    #[test]
+    fn triangles_are_cut_to_the_region_with_their_normals_and_masks() {
+        // A ground square 200 wide (two triangles), a small triangle inside the region and
+        // one far outside it; the region is 20 wide about the origin.
+        let corner = |x: f32, z: f32| Vec3::new(x, 0.0, z);
+        let (a, b, c, d) = (
+            corner(-100.0, -100.0),
+            corner(100.0, -100.0),
+            corner(100.0, 100.0),
+            corner(-100.0, 100.0),
+        );
+        let inside = [corner(1.0, 1.0), corner(3.0, 1.0), corner(1.0, 3.0)];
+        let outside = [corner(50.0, 50.0), corner(60.0, 50.0), corner(50.0, 60.0)];
+        let triangles = vec![[a, c, b], [a, d, c], inside, outside];
+        let up = [Vec3::Y; 3];
+        let mut g = WorldGeometry {
+            normals: vec![up; 4],
+            albedo: vec![Vec3::ONE, Vec3::ONE, Vec3::X, Vec3::Z],
+            triangles,
+            bounds: Aabb::EMPTY,
+            masks: TriangleMasks::default(),
+        };
+        for t in g.triangles.clone() {
+            t.iter().for_each(|&p| g.bounds.grow(p));
+        }
+        // The first triangle masked (alpha 0.5 at its corners).
+        g.masks.triangles = vec![TriangleMask::OPAQUE; 4];
+        g.masks.triangles[0].alpha = [0.5; 3];
+        let region = Aabb {
+            min: Vec3::new(-10.0, -5.0, -10.0),
+            max: Vec3::new(10.0, 5.0, 10.0),
+        };
+        let cut = g.clipped_to(&region);
+        // The square's 20 x 20 part and the small triangle (area 2), nothing of the far one.
+        assert!(
+            (area2(&cut) - (2.0 * 400.0 + 4.0)).abs() < 1e-2,
+            "{}",
+            area2(&cut)
+        );
+        for t in &cut.triangles {
+            for p in t {
+                assert!(p.x.abs() <= 10.0 + 1e-4 && p.z.abs() <= 10.0 + 1e-4, "{p}");
+            }
+        }
+        assert!(!cut.albedo.contains(&Vec3::Z));
+        assert_eq!(cut.albedo.iter().filter(|&&a| a == Vec3::X).count(), 1);
+        assert!(cut
+            .normals
+            .iter()
+            .flatten()
+            .all(|n| (*n - Vec3::Y).length() < 1e-6));
+        assert_eq!(cut.masks.triangles.len(), cut.triangles.len());
+        // The pieces of the masked triangle keep its alpha.
+        let half = cut
+            .masks
+            .triangles
+            .iter()
+            .filter(|m| m.alpha == [0.5; 3])
+            .count();
+        assert!(half >= 1, "{:?}", cut.masks.triangles);
+        assert!(cut.bounds.min.x >= -10.0 - 1e-4 && cut.bounds.max.z <= 10.0 + 1e-4);
+        // A region holding everything keeps every triangle as it is.
+        let all = g.clipped_to(&g.bounds);
+        assert_eq!(all.triangles, g.triangles);
     }
 }

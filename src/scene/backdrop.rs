@@ -1,21 +1,28 @@
 //! A scene's backdrop: a sky dome or sky box that a level (often one exported from an
 //! online viewer) carries around itself, kilometres wide while the level is a few hundred
-//! metres. It is real geometry, drawn and culled as any object, but it is not part of the
-//! level: framing the orbit around it shows a dot inside a bowl, and the interior walk's
-//! floor grid, sized by the bounds, gets a few cells over the level.
+//! metres, or a ground plate as wide under it. It is real geometry, drawn and culled as any
+//! object, but it is not what a user means by the level: framing the orbit around it shows a
+//! dot inside a bowl or on a plain, and the interior walk's floor grid, sized by the bounds,
+//! gets a few cells over the level.
 //!
 //! The objects taken for the backdrop are the fewest largest ones (a dome split into chunks
-//! is several) that together
+//! is several) that are each at least [`SIZE_RATIO`] times as large (box diagonal) as the box
+//! of all the other objects (the moving ones included), and whose boxes together hold that
+//! box's plan. Of them, those whose boxes reach over the rest's top are its **sky** when
+//! they cover the sky seen from the rest's centre (rays towards [`SKY_RAYS`] directions above
+//! the horizon meet them in at least [`SKY_SHARE`] of the directions); the others are its
+//! **ground** (a plate or a terrain the level stands on; a dome that leaves the sky open is
+//! ground too).
 //!
-//! - are each at least [`SIZE_RATIO`] times as large (box diagonal) as the box of all the
-//!   other objects (the moving ones included),
-//! - hold that box's plan and top inside their own box (a dome stands on the ground: a pool
-//!   or a cellar may reach below it), and
-//! - cover the sky seen from its centre: rays towards [`SKY_RAYS`] directions above the
-//!   horizon meet them in at least [`SKY_SHARE`] of the directions.
+//! What each changes:
 //!
-//! A ground or a terrain under a village is not one: the sky above the village is open. A
-//! model without such objects has no backdrop, and everything is as before.
+//! - the default orbit frames the rest;
+//! - the interior walk searches the rest's plan (and a margin around it) for floors; the sky
+//!   is left out of its rays (it is what a view of the sky shows), the ground is kept (it may
+//!   be the level's floor);
+//! - `gi` leaves the sky out (it is not a surface that bounces the spotlight's light).
+//!
+//! A model without such objects has no backdrop, and everything is as before.
 
 use glam::Vec3;
 
@@ -27,44 +34,83 @@ use super::{Aabb, Scene};
 pub const SIZE_RATIO: f32 = 8.0;
 
 /// Directions above the horizon (elevations of about 6° to 84°) whose rays from the centre
-/// of the rest of the scene must meet the backdrop.
+/// of the rest of the scene must meet the sky.
 pub const SKY_RAYS: usize = 64;
 
-/// Share of [`SKY_RAYS`] that must meet the backdrop.
+/// Share of [`SKY_RAYS`] that must meet the sky.
 pub const SKY_SHARE: f32 = 0.9;
 
 /// Most objects a backdrop is made of (the chunks of one dome or box).
 const MOST_OBJECTS: usize = 64;
 
-/// How many candidate sets (the largest 1, 2, ... objects that pass the box tests) have
-/// their sky tested by rays before the search gives up.
-const MOST_RAY_TESTS: usize = 4;
+/// The margin around the rest's plan that the interior walk searches too, as a share of the
+/// rest's diagonal (the streets around a house standing on a ground plate).
+pub const SEARCH_MARGIN: f32 = 0.25;
 
 /// A scene's backdrop, when it has one.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Backdrop {
-    /// Its objects (indices into `Scene::objects`), ascending.
-    pub objects: Vec<usize>,
-    /// The box of everything else: what the orbit frames and the interior walk searches.
+    /// Its sky objects (indices into `Scene::objects`), ascending; may be empty.
+    pub sky: Vec<usize>,
+    /// Its ground objects, ascending; may be empty.
+    pub ground: Vec<usize>,
+    /// The box of everything else: what the orbit frames.
     pub rest: Aabb,
     /// How many times the backdrop's box diagonal is the rest's.
     pub ratio: f32,
 }
 
 impl Backdrop {
-    /// Whether object `i` is part of the backdrop.
-    pub fn holds(&self, i: usize) -> bool {
-        self.objects.binary_search(&i).is_ok()
+    /// Whether object `i` is part of the backdrop's sky.
+    pub fn is_sky(&self, i: usize) -> bool {
+        self.sky.binary_search(&i).is_ok()
+    }
+
+    /// How many objects it has.
+    pub fn len(&self) -> usize {
+        self.sky.len() + self.ground.len()
+    }
+
+    /// Whether it has no objects (never true for a found backdrop).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The part of the world the interior walk searches for floors: the rest's box grown by
+    /// [`SEARCH_MARGIN`] of its diagonal on every side, within `bounds` (the world's).
+    pub fn search_region(&self, bounds: &Aabb) -> Aabb {
+        let grow = Vec3::splat(SEARCH_MARGIN * self.rest.extent().length());
+        Aabb {
+            min: (self.rest.min - grow).max(bounds.min),
+            max: (self.rest.max + grow).min(bounds.max),
+        }
+    }
+
+    /// What the loader says about it, for a scene named `name`.
+    pub fn note(&self, name: &str) -> String {
+        let what = match (self.sky.len(), self.ground.len()) {
+            (s, 0) => format!("{s} object(s) enclose the rest like a sky dome or box"),
+            (0, g) => format!("{g} object(s) lie under the rest like a ground"),
+            (s, g) => format!(
+                "{s} object(s) enclose the rest like a sky dome or box and {g} lie under it \
+                 like a ground"
+            ),
+        };
+        format!(
+            "scene \"{name}\": {what} ({:.0}x its size): the orbit frames the rest, and the \
+             interior walk looks for an inside in it",
+            self.ratio
+        )
     }
 }
 
-/// `scene` without the objects of `backdrop` (its buffers, paths and materials kept).
-pub fn without(scene: &Scene, backdrop: &Backdrop) -> Scene {
+/// `scene` without the sky of `backdrop` (its buffers, paths and materials kept).
+pub fn without_sky(scene: &Scene, backdrop: &Backdrop) -> Scene {
     let mut out = scene.clone();
     let mut i = 0;
     out.objects.retain(|_| {
         i += 1;
-        !backdrop.holds(i - 1)
+        !backdrop.is_sky(i - 1)
     });
     out
 }
@@ -99,7 +145,6 @@ pub fn find(scene: &Scene) -> Option<Backdrop> {
         rest[k] = rest[k + 1].union(&scene.objects[order[k]].bounds);
     }
     let mut top = Aabb::EMPTY;
-    let mut ray_tests = 0;
     for k in 1..=MOST_OBJECTS.min(n - 1) {
         let smallest = &scene.objects[order[k - 1]].bounds;
         top = top.union(smallest);
@@ -114,22 +159,29 @@ pub fn find(scene: &Scene) -> Option<Backdrop> {
             && top.min.z <= others.min.z
             && top.max.x >= others.max.x
             && top.max.z >= others.max.z;
-        if !(holds_plan && top.max.y >= others.max.y) {
+        if !holds_plan {
             continue;
         }
-        ray_tests += 1;
-        let mut objects: Vec<usize> = order[..k].to_vec();
-        objects.sort_unstable();
-        if covers_sky(scene, &objects, others.center(), diag(&top)) {
-            return Some(Backdrop {
-                objects,
-                rest: others,
-                ratio: diag(&top) / others_diag.max(1e-6),
-            });
-        }
-        if ray_tests == MOST_RAY_TESTS {
-            return None;
-        }
+        let (mut above, mut under): (Vec<usize>, Vec<usize>) = order[..k]
+            .iter()
+            .partition(|&&i| scene.objects[i].bounds.max.y >= others.max.y);
+        above.sort_unstable();
+        under.sort_unstable();
+        let far = diag(&top);
+        let (sky, ground) = if !above.is_empty() && covers_sky(scene, &above, others.center(), far)
+        {
+            (above, under)
+        } else {
+            let mut all = [above, under].concat();
+            all.sort_unstable();
+            (Vec::new(), all)
+        };
+        return Some(Backdrop {
+            sky,
+            ground,
+            rest: others,
+            ratio: far / others_diag.max(1e-6),
+        });
     }
     None
 }
@@ -251,11 +303,11 @@ mod tests {
         objects.insert(2, dome(1000.0, 8, 24));
         let scene = scene_of(&objects);
         let found = find(&scene).expect("a backdrop");
-        assert_eq!(found.objects, vec![2]);
+        assert_eq!((found.sky.clone(), found.ground.clone()), (vec![2], vec![]));
         assert!(found.ratio > 50.0, "{}", found.ratio);
         assert!((found.rest.max.x - 10.0).abs() < 1e-4 && found.rest.max.y <= 3.0 + 1e-4);
-        assert!(found.holds(2) && !found.holds(0));
-        let rest = without(&scene, &found);
+        assert!(found.is_sky(2) && !found.is_sky(0));
+        let rest = without_sky(&scene, &found);
         assert_eq!(rest.objects.len(), 5);
         assert_eq!(rest.objects[2].bounds, scene.objects[3].bounds);
         assert_eq!(find(&rest), None);
@@ -271,7 +323,8 @@ mod tests {
         }
         let scene = scene_of(&objects);
         let found = find(&scene).expect("a backdrop");
-        assert_eq!(found.objects, vec![5, 6, 7]);
+        assert_eq!(found.sky, vec![5, 6, 7]);
+        assert!(found.ground.is_empty());
     }
 
     #[test]
@@ -283,7 +336,7 @@ mod tests {
     }
 
     #[test]
-    fn a_terrain_under_a_village_or_a_small_dome_is_no_backdrop() {
+    fn a_ground_under_a_level_is_its_ground_and_a_small_dome_is_no_backdrop() {
         // A ground plate 2 km wide under the level: it holds the level's plan, not its sky.
         let mut objects = level();
         objects.push(cuboid(
@@ -291,9 +344,16 @@ mod tests {
             Vec3::new(1000.0, -0.2, 1000.0),
             false,
         ));
-        assert_eq!(find(&scene_of(&objects)), None);
+        let found = find(&scene_of(&objects)).expect("a ground");
+        assert_eq!((found.sky.clone(), found.ground.clone()), (vec![], vec![5]));
+        // The walk searches the level's plan and a quarter of its diagonal around it.
+        let bounds = found.rest.union(&objects_box(&objects[5]));
+        let region = found.search_region(&bounds);
+        let grow = SEARCH_MARGIN * found.rest.extent().length();
+        assert!((region.max.x - (10.0 + grow)).abs() < 1e-3, "{region:?}");
+        assert!((region.min.y - (-0.2 - grow)).abs() < 1e-3, "{region:?}");
         // A ground plate that rises above the level's walls all around (a valley): its box
-        // holds the level's, but the sky over the level is open.
+        // reaches over the level's top, but the sky over the level is open: ground too.
         let mut objects = level();
         objects.push(
             cuboid(
@@ -305,12 +365,33 @@ mod tests {
             .filter(|t| t.iter().any(|p| p.y < 0.0))
             .collect(),
         );
-        assert_eq!(find(&scene_of(&objects)), None);
-        // A dome only five times as large as the level (a hall's vault): part of the level.
+        let found = find(&scene_of(&objects)).expect("a ground");
+        assert_eq!((found.sky.clone(), found.ground.clone()), (vec![], vec![5]));
+        // A sky dome and a ground plate: each for what it is.
+        let mut objects = level();
+        objects.push(dome(4000.0, 8, 24));
+        objects.push(cuboid(
+            Vec3::new(-1000.0, -60.0, -1000.0),
+            Vec3::new(1000.0, -0.2, 1000.0),
+            false,
+        ));
+        let found = find(&scene_of(&objects)).expect("a backdrop");
+        assert_eq!(
+            (found.sky.clone(), found.ground.clone()),
+            (vec![5], vec![6])
+        );
+        // A dome only seven times as large as the level (a hall's vault): part of the level.
         let mut objects = level();
         objects.push(dome(70.0, 8, 24));
         assert_eq!(find(&scene_of(&objects)), None);
         // A level alone.
         assert_eq!(find(&scene_of(&level())), None);
+    }
+
+    /// The box of `triangles`.
+    fn objects_box(triangles: &[[Vec3; 3]]) -> Aabb {
+        let mut b = Aabb::EMPTY;
+        triangles.iter().flatten().for_each(|&p| b.grow(p));
+        b
     }
 }

@@ -2180,7 +2180,7 @@ mod tests {
         let scene =
             crate::scene::Scene::load(path.to_str().expect("utf-8"), 1.0, 4096).expect("load");
         let found = crate::scene::backdrop::find(&scene).expect("the sky box is the backdrop");
-        assert_eq!(found.objects, vec![2]);
+        assert_eq!(found.sky, vec![2]);
         // The orbit stands 1.5 of the level's bounding radii from its centre, inside the sky.
         let level = Aabb {
             min: Vec3::new(-0.5, -0.5, -0.5),

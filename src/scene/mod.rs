@@ -254,14 +254,7 @@ impl Scene {
             }
             chunk::split_large_objects(&mut scene, chunk_triangles);
             if let Some(b) = backdrop::find(&scene) {
-                eprintln!(
-                    "note: scene \"{}\": {} object(s) enclose the rest like a sky dome or box \
-                     ({:.0}x its size): the orbit frames the rest, and the interior walk looks \
-                     for an inside in it",
-                    scene.name,
-                    b.objects.len(),
-                    b.ratio
-                );
+                eprintln!("note: {}", b.note(&scene.name));
                 gltf::refit_default_path(&mut scene, Some(b.rest));
             }
             match cache_dir {

@@ -113,7 +113,7 @@ fn small_model_hint(
     params: &InteriorParams,
     scale: &places::Scale,
 ) -> Option<String> {
-    let e = rays.bounds.extent();
+    let e = rays.region.extent();
     let plan = e.x.max(e.z);
     let eye = scale.eye_height;
     if params.eye_height.is_some() || eye >= SMALL_EYE || plan < LEVEL_PLAN * eye {

@@ -77,10 +77,10 @@ pub fn is_inside(level: &Probe, around: &Probe) -> bool {
     level.escaped_share() <= MAX_ESCAPED && around.back_share() <= MAX_BACK
 }
 
-/// The grid over the bounds' horizontal extent with cells of side `cell`: (columns along x,
-/// along z).
+/// The grid over the search region's horizontal extent with cells of side `cell`: (columns
+/// along x, along z).
 fn grid_size(rays: &TriangleScene, cell: f32) -> (i32, i32) {
-    let e = rays.bounds.extent();
+    let e = rays.region.extent();
     (
         (e.x / cell).ceil().clamp(1.0, 4096.0) as i32,
         (e.z / cell).ceil().clamp(1.0, 4096.0) as i32,
@@ -89,7 +89,7 @@ fn grid_size(rays: &TriangleScene, cell: f32) -> (i32, i32) {
 
 /// Every floor under the centers of a grid of `cell`-sized columns, top to bottom per column.
 pub fn floors(rays: &TriangleScene, cell: f32) -> Vec<Floor> {
-    let b = rays.bounds;
+    let (b, r) = (rays.bounds, rays.region);
     let (nx, nz) = grid_size(rays, cell);
     let far = b.extent().length() + 1.0;
     let eps = 1e-5 * far;
@@ -98,8 +98,8 @@ pub fn floors(rays: &TriangleScene, cell: f32) -> Vec<Floor> {
         let iz = iz as i32;
         let mut out = Vec::new();
         for ix in 0..nx {
-            let x = b.min.x + (ix as f32 + 0.5) * cell;
-            let z = b.min.z + (iz as f32 + 0.5) * cell;
+            let x = r.min.x + (ix as f32 + 0.5) * cell;
+            let z = r.min.z + (iz as f32 + 0.5) * cell;
             let mut origin = Vec3::new(x, b.max.y + 1.0, z);
             for _ in 0..MAX_LAYERS {
                 let Some(h) = rays.hit(origin, Vec3::NEG_Y, far) else {
@@ -137,7 +137,7 @@ pub fn scale(
     margin: Option<f32>,
     grid: usize,
 ) -> Scale {
-    let e = rays.bounds.extent();
+    let e = rays.region.extent();
     let side = e.x.max(e.z).max(1e-3);
     let eye = eye_height
         .filter(|h| h.is_finite() && *h > 0.0)
@@ -159,7 +159,7 @@ pub fn scale(
                 // the storey.
                 let mut tops: Vec<f32> = found
                     .iter()
-                    .map(|f| rays.bounds.max.y - f.point.y)
+                    .map(|f| rays.region.max.y - f.point.y)
                     .collect();
                 tops.sort_by(f32::total_cmp);
                 h = h.max(tops.get(tops.len() / 2).copied().unwrap_or(h));

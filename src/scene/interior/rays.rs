@@ -175,6 +175,10 @@ pub struct TriangleScene {
     sun: Vec3,
     /// World bounds.
     pub bounds: Aabb,
+    /// Where the interior walk looks for floors: the bounds, or around the rest of a scene
+    /// that stands on a ground far larger than itself
+    /// ([`Backdrop::search_region`](crate::scene::backdrop::Backdrop::search_region)).
+    pub region: Aabb,
 }
 
 /// One mesh of a [`TriangleScene`]: its triangles and their BVH.
@@ -227,14 +231,17 @@ struct Placement {
 
 impl TriangleScene {
     /// The scene's world-space triangles (those of double-sided materials marked so, unless
-    /// their object is a [`closed_solid`]) less those of its backdrop (a sky dome or box far
-    /// larger than the rest, [`backdrop`](crate::scene::backdrop)): what the interior walk
+    /// their object is a [`closed_solid`]) less those of its backdrop's sky (a sky dome or box
+    /// far larger than the rest, [`backdrop`](crate::scene::backdrop)), its
+    /// [`region`](Self::region) the rest's when it has a backdrop: what the interior walk
     /// searches. `None` when it has none with finite corners.
     pub fn new(scene: &Scene) -> Option<TriangleScene> {
-        match crate::scene::backdrop::find(scene) {
-            Some(b) => TriangleScene::of(scene, |i| !b.holds(i)),
-            None => TriangleScene::of(scene, |_| true),
-        }
+        let Some(b) = crate::scene::backdrop::find(scene) else {
+            return TriangleScene::of(scene, |_| true);
+        };
+        let mut rays = TriangleScene::of(scene, |i| !b.is_sky(i))?;
+        rays.region = b.search_region(&rays.bounds);
+        Some(rays)
     }
 
     /// As [`new`](Self::new), with the triangles of the objects `keep` accepts (by their

@@ -265,7 +265,7 @@ fn a_level_inside_a_sky_dome_is_walked_as_without_it() {
         ..dome.objects[0].clone()
     });
     let backdrop = crate::scene::backdrop::find(&scene).expect("the dome is the backdrop");
-    assert_eq!(backdrop.objects, vec![1]);
+    assert_eq!(backdrop.sky, vec![1]);
     // With the dome, the floor grid over 2 km has a few cells over the level: no inside.
     let all = TriangleScene::of(&scene, |_| true).expect("triangles");
     assert!(find(&all, &InteriorParams::default()).is_err());
@@ -274,6 +274,36 @@ fn a_level_inside_a_sky_dome_is_walked_as_without_it() {
     assert!(rays.bounds.extent().x < 100.0, "{:?}", rays.bounds);
     assert_walks_rooms(&rays, &rooms, &[], 3);
     interior_path(&scene, &InteriorParams::default()).expect("the walk");
+}
+
+#[test]
+fn a_level_on_a_ground_far_larger_than_itself_is_walked() {
+    // The same rooms, one open to the outside, on a ground plate 2 km wide (a second object):
+    // the plate is kept (it is the floor outside), the search keeps to the rooms' region.
+    let mut l = Level::default();
+    let rooms = row_of_rooms(&mut l, 0.0, true);
+    let mut ground = Level::default();
+    ground.flat((-1000.0, -1000.0, 1000.0, 1000.0), -0.01, true);
+    let mut scene = l.scene(false);
+    let plate = ground.scene(false);
+    let base = scene.vertices.len() as u32;
+    let first = scene.indices.len() as u32;
+    scene.vertices.extend_from_slice(&plate.vertices);
+    scene.indices.extend(plate.indices.iter().copied());
+    scene.objects.push(crate::scene::Object {
+        first_index: first,
+        vertex_offset: base,
+        ..plate.objects[0].clone()
+    });
+    let backdrop = crate::scene::backdrop::find(&scene).expect("the plate is a ground");
+    assert_eq!((backdrop.sky.len(), backdrop.ground.clone()), (0, vec![1]));
+    // Searched over the whole plate, the grid's cells are wider than the rooms: no inside.
+    let all = TriangleScene::of(&scene, |_| true).expect("triangles");
+    assert!(find(&all, &InteriorParams::default()).is_err());
+    let rays = TriangleScene::new(&scene).expect("triangles");
+    assert_eq!(rays.bounds, all.bounds);
+    assert!(rays.region.extent().x < 100.0, "{:?}", rays.region);
+    assert_walks_rooms(&rays, &rooms, &[], 3);
 }
 
 #[test]

@@ -273,6 +273,7 @@ impl Parts {
             triangle_count: self.triangle_count,
             sun,
             bounds: self.bounds,
+            region: self.bounds,
         })
     }
 }
