@@ -129,21 +129,8 @@ impl WorldGeometry {
     /// larger than the level ([`Backdrop`](crate::scene::backdrop::Backdrop)) to the region
     /// the level stands in.
     pub fn clipped_to(&self, region: &Aabb) -> WorldGeometry {
-        let mut out = WorldGeometry {
-            masks: TriangleMasks {
-                triangles: Vec::new(),
-                images: self.masks.images.clone(),
-            },
-            ..WorldGeometry::empty()
-        };
-        let masked = self.masks.any();
-        for (index, ((t, n), a)) in self
-            .triangles
-            .iter()
-            .zip(&self.normals)
-            .zip(&self.albedo)
-            .enumerate()
-        {
+        let mut out = self.empty_like();
+        for (index, (t, n)) in self.triangles.iter().zip(&self.normals).enumerate() {
             let mut b = Aabb::EMPTY;
             t.iter().for_each(|&p| b.grow(p));
             if !b.overlaps(region) {
@@ -157,20 +144,45 @@ impl WorldGeometry {
                 if (p[1] - p[0]).cross(p[2] - p[0]).length_squared() <= 0.0 {
                     continue;
                 }
-                if masked {
-                    let mask = self.masks.triangles.get(index).copied();
-                    out.masks
-                        .triangles
-                        .push(mask.unwrap_or(TriangleMask::OPAQUE).sub(w));
-                }
                 p.iter().for_each(|&q| out.bounds.grow(q));
-                out.triangles.push(p);
-                out.normals
-                    .push(w.map(|w| (n[0] * w.x + n[1] * w.y + n[2] * w.z).normalize_or(n[0])));
-                out.albedo.push(*a);
+                let m = w.map(|w| (n[0] * w.x + n[1] * w.y + n[2] * w.z).normalize_or(n[0]));
+                out.push_piece(self, index, p, m, w);
             }
         }
         out
+    }
+
+    /// No triangles, the masks' images of `self` (for pieces of its triangles).
+    fn empty_like(&self) -> WorldGeometry {
+        WorldGeometry {
+            masks: TriangleMasks {
+                triangles: Vec::new(),
+                images: self.masks.images.clone(),
+            },
+            ..WorldGeometry::empty()
+        }
+    }
+
+    /// Appends a piece of triangle `index` of `source`: corners `p`, normals `n`, the
+    /// source's albedo and its mask over the piece, whose corners are the weights `w` of the
+    /// source's corners.
+    fn push_piece(
+        &mut self,
+        source: &WorldGeometry,
+        index: usize,
+        p: [Vec3; 3],
+        n: [Vec3; 3],
+        w: [Vec3; 3],
+    ) {
+        if source.masks.any() {
+            let mask = source.masks.triangles.get(index).copied();
+            self.masks
+                .triangles
+                .push(mask.unwrap_or(TriangleMask::OPAQUE).sub(w));
+        }
+        self.triangles.push(p);
+        self.normals.push(n);
+        self.albedo.push(source.albedo[index]);
     }
 
     /// A copy whose triangles have no edge longer than `max_edge` (longest-edge bisection, at
@@ -187,25 +199,12 @@ impl WorldGeometry {
     pub fn tessellated_pieces(&self, max_edge: f32) -> (WorldGeometry, Vec<Piece>) {
         let mut pieces = Vec::with_capacity(self.triangles.len());
         let mut out = WorldGeometry {
-            triangles: Vec::with_capacity(self.triangles.len()),
-            normals: Vec::with_capacity(self.triangles.len()),
-            albedo: Vec::with_capacity(self.triangles.len()),
             bounds: self.bounds,
-            masks: TriangleMasks {
-                triangles: Vec::new(),
-                images: self.masks.images.clone(),
-            },
+            ..self.empty_like()
         };
         let max2 = max_edge * max_edge;
         let mut stack = Vec::new();
-        let masked = self.masks.any();
-        for (index, ((t, n), a)) in self
-            .triangles
-            .iter()
-            .zip(&self.normals)
-            .zip(&self.albedo)
-            .enumerate()
-        {
+        for (index, (t, n)) in self.triangles.iter().zip(&self.normals).enumerate() {
             // Corners as barycentric weights of the original triangle (for its mask).
             stack.push((*t, *n, 0u32, [Vec3::X, Vec3::Y, Vec3::Z]));
             while let Some((p, m, depth, w)) = stack.pop() {
@@ -223,14 +222,7 @@ impl WorldGeometry {
                             |best, (i, l)| if l > best.1 { (i, l) } else { best },
                         );
                 if longest <= max2 || depth >= 12 || !longest.is_finite() {
-                    if masked {
-                        let mask = self.masks.triangles.get(index);
-                        let mask = mask.copied().unwrap_or(TriangleMask::OPAQUE);
-                        out.masks.triangles.push(mask.sub(w));
-                    }
-                    out.triangles.push(p);
-                    out.normals.push(m);
-                    out.albedo.push(*a);
+                    out.push_piece(self, index, p, m, w);
                     pieces.push(Piece {
                         source: index as u32,
                         weights: w,

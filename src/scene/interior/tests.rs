@@ -121,6 +121,18 @@ impl Level {
     fn rays(&self) -> TriangleScene {
         TriangleScene::from_triangles(&self.tris, &[]).expect("triangles")
     }
+    /// Adds the level to `scene` as one more object (single-sided).
+    fn add_to(&self, scene: &mut Scene) {
+        let own = self.scene(false);
+        let (base, first) = (scene.vertices.len() as u32, scene.indices.len() as u32);
+        scene.vertices.extend_from_slice(&own.vertices);
+        scene.indices.extend(own.indices.iter().copied());
+        scene.objects.push(crate::scene::Object {
+            first_index: first,
+            vertex_offset: base,
+            ..own.objects[0].clone()
+        });
+    }
     /// The level as a scene of one object, all double-sided when `two_sided`.
     fn scene(&self, two_sided: bool) -> Scene {
         let m = Mesh::from_triangles(&self.tris);
@@ -254,16 +266,7 @@ fn a_level_inside_a_sky_dome_is_walked_as_without_it() {
         }
     }
     let mut scene = l.scene(false);
-    let dome = sky.scene(false);
-    let base = scene.vertices.len() as u32;
-    let first = scene.indices.len() as u32;
-    scene.vertices.extend_from_slice(&dome.vertices);
-    scene.indices.extend(dome.indices.iter().copied());
-    scene.objects.push(crate::scene::Object {
-        first_index: first,
-        vertex_offset: base,
-        ..dome.objects[0].clone()
-    });
+    sky.add_to(&mut scene);
     let backdrop = crate::scene::backdrop::find(&scene).expect("the dome is the backdrop");
     assert_eq!(backdrop.sky, vec![1]);
     // With the dome, the floor grid over 2 km has a few cells over the level: no inside.
@@ -285,16 +288,7 @@ fn a_level_on_a_ground_far_larger_than_itself_is_walked() {
     let mut ground = Level::default();
     ground.flat((-1000.0, -1000.0, 1000.0, 1000.0), -0.01, true);
     let mut scene = l.scene(false);
-    let plate = ground.scene(false);
-    let base = scene.vertices.len() as u32;
-    let first = scene.indices.len() as u32;
-    scene.vertices.extend_from_slice(&plate.vertices);
-    scene.indices.extend(plate.indices.iter().copied());
-    scene.objects.push(crate::scene::Object {
-        first_index: first,
-        vertex_offset: base,
-        ..plate.objects[0].clone()
-    });
+    ground.add_to(&mut scene);
     let backdrop = crate::scene::backdrop::find(&scene).expect("the plate is a ground");
     assert_eq!((backdrop.sky.len(), backdrop.ground.clone()), (0, vec![1]));
     // Searched over the whole plate, the grid's cells are wider than the rooms: no inside.
