@@ -491,6 +491,44 @@ fn static_geometry(scene: &Scene, statics: usize, ground: Option<&Ground>) -> Wo
     out
 }
 
+/// What `gi` takes of `scene` when it has a [backdrop](crate::scene::backdrop): a sky dome or
+/// box is sky here, not a surface that bounces the spotlight's light, so it is left out; a
+/// ground far larger than the level is cut to the region around it. Left whole, their size
+/// would set the shadow maps' range and the splitting of long triangles. A note on stderr
+/// says what was done.
+fn without_backdrop(scene: &Scene) -> (std::borrow::Cow<'_, Scene>, Option<Ground>) {
+    let Some(b) = crate::scene::backdrop::find(scene) else {
+        return (std::borrow::Cow::Borrowed(scene), None);
+    };
+    let scene = if b.sky.is_empty() {
+        std::borrow::Cow::Borrowed(scene)
+    } else {
+        eprintln!(
+            "note: scene \"{}\": gi leaves out the {} object(s) that enclose the rest like a \
+             sky dome or box",
+            scene.name,
+            b.sky.len()
+        );
+        std::borrow::Cow::Owned(crate::scene::backdrop::without_sky(scene, &b))
+    };
+    let ground = (!b.ground.is_empty()).then(|| {
+        eprintln!(
+            "note: scene \"{}\": gi cuts the {} object(s) under the rest like a ground to the \
+             region around it",
+            scene.name,
+            b.ground.len()
+        );
+        Ground {
+            // Indices in `scene`, the sky taken out.
+            objects: (b.ground.iter())
+                .map(|&g| g - b.sky.partition_point(|&s| s < g))
+                .collect(),
+            region: b.search_region(&scene.bounds()),
+        }
+    });
+    (scene, ground)
+}
+
 impl World {
     /// `scene`'s triangles (`ground`'s cut to its region); with `movers` > 0 or objects its
     /// glTF animation moves, the movers are added: the static triangles are split here (as
@@ -729,40 +767,8 @@ pub fn run_reporting(
             "gi needs at least one VPL and one frame".into(),
         ));
     }
-    // A sky dome or box is sky here, not a surface that bounces the spotlight's light, and
-    // a ground far larger than the level is cut to the region around it: left whole, their
-    // size would set the shadow maps' range and the splitting of long triangles.
-    let backdrop = crate::scene::backdrop::find(scene);
-    let trimmed;
-    let scene = match &backdrop {
-        Some(b) if !b.sky.is_empty() => {
-            eprintln!(
-                "note: scene \"{}\": gi leaves out the {} object(s) that enclose the rest like \
-                 a sky dome or box",
-                scene.name,
-                b.sky.len()
-            );
-            trimmed = crate::scene::backdrop::without_sky(scene, b);
-            &trimmed
-        }
-        _ => scene,
-    };
-    let ground = backdrop.as_ref().filter(|b| !b.ground.is_empty()).map(|b| {
-        eprintln!(
-            "note: scene \"{}\": gi cuts the {} object(s) under the rest like a ground to the \
-             region around it",
-            scene.name,
-            b.ground.len()
-        );
-        // Indices in `scene`, the sky taken out.
-        let objects = (b.ground.iter())
-            .map(|&g| g - b.sky.partition_point(|&s| s < g))
-            .collect();
-        Ground {
-            objects,
-            region: b.search_region(&scene.bounds()),
-        }
-    });
+    let (scene, ground) = without_backdrop(scene);
+    let scene = scene.as_ref();
     let mut world = World::new(scene, setup.movers, ground.as_ref());
     // The user's keys, else the light path found with the interior walk, else the default.
     let found = scene.path(crate::scene::interior::LIGHT_PATH_NAME).ok();
