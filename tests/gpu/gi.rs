@@ -196,3 +196,69 @@ fn empty_geometry_renders_dark_frames_in_every_shadow_variant() {
     drop(ctx);
     assert_eq!(log.count(), 0, "validation messages: {:?}", log.messages());
 }
+
+/// The Cornell box inside a sky dome 200 times its size (a glTF level's backdrop) lights and
+/// renders as the box alone: gi leaves the sky out. Left in, the dome's size set the shadow
+/// maps' range and the splitting of long triangles, and the frames came out nearly black.
+#[test]
+fn a_sky_dome_around_the_scene_changes_nothing_in_gi() {
+    use coherent::app::gi_run::{self, GiMode, GiRunOptions};
+    use coherent::gi::IsmOptions;
+    use coherent::scene::mesh::Mesh;
+    use coherent::scene::Object;
+    use glam::Mat4;
+
+    let (ctx, log) = crate::common::context();
+    let plain = Scene::load("cornell", 1.0, 0).expect("scene");
+    let mut domed = plain.clone();
+    let b = plain.bounds();
+    let dome = Mesh::sphere(24, 12);
+    let transform = Mat4::from_translation(b.center())
+        * Mat4::from_scale(Vec3::splat(200.0 * b.extent().length()));
+    let (vertex_offset, first_index) = (domed.vertices.len() as u32, domed.indices.len() as u32);
+    domed.vertices.extend_from_slice(&dome.vertices);
+    domed.indices.extend_from_slice(&dome.indices);
+    domed.objects.push(Object {
+        first_index,
+        index_count: dome.indices.len() as u32,
+        vertex_offset,
+        vertex_count: dome.vertices.len() as u32,
+        transform,
+        color: glam::Vec4::ONE,
+        bounds: dome.bounds().transformed(&transform),
+        material: None,
+    });
+    let sky = coherent::scene::backdrop::find(&domed).expect("the dome is a backdrop");
+    assert_eq!(sky.sky, vec![plain.objects.len()]);
+    let opts = GiRunOptions {
+        vpls: 16,
+        budget: 4,
+        frames: 3,
+        width: 64,
+        height: 48,
+        modes: vec![GiMode::Incremental],
+        shadow_size: 64,
+        sample_frames: 1,
+        ism: IsmOptions {
+            map_size: 16,
+            points_per_vpl: 256,
+        },
+    };
+    let image = |scene: &Scene, name: &str| {
+        let dir = coherent::testing::TempDir::new(&format!("gi-dome-{name}"));
+        gi_run::run(&ctx, scene, &opts, Some(dir.path())).expect("gi run");
+        let png = image::open(dir.path().join("incremental.png")).expect("png");
+        png.to_rgba8().into_raw()
+    };
+    let (want, got) = (image(&plain, "plain"), image(&domed, "domed"));
+    let lit = (want.chunks_exact(4))
+        .filter(|p| p[..3].iter().any(|&c| c > 40))
+        .count();
+    assert!(
+        lit > want.len() / 4 / 8,
+        "the box alone is lit: {lit} pixels"
+    );
+    assert!(want == got, "the dome changed the image");
+    drop(ctx);
+    crate::common::assert_silent(&log);
+}
