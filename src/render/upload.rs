@@ -70,8 +70,7 @@ pub fn upload_scene_with_spare(
     let slots = (scene.objects.len() + spare).max(1);
     let mut data: Vec<f32> = Vec::with_capacity(slots * OBJECT_FLOATS);
     for (i, o) in scene.objects.iter().enumerate() {
-        let unlit = scene.object_material(i).is_some_and(|m| m.unlit);
-        data.extend_from_slice(&object_data(&o.transform, o.color, unlit));
+        data.extend_from_slice(&object_data(&o.transform, o.color, scene.is_unlit(i)));
     }
     data.resize(slots * OBJECT_FLOATS, 0.0);
     let objects = Buffer::with_data(

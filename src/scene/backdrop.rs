@@ -66,23 +66,15 @@ impl Backdrop {
         self.sky.binary_search(&i).is_ok()
     }
 
-    /// How many objects it has.
-    pub fn len(&self) -> usize {
-        self.sky.len() + self.ground.len()
-    }
-
-    /// Whether it has no objects (never true for a found backdrop).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     /// The part of the world the interior walk searches for floors: the rest's box grown by
     /// [`SEARCH_MARGIN`] of its diagonal on every side, within `bounds` (the world's).
     pub fn search_region(&self, bounds: &Aabb) -> Aabb {
-        let grow = Vec3::splat(SEARCH_MARGIN * self.rest.extent().length());
+        let grown = self
+            .rest
+            .enlarged(SEARCH_MARGIN * self.rest.extent().length());
         Aabb {
-            min: (self.rest.min - grow).max(bounds.min),
-            max: (self.rest.max + grow).min(bounds.max),
+            min: grown.min.max(bounds.min),
+            max: grown.max.min(bounds.max),
         }
     }
 
@@ -122,8 +114,7 @@ pub fn find(scene: &Scene) -> Option<Backdrop> {
         return None;
     }
     let diag = |b: &Aabb| b.extent().length();
-    let finite = |b: &Aabb| b.min.is_finite() && b.max.is_finite() && b.min.cmple(b.max).all();
-    if !scene.objects.iter().all(|o| finite(&o.bounds)) {
+    if !scene.objects.iter().all(|o| o.bounds.is_valid()) {
         return None;
     }
     // Largest first; ties by index, so the result does not depend on the sort.
@@ -150,7 +141,7 @@ pub fn find(scene: &Scene) -> Option<Backdrop> {
         top = top.union(smallest);
         let others = rest[k];
         let others_diag = diag(&others);
-        if !finite(&others) || diag(smallest) < SIZE_RATIO * others_diag.max(1e-6) {
+        if !others.is_valid() || diag(smallest) < SIZE_RATIO * others_diag.max(1e-6) {
             // Sorted largest first: a larger set only adds smaller objects, but its rest
             // is smaller too, so go on.
             continue;
@@ -212,7 +203,7 @@ fn sky_dirs() -> impl Iterator<Item = Vec3> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::scene::mesh::{Mesh, SceneBuilder};
 
@@ -253,7 +244,7 @@ mod tests {
     }
 
     /// A hemisphere of radius `r` about the origin, fronts facing in, in `rings` x `sides`.
-    fn dome(r: f32, rings: usize, sides: usize) -> Vec<[Vec3; 3]> {
+    pub(crate) fn dome(r: f32, rings: usize, sides: usize) -> Vec<[Vec3; 3]> {
         let p = |i: usize, j: usize| {
             let e = std::f32::consts::FRAC_PI_2 * i as f32 / rings as f32;
             let a = std::f32::consts::TAU * j as f32 / sides as f32;
@@ -347,7 +338,9 @@ mod tests {
         let found = find(&scene_of(&objects)).expect("a ground");
         assert_eq!((found.sky.clone(), found.ground.clone()), (vec![], vec![5]));
         // The walk searches the level's plan and a quarter of its diagonal around it.
-        let bounds = found.rest.union(&objects_box(&objects[5]));
+        let bounds = found
+            .rest
+            .union(&Mesh::from_triangles(&objects[5]).bounds());
         let region = found.search_region(&bounds);
         let grow = SEARCH_MARGIN * found.rest.extent().length();
         assert!((region.max.x - (10.0 + grow)).abs() < 1e-3, "{region:?}");
@@ -386,12 +379,5 @@ mod tests {
         assert_eq!(find(&scene_of(&objects)), None);
         // A level alone.
         assert_eq!(find(&scene_of(&level())), None);
-    }
-
-    /// The box of `triangles`.
-    fn objects_box(triangles: &[[Vec3; 3]]) -> Aabb {
-        let mut b = Aabb::EMPTY;
-        triangles.iter().flatten().for_each(|&p| b.grow(p));
-        b
     }
 }

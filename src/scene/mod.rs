@@ -112,6 +112,12 @@ impl Scene {
         Some((self.images.get(t.image as usize)?, &t.sampler))
     }
 
+    /// Whether `object`'s material is unlit ([`Material::unlit`]): the forward pass draws its
+    /// color without the light.
+    pub fn is_unlit(&self, object: usize) -> bool {
+        self.object_material(object).is_some_and(|m| m.unlit)
+    }
+
     /// Whether `object` is blended ([`Material::blend`]): drawn by the renderer after the
     /// culled pass, and kept out of the culling hierarchy.
     pub fn is_blended(&self, object: usize) -> bool {
@@ -250,12 +256,14 @@ impl Scene {
             }
             if scale != 1.0 {
                 scene.magnify(scale);
-                gltf::refit_default_path(&mut scene, None);
             }
             chunk::split_large_objects(&mut scene, chunk_triangles);
-            if let Some(b) = backdrop::find(&scene) {
+            let backdrop = backdrop::find(&scene);
+            if let Some(b) = &backdrop {
                 eprintln!("note: {}", b.note(&scene.name));
-                gltf::refit_default_path(&mut scene, Some(b.rest));
+            }
+            if scale != 1.0 || backdrop.is_some() {
+                gltf::refit_default_path(&mut scene, backdrop.map(|b| b.rest));
             }
             match cache_dir {
                 Some(dir) => {

@@ -248,23 +248,12 @@ fn a_level_inside_a_sky_dome_is_walked_as_without_it() {
     let mut l = Level::default();
     let rooms = row_of_rooms(&mut l, 0.0, true);
     l.flat((18.0, -20.0, 60.0, 26.0), 0.0, true);
-    let mut sky = Level::default();
-    let (r, rings, sides) = (1000.0f32, 8, 24);
-    let p = |i: usize, j: usize| {
-        let e = std::f32::consts::FRAC_PI_2 * i as f32 / rings as f32;
-        let a = std::f32::consts::TAU * j as f32 / sides as f32;
-        Vec3::new(
-            20.0 + r * e.cos() * a.cos(),
-            r * e.sin(),
-            r * e.cos() * a.sin(),
-        )
+    let dome = crate::scene::backdrop::tests::dome(1000.0, 8, 24);
+    let sky = Level {
+        tris: (dome.iter())
+            .map(|t| t.map(|p| p + Vec3::X * 20.0))
+            .collect(),
     };
-    for i in 0..rings {
-        for j in 0..sides {
-            sky.tris.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
-            sky.tris.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
-        }
-    }
     let mut scene = l.scene(false);
     sky.add_to(&mut scene);
     let backdrop = crate::scene::backdrop::find(&scene).expect("the dome is the backdrop");

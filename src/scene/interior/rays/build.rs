@@ -146,9 +146,8 @@ pub(super) fn of_objects(
         let two_sided = scene.object_material(i).is_some_and(|m| m.double_sided)
             && !closed_solid(&parts.meshes[mesh as usize].placed_in_order(o.transform));
         let to_local = o.transform.inverse();
-        let unlit = scene.object_material(i).is_some_and(|m| m.unlit);
         let shade = flat_coloured(scene, i, colours)
-            .then(|| (to_local.transpose(), o.color.truncate(), unlit));
+            .then(|| (to_local.transpose(), o.color.truncate(), scene.is_unlit(i)));
         let place = Placement {
             to_world: o.transform,
             to_local,
@@ -171,7 +170,7 @@ fn gather_objects(scene: &Scene, objects: impl Iterator<Item = usize>, colours: 
         let o = &scene.objects[i];
         let normal_matrix =
             flat_coloured(scene, i, colours).then(|| o.transform.inverse().transpose());
-        let light = (!scene.object_material(i).is_some_and(|m| m.unlit)).then_some(scene.sun_dir);
+        let light = (!scene.is_unlit(i)).then_some(scene.sun_dir);
         let first = o.first_index as usize;
         let Some(idx) = scene
             .indices
