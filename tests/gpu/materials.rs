@@ -816,21 +816,33 @@ fn glb_views_jpeg_and_unsupported_images() {
 /// Two quads facing +Z: object 0 red and `doubleSided`, object 1 green and single-sided
 /// (the glTF default), side by side.
 fn two_sided_scene() -> Scene {
-    let mut b = GltfBuilder {
-        materials: vec![
+    two_quads(
+        "two_sided",
+        [
             r#"{"pbrMetallicRoughness":{"baseColorFactor":[1,0,0,1]},"doubleSided":true}"#
                 .to_string(),
             r#"{"pbrMetallicRoughness":{"baseColorFactor":[0,1,0,1]}}"#.to_string(),
         ],
+        "",
+    )
+}
+
+/// Two 1.8 x 2 quads facing +Z side by side, left of x = 0 with material 0 and right of it
+/// with material 1 (JSON objects), with `head` (say, `extensionsUsed`) in the document,
+/// written as `name.gltf` and loaded without a warning.
+fn two_quads(name: &str, materials: [String; 2], head: &str) -> Scene {
+    let mut b = GltfBuilder {
+        materials: materials.to_vec(),
+        head: head.to_string(),
         ..Default::default()
     };
-    let red = quad(&mut b, (-2.0, -1.0, -0.2, 1.0, 0.0), 1.0, None, 0);
-    let green = quad(&mut b, (0.2, -1.0, 2.0, 1.0, 0.0), 1.0, None, 1);
-    for m in [red, green] {
+    let left = quad(&mut b, (-2.0, -1.0, -0.2, 1.0, 0.0), 1.0, None, 0);
+    let right = quad(&mut b, (0.2, -1.0, 2.0, 1.0, 0.0), 1.0, None, 1);
+    for m in [left, right] {
         b.node(m, [0.0, 0.0, 0.0]);
     }
-    let dir = temp_dir("two-sided");
-    let path = dir.join("two_sided.gltf");
+    let dir = temp_dir(name);
+    let path = dir.join(format!("{name}.gltf"));
     std::fs::write(&path, b.gltf_embedded()).expect("write");
     let (scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("load");
     assert!(warnings.is_empty(), "{warnings:?}");
@@ -867,28 +879,17 @@ fn render_from(scene: &Scene, eye: Vec3) -> (Vec<u8>, Vec<u32>, u32) {
 #[test]
 fn unlit_materials_draw_their_color_without_the_light() {
     let color = r#""baseColorFactor":[0.5,0.25,0.1,1]"#;
-    let mut b = GltfBuilder {
-        materials: vec![
+    let mut scene = two_quads(
+        "unlit",
+        [
             format!(r#"{{"pbrMetallicRoughness":{{{color}}}}}"#),
             format!(
                 r#"{{"pbrMetallicRoughness":{{{color}}},"extensions":{{"KHR_materials_unlit":{{}}}}}}"#
             ),
         ],
-        head: r#""extensionsUsed":["KHR_materials_unlit"],"#.to_string(),
-        ..Default::default()
-    };
-    let lit = quad(&mut b, (-2.0, -1.0, -0.2, 1.0, 0.0), 1.0, None, 0);
-    let unlit = quad(&mut b, (0.2, -1.0, 2.0, 1.0, 0.0), 1.0, None, 1);
-    for m in [lit, unlit] {
-        b.node(m, [0.0, 0.0, 0.0]);
-    }
-    let dir = temp_dir("unlit");
-    let path = dir.join("unlit.gltf");
-    std::fs::write(&path, b.gltf_embedded()).expect("write");
-    let (mut scene, warnings) = coherent::scene::gltf::load_gltf(&path).expect("load");
-    assert!(warnings.is_empty(), "{warnings:?}");
-    let unlit_of = |o: usize| scene.object_material(o).is_some_and(|m| m.unlit);
-    assert!(!unlit_of(0) && unlit_of(1));
+        r#""extensionsUsed":["KHR_materials_unlit"],"#,
+    );
+    assert!(!scene.is_unlit(0) && scene.is_unlit(1));
     let want = [0.5f32, 0.25, 0.1].map(|c| (c.powf(1.0 / 2.2) * 255.0).round() as i32);
     let eye = Vec3::new(0.0, 0.0, 5.0);
     let mut lit_pixels = Vec::new();
