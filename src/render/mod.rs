@@ -113,8 +113,8 @@ pub struct Renderer {
     bound: Option<Bound>,
     stall: Duration,
     /// When the frame's last submission was handed to the queue (the CPU's part of the frame
-    /// ends there; `FrameResult::cpu_ms`).
-    last_submit: Option<Instant>,
+    /// ends there; `FrameResult::cpu_ms`), and how long the frame had waited by then.
+    last_submit: Option<(Instant, Duration)>,
     prepass_counts: CommandCounts,
     /// Pixel count above which a query result means visible (for counting wasted queries).
     pub visibility_threshold: u64,
@@ -657,19 +657,20 @@ impl Renderer {
     /// Submits what the recorder holds as one of this frame's segments, noting when.
     fn submit_recorded(&mut self) -> Result<()> {
         let value = self.timeline.submit(&mut self.recorder)?;
-        self.last_submit = Some(Instant::now());
+        self.last_submit = Some((Instant::now(), self.stall));
         self.segment_values.push(value);
         Ok(())
     }
 
     /// The CPU's part of a frame that began at `start` and took `frame_time`: until its last
-    /// submission, less the time blocked on query results.
+    /// submission, less the time blocked on query results before it (a wait after the last
+    /// submission, for the results read at the end of the frame, is not inside that span).
     pub(crate) fn cpu_ms(&self, start: Instant, frame_time: Duration) -> f64 {
-        let until_submit = self
+        let (until_submit, waited) = self
             .last_submit
-            .map(|t| t.saturating_duration_since(start))
-            .unwrap_or(frame_time);
-        until_submit.saturating_sub(self.stall).as_secs_f64() * 1e3
+            .map(|(t, waited)| (t.saturating_duration_since(start), waited))
+            .unwrap_or((frame_time, self.stall));
+        until_submit.saturating_sub(waited).as_secs_f64() * 1e3
     }
 
     fn gpu_time_ms(&self) -> Result<f64> {
