@@ -517,6 +517,8 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
             "--algorithms with --latency names {name} twice (each runs once a pose: name it once)"
         );
     }
+    // The report ends with plots: a missing font fails now, not after the walk.
+    coherent::app::report::plot::check_font()?;
     let ctx = context(a.validation)?;
     a.chcpp.adapt_to_device(&mut params, &ctx, &a.latency);
     let cfg = WalkConfig {
@@ -982,6 +984,10 @@ pub fn gi(a: &GiArgs) -> Result<()> {
     }
     if a.vpls > MAX_VPLS || a.frames > MAX_FRAMES {
         bail!("--vpls must be at most {MAX_VPLS} and --frames at most {MAX_FRAMES}");
+    }
+    if a.out.is_some() {
+        // `rmse.png` ends the run: a missing font fails now, not after it.
+        coherent::app::report::plot::check_font()?;
     }
     let scene = load_scene(
         &a.scene,

@@ -220,3 +220,35 @@ fn walk_repeats_report_ratio_spread() {
     assert_eq!(csv.lines().count(), 1 + 3 * 3 * 2);
     assert!(csv.lines().any(|l| l.starts_with("chcpp,2,1,")));
 }
+
+/// The plots' font is looked for before a walk or a GI run starts: a missing one fails at once
+/// with one line that names it (and `COHERENT_FONT`), before any frame and any file.
+#[test]
+fn walk_and_gi_refuse_a_missing_font_before_they_start() {
+    let dir = tempdir("font");
+    for args in [
+        vec![
+            "walk", "--scene", "cornell", "--frames", "2", "--size", "32x32",
+        ],
+        vec![
+            "gi", "--scene", "cornell", "--frames", "2", "--size", "32x32",
+        ],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_coherent"))
+            .args(&args)
+            .arg("--out")
+            .arg(dir.join(args[0]))
+            .env("COHERENT_FONT", dir.join("no-such-font.ttf"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.starts_with("error: font not found")
+                && err.contains("COHERENT_FONT")
+                && err.trim().lines().count() == 1,
+            "{args:?}: {err}"
+        );
+        assert!(!dir.join(args[0]).exists(), "{args:?} wrote files");
+    }
+}

@@ -12,8 +12,17 @@ use plotters::style::FontStyle;
 
 use crate::Error;
 
-/// Font file registered as the "sans-serif" family on first use.
-pub const FONT_PATH: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+/// Where distributions install DejaVu Sans, tried in order (Debian and Ubuntu, Fedora, Arch,
+/// openSUSE and Alpine); the first that exists is registered as the plots' font on first use.
+pub const FONT_PATHS: [&str; 4] = [
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu-sans-fonts/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+];
+
+/// Environment variable naming the TTF file the plots use instead of [`FONT_PATHS`].
+pub const FONT_ENV: &str = "COHERENT_FONT";
 
 /// One algorithm's count series: name and `(frame, queries, wasted_queries, state_changes)`
 /// points.
@@ -34,18 +43,45 @@ const COLORS: [RGBColor; 8] = [
     RGBColor(140, 90, 40),
 ];
 
+/// Whether the plots can be drawn: the font they use is there and loads. Commands that
+/// end by writing plots call it before they start, so that a missing font costs a one-line
+/// error at once rather than the whole run.
+pub fn check_font() -> crate::Result<()> {
+    ensure_font()
+}
+
 /// Registers the DejaVu Sans font once; later calls return the cached outcome.
 fn ensure_font() -> Result<(), Error> {
     static FONT: OnceLock<Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
-        let bytes = std::fs::read(FONT_PATH)
-            .map_err(|_| format!("font not found: {FONT_PATH} (install fonts-dejavu-core)"))?;
+        let (path, bytes) = read_font()?;
         let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
         plotters::style::register_font(FAMILY, FontStyle::Normal, bytes)
-            .map_err(|_| format!("invalid font file: {FONT_PATH}"))
+            .map_err(|_| format!("invalid font file: {path} (the plots need a TTF font)"))
     })
     .clone()
     .map_err(Error::Input)
+}
+
+/// The plots' font file and its bytes: the file `COHERENT_FONT` names, else the first of
+/// [`FONT_PATHS`] that can be read.
+fn read_font() -> Result<(String, Vec<u8>), String> {
+    if let Some(path) = std::env::var_os(FONT_ENV) {
+        let path = path.to_string_lossy().into_owned();
+        return std::fs::read(&path)
+            .map(|b| (path.clone(), b))
+            .map_err(|e| format!("font not found: {path} (named by {FONT_ENV}): {e}"));
+    }
+    FONT_PATHS
+        .iter()
+        .find_map(|p| std::fs::read(p).ok().map(|b| (p.to_string(), b)))
+        .ok_or_else(|| {
+            format!(
+                "font not found: DejaVu Sans, looked for {} (install fonts-dejavu-core, or name \
+                 a TTF file in {FONT_ENV})",
+                FONT_PATHS.join(", ")
+            )
+        })
 }
 
 /// Converts a plotters error into the crate error, naming the output file.
