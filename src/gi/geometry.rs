@@ -11,21 +11,104 @@ use crate::scene::material::surface_color;
 use crate::scene::raycast::RayScene;
 use crate::scene::{Aabb, SamplerDesc, Scene, TextureImage, VertexAttributes};
 
+/// Mip chains of the base color images that triangles are averaged over, made on first use
+/// and shared by the objects that use an image (keyed by the image's address, valid while the
+/// scene is borrowed).
+#[derive(Default)]
+pub struct TextureMips {
+    chains: HashMap<usize, Vec<TextureImage>>,
+}
+
+impl TextureMips {
+    /// The level of `image` at `lod` (0: the image itself; past the last, the last, 1x1).
+    fn level<'a>(&'a mut self, image: &'a TextureImage, lod: u32) -> &'a TextureImage {
+        if lod == 0 {
+            return image;
+        }
+        let chain = self
+            .chains
+            .entry(image as *const TextureImage as usize)
+            .or_insert_with(|| {
+                let mut chain: Vec<TextureImage> = Vec::new();
+                let mut last = image;
+                while last.width > 1 || last.height > 1 {
+                    chain.push(last.halved());
+                    last = chain.last().expect("pushed");
+                }
+                chain
+            });
+        match chain.len() {
+            0 => image,
+            n => &chain[(lod as usize).min(n) - 1],
+        }
+    }
+}
+
 /// One albedo for a triangle of a scene with materials: base color factor x vertex color x
-/// base color texture, averaged over its corners and centroid (the GI's G-buffer and the ray
-/// caster's hit colors take one albedo per triangle).
+/// base color texture, averaged over 16 points spread over it (the GI's G-buffer and the
+/// ray caster's hit colors take one albedo per triangle). The texture is read at the mip level
+/// where a texel covers a sixteenth to a quarter of the triangle's footprint, so a large
+/// triangle over a tiled texture takes about the texture's mean rather than a few of its
+/// texels (neighbouring triangles of one wall get about one albedo, not a patchwork), while
+/// the points, kept off its sides, read little from beyond them (an atlas's other charts).
 fn material_albedo(
     base: glam::Vec4,
     corners: &[VertexAttributes; 3],
     texture: Option<(&TextureImage, &SamplerDesc)>,
+    mips: &mut TextureMips,
 ) -> Vec3 {
-    let weights = [Vec3::X, Vec3::Y, Vec3::Z, Vec3::splat(1.0 / 3.0)];
+    let weights = &*SUBTRIANGLE_CENTROIDS;
+    let level = texture.map(|(image, sampler)| {
+        let uv = corners.map(|c| glam::Vec2::from(c.uv));
+        let texels = (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]).abs()
+            * 0.5
+            * image.width as f32
+            * image.height as f32;
+        // A texel of level `lod` covers 4^lod texels of level 0: two levels finer than the
+        // one whose texel is the whole footprint.
+        let lod = if texels.is_finite() && texels > 1.0 {
+            ((0.5 * texels.log2()).floor().min(31.0) as u32).saturating_sub(2)
+        } else {
+            0
+        };
+        // Minified, the level is read filtered; at level 0 as the sampler says.
+        let filtered = SamplerDesc {
+            mag_linear: sampler.mag_linear || lod > 0,
+            ..*sampler
+        };
+        (mips.level(image, lod), filtered)
+    });
+    let texture = level.as_ref().map(|(image, sampler)| (*image, sampler));
     let sum: glam::Vec4 = weights
         .iter()
         .map(|&w| surface_color(base, corners, w, texture))
         .sum();
     (sum / weights.len() as f32).truncate()
 }
+
+/// Sides of a triangle cut into this many parts: `SUBTRIANGLES_PER_SIDE`² sub-triangles.
+const SUBTRIANGLES_PER_SIDE: usize = 4;
+
+/// The barycentric centroids of a triangle's sub-triangles when its sides are cut into
+/// [`SUBTRIANGLES_PER_SIDE`] parts: points spread evenly over it, each at least a twelfth of
+/// the way in from every side, averaging to its centroid.
+static SUBTRIANGLE_CENTROIDS: std::sync::LazyLock<Vec<Vec3>> = std::sync::LazyLock::new(|| {
+    let k = SUBTRIANGLES_PER_SIDE;
+    let point = |a: f32, b: f32| {
+        let (a, b) = (a / k as f32, b / k as f32);
+        Vec3::new(a, b, 1.0 - a - b)
+    };
+    let mut points = Vec::with_capacity(k * k);
+    for i in 0..k {
+        for j in 0..k - i {
+            points.push(point(i as f32 + 1.0 / 3.0, j as f32 + 1.0 / 3.0));
+            if i + j + 2 <= k {
+                points.push(point(i as f32 + 2.0 / 3.0, j as f32 + 2.0 / 3.0));
+            }
+        }
+    }
+    points
+});
 
 /// Floats per GPU vertex: position (vec4), normal (vec4), albedo (vec4), std430 layout.
 pub const VERTEX_FLOATS: usize = 12;
@@ -64,16 +147,18 @@ impl WorldGeometry {
     /// [`WorldGeometry::from_scene`] for the objects in `objects` only, in order.
     pub fn from_objects(scene: &Scene, objects: impl IntoIterator<Item = usize>) -> WorldGeometry {
         let mut out = WorldGeometry::empty();
+        let mut mips = TextureMips::default();
         for index in objects {
-            out.push_object(scene, index, &scene.objects[index].transform);
+            out.push_object(scene, index, &scene.objects[index].transform, &mut mips);
         }
         out
     }
 
-    /// Object `index` of `scene` in its own space (its transform not applied).
-    pub fn object_local(scene: &Scene, index: usize) -> WorldGeometry {
+    /// Object `index` of `scene` in its own space (its transform not applied); `mips` holds
+    /// the texture levels made so far, for objects that share images.
+    pub fn object_local(scene: &Scene, index: usize, mips: &mut TextureMips) -> WorldGeometry {
         let mut out = WorldGeometry::empty();
-        out.push_object(scene, index, &Mat4::IDENTITY);
+        out.push_object(scene, index, &Mat4::IDENTITY, mips);
         out
     }
 
@@ -89,7 +174,13 @@ impl WorldGeometry {
     }
 
     /// Appends the triangles of object `index` of `scene`, placed by `transform`.
-    fn push_object(&mut self, scene: &Scene, index: usize, transform: &Mat4) {
+    fn push_object(
+        &mut self,
+        scene: &Scene,
+        index: usize,
+        transform: &Mat4,
+        mips: &mut TextureMips,
+    ) {
         let o = &scene.objects[index];
         let texture = scene
             .object_material(index)
@@ -116,7 +207,7 @@ impl WorldGeometry {
                 let corner = |k: usize| (o.vertex_offset + tri[k]) as usize;
                 let a = [corner(0), corner(1), corner(2)]
                     .map(|i| scene.attributes.get(i).copied().unwrap_or_default());
-                material_albedo(o.color, &a, texture)
+                material_albedo(o.color, &a, texture, mips)
             } else {
                 color
             });
@@ -596,6 +687,83 @@ mod material_tests {
                 .max_element()
                 < 1e-5
         );
+    }
+
+    /// `scene(true)` with a 64x64 checker of white and black texels (sampled nearest) and
+    /// its triangle's corners at `uv`.
+    fn checker(uv: [[f32; 2]; 3]) -> Scene {
+        let mut s = scene(true);
+        for (a, uv) in s.attributes.iter_mut().zip(uv) {
+            a.uv = uv;
+        }
+        let rgba = (0..64 * 64)
+            .flat_map(|i| {
+                let c = if (i % 64 + i / 64) % 2 == 0 { 255 } else { 0 };
+                [c, c, c, 255]
+            })
+            .collect();
+        s.images = vec![TextureImage {
+            width: 64,
+            height: 64,
+            rgba,
+        }];
+        s
+    }
+
+    #[test]
+    fn a_triangle_over_many_texels_takes_their_mean() {
+        // The triangle covers half of the checker once, or of 8x8 repeats of it: its albedo
+        // is the checker's mean (linear 0.5), where its corners and centroid read nearest
+        // at level 0 gave 0.75 (three white texels and a black one).
+        let (o, t) = (0.3 / 64.0, 0.7 / 64.0);
+        for scale in [1.0, 8.0] {
+            let uv = [[o, t], [o + scale, t], [o, t + scale]];
+            let g = WorldGeometry::from_scene(&checker(uv));
+            let red = g.albedo[0].x;
+            assert!((red - 0.5).abs() < 0.02, "uv x{scale}: {red}");
+        }
+    }
+
+    #[test]
+    fn the_sample_points_cover_the_triangle_evenly() {
+        let points = &*super::SUBTRIANGLE_CENTROIDS;
+        assert_eq!(points.len(), 16);
+        let mean = points.iter().sum::<Vec3>() / points.len() as f32;
+        assert!(
+            (mean - Vec3::splat(1.0 / 3.0)).abs().max_element() < 1e-6,
+            "{mean}"
+        );
+        for p in points {
+            assert!(p.min_element() >= 1.0 / 12.0 - 1e-6, "{p}");
+            assert!((p.element_sum() - 1.0).abs() < 1e-6, "{p}");
+        }
+    }
+
+    #[test]
+    fn a_triangle_in_one_chart_of_an_atlas_takes_its_color() {
+        // Left half white, right half black; the triangle lies in the left half, its
+        // longest side near the middle: its albedo is white, not mixed with the black half
+        // (its corners and centroid read at the level of its whole footprint, 4x4, gave
+        // 0.685).
+        let mut s = checker([[0.02, 0.02], [0.48, 0.02], [0.02, 0.98]]);
+        s.images[0].rgba = (0..64 * 64)
+            .flat_map(|i| {
+                let c = if i % 64 < 32 { 255 } else { 0 };
+                [c, c, c, 255]
+            })
+            .collect();
+        let red = WorldGeometry::from_scene(&s).albedo[0].x;
+        assert!(red > 0.99, "{red}");
+    }
+
+    #[test]
+    fn a_triangle_within_a_texel_takes_that_texel() {
+        // A footprint under one texel reads level 0 as the sampler says: nearest, white or
+        // black, nothing between.
+        let (o, t) = (0.3 / 64.0, 0.7 / 64.0);
+        let g = WorldGeometry::from_scene(&checker([[o, t], [o + 0.001, t], [o, t + 0.001]]));
+        let red = g.albedo[0].x;
+        assert!(red == 1.0 || red == 0.0, "{red}");
     }
 }
 

@@ -86,9 +86,10 @@ impl GiMovers {
         let mut transforms = Vec::with_capacity(movers.len());
         let mut boxes = Vec::with_capacity(movers.len());
         let mut shapes = Vec::with_capacity(movers.len());
+        let mut mips = crate::gi::geometry::TextureMips::default();
         for i in 0..movers.len() {
             let object = movers.object(i) as usize;
-            let geometry = WorldGeometry::object_local(scene, object);
+            let geometry = WorldGeometry::object_local(scene, object, &mut mips);
             // Slightly shorter than the static edges, so that placing the pieces (a rigid
             // motion, exact only up to rounding) never makes the renderer split them again.
             let (split, pieces) = geometry.tessellated_pieces(max_edge * 0.999);

@@ -101,14 +101,19 @@ pub struct TextureImage {
     pub rgba: Vec<u8>,
 }
 
-/// sRGB-encoded 8-bit value to linear.
+/// sRGB-encoded 8-bit value to linear (a table of the 256 values, made on first use).
 pub fn srgb_to_linear(c: u8) -> f32 {
-    let c = f32::from(c) / 255.0;
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
+    static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        std::array::from_fn(|i| {
+            let c = i as f32 / 255.0;
+            if c <= 0.04045 {
+                c / 12.92
+            } else {
+                ((c + 0.055) / 1.055).powf(2.4)
+            }
+        })
+    })[usize::from(c)]
 }
 
 /// Linear value to sRGB-encoded 8-bit.
