@@ -11,11 +11,11 @@ use crate::scene::material::surface_color;
 use crate::scene::raycast::RayScene;
 use crate::scene::{Aabb, SamplerDesc, Scene, TextureImage, VertexAttributes};
 
-/// Mip chains of the base color images that triangles are averaged over, made on first use
-/// and shared by the objects that use an image (keyed by the image's address, valid while the
-/// scene is borrowed).
+/// Mip chains of one scene's base color images that triangles are averaged over, made on
+/// first use and shared by the objects that use an image (keyed by the image's address: one
+/// value serves one scene, while it is borrowed).
 #[derive(Default)]
-pub struct TextureMips {
+pub(crate) struct TextureMips {
     chains: HashMap<usize, Vec<TextureImage>>,
 }
 
@@ -57,7 +57,11 @@ fn material_albedo(
     texture: Option<(&TextureImage, &SamplerDesc)>,
     mips: &mut TextureMips,
 ) -> Vec3 {
-    let weights = &*SUBTRIANGLE_CENTROIDS;
+    // Without a texture the color is linear over the triangle: its centroid is its mean.
+    let weights: &[Vec3] = match texture {
+        Some(_) => &SUBTRIANGLE_CENTROIDS,
+        None => &[Vec3::splat(1.0 / 3.0)],
+    };
     let level = texture.map(|(image, sampler)| {
         let uv = corners.map(|c| glam::Vec2::from(c.uv));
         let texels = (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]).abs()
@@ -156,7 +160,11 @@ impl WorldGeometry {
 
     /// Object `index` of `scene` in its own space (its transform not applied); `mips` holds
     /// the texture levels made so far, for objects that share images.
-    pub fn object_local(scene: &Scene, index: usize, mips: &mut TextureMips) -> WorldGeometry {
+    pub(crate) fn object_local(
+        scene: &Scene,
+        index: usize,
+        mips: &mut TextureMips,
+    ) -> WorldGeometry {
         let mut out = WorldGeometry::empty();
         out.push_object(scene, index, &Mat4::IDENTITY, mips);
         out
