@@ -22,7 +22,9 @@ pub(crate) struct TextureMips {
 impl TextureMips {
     /// The level of `image` at `lod` (0: the image itself; past the last, the last, 1x1).
     fn level<'a>(&'a mut self, image: &'a TextureImage, lod: u32) -> &'a TextureImage {
-        if lod == 0 {
+        // An image without texels is left to `TextureImage::sample`, which reads it as white.
+        let texels = image.width as usize * image.height as usize;
+        if lod == 0 || texels == 0 || image.rgba.len() < texels * 4 {
             return image;
         }
         let chain = self
@@ -762,6 +764,20 @@ mod material_tests {
             .collect();
         let red = WorldGeometry::from_scene(&s).albedo[0].x;
         assert!(red > 0.99, "{red}");
+    }
+
+    #[test]
+    fn an_image_without_texels_reads_as_white() {
+        for (width, height, rgba) in [(0, 5, vec![]), (4, 4, vec![255; 8])] {
+            let mut s = checker([[0.0, 0.0], [8.0, 0.0], [0.0, 8.0]]);
+            s.images[0] = TextureImage {
+                width,
+                height,
+                rgba,
+            };
+            let red = WorldGeometry::from_scene(&s).albedo[0].x;
+            assert_eq!(red, 1.0, "{width}x{height}");
+        }
     }
 
     #[test]
