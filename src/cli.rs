@@ -364,6 +364,10 @@ pub fn info() -> Result<()> {
         "features used:   {} (all present)",
         coherent::gpu::context::REQUIRED_FEATURES.join(", ")
     );
+    match coherent::app::report::plot::font_file() {
+        Ok(path) => println!("plots font:      {path}"),
+        Err(e) => println!("plots font:      {e}; walk and gi --out need it"),
+    }
     Ok(())
 }
 

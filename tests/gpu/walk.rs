@@ -252,3 +252,52 @@ fn walk_and_gi_refuse_a_missing_font_before_they_start() {
         assert!(!dir.join(args[0]).exists(), "{args:?} wrote files");
     }
 }
+
+/// `coherent info` names the device and every optional feature coherent uses, and where the
+/// plots' font is (or that it is missing, which no other command needs).
+#[test]
+fn info_names_the_device_its_features_and_the_plots_font() {
+    let run = |font: Option<&str>| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_coherent"));
+        cmd.arg("info");
+        if let Some(f) = font {
+            cmd.env("COHERENT_FONT", f);
+        }
+        let out = crate::common::on_test_device(&mut cmd).output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    let text = run(None);
+    for label in [
+        "device:",
+        "driver:",
+        "Vulkan version:",
+        "chosen because:",
+        "hiz needs:",
+        "gi shadow maps:",
+        "oracle-box:",
+        "predicated:",
+        "features used:",
+        "plots font:",
+    ] {
+        assert_eq!(
+            text.lines().filter(|l| l.starts_with(label)).count(),
+            1,
+            "{label}\n{text}"
+        );
+    }
+    let font = text.lines().find(|l| l.starts_with("plots font:")).unwrap();
+    let path = font["plots font:".len()..].trim();
+    assert!(std::path::Path::new(path).is_file(), "{font}");
+    let missing = run(Some("/no/such/font.ttf"));
+    assert!(
+        missing.contains(
+            "plots font:      font not found: /no/such/font.ttf (named by COHERENT_FONT)"
+        ),
+        "{missing}"
+    );
+}

@@ -63,18 +63,20 @@ fn ensure_font() -> Result<(), Error> {
     .map_err(Error::Input)
 }
 
-/// The plots' font file and its bytes: the file `COHERENT_FONT` names, else the first of
-/// [`FONT_PATHS`] that can be read.
-fn read_font() -> Result<(String, Vec<u8>), String> {
+/// The plots' font file: the one `COHERENT_FONT` names, else the first of [`FONT_PATHS`]
+/// that is a file. The error says what was looked for.
+pub fn font_file() -> Result<String, String> {
     if let Some(path) = std::env::var_os(FONT_ENV) {
         let path = path.to_string_lossy().into_owned();
-        return std::fs::read(&path)
-            .map(|b| (path.clone(), b))
-            .map_err(|e| format!("font not found: {path} (named by {FONT_ENV}): {e}"));
+        return match Path::new(&path).is_file() {
+            true => Ok(path),
+            false => Err(format!("font not found: {path} (named by {FONT_ENV})")),
+        };
     }
     FONT_PATHS
         .iter()
-        .find_map(|p| std::fs::read(p).ok().map(|b| (p.to_string(), b)))
+        .find(|p| Path::new(p).is_file())
+        .map(|p| p.to_string())
         .ok_or_else(|| {
             format!(
                 "font not found: DejaVu Sans, looked for {} (install fonts-dejavu-core, or name \
@@ -82,6 +84,14 @@ fn read_font() -> Result<(String, Vec<u8>), String> {
                 FONT_PATHS.join(", ")
             )
         })
+}
+
+/// The plots' font file ([`font_file`]) and its bytes.
+fn read_font() -> Result<(String, Vec<u8>), String> {
+    let path = font_file()?;
+    std::fs::read(&path)
+        .map(|b| (path.clone(), b))
+        .map_err(|e| format!("cannot read font {path}: {e}"))
 }
 
 /// Converts a plotters error into the crate error, naming the output file.
