@@ -78,6 +78,11 @@ fuzz_target!(|data: &[u8]| {
                 gi.advance(frame).expect("advanced");
                 assert_eq!(gi.geometry().triangles.len(), pieces);
             }
+            // GI's static geometry: one finite albedo per triangle (its texture averaged over
+            // it at a mip level of its footprint).
+            let world = coherent::gi::geometry::WorldGeometry::from_scene(&scene);
+            assert_eq!(world.albedo.len(), world.triangles.len());
+            assert!(world.albedo.iter().all(|a| a.is_finite()), "an albedo is not finite");
         }
         Err(e) => {
             let text = e.to_string();

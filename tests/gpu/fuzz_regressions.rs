@@ -373,8 +373,16 @@ fn corpus_replays_without_panic() {
         };
         let stem = file.file_name().map(|n| n.to_string_lossy().into_owned());
         let name = format!("{}.{ext}", stem.unwrap_or_default());
-        // Ok or a one-line error are both fine; a panic fails inside.
-        let _ = load_never_panics(&dir, &name, &bytes);
+        // Ok or a one-line error are both fine; a panic fails inside. A loaded scene's GI
+        // geometry has one finite albedo per triangle.
+        if let Ok(scene) = load_never_panics(&dir, &name, &bytes) {
+            let world = coherent::gi::geometry::WorldGeometry::from_scene(&scene);
+            assert_eq!(world.albedo.len(), world.triangles.len(), "{name}");
+            assert!(
+                world.albedo.iter().all(|a| a.is_finite()),
+                "{name}: an albedo is not finite"
+            );
+        }
     }
 }
 
