@@ -12,13 +12,16 @@ use plotters::style::FontStyle;
 
 use crate::Error;
 
-/// Where distributions install DejaVu Sans, tried in order (Debian and Ubuntu, Fedora, Arch,
-/// openSUSE and Alpine); the first that exists is registered as the plots' font on first use.
-pub const FONT_PATHS: [&str; 4] = [
+/// Where DejaVu Sans is commonly installed, tried in order: Debian and Ubuntu
+/// (`fonts-dejavu-core`), Fedora (`dejavu-sans-fonts`, then its older layout), Arch
+/// (`ttf-dejavu`), and straight in `truetype/`. The first that exists is registered as the
+/// plots' font on first use.
+pub const FONT_PATHS: [&str; 5] = [
     "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
     "/usr/share/fonts/dejavu-sans-fonts/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
     "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+    "/usr/share/fonts/truetype/DejaVuSans.ttf",
 ];
 
 /// Environment variable naming the TTF file the plots use instead of [`FONT_PATHS`].
