@@ -23,22 +23,13 @@ impl TextureMips {
     /// The level of `image` at `lod` (0: the image itself; past the last, the last, 1x1).
     fn level<'a>(&'a mut self, image: &'a TextureImage, lod: u32) -> &'a TextureImage {
         // An image without texels is left to `TextureImage::sample`, which reads it as white.
-        let texels = image.width as usize * image.height as usize;
-        if lod == 0 || texels == 0 || image.rgba.len() < texels * 4 {
+        if lod == 0 || !image.has_texels() {
             return image;
         }
         let chain = self
             .chains
             .entry(image as *const TextureImage as usize)
-            .or_insert_with(|| {
-                let mut chain: Vec<TextureImage> = Vec::new();
-                let mut last = image;
-                while last.width > 1 || last.height > 1 {
-                    chain.push(last.halved());
-                    last = chain.last().expect("pushed");
-                }
-                chain
-            });
+            .or_insert_with(|| image.mip_chain());
         match chain.len() {
             0 => image,
             n => &chain[(lod as usize).min(n) - 1],

@@ -199,12 +199,7 @@ fn upload_image(
     if blit {
         return Texture::upload(ctx, oneshot, recorder, name, size, &level0.rgba, Mips::Blit);
     }
-    let mut rest = Vec::new();
-    let mut level = level0.clone();
-    while level.width > 1 || level.height > 1 {
-        level = level.halved();
-        rest.push(level.rgba.clone());
-    }
+    let rest: Vec<Vec<u8>> = level0.mip_chain().into_iter().map(|l| l.rgba).collect();
     Texture::upload(
         ctx,
         oneshot,

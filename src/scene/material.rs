@@ -143,13 +143,29 @@ impl TextureImage {
     /// Samples level 0 at `uv` with the sampler's wrap modes and magnification filter, as
     /// the GPU does for a magnified texture (linear RGBA). For the CPU ray caster's hit colors.
     pub fn sample(&self, uv: Vec2, s: &SamplerDesc) -> Vec4 {
-        if self.width == 0
-            || self.height == 0
-            || self.rgba.len() < (self.width * self.height * 4) as usize
-        {
+        if !self.has_texels() {
             return Vec4::ONE;
         }
         sample_texels(self.width, self.height, uv, s, |x, y| self.texel(x, y))
+    }
+
+    /// Whether the image has texels: both sizes positive and the bytes of all of them there.
+    /// Without, [`TextureImage::sample`] reads it as white.
+    pub fn has_texels(&self) -> bool {
+        let texels = self.width as usize * self.height as usize;
+        texels > 0 && self.rgba.len() >= texels * 4
+    }
+
+    /// The mip levels below this one, each [`TextureImage::halved`] from the one before, down
+    /// to 1x1 (none for a 1x1 image).
+    pub fn mip_chain(&self) -> Vec<TextureImage> {
+        let mut chain: Vec<TextureImage> = Vec::new();
+        let mut last = self;
+        while last.width > 1 || last.height > 1 {
+            chain.push(last.halved());
+            last = chain.last().expect("pushed");
+        }
+        chain
     }
 
     /// The next mip level: half the size (rounded down, at least 1), each texel the average of
