@@ -46,15 +46,11 @@ const COLORS: [RGBColor; 8] = [
     RGBColor(140, 90, 40),
 ];
 
-/// Whether the plots can be drawn: the font they use is there and loads. Commands that
-/// end by writing plots call it before they start, so that a missing font costs a one-line
-/// error at once rather than the whole run.
-pub fn check_font() -> crate::Result<()> {
-    ensure_font()
-}
-
-/// Registers the DejaVu Sans font once; later calls return the cached outcome.
-fn ensure_font() -> Result<(), Error> {
+/// Registers the plots' font once (later calls return the cached outcome): an error when it
+/// is missing or does not load. Every plot calls it first; commands that end by writing plots
+/// call it before they start, so that a missing font costs a one-line error at once rather
+/// than the whole run.
+pub fn check_font() -> Result<(), Error> {
     static FONT: OnceLock<Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
         let (path, bytes) = read_font()?;
@@ -178,7 +174,7 @@ fn plot_one(
         &[(&str, Vec<(u32, f64)>)],
     ) -> Result<(), String>,
 ) -> Result<(), Error> {
-    ensure_font()?;
+    check_font()?;
     let root = BitMapBackend::new(path, (1280, 720)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
     let lines: Vec<(&str, Vec<(u32, f64)>)> = series
@@ -225,7 +221,7 @@ pub fn plot_extra_objects(
 /// wasted queries and state changes per frame, one panel each, on log scales (so that CHC's
 /// hundreds and CHC++'s few are both readable; zero is drawn at the bottom edge).
 pub fn plot_counts(path: &Path, title: &str, series: &[CountSeries]) -> Result<(), Error> {
-    ensure_font()?;
+    check_font()?;
     let root = BitMapBackend::new(path, (1280, 1200)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
     let body = root
