@@ -592,9 +592,11 @@ impl World {
         };
         if let Some(m) = &self.movers {
             if renderer.triangle_count() as usize != self.geometry.triangles.len() {
-                return Err(Error::Input(
-                    "the renderer split the movers' triangles again".into(),
-                ));
+                return Err(Error::Input(format!(
+                    "the renderer split the movers' triangles again ({} triangles of {})",
+                    renderer.triangle_count(),
+                    self.geometry.triangles.len()
+                )));
             }
             let placed = m.geometry();
             self.rays

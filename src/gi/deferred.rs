@@ -1,5 +1,5 @@
-//! Deferred shading for GI: the G-buffer (world position, normal, albedo) rendered from the
-//! camera, the interleaved VPL gather and its geometry-aware blur at half resolution (compute),
+//! Deferred shading for GI: the G-buffer (world position, normal, albedo; the albedo read
+//! from the base color texture per pixel in a textured scene) rendered from the camera, the interleaved VPL gather and its geometry-aware blur at half resolution (compute),
 //! and the resolve pass (geometry-aware upsample, direct spotlight, tone mapping into RGBA8).
 
 use std::sync::Arc;
@@ -9,8 +9,9 @@ use ash::vk;
 use crate::error::Result;
 use crate::gi::geometry::{SharedCorners, VERTEX_FLOATS};
 use crate::gpu::{
-    shaders, Attachment, Buffer, ComputePipeline, DescriptorSet, GpuContext, Image, ImageUse, Load,
-    Pipeline, PipelineDesc, PipelineKind, PipelineLayout, Recorder,
+    as_bytes, shaders, Attachment, Binding, Buffer, ComputePipeline, DescriptorSet, DescriptorSets,
+    GpuContext, Image, ImageUse, Load, Pipeline, PipelineDesc, PipelineKind, PipelineLayout,
+    Recorder,
 };
 
 /// G-buffer position and normal format (also the indirect accumulation format).
@@ -25,7 +26,10 @@ pub struct GBuffer {
     /// For scenes with alpha masks: the G-buffer pipeline that discards masked-out texels,
     /// used instead (see [`GBuffer::enable_masks`]).
     masked_pipeline: Option<Pipeline>,
-    /// Scenes without masks: the indexed pipeline and its indices (see
+    /// Scenes with base color textures: the pipeline that reads the albedo from them, its
+    /// layout, set and data, used instead of the others (see [`GBuffer::enable_textures`]).
+    textured: Option<TexturedGBuffer>,
+    /// Scenes without masks or textures: the indexed pipeline and its indices (see
     /// [`GBuffer::enable_indexed`]).
     indexed: Option<IndexedGBuffer>,
     /// World position (w = 1 where a surface was hit).
@@ -91,6 +95,7 @@ impl GBuffer {
         Ok(GBuffer {
             gbuffer_pipeline,
             masked_pipeline: None,
+            textured: None,
             indexed: None,
             position,
             normal,
@@ -120,6 +125,31 @@ impl GBuffer {
         Ok(())
     }
 
+    /// Draws later G-buffer passes with the pipeline that reads each pixel's albedo from the
+    /// base color textures: `textures` holds two vec4 per vertex of `vertices` and the packed
+    /// images ([`TriangleTextures::gpu_data`](crate::gi::textures::TriangleTextures::gpu_data));
+    /// with `masks` (the masked shadow pass's data), the variant that also discards
+    /// masked-out texels. Its own layout (storage buffers: vertices, slots, mask vertices,
+    /// mask images, texture vertices, texture images) and set; [`GBuffer::record_gbuffer`]
+    /// then ignores the set it is given.
+    pub fn enable_textures(
+        &mut self,
+        ctx: &Arc<GpuContext>,
+        push_size: u32,
+        (vertices, slots): (&Buffer, &Buffer),
+        masks: Option<&(Vec<f32>, Vec<u32>)>,
+        (texture_vertices, words): &(Vec<f32>, Vec<u32>),
+    ) -> Result<()> {
+        self.textured = Some(TexturedGBuffer::new(
+            ctx,
+            push_size,
+            (vertices, slots),
+            masks,
+            (texture_vertices, words),
+        )?);
+        Ok(())
+    }
+
     /// Draws later passes indexed, reading the renderer's vertex buffer (`vertex_floats`, its
     /// contents, [`VERTEX_FLOATS`] per vertex) as vertex attributes: corners with identical
     /// position, normal and albedo share an index, so the vertex stage runs about once per
@@ -131,7 +161,7 @@ impl GBuffer {
         layout: &PipelineLayout,
         vertex_floats: &[f32],
     ) -> Result<()> {
-        if self.masked_pipeline.is_some() {
+        if self.masked_pipeline.is_some() || self.textured.is_some() {
             return Ok(());
         }
         let desc = PipelineDesc {
@@ -202,16 +232,22 @@ impl GBuffer {
         rec.begin_rendering(&color, Some(depth), 1)?;
         // Nothing to draw binds no vertex buffers (left bound for a later pipeline without
         // vertex input, they draw a best-practices warning).
-        let indexed = self
-            .indexed
-            .as_ref()
-            .filter(|_| self.masked_pipeline.is_none() && vertex_count > 0);
-        match indexed {
-            Some(ix) => {
+        let indexed = self.indexed.as_ref().filter(|_| {
+            self.masked_pipeline.is_none() && self.textured.is_none() && vertex_count > 0
+        });
+        let (layout, set) = match &self.textured {
+            Some(t) => (&t.layout, t.sets.get(0)),
+            None => (layout, set),
+        };
+        match (indexed, &self.textured) {
+            (Some(ix), _) => {
                 rec.bind_pipeline(&ix.pipeline);
                 rec.bind_buffers(vertices, 0, Some(ix.indices.buffer()));
             }
-            None => {
+            (None, Some(t)) => {
+                rec.bind_pipeline(&t.pipeline);
+            }
+            (None, None) => {
                 rec.bind_pipeline(
                     self.masked_pipeline
                         .as_ref()
@@ -283,6 +319,84 @@ struct IndexedGBuffer {
     pipeline: Pipeline,
     /// Identical vertices share an index.
     indices: SharedCorners<VERTEX_FLOATS>,
+}
+
+/// The textured G-buffer pass: its pipeline (masked or not), layout, set and the buffers the
+/// set points at besides the renderer's vertices and slots.
+struct TexturedGBuffer {
+    // Sets and the pipeline before the layout, buffers last.
+    sets: DescriptorSets,
+    pipeline: Pipeline,
+    layout: PipelineLayout,
+    #[allow(dead_code)] // owned here; the set points at them
+    buffers: [Buffer; 4],
+}
+
+impl TexturedGBuffer {
+    fn new(
+        ctx: &Arc<GpuContext>,
+        push_size: u32,
+        (vertices, slots): (&Buffer, &Buffer),
+        masks: Option<&(Vec<f32>, Vec<u32>)>,
+        (texture_vertices, words): (&Vec<f32>, &Vec<u32>),
+    ) -> Result<TexturedGBuffer> {
+        let storage = vk::DescriptorType::STORAGE_BUFFER;
+        let layout = PipelineLayout::new(ctx, &[storage; 6], push_size)?;
+        let upload = |name: &str, bytes: &[u8]| -> Result<Buffer> {
+            ctx.info
+                .check_storage_buffer(&format!("gi: the {name}"), bytes.len() as u64)?;
+            let mut b = Buffer::new(
+                ctx,
+                name,
+                bytes.len().max(16) as u64,
+                vk::BufferUsageFlags::STORAGE_BUFFER,
+                gpu_allocator::MemoryLocation::CpuToGpu,
+            )?;
+            b.write(0, bytes)?;
+            Ok(b)
+        };
+        // Without masks the pipeline reads neither mask binding: a word each stands in.
+        let (mask_vertices, mask_words) = match masks {
+            Some((v, w)) => (as_bytes(v), as_bytes(w)),
+            None => (as_bytes(&[0f32][..]), as_bytes(&[0u32][..])),
+        };
+        let buffers = [
+            upload("gbuffer mask vertices", &mask_vertices)?,
+            upload("gbuffer mask images", &mask_words)?,
+            upload("gbuffer texture vertices", &as_bytes(texture_vertices))?,
+            upload("gbuffer texture images", &as_bytes(words))?,
+        ];
+        let desc = match masks {
+            Some(_) => PipelineDesc {
+                name: "gi gbuffer textured masked",
+                vert: shaders::GI_GBUFFER_TEXTURED_MASKED_VERT,
+                frag: Some(shaders::GI_GBUFFER_TEXTURED_MASKED_FRAG),
+                ..gbuffer_desc()
+            },
+            None => PipelineDesc {
+                name: "gi gbuffer textured",
+                vert: shaders::GI_GBUFFER_TEXTURED_VERT,
+                frag: Some(shaders::GI_GBUFFER_TEXTURED_FRAG),
+                ..gbuffer_desc()
+            },
+        };
+        let pipeline = Pipeline::graphics(ctx, &layout, &desc)?;
+        let bindings = [
+            Binding::StorageBuffer(vertices),
+            Binding::StorageBuffer(slots),
+            Binding::StorageBuffer(&buffers[0]),
+            Binding::StorageBuffer(&buffers[1]),
+            Binding::StorageBuffer(&buffers[2]),
+            Binding::StorageBuffer(&buffers[3]),
+        ];
+        let sets = DescriptorSets::new(ctx, &[(&layout, &bindings)])?;
+        Ok(TexturedGBuffer {
+            sets,
+            pipeline,
+            layout,
+            buffers,
+        })
+    }
 }
 
 /// The G-buffer pipeline: three color targets and depth, no culling.

@@ -5,6 +5,7 @@ use std::collections::HashMap;
 
 use glam::{Mat3, Mat4, Vec3};
 
+use crate::gi::textures::{TriangleTextures, MAX_EDGE};
 use crate::scene::interior::cache::Words;
 use crate::scene::mask::{TriangleMask, TriangleMasks};
 use crate::scene::material::surface_color;
@@ -35,6 +36,16 @@ impl TextureMips {
             n => &chain[(lod as usize).min(n) - 1],
         }
     }
+}
+
+/// The number of halvings that bring `image` to at most `edge` texels a side.
+fn levels_above(image: &TextureImage, edge: u32) -> u32 {
+    let largest = image.width.max(image.height).max(1);
+    let mut lod = 0;
+    while (largest >> lod) > edge.max(1) {
+        lod += 1;
+    }
+    lod
 }
 
 /// One albedo for a triangle of a scene with materials: base color factor x vertex color x
@@ -133,6 +144,8 @@ pub struct WorldGeometry {
     pub bounds: Aabb,
     /// Alpha masks of the triangles (empty when none is masked).
     pub masks: TriangleMasks,
+    /// Base color textures of the triangles, for the G-buffer (empty when none is textured).
+    pub textures: TriangleTextures,
 }
 
 impl WorldGeometry {
@@ -171,6 +184,7 @@ impl WorldGeometry {
             albedo: Vec::new(),
             bounds: Aabb::EMPTY,
             masks: TriangleMasks::default(),
+            textures: TriangleTextures::default(),
         }
     }
 
@@ -202,6 +216,10 @@ impl WorldGeometry {
             let corners = [0, 1, 2].map(|k| (o.vertex_offset + tri[k]) as usize);
             let mask = self.masks.for_triangle(scene, index, corners);
             self.masks.push(self.triangles.len(), mask);
+            let textured = self.textures.for_triangle(scene, index, corners, |image| {
+                mips.level(image, levels_above(image, MAX_EDGE)).clone()
+            });
+            self.textures.push(self.triangles.len(), textured);
             self.triangles.push(p);
             self.normals.push(n);
             self.albedo.push(if scene.has_materials() {
@@ -244,20 +262,25 @@ impl WorldGeometry {
         out
     }
 
-    /// No triangles, the masks' images of `self` (for pieces of its triangles).
+    /// No triangles, the masks' and textures' images of `self` (for pieces of its
+    /// triangles).
     fn empty_like(&self) -> WorldGeometry {
         WorldGeometry {
             masks: TriangleMasks {
                 triangles: Vec::new(),
                 images: self.masks.images.clone(),
             },
+            textures: TriangleTextures {
+                triangles: Vec::new(),
+                images: self.textures.images.clone(),
+            },
             ..WorldGeometry::empty()
         }
     }
 
     /// Appends a piece of triangle `index` of `source`: corners `p`, normals `n`, the
-    /// source's albedo and its mask over the piece, whose corners are the weights `w` of the
-    /// source's corners.
+    /// source's albedo, and its mask and texture over the piece, whose corners are the weights
+    /// `w` of the source's corners.
     fn push_piece(
         &mut self,
         source: &WorldGeometry,
@@ -272,6 +295,8 @@ impl WorldGeometry {
                 .triangles
                 .push(mask.unwrap_or(TriangleMask::OPAQUE).sub(w));
         }
+        self.textures
+            .push_piece(self.triangles.len(), &source.textures, index, w);
         self.triangles.push(p);
         self.normals.push(n);
         self.albedo.push(source.albedo[index]);
@@ -341,6 +366,29 @@ impl WorldGeometry {
         (out, pieces)
     }
 
+    /// The pieces `pieces` of this geometry's triangles (as [`WorldGeometry::tessellated_pieces`]
+    /// gives them for this geometry, or for one with the same triangles placed or posed
+    /// otherwise): corners and normals interpolated from their source's, and its albedo, mask
+    /// and texture. Pieces whose source is not a triangle of this geometry are left out.
+    pub fn pieces_of(&self, pieces: &[Piece]) -> WorldGeometry {
+        let mut out = WorldGeometry {
+            bounds: Aabb::EMPTY,
+            ..self.empty_like()
+        };
+        for piece in pieces {
+            let s = piece.source as usize;
+            let (Some(t), Some(n)) = (self.triangles.get(s), self.normals.get(s)) else {
+                continue;
+            };
+            let w = piece.weights;
+            let p = w.map(|w| t[0] * w.x + t[1] * w.y + t[2] * w.z);
+            let m = w.map(|w| (n[0] * w.x + n[1] * w.y + n[2] * w.z).normalize_or(n[0]));
+            p.iter().for_each(|&q| out.bounds.grow(q));
+            out.push_piece(self, s, p, m, w);
+        }
+        out
+    }
+
     /// The pieces `pieces` (from [`WorldGeometry::tessellated_pieces`] of a geometry with the
     /// same triangles) placed on `corners`, the source triangles' new corners, with
     /// normals interpolated from `normals` (theirs); albedo and masks are taken from
@@ -382,6 +430,8 @@ impl WorldGeometry {
     pub fn append(&mut self, other: &WorldGeometry) {
         self.masks
             .append(self.triangles.len(), &other.masks, other.triangles.len());
+        self.textures
+            .append(self.triangles.len(), &other.textures, other.triangles.len());
         self.triangles.extend_from_slice(&other.triangles);
         self.normals.extend_from_slice(&other.normals);
         self.albedo.extend_from_slice(&other.albedo);
@@ -875,7 +925,7 @@ mod clip_tests {
     }
 
     #[test]
-    fn triangles_are_cut_to_the_region_with_their_normals_and_masks() {
+    fn triangles_are_cut_to_the_region_with_their_normals_masks_and_textures() {
         // A ground square 200 wide (two triangles), a small triangle inside the region and
         // one far outside it; the region is 20 wide about the origin.
         let corner = |x: f32, z: f32| Vec3::new(x, 0.0, z);
@@ -895,6 +945,7 @@ mod clip_tests {
             triangles,
             bounds: Aabb::EMPTY,
             masks: TriangleMasks::default(),
+            textures: Default::default(),
         };
         for t in g.triangles.clone() {
             t.iter().for_each(|&p| g.bounds.grow(p));
@@ -902,6 +953,17 @@ mod clip_tests {
         // The first triangle masked (alpha 0.5 at its corners).
         g.masks.triangles = vec![TriangleMask::OPAQUE; 4];
         g.masks.triangles[0].alpha = [0.5; 3];
+        // The second textured, u = x / 200 + 0.5 and v = z / 200 + 0.5 at its corners.
+        let uv = |p: Vec3| glam::Vec2::new(p.x / 200.0 + 0.5, p.z / 200.0 + 0.5);
+        g.textures.push(0, None);
+        g.textures.push(
+            1,
+            Some(crate::gi::textures::TexturedTriangle {
+                image: 0,
+                uv: [a, d, c].map(uv),
+                ..crate::gi::textures::TexturedTriangle::NONE
+            }),
+        );
         let region = Aabb {
             min: Vec3::new(-10.0, -5.0, -10.0),
             max: Vec3::new(10.0, 5.0, 10.0),
@@ -934,6 +996,19 @@ mod clip_tests {
             .filter(|m| m.alpha == [0.5; 3])
             .count();
         assert!(half >= 1, "{:?}", cut.masks.triangles);
+        // The pieces of the textured triangle keep its coordinates where they are.
+        assert_eq!(cut.textures.triangles.len(), cut.triangles.len());
+        let mut textured = 0;
+        for (t, tex) in cut.triangles.iter().zip(&cut.textures.triangles) {
+            if tex.is_none() {
+                continue;
+            }
+            textured += 1;
+            for (p, q) in t.iter().zip(tex.uv) {
+                assert!((uv(*p) - q).length() < 1e-5, "{p} {q}");
+            }
+        }
+        assert!(textured >= 1);
         assert!(cut.bounds.min.x >= -10.0 - 1e-4 && cut.bounds.max.z <= 10.0 + 1e-4);
         // A region holding everything keeps every triangle as it is.
         let all = g.clipped_to(&g.bounds);

@@ -12,6 +12,7 @@ pub mod ism;
 pub mod movers;
 pub mod renderer;
 pub mod shadow;
+pub mod textures;
 
 pub use ism::IsmOptions;
 pub use renderer::{GiFrame, GiOptions, GiRenderer, OutputMode};

@@ -90,35 +90,10 @@ impl GiMovers {
         for i in 0..movers.len() {
             let object = movers.object(i) as usize;
             let geometry = WorldGeometry::object_local(scene, object, &mut mips);
-            // Slightly shorter than the static edges, so that placing the pieces (a rigid
-            // motion, exact only up to rounding) never makes the renderer split them again.
-            let (split, pieces) = geometry.tessellated_pieces(max_edge * 0.999);
-            let shape = movers.deformed_first_vertex(i).map(|first_vertex| {
-                let o = &scene.objects[object];
-                let range = o.first_index as usize..(o.first_index + o.index_count) as usize;
-                let corners = scene.indices.get(range).unwrap_or_default();
-                let mut shape = Shape {
-                    first_vertex,
-                    corners: corners
-                        .chunks_exact(3)
-                        .map(|t| [0, 1, 2].map(|k| o.vertex_offset + t[k]))
-                        .collect(),
-                    pieces,
-                    posed: Default::default(),
-                };
-                // The first pose through the same interpolation as every later one, so that
-                // an unchanged pose reads as unchanged.
-                let first = shape.first_vertex as usize;
-                let rest = shape.pose(&split, scene.vertices.get(first..).unwrap_or_default());
-                (shape, rest)
-            });
-            let (shape, split) = match shape {
-                Some((shape, rest)) => (Some(shape), rest),
-                None => (None, split),
-            };
+            let t = movers.transform_at(i, 0);
+            let (split, shape) = Self::split(scene, &movers, i, &geometry, &t, max_edge);
             local.push(split);
             shapes.push(shape);
-            let t = movers.transform_at(i, 0);
             boxes.push(local[i].bounds.transformed(&t));
             transforms.push(t);
         }
@@ -128,6 +103,61 @@ impl GiMovers {
             transforms,
             boxes,
             shapes,
+        }
+    }
+
+    /// Mover `i`'s `geometry` (in its own space) split so that no edge is longer than
+    /// `max_edge` once placed by `t` in its first pose, and posed as the scene's vertices are
+    /// when its mesh is deformed (with the shape that poses it from then on). The split is
+    /// made on the placed, posed triangles, since the placement or the pose may stretch them
+    /// (a scaled node, a skinned mesh whose bind pose is in other units): slightly shorter
+    /// than the static edges, so that placing the pieces (exact only up to rounding) never
+    /// makes the renderer split them again.
+    fn split(
+        scene: &Scene,
+        movers: &Movers,
+        i: usize,
+        geometry: &WorldGeometry,
+        t: &Mat4,
+        max_edge: f32,
+    ) -> (WorldGeometry, Option<Shape>) {
+        let object = movers.object(i) as usize;
+        let vertices = |first: u32| scene.vertices.get(first as usize..).unwrap_or_default();
+        let whole: Vec<Piece> = (0..geometry.triangles.len() as u32)
+            .map(|source| Piece {
+                source,
+                weights: [Vec3::X, Vec3::Y, Vec3::Z],
+            })
+            .collect();
+        let mut shape = movers.deformed_first_vertex(i).map(|first_vertex| {
+            let o = &scene.objects[object];
+            let range = o.first_index as usize..(o.first_index + o.index_count) as usize;
+            let corners = scene.indices.get(range).unwrap_or_default();
+            Shape {
+                first_vertex,
+                corners: corners
+                    .chunks_exact(3)
+                    .map(|t| [0, 1, 2].map(|k| o.vertex_offset + t[k]))
+                    .collect(),
+                pieces: whole,
+                posed: Default::default(),
+            }
+        });
+        let first_pose = match &mut shape {
+            Some(s) => s.pose(geometry, vertices(s.first_vertex)),
+            None => geometry.clone(),
+        };
+        let (_, pieces) = first_pose.placed(t).tessellated_pieces(max_edge * 0.999);
+        let rest = geometry.pieces_of(&pieces);
+        match shape {
+            Some(mut s) => {
+                s.pieces = pieces;
+                // The first pose through the same interpolation as every later one, so that
+                // an unchanged pose reads as unchanged.
+                let posed = s.pose(&rest, vertices(s.first_vertex));
+                (posed, Some(s))
+            }
+            None => (rest, None),
         }
     }
 
@@ -220,6 +250,7 @@ impl WorldGeometry {
             albedo: self.albedo.clone(),
             bounds,
             masks: self.masks.clone(),
+            textures: self.textures.clone(),
         }
     }
 }

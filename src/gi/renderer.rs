@@ -207,7 +207,7 @@ impl GiRenderer {
         ism_options: Option<IsmOptions>,
     ) -> Result<GiRenderer> {
         check_device(ctx, &options)?;
-        let (vertex_data, vertex_count, masks) = gpu_vertices(geometry)?;
+        let (vertex_data, vertex_count, masks, textures) = gpu_vertices(ctx, geometry)?;
         // The shaders pull every world-space vertex from one storage buffer: say so when a
         // scene is too large for the device's binding (lavapipe: 128 MiB, about 930,000
         // triangles).
@@ -246,6 +246,9 @@ impl GiRenderer {
         let max_slots = max_vpls + max_vpls.div_ceil(options.vpl_layers) + 1;
         let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
         enable_masks(ctx, &masks, &mut shadow, &mut gbuffer, &vertices, &slots)?;
+        if let Some(t) = &textures {
+            gbuffer.enable_textures(ctx, GRAPHICS_PUSH, (&vertices, &slots), masks.as_ref(), t)?;
+        }
         shadow.enable_indexed(ctx, &graphics_layout, &vertex_data)?;
         gbuffer.enable_indexed(ctx, &graphics_layout, &vertex_data)?;
         let vertex_data = match shadow.indexed() || gbuffer.indexed() {
@@ -827,16 +830,28 @@ fn enable_masks(
 /// What the masked shadow pass reads: a vec4 per GPU vertex and the packed mask images.
 type MaskData = (Vec<f32>, Vec<u32>);
 
+/// What the textured G-buffer pass reads: two vec4 per GPU vertex and the packed images.
+type TextureData = (Vec<f32>, Vec<u32>);
+
 /// The geometry's triangles as the shaders' vertex floats, long triangles split so the
-/// paraboloid maps' straight-edge error stays small; the vertex count; and, when triangles are
-/// alpha-masked, what the masked shadow pass reads (see `TriangleMasks::gpu_data`).
-fn gpu_vertices(geometry: &WorldGeometry) -> Result<(Vec<f32>, u32, Option<MaskData>)> {
+/// paraboloid maps' straight-edge error stays small; the vertex count; when triangles are
+/// alpha-masked, what the masked shadow pass reads (see `TriangleMasks::gpu_data`); and when
+/// triangles are textured, what the textured G-buffer pass reads (see
+/// `TriangleTextures::gpu_data`; its images within the device's storage buffer range).
+#[allow(clippy::type_complexity)]
+fn gpu_vertices(
+    ctx: &GpuContext,
+    geometry: &WorldGeometry,
+) -> Result<(Vec<f32>, u32, Option<MaskData>, Option<TextureData>)> {
     let tessellated = geometry.tessellated(geometry.diagonal() * MAX_EDGE_FRACTION);
     let data = tessellated.gpu_vertices();
     let count = u32::try_from(data.len() / VERTEX_FLOATS)
         .map_err(|_| Error::Input("scene has too many triangles for GI".into()))?;
-    let masks = tessellated.masks.gpu_data(tessellated.triangles.len());
-    Ok((data, count, masks))
+    let triangles = tessellated.triangles.len();
+    let masks = tessellated.masks.gpu_data(triangles);
+    let max_bytes = crate::gi::textures::MAX_BYTES.min(ctx.info.max_storage_buffer_range.into());
+    let textures = tessellated.textures.gpu_data(triangles, max_bytes);
+    Ok((data, count, masks, textures))
 }
 
 /// A host-visible storage buffer of `floats` f32.

@@ -47,6 +47,14 @@ pub const GI_GBUFFER_FRAG: &[u8] = spirv!("gi_gbuffer.frag");
 pub const GI_GBUFFER_MASKED_VERT: &[u8] = spirv!("gi_gbuffer_masked.vert");
 /// GI G-buffer fragment shader of scenes with alpha masks (discards masked-out texels).
 pub const GI_GBUFFER_MASKED_FRAG: &[u8] = spirv!("gi_gbuffer_masked.frag");
+/// GI G-buffer vertex shader of scenes with base color textures (adds the texture's data).
+pub const GI_GBUFFER_TEXTURED_VERT: &[u8] = spirv!("gi_gbuffer_textured.vert");
+/// GI G-buffer fragment shader of scenes with base color textures (the albedo per pixel).
+pub const GI_GBUFFER_TEXTURED_FRAG: &[u8] = spirv!("gi_gbuffer_textured.frag");
+/// [`GI_GBUFFER_TEXTURED_VERT`] of scenes with alpha masks too (adds the mask's data).
+pub const GI_GBUFFER_TEXTURED_MASKED_VERT: &[u8] = spirv!("gi_gbuffer_textured_masked.vert");
+/// [`GI_GBUFFER_TEXTURED_FRAG`] of scenes with alpha masks too (discards masked-out texels).
+pub const GI_GBUFFER_TEXTURED_MASKED_FRAG: &[u8] = spirv!("gi_gbuffer_textured_masked.frag");
 /// GI layered paraboloid shadow-map vertex shader (clips at the base plane with
 /// `gl_ClipDistance`; needs `shaderClipDistance`).
 pub const GI_SHADOW_VERT: &[u8] = spirv!("gi_shadow.vert");

@@ -239,8 +239,8 @@ fn scene_mask_images(scene: &Scene) -> Vec<Option<MaskImage>> {
     out
 }
 
-/// The wrap mode as the shader's two bits.
-fn wrap_bits(w: Wrap) -> u32 {
+/// The wrap mode as the GI shaders' two bits (masks and textures).
+pub(crate) fn wrap_bits(w: Wrap) -> u32 {
     match w {
         Wrap::Repeat => 0,
         Wrap::MirroredRepeat => 1,

@@ -11,7 +11,7 @@ use coherent::gi::light::Spotlight;
 use coherent::gi::vpl::VplSet;
 use coherent::gi::{GiOptions, GiRenderer, OutputMode};
 use coherent::scene::camera::Camera;
-use coherent::scene::{Aabb, CameraPose, Scene};
+use coherent::scene::{CameraPose, Scene};
 use glam::{Mat4, Vec3};
 
 /// Floor cells per unit length (the floor is 4 x 4).
@@ -47,13 +47,7 @@ fn push_quad(g: &mut WorldGeometry, c: [Vec3; 4], n: Vec3, albedo: f32) {
 /// The open scene: a 4 x 4 floor at y = 0 (x, z in -2..2, without the cells in `hole`) and a
 /// 4 x 4 wall at z = 2 facing it. Nothing else: most of the light escapes.
 fn open_scene(hole: Option<Hole>) -> WorldGeometry {
-    let mut g = WorldGeometry {
-        triangles: Vec::new(),
-        normals: Vec::new(),
-        albedo: Vec::new(),
-        bounds: Aabb::EMPTY,
-        masks: Default::default(),
-    };
+    let mut g = WorldGeometry::empty();
     let cells = (4.0 * CELLS_PER_UNIT) as i32;
     let s = 1.0 / CELLS_PER_UNIT;
     for i in 0..cells {

@@ -8,7 +8,7 @@ use coherent::gi::light::Spotlight;
 use coherent::gi::vpl::Vpl;
 use coherent::gi::{GiOptions, GiRenderer, IsmOptions, OutputMode};
 use coherent::scene::camera::Camera;
-use coherent::scene::{Aabb, CameraPose};
+use coherent::scene::CameraPose;
 use glam::{Mat4, Vec2, Vec3};
 
 fn push_quad(g: &mut WorldGeometry, c: Vec3, u: Vec3, v: Vec3) {
@@ -27,13 +27,7 @@ fn push_quad(g: &mut WorldGeometry, c: Vec3, u: Vec3, v: Vec3) {
 /// A 6 x 6 floor at y = 0 made of 0.5-wide quads, and, with `occluder`, a 1 x 1 plate at
 /// y = 0.5 under the first VPL.
 fn scene(occluder: bool) -> WorldGeometry {
-    let mut g = WorldGeometry {
-        triangles: Vec::new(),
-        normals: Vec::new(),
-        albedo: Vec::new(),
-        bounds: Aabb::EMPTY,
-        masks: Default::default(),
-    };
+    let mut g = WorldGeometry::empty();
     for i in 0..12 {
         for j in 0..12 {
             let c = Vec3::new(-2.75 + 0.5 * i as f32, 0.0, -2.75 + 0.5 * j as f32);

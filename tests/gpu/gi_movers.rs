@@ -322,6 +322,54 @@ fn gi_poses_skinned_meshes_and_incremental_renders_the_maps_they_touch() {
     common::assert_silent(&log);
 }
 
+/// A cube 20 times its mesh's size (its node scaled, as exporters scale a model in other
+/// units) that an animation moves over a floor: its triangles are split where they are
+/// placed, not in the mesh's units (before, the renderer found them too long and split them
+/// again, and the run stopped with an error).
+#[test]
+fn gi_splits_a_scaled_mover_where_it_is_placed() {
+    use coherent::scene::gltf::testdata::GltfBuilder;
+    let dir = coherent::testing::TempDir::new("gi_scaled_mover");
+    let (ctx, log) = common::context();
+    {
+        let opts = GiRunOptions {
+            vpls: 16,
+            budget: 2,
+            frames: 3,
+            width: 64,
+            height: 48,
+            modes: vec![GiMode::Incremental],
+            shadow_size: 64,
+            sample_frames: 1,
+            ism: IsmOptions::default(),
+        };
+        let mut b = GltfBuilder::default();
+        let cube = b.cube_mesh([0.8, 0.8, 0.8, 1.0]);
+        b.nodes.push(format!(
+            r#"{{"mesh":{cube},"translation":[0,-1,0],"scale":[40,0.1,40]}}"#
+        ));
+        b.nodes.push(format!(
+            r#"{{"mesh":{cube},"translation":[0,12,0],"scale":[20,20,20]}}"#
+        ));
+        let times = b.key_times(&[0.0, 1.0]);
+        let places = b.vec3(&[[0.0, 12.0, 0.0], [5.0, 12.0, 0.0]]);
+        b.head = format!(
+            r#""animations":[{{"samplers":[{{"input":{times},"output":{places}}}],"channels":[{{"sampler":0,"target":{{"node":1,"path":"translation"}}}}]}}],"#
+        );
+        let path = dir.join("scaled.gltf");
+        std::fs::write(&path, b.gltf_embedded()).unwrap();
+        let scene = Scene::load(path.to_str().unwrap(), 1.0, 0).expect("scene");
+        let run = gi_run::run_with(&ctx, &scene, &opts, None, &GiSetup::default())
+            .expect("gi runs the scaled mover");
+        assert_eq!(run.movers, 1);
+        for (name, m) in &run.algorithms {
+            assert!(m.rmse_vs_reference.is_some_and(f64::is_finite), "{name}");
+        }
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}
+
 #[test]
 fn movers_geometry_follows_the_transform() {
     let g = occluder(&Mat4::IDENTITY);

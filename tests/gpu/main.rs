@@ -15,6 +15,7 @@ mod gi;
 mod gi_faithful;
 mod gi_ism;
 mod gi_movers;
+mod gi_textures;
 mod hiz;
 mod materials;
 mod materials_gi;

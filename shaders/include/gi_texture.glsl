@@ -1,0 +1,66 @@
+// Base color textures in the GI's G-buffer (gi_gbuffer_textured*.frag): the albedo of a
+// fragment is its corners' color without the texture (interpolated) times the texture, read
+// from the level where a texel covers about a pixel (the nearest level, when the sampler uses
+// mip levels) with the sampler's wrap modes and filter, sRGB texels decoded to linear before
+// they are filtered (as a sampler of an sRGB image does). The images are packed by
+// src/gi/textures.rs (pack_images).
+#include "include/gi_wrap.glsl"
+
+// Four words per image (first word of its first level, width and height of that level, number
+// of levels), then the levels one after the other from the largest, a word per texel (RGBA8).
+layout(std430, set = 0, binding = 5) readonly buffer TextureWords { uint tex_words[]; };
+
+vec3 srgb_decode(vec3 c) {
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), greaterThan(c, vec3(0.04045)));
+}
+
+vec3 tex_texel(uint base, int width, int x, int y) {
+    return srgb_decode(unpackUnorm4x8(tex_words[base + uint(y * width + x)]).rgb);
+}
+
+// Level (base, width, height) at `uv`: nearest texel, or bilinear with `linear`.
+vec3 tex_level(uint base, int width, int height, vec2 uv, uint wu, uint wv, bool linear) {
+    float u = wrap_coord(uv.x, wu) * float(width);
+    float v = wrap_coord(uv.y, wv) * float(height);
+    if (!linear) {
+        return tex_texel(base, width, min(int(u), width - 1), min(int(v), height - 1));
+    }
+    vec2 f = vec2(u, v) - 0.5;
+    vec2 f0 = floor(f);
+    vec2 t = f - f0;
+    int x0 = wrap_index(int(f0.x), width, wu);
+    int x1 = wrap_index(int(f0.x) + 1, width, wu);
+    int y0 = wrap_index(int(f0.y), height, wv);
+    int y1 = wrap_index(int(f0.y) + 1, height, wv);
+    vec3 top = mix(tex_texel(base, width, x0, y0), tex_texel(base, width, x1, y0), t.x);
+    vec3 bottom = mix(tex_texel(base, width, x0, y1), tex_texel(base, width, x1, y1), t.x);
+    return mix(top, bottom, t.y);
+}
+
+// The linear color of image `image` at `uv`, whose screen derivatives are `uv_dx` and `uv_dy`;
+// `flags`: wrap u (bits 0-1), wrap v (bits 2-3), linear magnification (bit 4), linear
+// minification (bit 5), mip levels used (bit 6).
+vec3 texture_albedo(int image, vec2 uv, uint flags, vec2 uv_dx, vec2 uv_dy) {
+    uint h = uint(image) * 4u;
+    uint base = tex_words[h];
+    int width = int(tex_words[h + 1u]);
+    int height = int(tex_words[h + 2u]);
+    int levels = int(tex_words[h + 3u]);
+    vec2 size = vec2(width, height);
+    vec2 dx = uv_dx * size;
+    vec2 dy = uv_dy * size;
+    // log2 of the texels a pixel spans along its longer screen axis.
+    float lod = 0.5 * log2(max(max(dot(dx, dx), dot(dy, dy)), 1e-20));
+    bool minified = lod > 0.0;
+    int level = 0;
+    if (minified && (flags & 64u) != 0u) {
+        level = min(int(lod + 0.5), levels - 1);
+    }
+    for (int l = 0; l < level; l++) {
+        base += uint(width * height);
+        width = max(width / 2, 1);
+        height = max(height / 2, 1);
+    }
+    bool linear = minified ? (flags & 32u) != 0u : (flags & 16u) != 0u;
+    return tex_level(base, width, height, uv, flags & 3u, (flags >> 2) & 3u, linear);
+}
