@@ -1,21 +1,18 @@
 // Base color textures in the GI's G-buffer (gi_gbuffer_textured*.frag): the albedo of a
 // fragment is its corners' color without the texture (interpolated) times the texture, read
 // from the level where a texel covers about a pixel (the nearest level, when the sampler uses
-// mip levels) with the sampler's wrap modes and filter, sRGB texels decoded to linear before
-// they are filtered (as a sampler of an sRGB image does). The images are packed by
-// src/gi/textures.rs (pack_images).
+// mip levels) with the sampler's wrap modes and filter. The images are packed by
+// src/gi/textures.rs (pack_images), their texels already decoded from sRGB to linear, so they
+// are filtered in linear space as a sampler of an sRGB image filters them.
 #include "include/gi_wrap.glsl"
 
 // Four words per image (first word of its first level, width and height of that level, number
-// of levels), then the levels one after the other from the largest, a word per texel (RGBA8).
+// of levels), then the levels one after the other from the largest, a word per texel (RGBA8,
+// linear).
 layout(std430, set = 0, binding = 5) readonly buffer TextureWords { uint tex_words[]; };
 
-vec3 srgb_decode(vec3 c) {
-    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), greaterThan(c, vec3(0.04045)));
-}
-
 vec3 tex_texel(uint base, int width, int x, int y) {
-    return srgb_decode(unpackUnorm4x8(tex_words[base + uint(y * width + x)]).rgb);
+    return unpackUnorm4x8(tex_words[base + uint(y * width + x)]).rgb;
 }
 
 // Level (base, width, height) at `uv`: nearest texel, or bilinear with `linear`.

@@ -15,14 +15,13 @@ float wrap_coord(float t, uint mode) {
     return clamp(t, 0.0, 1.0);
 }
 
-// Wrap mode applied to a texel index of an axis of n texels.
+// Wrap mode applied to texel index i of an axis of n texels, for i in -1..=n (the two texels
+// a bilinear read takes around a wrapped coordinate): selects, no integer division (which a
+// CPU driver runs lane by lane). Equal to the general rule there (src/scene/material.rs,
+// sample_texels).
 int wrap_index(int i, int n, uint mode) {
     if (mode == 0u) {
-        return ((i % n) + n) % n;
-    }
-    if (mode == 1u) {
-        int m = ((i % (2 * n)) + 2 * n) % (2 * n);
-        return m >= n ? 2 * n - 1 - m : m;
+        return i < 0 ? n - 1 : (i >= n ? 0 : i);
     }
     return clamp(i, 0, n - 1);
 }

@@ -12,6 +12,7 @@ use std::sync::Arc;
 use glam::{Vec2, Vec3};
 
 use crate::scene::mask::wrap_bits;
+use crate::scene::material::srgb_to_linear;
 use crate::scene::{SamplerDesc, Scene, TextureImage};
 
 /// The largest edge of an image's first level in the G-buffer's data: larger images are taken
@@ -201,6 +202,11 @@ impl TriangleTextures {
     }
 }
 
+/// An sRGB-encoded 8-bit value as 8-bit linear.
+fn linear(c: u8) -> u8 {
+    (srgb_to_linear(c) * 255.0).round() as u8
+}
+
 /// A sampler as the textured G-buffer's flag bits: wrap u in bits 0-1, wrap v in bits 2-3,
 /// linear magnification (bit 4), linear minification within a level (bit 5), mip levels used
 /// (bit 6).
@@ -214,8 +220,9 @@ pub fn sampler_bits(s: &SamplerDesc) -> u32 {
 
 /// The images as the shader reads them: a header of four words per image (first word of its
 /// first level, width and height of that level, number of levels), then each image's levels,
-/// one after the other from the largest, one word per texel (RGBA8, sRGB color, red in the
-/// low byte). An image whose levels would take the words past `max_bytes` starts one level
+/// one after the other from the largest, one word per texel (RGBA8, red in the low byte), the
+/// color linear (decoded from sRGB here, so the shader filters without decoding; 8 bits of
+/// linear color, as the G-buffer's albedo keeps it). An image whose levels would take the words past `max_bytes` starts one level
 /// lower, as do all images larger than it, until they fit (or every image is 1x1). Returns the
 /// words and each image index's number in them.
 pub fn pack_images(
@@ -273,7 +280,7 @@ pub fn pack_images(
                 level
                     .rgba
                     .chunks_exact(4)
-                    .map(|p| u32::from_le_bytes([p[0], p[1], p[2], p[3]])),
+                    .map(|p| u32::from_le_bytes([linear(p[0]), linear(p[1]), linear(p[2]), p[3]])),
             );
         }
     }
@@ -353,7 +360,9 @@ mod tests {
         // 4x2, 2x1, 1x1: 11 texels after the header.
         assert_eq!(&words[..4], &[4, 4, 2, 3]);
         assert_eq!(words.len(), 4 + 8 + 2 + 1);
-        assert_eq!(words[5], u32::from_le_bytes([1, 0, 255, 255]));
+        // Texel 1: sRGB (1, 0, 255) is linear (0.0003, 0, 1).
+        assert_eq!(words[5], u32::from_le_bytes([0, 0, 255, 255]));
+        assert_eq!(linear(188), 128);
         // Too large for the budget: the image starts at a smaller level.
         let big = image(1024, 1024);
         let (words, _) = pack_images(&[Some(big.clone())], 1 << 20);

@@ -30,9 +30,17 @@ fn checker_png(cells: u32) -> Vec<u8> {
     common::png(cells, cells, rgba)
 }
 
+/// Nearest magnification, trilinear minification, clamped.
+const CLAMPED: &str = r#"{"magFilter":9728,"minFilter":9987,"wrapS":33071,"wrapT":33071}"#;
+
 /// A 4 x 4 floor (x, z in -2..2) at height 0 with the checker of `cells` texels a side (u along
 /// x, v along z; nearest magnification, trilinear minification, clamped), loaded.
 fn floor_scene(test: &str, cells: u32) -> Scene {
+    floor_with(test, &checker_png(cells), CLAMPED)
+}
+
+/// The floor of [`floor_scene`] with the texture `png` and the glTF sampler `sampler`.
+fn floor_with(test: &str, png: &[u8], sampler: &str) -> Scene {
     let dir = std::env::temp_dir().join(format!(
         "coherent-gi-textures-{}-{test}",
         std::process::id()
@@ -62,8 +70,8 @@ fn floor_scene(test: &str, cells: u32) -> Scene {
     ));
     b.node(0, [0.0, 0.0, 0.0]);
     let images = format!(
-        r#""images":[{{"uri":"data:image/png;base64,{}"}}],"samplers":[{{"magFilter":9728,"minFilter":9987,"wrapS":33071,"wrapT":33071}}],"textures":[{{"source":0,"sampler":0}}],"#,
-        coherent::scene::gltf::testdata::base64(&checker_png(cells))
+        r#""images":[{{"uri":"data:image/png;base64,{}"}}],"samplers":[{sampler}],"textures":[{{"source":0,"sampler":0}}],"#,
+        coherent::scene::gltf::testdata::base64(png)
     );
     let uri = format!(
         "data:application/octet-stream;base64,{}",
@@ -188,4 +196,39 @@ fn a_minified_texture_reads_its_coarser_levels() {
         checked += 1;
     }
     assert_eq!(checked, 9);
+}
+
+/// A red and a blue texel side by side, magnified with the bilinear filter: with the sampler
+/// repeating, the floor's edges at u = 0 and u = 1 mix the two (the texel beyond the edge is
+/// the other end's), while clamped they keep their own; the texels' centres are their own
+/// colors either way.
+#[test]
+fn bilinear_reads_wrap_at_the_edges_as_the_sampler_says() {
+    let png = common::png(2, 1, vec![255, 0, 0, 255, 0, 0, 255, 255]);
+    let linear = |wrap: u32| {
+        let sampler =
+            format!(r#"{{"magFilter":9729,"minFilter":9987,"wrapS":{wrap},"wrapT":{wrap}}}"#);
+        let scene = floor_with(&format!("wrap{wrap}"), &png, &sampler);
+        direct_light(&WorldGeometry::from_scene(&scene))
+    };
+    let (repeat, clamp) = (linear(10497), linear(33071));
+    // u = (x + 2) / 4 along the floor; z = 0.5 keeps away from v's edges.
+    let at = |px: &[u8], u: f32| red_blue(px, pixel(4.0 * u - 2.0, 0.5).expect("on screen"));
+    for (u, red) in [(0.25, true), (0.75, false)] {
+        for (name, px) in [("repeat", &repeat), ("clamp", &clamp)] {
+            let (r, b) = at(px, u);
+            let (own, other) = if red { (r, b) } else { (b, r) };
+            assert!(
+                own > 40 && own > 4 * other.max(1),
+                "{name}: u = {u}: red {r}, blue {b}"
+            );
+        }
+    }
+    for u in [0.01, 0.99] {
+        let (r, b) = at(&repeat, u);
+        assert!(r > 20 && b > 20, "repeat: u = {u}: red {r}, blue {b}");
+        let (r, b) = at(&clamp, u);
+        let (own, other) = if u < 0.5 { (r, b) } else { (b, r) };
+        assert!(own > 4 * other.max(1), "clamp: u = {u}: red {r}, blue {b}");
+    }
 }
