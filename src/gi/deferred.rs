@@ -342,29 +342,17 @@ impl TexturedGBuffer {
     ) -> Result<TexturedGBuffer> {
         let storage = vk::DescriptorType::STORAGE_BUFFER;
         let layout = PipelineLayout::new(ctx, &[storage; 6], push_size)?;
-        let upload = |name: &str, bytes: &[u8]| -> Result<Buffer> {
-            ctx.info
-                .check_storage_buffer(&format!("gi: the {name}"), bytes.len() as u64)?;
-            let mut b = Buffer::new(
-                ctx,
-                name,
-                bytes.len().max(16) as u64,
-                vk::BufferUsageFlags::STORAGE_BUFFER,
-                gpu_allocator::MemoryLocation::CpuToGpu,
-            )?;
-            b.write(0, bytes)?;
-            Ok(b)
-        };
+        let upload = |name, bytes: &[u8]| Buffer::storage_with(ctx, name, bytes);
         // Without masks the pipeline reads neither mask binding: a word each stands in.
         let (mask_vertices, mask_words) = match masks {
             Some((v, w)) => (as_bytes(v), as_bytes(w)),
             None => (as_bytes(&[0f32][..]), as_bytes(&[0u32][..])),
         };
         let buffers = [
-            upload("gbuffer mask vertices", &mask_vertices)?,
-            upload("gbuffer mask images", &mask_words)?,
-            upload("gbuffer texture vertices", &as_bytes(texture_vertices))?,
-            upload("gbuffer texture images", &as_bytes(words))?,
+            upload("gi gbuffer mask vertices", &mask_vertices)?,
+            upload("gi gbuffer mask images", &mask_words)?,
+            upload("gi gbuffer texture vertices", &as_bytes(texture_vertices))?,
+            upload("gi gbuffer texture images", &as_bytes(words))?,
         ];
         let desc = match masks {
             Some(_) => PipelineDesc {

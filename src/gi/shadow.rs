@@ -439,20 +439,9 @@ impl MaskedShadow {
     ) -> Result<MaskedShadow> {
         let storage = vk::DescriptorType::STORAGE_BUFFER;
         let layout = PipelineLayout::new(ctx, &[storage; 4], push_size)?;
-        let upload = |name, bytes: &[u8]| -> Result<Buffer> {
-            let mut b = Buffer::new(
-                ctx,
-                name,
-                bytes.len().max(16) as u64,
-                vk::BufferUsageFlags::STORAGE_BUFFER,
-                gpu_allocator::MemoryLocation::CpuToGpu,
-            )?;
-            b.write(0, bytes)?;
-            Ok(b)
-        };
         let buffers = [
-            upload("gi shadow mask vertices", &as_bytes(mask_vertices))?,
-            upload("gi shadow mask images", &as_bytes(words))?,
+            Buffer::storage_with(ctx, "gi shadow mask vertices", &as_bytes(mask_vertices))?,
+            Buffer::storage_with(ctx, "gi shadow mask images", &as_bytes(words))?,
         ];
         let pipeline = Pipeline::graphics(ctx, &layout, &MaskedShadow::desc(ctx))?;
         let bindings = [

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
 
-use crate::scene::mask::wrap_bits;
+use crate::scene::mask::{append_sparse, numbered, push_sparse, wrap_bits};
 use crate::scene::material::srgb_to_linear;
 use crate::scene::{SamplerDesc, Scene, TextureImage};
 
@@ -85,14 +85,8 @@ impl TriangleTextures {
     /// Appends one triangle's texture (`None`: untextured), keeping `triangles` empty while
     /// no triangle so far is textured. `count` is the number of triangles before this one.
     pub fn push(&mut self, count: usize, texture: Option<TexturedTriangle>) {
-        match texture {
-            Some(t) if !t.is_none() => {
-                self.triangles.resize(count, TexturedTriangle::NONE);
-                self.triangles.push(t);
-            }
-            _ if self.any() => self.triangles.resize(count + 1, TexturedTriangle::NONE),
-            _ => {}
-        }
+        let texture = texture.filter(|t| !t.is_none());
+        push_sparse(&mut self.triangles, count, texture, TexturedTriangle::NONE);
     }
 
     /// Appends a piece of `source`'s triangle `index` whose corners are the weights `w` of
@@ -112,15 +106,17 @@ impl TriangleTextures {
     /// same scene's images (the same scene's geometries are appended); this one takes the
     /// images `other` has and it lacks.
     pub fn append(&mut self, count: usize, other: &TriangleTextures, other_count: usize) {
+        let none = TexturedTriangle::NONE;
+        append_sparse(
+            &mut self.triangles,
+            count,
+            &other.triangles,
+            other_count,
+            none,
+        );
         if !other.any() {
-            if self.any() {
-                self.triangles
-                    .resize(count + other_count, TexturedTriangle::NONE);
-            }
             return;
         }
-        self.triangles.resize(count, TexturedTriangle::NONE);
-        self.triangles.extend_from_slice(&other.triangles);
         if self.images.iter().all(Option::is_none) {
             self.images = other.images.clone();
             return;
@@ -284,17 +280,7 @@ pub fn pack_images(
             );
         }
     }
-    let mut next = 0;
-    let index = images
-        .iter()
-        .map(|m| {
-            m.as_ref().map(|_| {
-                next += 1;
-                next - 1
-            })
-        })
-        .collect();
-    (words, index)
+    (words, numbered(images))
 }
 
 #[cfg(test)]

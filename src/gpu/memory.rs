@@ -55,6 +55,21 @@ pub struct Buffer {
 }
 
 impl Buffer {
+    /// A host-visible storage buffer holding `bytes` (at least 16 bytes long), after checking
+    /// that they fit the device's `maxStorageBufferRange`; `name` says what it holds.
+    pub fn storage_with(ctx: &Arc<GpuContext>, name: &str, bytes: &[u8]) -> Result<Buffer> {
+        ctx.info.check_storage_buffer(name, bytes.len() as u64)?;
+        let mut b = Buffer::new(
+            ctx,
+            name,
+            bytes.len().max(16) as u64,
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            MemoryLocation::CpuToGpu,
+        )?;
+        b.write(0, bytes)?;
+        Ok(b)
+    }
+
     /// Creates a buffer in `location` (CpuToGpu/GpuToCpu buffers are mapped).
     pub fn new(
         ctx: &Arc<GpuContext>,

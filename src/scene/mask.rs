@@ -135,28 +135,21 @@ impl TriangleMasks {
     /// Appends one triangle's mask (`None`: opaque), keeping `triangles` empty while every
     /// triangle so far is opaque. `count` is the number of triangles before this one.
     pub fn push(&mut self, count: usize, mask: Option<TriangleMask>) {
-        match mask {
-            Some(m) if !m.is_opaque() => {
-                self.triangles.resize(count, TriangleMask::OPAQUE);
-                self.triangles.push(m);
-            }
-            _ if self.any() => self.triangles.resize(count + 1, TriangleMask::OPAQUE),
-            _ => {}
-        }
+        let mask = mask.filter(|m| !m.is_opaque());
+        push_sparse(&mut self.triangles, count, mask, TriangleMask::OPAQUE);
     }
 
     /// Appends `other`'s masks after `count` triangles of this geometry.
     pub fn append(&mut self, count: usize, other: &TriangleMasks, other_count: usize) {
-        if !other.any() {
-            if self.any() {
-                self.triangles
-                    .resize(count + other_count, TriangleMask::OPAQUE);
-            }
-            return;
-        }
-        self.triangles.resize(count, TriangleMask::OPAQUE);
-        self.triangles.extend_from_slice(&other.triangles);
-        if self.images.is_empty() {
+        let none = TriangleMask::OPAQUE;
+        append_sparse(
+            &mut self.triangles,
+            count,
+            &other.triangles,
+            other_count,
+            none,
+        );
+        if other.any() && self.images.is_empty() {
             self.images = other.images.clone();
         }
     }
@@ -266,8 +259,14 @@ pub fn pack_images(images: &[Option<MaskImage>]) -> (Vec<u32>, Vec<Option<u32>>)
                 .fold(0u32, |w, (k, &b)| w | u32::from(b) << (8 * k))
         }));
     }
+    (words, numbered(images))
+}
+
+/// Each entry's number among those that are `Some`, in order (`None` for the others): where
+/// an image of a sparse list lies among the images packed.
+pub(crate) fn numbered<T>(images: &[Option<T>]) -> Vec<Option<u32>> {
     let mut next = 0;
-    let index = images
+    images
         .iter()
         .map(|m| {
             m.as_ref().map(|_| {
@@ -275,8 +274,40 @@ pub fn pack_images(images: &[Option<MaskImage>]) -> (Vec<u32>, Vec<Option<u32>>)
                 next - 1
             })
         })
-        .collect();
-    (words, index)
+        .collect()
+}
+
+/// Appends one triangle's entry to per-triangle data kept sparse (the GI's masks and
+/// textures): `v` stays empty while every entry so far is `none`, and is padded with `none`
+/// up to `count` (the triangles before this one) when `item` is the first that is not.
+pub(crate) fn push_sparse<T: Copy>(v: &mut Vec<T>, count: usize, item: Option<T>, none: T) {
+    match item {
+        Some(t) => {
+            v.resize(count, none);
+            v.push(t);
+        }
+        None if !v.is_empty() => v.resize(count + 1, none),
+        None => {}
+    }
+}
+
+/// Appends `other` (the sparse data of `other_count` triangles) after `count` triangles of
+/// `v`, keeping both sparse as [`push_sparse`] does.
+pub(crate) fn append_sparse<T: Copy>(
+    v: &mut Vec<T>,
+    count: usize,
+    other: &[T],
+    other_count: usize,
+    none: T,
+) {
+    if other.is_empty() {
+        if !v.is_empty() {
+            v.resize(count + other_count, none);
+        }
+        return;
+    }
+    v.resize(count, none);
+    v.extend_from_slice(other);
 }
 
 #[cfg(test)]

@@ -275,6 +275,22 @@ fn gi_with_movers_runs_all_modes_and_incremental_renders_the_touched_maps() {
     common::assert_silent(&log);
 }
 
+/// A run of `frames` frames at 64x48 with `vpls` VPLs (2 new a frame), 64x64 shadow maps,
+/// one sample frame.
+fn small_run(vpls: usize, frames: u32, modes: Vec<GiMode>) -> GiRunOptions {
+    GiRunOptions {
+        vpls,
+        budget: 2,
+        frames,
+        width: 64,
+        height: 48,
+        modes,
+        shadow_size: 64,
+        sample_frames: 1,
+        ism: IsmOptions::default(),
+    }
+}
+
 /// A glTF column that its skin's joint lifts (its transform never changes): GI poses it each
 /// frame, so the incremental mode renders again the maps of the VPLs that see it, which it
 /// would not do for a column that stands still; every mode still matches the reference.
@@ -284,17 +300,7 @@ fn gi_poses_skinned_meshes_and_incremental_renders_the_maps_they_touch() {
     let dir = coherent::testing::TempDir::new("gi_skinned");
     let (ctx, log) = common::context();
     {
-        let opts = GiRunOptions {
-            vpls: 32,
-            budget: 2,
-            frames: 6,
-            width: 64,
-            height: 48,
-            modes: vec![GiMode::Incremental, GiMode::Full],
-            shadow_size: 64,
-            sample_frames: 1,
-            ism: IsmOptions::default(),
-        };
+        let opts = small_run(32, 6, vec![GiMode::Incremental, GiMode::Full]);
         let run = |lift: f32| {
             let path = dir.join(format!("column_{lift}.gltf"));
             std::fs::write(&path, skinned_column(lift).gltf_embedded()).unwrap();
@@ -332,17 +338,7 @@ fn gi_splits_a_scaled_mover_where_it_is_placed() {
     let dir = coherent::testing::TempDir::new("gi_scaled_mover");
     let (ctx, log) = common::context();
     {
-        let opts = GiRunOptions {
-            vpls: 16,
-            budget: 2,
-            frames: 3,
-            width: 64,
-            height: 48,
-            modes: vec![GiMode::Incremental],
-            shadow_size: 64,
-            sample_frames: 1,
-            ism: IsmOptions::default(),
-        };
+        let opts = small_run(16, 3, vec![GiMode::Incremental]);
         let mut b = GltfBuilder::default();
         let cube = b.cube_mesh([0.8, 0.8, 0.8, 1.0]);
         b.nodes.push(format!(

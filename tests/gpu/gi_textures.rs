@@ -50,25 +50,8 @@ fn floor_with(test: &str, png: &[u8], sampler: &str) -> Scene {
         materials: vec![r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#.into()],
         ..Default::default()
     };
-    let pos = b.vec3(&[
-        [-2.0, 0.0, -2.0],
-        [-2.0, 0.0, 2.0],
-        [2.0, 0.0, 2.0],
-        [2.0, 0.0, -2.0],
-    ]);
-    let nrm = b.vec3(&[[0.0, 1.0, 0.0]; 4]);
-    let uv: Vec<u8> = [[0.0f32, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]]
-        .iter()
-        .flatten()
-        .flat_map(|f| f.to_le_bytes())
-        .collect();
-    let uv_view = b.view(&uv);
-    let uv = b.accessor(uv_view, 5126, "VEC2", 4);
-    let idx = b.indices_u16(&[0, 1, 2, 0, 2, 3]);
-    b.meshes.push(format!(
-        r#"{{"primitives":[{{"attributes":{{"POSITION":{pos},"NORMAL":{nrm},"TEXCOORD_0":{uv}}},"indices":{idx},"material":0}}]}}"#
-    ));
-    b.node(0, [0.0, 0.0, 0.0]);
+    let floor = crate::materials_gi::quad(&mut b, (-2.0, -2.0, 2.0, 2.0, 0.0), 0);
+    b.node(floor, [0.0, 0.0, 0.0]);
     let images = format!(
         r#""images":[{{"uri":"data:image/png;base64,{}"}}],"samplers":[{sampler}],"textures":[{{"source":0,"sampler":0}}],"#,
         coherent::scene::gltf::testdata::base64(png)

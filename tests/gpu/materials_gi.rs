@@ -43,7 +43,7 @@ fn holes_png() -> Vec<u8> {
 
 /// A horizontal quad at height `y` from (x0, z0) to (x1, z1), facing +Y, with texture
 /// coordinates u = 0..1 along x and v = 0..1 along z; returns the mesh index.
-fn quad(
+pub(crate) fn quad(
     b: &mut GltfBuilder,
     (x0, z0, x1, z1, y): (f32, f32, f32, f32, f32),
     material: usize,
