@@ -391,8 +391,8 @@ impl WorldGeometry {
 
     /// The pieces `pieces` (from [`WorldGeometry::tessellated_pieces`] of a geometry with the
     /// same triangles) placed on `corners`, the source triangles' new corners, with
-    /// normals interpolated from `normals` (theirs); albedo and masks are taken from
-    /// `self`, the tessellated geometry at rest. Pieces whose source is not in `corners`
+    /// normals interpolated from `normals` (theirs); albedo, masks and textures are taken
+    /// from `self`, the tessellated geometry at rest. Pieces whose source is not in `corners`
     /// keep their place.
     pub fn reshaped(
         &self,
