@@ -36,7 +36,8 @@ vec3 tex_level(uint base, int width, int height, vec2 uv, uint wu, uint wv, bool
 
 // The linear color of image `image` at `uv`, whose screen derivatives are `uv_dx` and `uv_dy`;
 // `flags`: wrap u (bits 0-1), wrap v (bits 2-3), linear magnification (bit 4), linear
-// minification (bit 5), mip levels used (bit 6).
+// minification (bit 5), mip levels used (bit 6), linear between levels (bit 7: the two levels
+// around the footprint blended, else the nearest one).
 vec3 texture_albedo(int image, vec2 uv, uint flags, vec2 uv_dx, vec2 uv_dy) {
     uint h = uint(image) * 4u;
     uint base = tex_words[h];
@@ -49,15 +50,26 @@ vec3 texture_albedo(int image, vec2 uv, uint flags, vec2 uv_dx, vec2 uv_dy) {
     // log2 of the texels a pixel spans along its longer screen axis.
     float lod = 0.5 * log2(max(max(dot(dx, dx), dot(dy, dy)), 1e-20));
     bool minified = lod > 0.0;
-    int level = 0;
-    if (minified && (flags & 64u) != 0u) {
-        level = min(int(lod + 0.5), levels - 1);
+    uint wu = flags & 3u;
+    uint wv = (flags >> 2) & 3u;
+    bool linear = minified ? (flags & 32u) != 0u : (flags & 16u) != 0u;
+    if (!minified || (flags & 64u) == 0u) {
+        return tex_level(base, width, height, uv, wu, wv, linear);
     }
+    bool blend = (flags & 128u) != 0u;
+    float at = clamp(blend ? lod : lod + 0.5, 0.0, float(levels - 1));
+    int level = int(at);
     for (int l = 0; l < level; l++) {
         base += uint(width * height);
         width = max(width / 2, 1);
         height = max(height / 2, 1);
     }
-    bool linear = minified ? (flags & 32u) != 0u : (flags & 16u) != 0u;
-    return tex_level(base, width, height, uv, flags & 3u, (flags >> 2) & 3u, linear);
+    vec3 c = tex_level(base, width, height, uv, wu, wv, linear);
+    float t = at - float(level);
+    if (blend && t > 0.0) {
+        uint next = base + uint(width * height);
+        vec3 d = tex_level(next, max(width / 2, 1), max(height / 2, 1), uv, wu, wv, linear);
+        c = mix(c, d, t);
+    }
+    return c;
 }

@@ -1,7 +1,8 @@
 //! Base color textures in the GI's G-buffer: per triangle of a textured material, the texture
 //! coordinates and the color without the texture (base color factor x vertex color) of its
 //! corners, and the images, each with its mip chain from a level no larger than
-//! [`MAX_EDGE`] texels. The G-buffer pass (`gi_gbuffer_textured*.frag`) reads the albedo of
+//! [`MAX_EDGE`] texels, read as the sampler says (filters within and between levels, wrap
+//! modes). The G-buffer pass (`gi_gbuffer_textured*.frag`) reads the albedo of
 //! each pixel from them, so the image shows the texture; the VPLs and the ray caster keep one
 //! albedo per triangle, its texture averaged over it ([`WorldGeometry::albedo`]).
 //!
@@ -205,13 +206,14 @@ fn linear(c: u8) -> u8 {
 
 /// A sampler as the textured G-buffer's flag bits: wrap u in bits 0-1, wrap v in bits 2-3,
 /// linear magnification (bit 4), linear minification within a level (bit 5), mip levels used
-/// (bit 6).
+/// (bit 6), linear between levels (bit 7).
 pub fn sampler_bits(s: &SamplerDesc) -> u32 {
     wrap_bits(s.wrap_u)
         | wrap_bits(s.wrap_v) << 2
         | u32::from(s.mag_linear) << 4
         | u32::from(s.min_linear) << 5
         | u32::from(s.mipmaps) << 6
+        | u32::from(s.mip_linear) << 7
 }
 
 /// The images as the shader reads them: a header of four words per image (first word of its
@@ -369,6 +371,6 @@ mod tests {
             mipmaps: true,
             mip_linear: true,
         };
-        assert_eq!(sampler_bits(&s), 2 | 1 << 2 | 1 << 4 | 1 << 6);
+        assert_eq!(sampler_bits(&s), 2 | 1 << 2 | 1 << 4 | 1 << 6 | 1 << 7);
     }
 }
