@@ -247,15 +247,13 @@ impl WorldGeometry {
                 continue;
             }
             let poly = clip_weights(t, region);
-            let at = |w: Vec3| t[0] * w.x + t[1] * w.y + t[2] * w.z;
             for k in 1..poly.len().saturating_sub(1) {
                 let w = [poly[0], poly[k], poly[k + 1]];
-                let p = w.map(at);
+                let (p, m) = piece_of(t, n, w);
                 if (p[1] - p[0]).cross(p[2] - p[0]).length_squared() <= 0.0 {
                     continue;
                 }
                 p.iter().for_each(|&q| out.bounds.grow(q));
-                let m = w.map(|w| (n[0] * w.x + n[1] * w.y + n[2] * w.z).normalize_or(n[0]));
                 out.push_piece(self, index, p, m, w);
             }
         }
@@ -380,11 +378,9 @@ impl WorldGeometry {
             let (Some(t), Some(n)) = (self.triangles.get(s), self.normals.get(s)) else {
                 continue;
             };
-            let w = piece.weights;
-            let p = w.map(|w| t[0] * w.x + t[1] * w.y + t[2] * w.z);
-            let m = w.map(|w| (n[0] * w.x + n[1] * w.y + n[2] * w.z).normalize_or(n[0]));
+            let (p, m) = piece_of(t, n, piece.weights);
             p.iter().for_each(|&q| out.bounds.grow(q));
-            out.push_piece(self, s, p, m, w);
+            out.push_piece(self, s, p, m, piece.weights);
         }
         out
     }
@@ -412,11 +408,7 @@ impl WorldGeometry {
             ) else {
                 continue;
             };
-            for c in 0..3 {
-                let w = piece.weights[c];
-                t[c] = p[0] * w.x + p[1] * w.y + p[2] * w.z;
-                m[c] = (n[0] * w.x + n[1] * w.y + n[2] * w.z).normalize_or(n[0]);
-            }
+            (*t, *m) = piece_of(p, n, piece.weights);
         }
         for t in &out.triangles {
             for &p in t {
@@ -617,11 +609,25 @@ impl<const K: usize> SharedCorners<K> {
     }
 }
 
+/// The point of triangle `t` with barycentric weights `w` of its corners.
+fn at_weights(t: &[Vec3; 3], w: Vec3) -> Vec3 {
+    t[0] * w.x + t[1] * w.y + t[2] * w.z
+}
+
+/// The corners and unit normals of the piece of a triangle (corners `t`, normals `n`) whose
+/// corners are the weights `w` of the triangle's (a normal that interpolates to zero takes the
+/// first corner's).
+fn piece_of(t: &[Vec3; 3], n: &[Vec3; 3], w: [Vec3; 3]) -> ([Vec3; 3], [Vec3; 3]) {
+    let p = w.map(|w| at_weights(t, w));
+    let m = w.map(|w| at_weights(n, w).normalize_or(n[0]));
+    (p, m)
+}
+
 /// Triangle `t` cut to `region`, as a convex polygon of barycentric weights of its corners
 /// (Sutherland-Hodgman against the box's six planes); empty when nothing is left.
 fn clip_weights(t: &[Vec3; 3], region: &Aabb) -> Vec<Vec3> {
     let mut poly = vec![Vec3::X, Vec3::Y, Vec3::Z];
-    let at = |w: Vec3| t[0] * w.x + t[1] * w.y + t[2] * w.z;
+    let at = |w: Vec3| at_weights(t, w);
     for axis in 0..3 {
         for (bound, keep_below) in [(region.min[axis], false), (region.max[axis], true)] {
             // Signed distance inside the plane: >= 0 keeps.

@@ -123,13 +123,14 @@ impl GiMovers {
     ) -> (WorldGeometry, Option<Shape>) {
         let object = movers.object(i) as usize;
         let vertices = |first: u32| scene.vertices.get(first as usize..).unwrap_or_default();
-        let whole: Vec<Piece> = (0..geometry.triangles.len() as u32)
-            .map(|source| Piece {
-                source,
-                weights: [Vec3::X, Vec3::Y, Vec3::Z],
-            })
-            .collect();
         let mut shape = movers.deformed_first_vertex(i).map(|first_vertex| {
+            // Each triangle whole until the split below.
+            let whole = (0..geometry.triangles.len() as u32)
+                .map(|source| Piece {
+                    source,
+                    weights: [Vec3::X, Vec3::Y, Vec3::Z],
+                })
+                .collect();
             let o = &scene.objects[object];
             let range = o.first_index as usize..(o.first_index + o.index_count) as usize;
             let corners = scene.indices.get(range).unwrap_or_default();
@@ -143,11 +144,11 @@ impl GiMovers {
                 posed: Default::default(),
             }
         });
-        let first_pose = match &mut shape {
-            Some(s) => s.pose(geometry, vertices(s.first_vertex)),
-            None => geometry.clone(),
+        let placed = match &mut shape {
+            Some(s) => s.pose(geometry, vertices(s.first_vertex)).placed(t),
+            None => geometry.placed(t),
         };
-        let (_, pieces) = first_pose.placed(t).tessellated_pieces(max_edge * 0.999);
+        let (_, pieces) = placed.tessellated_pieces(max_edge * 0.999);
         let rest = geometry.pieces_of(&pieces);
         match shape {
             Some(mut s) => {
