@@ -128,8 +128,9 @@ impl GBuffer {
     /// Draws later G-buffer passes with the pipeline that reads each pixel's albedo from the
     /// base color textures: `textures` holds two vec4 per vertex of `vertices` and the packed
     /// images ([`TriangleTextures::gpu_data`](crate::gi::textures::TriangleTextures::gpu_data));
-    /// with `masks` (the masked shadow pass's data), the variant that also discards
-    /// masked-out texels. Its own layout (storage buffers: vertices, slots, mask vertices,
+    /// with `masks` (the masked shadow pass's buffers of mask data,
+    /// [`ShadowMaps::mask_buffers`](crate::gi::shadow::ShadowMaps::mask_buffers)), the variant
+    /// that also discards masked-out texels. Its own layout (storage buffers: vertices, slots, mask vertices,
     /// mask images, texture vertices, texture images) and set; [`GBuffer::record_gbuffer`]
     /// then ignores the set it is given.
     pub fn enable_textures(
@@ -137,7 +138,7 @@ impl GBuffer {
         ctx: &Arc<GpuContext>,
         push_size: u32,
         (vertices, slots): (&Buffer, &Buffer),
-        masks: Option<&(Vec<f32>, Vec<u32>)>,
+        masks: Option<[&Buffer; 2]>,
         (texture_vertices, words): &(Vec<f32>, Vec<u32>),
     ) -> Result<()> {
         self.textured = Some(TexturedGBuffer::new(
@@ -322,14 +323,14 @@ struct IndexedGBuffer {
 }
 
 /// The textured G-buffer pass: its pipeline (masked or not), layout, set and the buffers the
-/// set points at besides the renderer's vertices and slots.
+/// set points at besides the renderer's vertices and slots and the shadow pass's mask data.
 struct TexturedGBuffer {
     // Sets and the pipeline before the layout, buffers last.
     sets: DescriptorSets,
     pipeline: Pipeline,
     layout: PipelineLayout,
     #[allow(dead_code)] // owned here; the set points at them
-    buffers: [Buffer; 4],
+    buffers: Vec<Buffer>,
 }
 
 impl TexturedGBuffer {
@@ -337,23 +338,20 @@ impl TexturedGBuffer {
         ctx: &Arc<GpuContext>,
         push_size: u32,
         (vertices, slots): (&Buffer, &Buffer),
-        masks: Option<&(Vec<f32>, Vec<u32>)>,
+        masks: Option<[&Buffer; 2]>,
         (texture_vertices, words): (&Vec<f32>, &Vec<u32>),
     ) -> Result<TexturedGBuffer> {
         let storage = vk::DescriptorType::STORAGE_BUFFER;
         let layout = PipelineLayout::new(ctx, &[storage; 6], push_size)?;
         let upload = |name, bytes: &[u8]| Buffer::storage_with(ctx, name, bytes);
-        // Without masks the pipeline reads neither mask binding: a word each stands in.
-        let (mask_vertices, mask_words) = match masks {
-            Some((v, w)) => (as_bytes(v), as_bytes(w)),
-            None => (as_bytes(&[0f32][..]), as_bytes(&[0u32][..])),
-        };
-        let buffers = [
-            upload("gi gbuffer mask vertices", &mask_vertices)?,
-            upload("gi gbuffer mask images", &mask_words)?,
+        let mut buffers = vec![
             upload("gi gbuffer texture vertices", &as_bytes(texture_vertices))?,
             upload("gi gbuffer texture images", &as_bytes(words))?,
         ];
+        if masks.is_none() {
+            // The pipeline without masks reads neither mask binding: a word stands in.
+            buffers.push(upload("gi gbuffer no masks", &as_bytes(&[0u32][..]))?);
+        }
         let desc = match masks {
             Some(_) => PipelineDesc {
                 name: "gi gbuffer textured masked",
@@ -369,13 +367,14 @@ impl TexturedGBuffer {
             },
         };
         let pipeline = Pipeline::graphics(ctx, &layout, &desc)?;
+        let [mask_vertices, mask_words] = masks.unwrap_or_else(|| [&buffers[2], &buffers[2]]);
         let bindings = [
             Binding::StorageBuffer(vertices),
             Binding::StorageBuffer(slots),
+            Binding::StorageBuffer(mask_vertices),
+            Binding::StorageBuffer(mask_words),
             Binding::StorageBuffer(&buffers[0]),
             Binding::StorageBuffer(&buffers[1]),
-            Binding::StorageBuffer(&buffers[2]),
-            Binding::StorageBuffer(&buffers[3]),
         ];
         let sets = DescriptorSets::new(ctx, &[(&layout, &bindings)])?;
         Ok(TexturedGBuffer {

@@ -247,7 +247,8 @@ impl GiRenderer {
         let slots = host_storage(ctx, "gi shadow slots", max_slots as usize * SLOT_FLOATS)?;
         enable_masks(ctx, &masks, &mut shadow, &mut gbuffer, &vertices, &slots)?;
         if let Some(t) = &textures {
-            gbuffer.enable_textures(ctx, GRAPHICS_PUSH, (&vertices, &slots), masks.as_ref(), t)?;
+            let masks = shadow.mask_buffers();
+            gbuffer.enable_textures(ctx, GRAPHICS_PUSH, (&vertices, &slots), masks, t)?;
         }
         shadow.enable_indexed(ctx, &graphics_layout, &vertex_data)?;
         gbuffer.enable_indexed(ctx, &graphics_layout, &vertex_data)?;

@@ -226,6 +226,12 @@ impl ShadowMaps {
         self.masked.as_ref().map(|m| (&m.layout, m.sets.get(0)))
     }
 
+    /// The masked passes' buffers of mask data (a vec4 per vertex, the packed mask images),
+    /// when masks are enabled: the textured G-buffer's masked pipeline reads them too.
+    pub fn mask_buffers(&self) -> Option<[&Buffer; 2]> {
+        self.masked.as_ref().map(|m| [&m.buffers[0], &m.buffers[1]])
+    }
+
     /// The spotlight's layer.
     pub fn spot_layer(&self) -> u32 {
         self.vpl_layers
@@ -411,7 +417,8 @@ struct MaskedShadow {
     sets: DescriptorSets,
     pipeline: Pipeline,
     layout: PipelineLayout,
-    #[allow(dead_code)] // owned here; the set points at them
+    /// Owned here; the set points at them (and the textured G-buffer's, through
+    /// [`ShadowMaps::mask_buffers`]).
     buffers: [Buffer; 2],
 }
 
