@@ -207,7 +207,12 @@ impl GiRenderer {
         ism_options: Option<IsmOptions>,
     ) -> Result<GiRenderer> {
         check_device(ctx, &options)?;
-        let (vertex_data, vertex_count, masks, textures) = gpu_vertices(ctx, geometry)?;
+        let GpuGeometry {
+            vertex_data,
+            vertex_count,
+            masks,
+            textures,
+        } = gpu_vertices(ctx, geometry)?;
         // The shaders pull every world-space vertex from one storage buffer: say so when a
         // scene is too large for the device's binding (lavapipe: 128 MiB, about 930,000
         // triangles).
@@ -834,25 +839,34 @@ type MaskData = (Vec<f32>, Vec<u32>);
 /// What the textured G-buffer pass reads: two vec4 per GPU vertex and the packed images.
 type TextureData = (Vec<f32>, Vec<u32>);
 
-/// The geometry's triangles as the shaders' vertex floats, long triangles split so the
-/// paraboloid maps' straight-edge error stays small; the vertex count; when triangles are
-/// alpha-masked, what the masked shadow pass reads (see `TriangleMasks::gpu_data`); and when
-/// triangles are textured, what the textured G-buffer pass reads (see
-/// `TriangleTextures::gpu_data`; its images within the device's storage buffer range).
-#[allow(clippy::type_complexity)]
-fn gpu_vertices(
-    ctx: &GpuContext,
-    geometry: &WorldGeometry,
-) -> Result<(Vec<f32>, u32, Option<MaskData>, Option<TextureData>)> {
+/// The geometry as the renderer's passes read it (see [`gpu_vertices`]).
+struct GpuGeometry {
+    /// The shaders' vertex floats, [`VERTEX_FLOATS`] per vertex.
+    vertex_data: Vec<f32>,
+    vertex_count: u32,
+    /// When triangles are alpha-masked, what the masked shadow pass reads (see
+    /// `TriangleMasks::gpu_data`).
+    masks: Option<MaskData>,
+    /// When triangles are textured, what the textured G-buffer pass reads (see
+    /// `TriangleTextures::gpu_data`; its images within the device's storage buffer range).
+    textures: Option<TextureData>,
+}
+
+/// The geometry's triangles for the GPU, long triangles split so the paraboloid maps'
+/// straight-edge error stays small.
+fn gpu_vertices(ctx: &GpuContext, geometry: &WorldGeometry) -> Result<GpuGeometry> {
     let tessellated = geometry.tessellated(geometry.diagonal() * MAX_EDGE_FRACTION);
-    let data = tessellated.gpu_vertices();
-    let count = u32::try_from(data.len() / VERTEX_FLOATS)
+    let vertex_data = tessellated.gpu_vertices();
+    let vertex_count = u32::try_from(vertex_data.len() / VERTEX_FLOATS)
         .map_err(|_| Error::Input("scene has too many triangles for GI".into()))?;
     let triangles = tessellated.triangles.len();
-    let masks = tessellated.masks.gpu_data(triangles);
     let max_bytes = crate::gi::textures::MAX_BYTES.min(ctx.info.max_storage_buffer_range.into());
-    let textures = tessellated.textures.gpu_data(triangles, max_bytes);
-    Ok((data, count, masks, textures))
+    Ok(GpuGeometry {
+        vertex_data,
+        vertex_count,
+        masks: tessellated.masks.gpu_data(triangles),
+        textures: tessellated.textures.gpu_data(triangles, max_bytes),
+    })
 }
 
 /// A host-visible storage buffer of `floats` f32.
