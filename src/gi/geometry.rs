@@ -27,14 +27,34 @@ impl TextureMips {
         if lod == 0 || !image.has_texels() {
             return image;
         }
-        let chain = self
-            .chains
-            .entry(image as *const TextureImage as usize)
-            .or_insert_with(|| image.mip_chain());
+        let chain = self.chain(image);
         match chain.len() {
             0 => image,
             n => &chain[(lod as usize).min(n) - 1],
         }
+    }
+
+    /// The levels below `image`, made the first time.
+    fn chain(&mut self, image: &TextureImage) -> &Vec<TextureImage> {
+        (self.chains)
+            .entry(image as *const TextureImage as usize)
+            .or_insert_with(|| image.mip_chain())
+    }
+
+    /// The levels of `image` from `lod` (0: the image itself) down to 1x1, the chain made
+    /// once and shared with [`material_albedo`]'s reads.
+    fn chain_from(&mut self, image: &TextureImage, lod: u32) -> Vec<TextureImage> {
+        let lod = lod as usize;
+        let first = (lod == 0).then(|| image.clone());
+        if !image.has_texels() {
+            return first.into_iter().collect();
+        }
+        let chain = self.chain(image);
+        let from = lod.saturating_sub(1).min(chain.len().saturating_sub(1));
+        first
+            .into_iter()
+            .chain(chain.get(from..).unwrap_or_default().iter().cloned())
+            .collect()
     }
 }
 
@@ -217,7 +237,7 @@ impl WorldGeometry {
             let mask = self.masks.for_triangle(scene, index, corners);
             self.masks.push(self.triangles.len(), mask);
             let textured = self.textures.for_triangle(scene, index, corners, |image| {
-                mips.level(image, levels_above(image, MAX_EDGE)).clone()
+                mips.chain_from(image, levels_above(image, MAX_EDGE))
             });
             self.textures.push(self.triangles.len(), textured);
             self.triangles.push(p);

@@ -72,9 +72,9 @@ impl TexturedTriangle {
 pub struct TriangleTextures {
     /// One per triangle, or none at all.
     pub triangles: Vec<TexturedTriangle>,
-    /// The scene's images by index, each its level no larger than [`MAX_EDGE`] (`None`: used
-    /// by no textured triangle).
-    pub images: Arc<Vec<Option<TextureImage>>>,
+    /// The scene's images by index, each its mip chain from the level no larger than
+    /// [`MAX_EDGE`] down to 1x1 (`None`: used by no textured triangle).
+    pub images: Arc<Vec<Option<Vec<TextureImage>>>>,
 }
 
 impl TriangleTextures {
@@ -122,7 +122,7 @@ impl TriangleTextures {
             self.images = other.images.clone();
             return;
         }
-        let lacks = |(i, o): (usize, &Option<TextureImage>)| {
+        let lacks = |(i, o): (usize, &Option<Vec<TextureImage>>)| {
             o.is_some() && self.images.get(i).is_none_or(Option::is_none)
         };
         if other.images.iter().enumerate().any(lacks) {
@@ -140,13 +140,14 @@ impl TriangleTextures {
 
     /// The texture of a triangle of `scene`'s object `object` with the given corner
     /// attribute indices, or `None` when its material has no usable base color texture.
-    /// `level` gives an image's level no larger than [`MAX_EDGE`] the first time it is used.
+    /// `levels` gives an image's mip chain from its level no larger than [`MAX_EDGE`] down to
+    /// 1x1 the first time it is used.
     pub fn for_triangle<'a>(
         &mut self,
         scene: &'a Scene,
         object: usize,
         corners: [usize; 3],
-        level: impl FnOnce(&'a TextureImage) -> TextureImage,
+        levels: impl FnOnce(&'a TextureImage) -> Vec<TextureImage>,
     ) -> Option<TexturedTriangle> {
         let material = scene.object_material(object)?;
         let texture = scene.textures.get(material.base_color_texture? as usize)?;
@@ -160,7 +161,7 @@ impl TriangleTextures {
             if images.len() < scene.images.len() {
                 images.resize(scene.images.len(), None);
             }
-            images[slot] = Some(level(image));
+            images[slot] = Some(levels(image));
         }
         let factor = scene.objects[object].color.truncate();
         let a = corners.map(|i| scene.attributes.get(i).copied().unwrap_or_default());
@@ -216,27 +217,23 @@ pub fn sampler_bits(s: &SamplerDesc) -> u32 {
         | u32::from(s.mip_linear) << 7
 }
 
-/// The images as the shader reads them: a header of four words per image (first word of its
-/// first level, width and height of that level, number of levels), then each image's levels,
+/// The images (each a mip chain down to 1x1) as the shader reads them: a header of four words
+/// per image (first word of its first level, width and height of that level, number of
+/// levels), then each image's levels from one no larger than [`MAX_EDGE`],
 /// one after the other from the largest, one word per texel (RGBA8, red in the low byte), the
 /// color linear (decoded from sRGB here, so the shader filters without decoding; 8 bits of
 /// linear color, as the G-buffer's albedo keeps it). An image whose levels would take the words past `max_bytes` starts one level
 /// lower, as do all images larger than it, until they fit (or every image is 1x1). Returns the
 /// words and each image index's number in them.
 pub fn pack_images(
-    images: &[Option<TextureImage>],
+    images: &[Option<Vec<TextureImage>>],
     max_bytes: u64,
 ) -> (Vec<u32>, Vec<Option<u32>>) {
-    let used: Vec<&TextureImage> = images.iter().flatten().collect();
-    // Each image's chain from its first level down to 1x1.
-    let chains: Vec<Vec<TextureImage>> = used
-        .iter()
-        .map(|img| {
-            let mut chain = vec![(*img).clone()];
-            chain.extend(img.mip_chain());
-            chain
-        })
+    // An image without levels is packed as none.
+    let images: Vec<Option<&[TextureImage]>> = (images.iter())
+        .map(|c| c.as_deref().filter(|c| !c.is_empty()))
         .collect();
+    let chains: Vec<&[TextureImage]> = images.iter().flatten().copied().collect();
     let words_from = |chain: &[TextureImage], first: usize| -> u64 {
         chain[first.min(chain.len() - 1)..]
             .iter()
@@ -262,7 +259,7 @@ pub fn pack_images(
         }
         edge /= 2;
     }
-    let mut words = vec![0u32; used.len() * 4];
+    let mut words = vec![0u32; chains.len() * 4];
     for (i, chain) in chains.iter().enumerate() {
         let first = first_level(chain, edge);
         let levels = &chain[first..];
@@ -282,13 +279,19 @@ pub fn pack_images(
             );
         }
     }
-    (words, numbered(images))
+    (words, numbered(&images))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::scene::Wrap;
+
+    /// `image` and its mip chain.
+    fn chain(image: TextureImage) -> Vec<TextureImage> {
+        let rest = image.mip_chain();
+        std::iter::once(image).chain(rest).collect()
+    }
 
     fn image(width: u32, height: u32) -> TextureImage {
         TextureImage {
@@ -326,15 +329,18 @@ mod tests {
             height: 1,
             rgba: vec![n; 4],
         };
-        all.images = Arc::new(vec![Some(image(1)), None]);
+        all.images = Arc::new(vec![Some(vec![image(1)]), None]);
         let other = TriangleTextures {
             triangles: vec![TexturedTriangle { image: 1, ..t }],
-            images: Arc::new(vec![None, Some(image(2))]),
+            images: Arc::new(vec![None, Some(vec![image(2)])]),
         };
         let mut pooled = all.clone();
         pooled.append(4, &other, 1);
         assert_eq!(pooled.triangles.len(), 5);
-        assert_eq!(*pooled.images, vec![Some(image(1)), Some(image(2))]);
+        assert_eq!(
+            *pooled.images,
+            vec![Some(vec![image(1)]), Some(vec![image(2)])]
+        );
         let mut more = TriangleTextures::default();
         more.push_piece(0, &all, 2, [Vec3::X, Vec3::Y, Vec3::Z]);
         more.push_piece(1, &all, 7, [Vec3::X, Vec3::Y, Vec3::Z]);
@@ -343,7 +349,7 @@ mod tests {
 
     #[test]
     fn packed_images_hold_every_level_within_the_budget() {
-        let (words, index) = pack_images(&[None, Some(image(4, 2))], 1 << 20);
+        let (words, index) = pack_images(&[None, Some(chain(image(4, 2)))], 1 << 20);
         assert_eq!(index, vec![None, Some(0)]);
         // 4x2, 2x1, 1x1: 11 texels after the header.
         assert_eq!(&words[..4], &[4, 4, 2, 3]);
@@ -352,7 +358,7 @@ mod tests {
         assert_eq!(words[5], u32::from_le_bytes([0, 0, 255, 255]));
         assert_eq!(linear(188), 128);
         // Too large for the budget: the image starts at a smaller level.
-        let big = image(1024, 1024);
+        let big = chain(image(1024, 1024));
         let (words, _) = pack_images(&[Some(big.clone())], 1 << 20);
         assert!(words.len() * 4 <= 1 << 20, "{}", words.len());
         assert_eq!(&words[1..4], &[256, 256, 9]);
