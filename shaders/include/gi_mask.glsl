@@ -23,21 +23,15 @@ float mask_alpha(int image, vec2 uv) {
     uint flags = words[h + 3u];
     uint wu = flags & 3u;
     uint wv = (flags >> 2) & 3u;
-    float u = wrap_coord(uv.x, wu) * float(width);
-    float v = wrap_coord(uv.y, wv) * float(height);
     if ((flags & 16u) == 0u) {
-        return texel(base, width, min(int(u), width - 1), min(int(v), height - 1));
+        ivec2 p = nearest_texel(uv, width, height, wu, wv);
+        return texel(base, width, p.x, p.y);
     }
-    vec2 f = vec2(u, v) - 0.5;
-    vec2 f0 = floor(f);
-    vec2 frac_ = f - f0;
-    int x0 = wrap_index(int(f0.x), width, wu);
-    int x1 = wrap_index(int(f0.x) + 1, width, wu);
-    int y0 = wrap_index(int(f0.y), height, wv);
-    int y1 = wrap_index(int(f0.y) + 1, height, wv);
-    float top = mix(texel(base, width, x0, y0), texel(base, width, x1, y0), frac_.x);
-    float bottom = mix(texel(base, width, x0, y1), texel(base, width, x1, y1), frac_.x);
-    return mix(top, bottom, frac_.y);
+    vec2 t;
+    ivec4 q = bilinear_texels(uv, width, height, wu, wv, t);
+    float top = mix(texel(base, width, q.x, q.y), texel(base, width, q.z, q.y), t.x);
+    float bottom = mix(texel(base, width, q.x, q.w), texel(base, width, q.z, q.w), t.x);
+    return mix(top, bottom, t.y);
 }
 
 // Whether the fragment with mask data `m` (u, v, alpha over cutoff) of image `image` (-1:

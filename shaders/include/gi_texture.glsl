@@ -17,20 +17,14 @@ vec3 tex_texel(uint base, int width, int x, int y) {
 
 // Level (base, width, height) at `uv`: nearest texel, or bilinear with `linear`.
 vec3 tex_level(uint base, int width, int height, vec2 uv, uint wu, uint wv, bool linear) {
-    float u = wrap_coord(uv.x, wu) * float(width);
-    float v = wrap_coord(uv.y, wv) * float(height);
     if (!linear) {
-        return tex_texel(base, width, min(int(u), width - 1), min(int(v), height - 1));
+        ivec2 p = nearest_texel(uv, width, height, wu, wv);
+        return tex_texel(base, width, p.x, p.y);
     }
-    vec2 f = vec2(u, v) - 0.5;
-    vec2 f0 = floor(f);
-    vec2 t = f - f0;
-    int x0 = wrap_index(int(f0.x), width, wu);
-    int x1 = wrap_index(int(f0.x) + 1, width, wu);
-    int y0 = wrap_index(int(f0.y), height, wv);
-    int y1 = wrap_index(int(f0.y) + 1, height, wv);
-    vec3 top = mix(tex_texel(base, width, x0, y0), tex_texel(base, width, x1, y0), t.x);
-    vec3 bottom = mix(tex_texel(base, width, x0, y1), tex_texel(base, width, x1, y1), t.x);
+    vec2 t;
+    ivec4 q = bilinear_texels(uv, width, height, wu, wv, t);
+    vec3 top = mix(tex_texel(base, width, q.x, q.y), tex_texel(base, width, q.z, q.y), t.x);
+    vec3 bottom = mix(tex_texel(base, width, q.x, q.w), tex_texel(base, width, q.z, q.w), t.x);
     return mix(top, bottom, t.y);
 }
 
