@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
 
-use crate::scene::mask::{append_sparse, numbered, push_sparse, wrap_bits};
+use crate::scene::mask::{append_sparse, numbered, push_sparse, shader_image, wrap_bits};
 use crate::scene::material::srgb_to_linear;
 use crate::scene::{SamplerDesc, Scene, TextureImage};
 
@@ -185,11 +185,7 @@ impl TriangleTextures {
         let mut vertices = Vec::with_capacity(triangle_count * 24);
         let none = std::iter::repeat(&TexturedTriangle::NONE);
         for t in self.triangles.iter().chain(none).take(triangle_count) {
-            let image = index
-                .get(t.image as usize)
-                .copied()
-                .flatten()
-                .map_or(-1.0, |i| i as f32);
+            let image = shader_image(&index, t.image);
             for k in 0..3 {
                 let (uv, c) = (t.uv[k], t.color[k]);
                 vertices.extend_from_slice(&[uv.x, uv.y, image, t.sampler as f32]);

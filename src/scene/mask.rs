@@ -198,11 +198,7 @@ impl TriangleMasks {
         let mut vertices = Vec::with_capacity(triangle_count * 12);
         let opaque = std::iter::repeat(&TriangleMask::OPAQUE);
         for m in self.triangles.iter().chain(opaque).take(triangle_count) {
-            let image = index
-                .get(m.image as usize)
-                .copied()
-                .flatten()
-                .map_or(-1.0, |i| i as f32);
+            let image = shader_image(&index, m.image);
             // Opaque triangles (no texture, corners at least 1) get a margin well above KEEP.
             let opaque = m.is_opaque();
             for k in 0..3 {
@@ -275,6 +271,16 @@ pub(crate) fn numbered<T>(images: &[Option<T>]) -> Vec<Option<u32>> {
             })
         })
         .collect()
+}
+
+/// Image `image`'s number among the packed ones (`index`, from [`numbered`]) as the GI shaders
+/// read it from a vertex: -1 when it has none (no image, or one not packed).
+pub(crate) fn shader_image(index: &[Option<u32>], image: u32) -> f32 {
+    index
+        .get(image as usize)
+        .copied()
+        .flatten()
+        .map_or(-1.0, |i| i as f32)
 }
 
 /// Appends one triangle's entry to per-triangle data kept sparse (the GI's masks and
