@@ -147,7 +147,10 @@ fn frame(
     let start = Instant::now();
     let input = FrameInput {
         bvh,
-        view: CameraView::new(view_proj, eye, DepthConvention::REVERSE_Z_INFINITE),
+        // One sample a pixel on a WIDTH x HEIGHT target: objects that fall between pixel
+        // centres can own no pixel and are culled with those outside the frustum.
+        view: CameraView::new(view_proj, eye, DepthConvention::REVERSE_Z_INFINITE)
+            .with_pixel_grid(WIDTH, HEIGHT),
         frame,
         exact_visible: None,
     };

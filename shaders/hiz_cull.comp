@@ -41,7 +41,7 @@ layout(push_constant) uniform Push {
     // object count, phase (1 or 2), pyramid levels (0: no pyramid to test against), most
     // texels per side read for one box
     uvec4 info;
-    // width, height, depth margin, unused
+    // width, height, depth margin, pixel-centre margin (negative: no pixel-centre test)
     vec4 screen;
 } pc;
 

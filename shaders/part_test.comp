@@ -29,7 +29,7 @@ layout(push_constant) uniform Push {
     mat4 view_proj;
     // parts in this dispatch, first part, most pixels read for one box, unused
     uvec4 info;
-    // width, height, depth margin, unused
+    // width, height, depth margin, pixel-centre margin (negative: no pixel-centre test)
     vec4 screen;
 } pc;
 

@@ -124,6 +124,10 @@ pub struct WalkArgs {
     /// (as chcpp-static) for comparison.
     #[arg(long, default_value_t = 0, value_parser = crate::cli_common::movers_count)]
     pub movers: usize,
+    /// Cull by the frustum alone: don't also cull objects whose box falls between pixel
+    /// centres (they can own no pixel of the one-sample image), for comparison.
+    #[arg(long)]
+    pub no_pixel_grid: bool,
 }
 
 /// `coherent view`.
@@ -532,6 +536,7 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         params,
         repeats: a.repeat,
         check: a.check,
+        no_pixel_grid: a.no_pixel_grid,
         nohc: None,
         pvs: None,
     };

@@ -1,12 +1,14 @@
 // A box's screen rectangle and nearest depth, shared by the Hi-Z test (hiz_test.glsl) and the
 // predicated mode's part test (part_test.comp). The including shader declares, before the
-// include, the push block `pc` with `mat4 view_proj` and `vec4 screen` (width, height, ...).
+// include, the push block `pc` with `mat4 view_proj` and `vec4 screen` (width, height, depth
+// margin, pixel-centre margin: negative for none).
 
 // Every corner lies outside one clip plane: the box is outside the frustum.
 const uint BOX_OUTSIDE = 0u;
 // A corner lies behind the near plane (or at the eye): the box may cover any pixel.
 const uint BOX_NEAR = 1u;
-// The box lies in front of the near plane but its rectangle misses the screen.
+// The box lies in front of the near plane but its rectangle misses the screen, or (with a
+// pixel-centre margin) holds no pixel centre: it can cover no sample.
 const uint BOX_OFF_SCREEN = 2u;
 // The box's fragments lie within pixels [plo, phi] (inclusive) at depth `nearest` or farther.
 const uint BOX_ON_SCREEN = 3u;
@@ -53,5 +55,17 @@ uint project_box(vec3 bmin, vec3 bmax, out ivec2 plo, out ivec2 phi, out float n
     ivec2 size = ivec2(pc.screen.xy);
     plo = clamp(ivec2(floor(lo)), ivec2(0), size - 1);
     phi = clamp(ivec2(floor(hi)), ivec2(0), size - 1);
+    if (pc.screen.w >= 0.0) {
+        // One sample a pixel, at its centre (i + 0.5): a fragment's centre lies in the
+        // rectangle grown by the margin (the rasterizer's sub-pixel snapping), so only the
+        // pixels whose centres do can be covered, and a box holding none covers nothing.
+        ivec2 first = max(ivec2(ceil(lo - pc.screen.w - 0.5)), ivec2(0));
+        ivec2 last = min(ivec2(floor(hi + pc.screen.w - 0.5)), size - 1);
+        if (any(greaterThan(first, last))) {
+            return BOX_OFF_SCREEN;
+        }
+        plo = first;
+        phi = last;
+    }
     return BOX_ON_SCREEN;
 }

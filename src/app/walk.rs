@@ -35,6 +35,9 @@ pub struct WalkConfig {
     pub nohc: Option<crate::culling::NohcParams>,
     /// The scene's PVS (needed when `pvs` is walked).
     pub pvs: Option<std::sync::Arc<crate::culling::Pvs>>,
+    /// Give the cullers no pixel grid ([`Renderer::pixel_grid`] off): objects that fall
+    /// between pixel centres are drawn like any other in the frustum.
+    pub no_pixel_grid: bool,
 }
 
 /// Runs the walk `repeats` times: `warmup + frames` poses spread over the whole path; every
@@ -48,6 +51,7 @@ pub fn run(
     mut progress: impl FnMut(u64, u64),
 ) -> Result<Vec<FrameRecord>> {
     renderer.visibility_threshold = cfg.params.pixel_threshold;
+    renderer.pixel_grid = !cfg.no_pixel_grid;
     renderer.log_drawn_objects(cfg.check);
     let mut owned = Vec::new();
     let repeats = cfg.repeats.max(1);
@@ -248,8 +252,10 @@ pub fn run_with_movers(
     mut progress: impl FnMut(u64, u64),
 ) -> Result<(Vec<FrameRecord>, MoverStats)> {
     renderer.visibility_threshold = cfg.params.pixel_threshold;
+    renderer.pixel_grid = !cfg.no_pixel_grid;
     if let Some((base, _)) = walk.baseline.as_mut() {
         base.visibility_threshold = cfg.params.pixel_threshold;
+        base.pixel_grid = !cfg.no_pixel_grid;
     }
     let total = cfg.warmup + cfg.frames;
     let runs = cfg.algorithms.len() + walk.baseline_algorithms.len();

@@ -358,6 +358,7 @@ impl HizCuller {
 
     /// Records one phase: the culling dispatch that writes indirect draws, then the draw.
     fn record_phase(&mut self, r: &mut Renderer, phase: u32, view_proj: &[f32; 16]) -> Result<()> {
+        let margin = super::part_tests::centre_margin(r.pixel_grid);
         let rec = r.recorder_mut();
         if phase == 1 {
             let bytes = COUNTS_AT + 8 * self.groups.len() as u64;
@@ -378,7 +379,7 @@ impl HizCuller {
             levels,
             self.params.texels_per_side.max(2),
         ];
-        let screen = [w as f32, h as f32, self.params.depth_margin, 0.0];
+        let screen = [w as f32, h as f32, self.params.depth_margin, margin];
         let mut push = [0u8; CULL_PUSH as usize];
         push[..64].copy_from_slice(bytes_of(view_proj));
         push[64..80].copy_from_slice(bytes_of(&info));

@@ -118,6 +118,10 @@ pub struct Renderer {
     prepass_counts: CommandCounts,
     /// Pixel count above which a query result means visible (for counting wasted queries).
     pub visibility_threshold: u64,
+    /// Whether the culler's view carries the target's pixel grid
+    /// ([`CameraView::with_pixel_grid`]: objects that fall between pixel centres are culled
+    /// with those outside the frustum). On by default; the renderer draws one sample a pixel.
+    pub pixel_grid: bool,
     /// Host-visible chunks of indexed indirect draw commands: the objects of one predicate are
     /// drawn by one multi-draw (scenes without materials, on devices with `multiDrawIndirect`
     /// and `drawIndirectFirstInstance`).
@@ -270,6 +274,7 @@ impl Renderer {
             last_submit: None,
             prepass_counts: CommandCounts::default(),
             visibility_threshold: 0,
+            pixel_grid: true,
             bounds_version: 0,
             draw_chunks: Vec::new(),
             draw_chunk: 0,
@@ -454,7 +459,15 @@ impl Renderer {
         frame: u64,
         exact: Option<&[u32]>,
     ) -> Result<FrameResult> {
-        let view: CameraView = camera.into();
+        let mut view: CameraView = camera.into();
+        let extent = self.target.extent;
+        view.pixel_grid = None;
+        if self.pixel_grid {
+            view = view.with_pixel_grid(extent.width, extent.height);
+        }
+        if let Some(parts) = self.part_tests.as_mut() {
+            parts.pixel_grid = self.pixel_grid;
+        }
         let owned = if culler.needs_box_visibility() {
             Some(self.box_visible(bvh, view)?)
         } else if culler.needs_exact_visibility() && exact.is_none() {

@@ -196,6 +196,9 @@ pub struct PartTests {
     /// such predicates are refused), and whether the last test was recorded without it.
     pub skip_barrier: bool,
     unguarded: bool,
+    /// Whether a box that holds no pixel centre is decided hidden without reading depth (the
+    /// renderer's [`crate::render::Renderer::pixel_grid`]).
+    pub pixel_grid: bool,
 }
 
 impl PartTests {
@@ -259,6 +262,7 @@ impl PartTests {
             gather_set: None,
             group_words: Vec::new(),
             sampler,
+            pixel_grid: true,
             size: depth.size(),
             buffers,
             retired: Vec::new(),
@@ -584,7 +588,12 @@ impl PartTests {
             rec.bind_compute_set(&self.layout, b.sets.get(0));
             let (w, h) = self.size;
             let info = [n, first, MOST_PIXELS, 0];
-            let screen = [w as f32, h as f32, DEPTH_MARGIN, 0.0];
+            let screen = [
+                w as f32,
+                h as f32,
+                DEPTH_MARGIN,
+                centre_margin(self.pixel_grid),
+            ];
             let mut push = [0u8; PUSH as usize];
             push[..64].copy_from_slice(bytes_of(view_proj));
             push[64..80].copy_from_slice(bytes_of(&info));
@@ -789,5 +798,15 @@ impl Buffers {
                 ..room
             },
         })
+    }
+}
+
+/// The pixel-centre margin box_project.glsl takes (pixels): [`coherent_cull::PixelGrid`]'s, or
+/// negative for no pixel-centre test.
+pub(crate) fn centre_margin(pixel_grid: bool) -> f32 {
+    if pixel_grid {
+        coherent_cull::PixelGrid::MARGIN
+    } else {
+        -1.0
     }
 }

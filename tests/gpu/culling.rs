@@ -620,3 +620,95 @@ fn oracle_prepass_and_its_settling_frame_count_as_the_prepass() {
     drop(ctx);
     common::assert_silent(&log);
 }
+
+/// With the renderer's pixel grid (on by default) the cullers also cull objects whose box
+/// falls between pixel centres. 500 cubes about a quarter of a pixel wide, far behind a
+/// wall, at random sub-pixel places: those that cover a centre own a pixel and must be drawn
+/// by every algorithm (images equal vfc's without the grid, nothing missed against the ID
+/// pass), and the grid must cull most of the rest.
+#[test]
+fn objects_between_pixel_centres_are_culled_and_every_owner_is_drawn() {
+    use coherent::render::hiz::{HizCuller, HizParams};
+    use coherent::scene::mesh::{Mesh, SceneBuilder};
+    let (ctx, log) = common::context();
+    {
+        let (w, h) = (96, 54);
+        let mut b = SceneBuilder::new("specks");
+        let cube = b.proto(&Mesh::cube());
+        b.add(
+            &Mesh::cuboid(
+                Vec3::new(-40.0, -30.0, -52.0),
+                Vec3::new(-10.0, 30.0, -50.0),
+            ),
+            Vec3::ONE,
+        );
+        let mut rng = coherent::scene::mesh::Rng::new(7);
+        let tan = 30f32.to_radians().tan();
+        for i in 0..500 {
+            let d = rng.range(180.0, 220.0);
+            let x = rng.range(-0.9, 0.9) * tan * d * w as f32 / h as f32;
+            let y = rng.range(-0.9, 0.9) * tan * d;
+            // A pixel is 2 d tan(30°) / 54, about 4.3 m at 200 m: the cubes are 1.2 m.
+            let m = glam::Mat4::from_translation(Vec3::new(x, y, -d))
+                * glam::Mat4::from_scale(Vec3::splat(0.6));
+            b.instance(cube, m, Vec3::new(1.0, (i % 7) as f32 / 7.0, 0.3));
+        }
+        let scene = b.finish();
+        let bvh = common::bvh_of(&scene);
+        let mut r = Renderer::new(&ctx, &scene, w, h).unwrap();
+        r.log_drawn_objects(true);
+        let mut vfc = culling::create("vfc", &ChcppParams::default()).unwrap();
+        let setup = coherent::culling::CullerSetup::default();
+        let mut algs: Vec<(&str, Box<dyn Culler>)> = ["vfc", "chcpp", "chcpp@predicated"]
+            .iter()
+            .map(|&n| (n, culling::create_named(n, &setup).unwrap()))
+            .collect();
+        let mut hiz = HizCuller::new(&r, HizParams::default()).unwrap();
+        hiz.log_drawn_objects(true).unwrap();
+        let (mut owners, mut without_grid, mut with_grid) = (0, 0, 0);
+        let mut pixels = Vec::new();
+        for f in 0..6u64 {
+            // Sub-pixel steps of the eye move the centres across the cubes.
+            let eye = Vec3::new(0.37 * f as f32, -0.29 * f as f32, 0.0);
+            let pose = CameraPose {
+                eye,
+                target: eye + Vec3::NEG_Z,
+            };
+            let cam = r.camera(pose, &bvh);
+            r.pixel_grid = false;
+            let res = r.render_frame(vfc.as_mut(), &bvh, &cam, f).unwrap();
+            without_grid += res.cull.objects_drawn;
+            let reference = r.read_color().unwrap();
+            r.object_pixels(&bvh, &cam, &mut pixels).unwrap();
+            owners += pixels[1..].iter().filter(|&&p| p > 0).count();
+            r.pixel_grid = true;
+            for (name, alg) in algs.iter_mut() {
+                let res = r.render_frame(alg.as_mut(), &bvh, &cam, f).unwrap();
+                let d = common::diff_pixels(&reference, &r.read_color().unwrap());
+                assert_eq!(d, 0, "{name} frame {f}: {d} pixels differ from vfc's");
+                let check = r.check_drawn(&pixels);
+                assert_eq!(check.missed_objects, 0, "{name} frame {f}: missed owners");
+                if *name == "vfc" {
+                    with_grid += res.cull.objects_drawn;
+                }
+            }
+            hiz.render_frame(&mut r, &cam).unwrap();
+            let d = common::diff_pixels(&reference, &r.read_color().unwrap());
+            assert_eq!(d, 0, "hiz frame {f}: {d} pixels differ from vfc's");
+            let check = Renderer::check_objects(hiz.drawn_objects(), &pixels);
+            assert_eq!(check.missed_objects, 0, "hiz frame {f}: missed owners");
+        }
+        // Some cubes cover a centre (the test can miss them), most don't (the grid culls).
+        assert!(owners >= 40, "{owners} cubes own a pixel in 6 frames");
+        assert!(
+            with_grid * 2 < without_grid,
+            "vfc drew {with_grid} objects with the grid, {without_grid} without"
+        );
+        assert!(
+            with_grid as usize >= owners,
+            "{with_grid} drawn, {owners} own pixels"
+        );
+    }
+    drop(ctx);
+    common::assert_silent(&log);
+}

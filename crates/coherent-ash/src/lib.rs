@@ -45,7 +45,9 @@
 //! // Each frame, in slot `frame % 2`, after waiting for the slot's fence, before rendering:
 //! unsafe { queries.begin_frame(cmd, (frame % 2) as u32)? };
 //! // ... vkCmdBeginRendering (the depth pass), viewport and scissor set ...
-//! let view = CameraView::new(view_proj, eye, DepthConvention::REVERSE_Z_INFINITE);
+//! // One sample a pixel: objects between pixel centres are culled too (see `PixelGrid`).
+//! let view = CameraView::new(view_proj, eye, DepthConvention::REVERSE_Z_INFINITE)
+//!     .with_pixel_grid(1920, 1080);
 //! let input = FrameInput { bvh, view, frame, exact_visible: None };
 //! let mut backend = queries.frame(cmd, view_proj, |cmd, objects: &[u32], rebind| {
 //!     // if rebind: bind the host's pipeline, descriptor sets and push constants again;

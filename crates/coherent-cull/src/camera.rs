@@ -206,6 +206,44 @@ pub struct CameraView {
     pub eye: Vec3,
     /// Depth convention of `view_proj`.
     pub depth: DepthConvention,
+    /// The pixel grid the frame is rasterized on, when the host knows it
+    /// ([`CameraView::with_pixel_grid`]); `None`: the frustum alone decides what is in view.
+    pub pixel_grid: Option<PixelGrid>,
+}
+
+/// The pixels a view is rasterized on: a viewport of `width` x `height` pixels at a
+/// whole-pixel offset (its height may be negative in Vulkan: the grid is the same), one sample
+/// per pixel at its centre (`rasterizationSamples` 1).
+///
+/// Rasterization covers a sample only where a triangle holds the sample's point, so an object
+/// whose bounding box projects between pixel centres, holding none of them, can own no pixel:
+/// with a grid the cullers treat it as outside the frustum (exact, unlike culling by a size
+/// threshold). Far along a long street a car or a lamp often falls between the centres, and its
+/// box still shows through the sky around it. A margin of 1/8 pixel covers the rasterizer's
+/// sub-pixel snapping (Vulkan requires at least 4 bits, 1/16 pixel) and rounding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PixelGrid {
+    /// Viewport width in pixels.
+    pub width: u32,
+    /// Viewport height in pixels.
+    pub height: u32,
+}
+
+impl PixelGrid {
+    /// How far (pixels) beyond a projected box a triangle inside it may still cover a centre.
+    pub const MARGIN: f32 = 0.125;
+
+    /// Whether the screen rectangle `lo..hi` (framebuffer pixels, y either way up), grown by
+    /// [`PixelGrid::MARGIN`], holds the centre of a pixel of the grid.
+    pub fn holds_centre(&self, lo: [f32; 2], hi: [f32; 2]) -> bool {
+        let size = [self.width as f32, self.height as f32];
+        (0..2).all(|a| {
+            // Centres lie at i + 0.5 for i in 0..size.
+            let first = (lo[a] - Self::MARGIN - 0.5).ceil().max(0.0);
+            let last = (hi[a] + Self::MARGIN - 0.5).floor().min(size[a] - 1.0);
+            first <= last
+        })
+    }
 }
 
 impl CameraView {
@@ -222,7 +260,44 @@ impl CameraView {
             view_proj: Mat4::from_cols_array_2d(&m),
             eye: Vec3::from_array(e),
             depth,
+            pixel_grid: None,
         }
+    }
+
+    /// The same view, rasterized on a `width` x `height` grid with one sample per pixel (see
+    /// [`PixelGrid`]): objects that fall between pixel centres are culled with those outside
+    /// the frustum. Leave it out for multisampled or otherwise sampled frames. A zero size
+    /// is taken as no grid.
+    pub fn with_pixel_grid(mut self, width: u32, height: u32) -> CameraView {
+        self.pixel_grid = (width > 0 && height > 0).then_some(PixelGrid { width, height });
+        self
+    }
+
+    /// Whether `b` may cover a pixel centre of the view's grid: true without a grid, or when
+    /// a corner of `b` lies at or behind the eye plane (its projection is unbounded there).
+    pub fn may_cover_centre(&self, b: &Aabb) -> bool {
+        let Some(grid) = self.pixel_grid else {
+            return true;
+        };
+        let size = glam::Vec2::new(grid.width as f32, grid.height as f32);
+        let mut lo = glam::Vec2::INFINITY;
+        let mut hi = glam::Vec2::NEG_INFINITY;
+        for i in 0..8 {
+            let corner = Vec3::select(
+                glam::BVec3::new(i & 1 != 0, i & 2 != 0, i & 4 != 0),
+                b.max,
+                b.min,
+            );
+            let c = self.view_proj * corner.extend(1.0);
+            // At or behind the eye plane (or NaN): no bound on the projection.
+            if c.w.is_nan() || c.w <= 1e-6 * c.truncate().length().max(1.0) {
+                return true;
+            }
+            let s = (glam::Vec2::new(c.x, c.y) / c.w * 0.5 + 0.5) * size;
+            lo = lo.min(s);
+            hi = hi.max(s);
+        }
+        grid.holds_centre(lo.to_array(), hi.to_array())
     }
     /// The view frustum: near and far planes by the depth convention, no far plane if infinite.
     pub fn frustum(&self) -> Frustum {
@@ -263,6 +338,7 @@ impl From<&Camera> for CameraView {
             view_proj: c.view_proj(),
             eye: c.eye,
             depth: DepthConvention::STANDARD,
+            pixel_grid: None,
         }
     }
 }
@@ -348,6 +424,53 @@ pub fn orthographic_rh(left: f32, right: f32, bottom: f32, top: f32, near: f32, 
 mod tests {
     use super::*;
     use crate::rng::Rng;
+
+    /// A box holds a pixel centre (i + 0.5) of the grid only where its projection, grown by
+    /// the margin, reaches one on both axes inside the grid; a box at or behind the eye plane,
+    /// or a view without a grid, may cover any.
+    #[test]
+    fn pixel_centres_decide_what_a_box_may_cover() {
+        // World x and y are framebuffer pixels: a 10 x 4 grid seen along -z.
+        let m = orthographic_rh(0.0, 10.0, 0.0, 4.0, 0.1, 100.0)
+            * look_to_rh(Vec3::ZERO, Vec3::NEG_Z, Vec3::Y);
+        let view = CameraView::new(m.to_cols_array_2d(), [0.0; 3], DepthConvention::STANDARD)
+            .with_pixel_grid(10, 4);
+        let at = |x0: f32, x1: f32, y0: f32, y1: f32| {
+            view.may_cover_centre(&Aabb::new(Vec3::new(x0, y0, -6.0), Vec3::new(x1, y1, -5.0)))
+        };
+        assert!(!at(1.7, 2.2, 0.2, 0.8), "between the centres 1.5 and 2.5");
+        assert!(at(2.4, 2.6, 0.2, 0.8), "holds (2.5, 0.5)");
+        assert!(!at(2.4, 2.6, 0.7, 1.3), "x holds one, y none");
+        assert!(at(2.3, 2.45, 0.2, 0.8), "2.5 lies within the margin");
+        assert!(!at(2.3, 2.35, 0.2, 0.8), "2.5 lies beyond the margin");
+        assert!(
+            !at(-1.0, 0.3, 0.2, 0.8),
+            "its part on the grid holds no centre"
+        );
+        assert!(!at(9.8, 12.0, 0.2, 0.8), "the centre 10.5 is off the grid");
+        assert!(at(-5.0, 50.0, -5.0, 50.0), "covers the grid");
+        let mut plain = view;
+        plain.pixel_grid = None;
+        assert!(plain.may_cover_centre(&Aabb::new(
+            Vec3::new(1.7, 0.2, -6.0),
+            Vec3::new(2.2, 0.8, -5.0)
+        )));
+        assert_eq!(view.with_pixel_grid(0, 4).pixel_grid, None);
+        // In perspective, a box reaching behind the eye projects without bound.
+        let p = perspective_rh(1.0, 2.5, 0.1, 100.0) * look_to_rh(Vec3::ZERO, Vec3::NEG_Z, Vec3::Y);
+        let persp = CameraView::new(p.to_cols_array_2d(), [0.0; 3], DepthConvention::STANDARD)
+            .with_pixel_grid(10, 4);
+        let tiny = Aabb::new(Vec3::new(0.001, 0.001, -1.0), Vec3::new(0.002, 0.002, 1.0));
+        assert!(persp.may_cover_centre(&tiny));
+        let far = Aabb::new(
+            Vec3::new(0.001, 0.001, -50.0),
+            Vec3::new(0.002, 0.002, -49.0),
+        );
+        assert!(
+            !persp.may_cover_centre(&far),
+            "far off the centres near the middle"
+        );
+    }
 
     /// `cut_planes` with every plane agrees with `intersects` and `contains`; with the planes
     /// that cut an enclosing box it gives a box inside it the same answer as with all planes.

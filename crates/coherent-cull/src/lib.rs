@@ -173,7 +173,7 @@ use glam::Vec3;
 
 pub use aabb::Aabb;
 pub use bvh::ObjectBvh;
-pub use camera::{CameraView, DepthConvention, Frustum};
+pub use camera::{CameraView, DepthConvention, Frustum, PixelGrid};
 pub use error::{Error, Result};
 /// The glam version this crate's math types use (hosts need not use glam: every input also
 /// takes plain arrays or `mint` types).
@@ -793,6 +793,8 @@ pub struct View {
     /// The near-plane rectangle's bounding box, enlarged by `margin`.
     near_box: Aabb,
     margin: f32,
+    /// The camera, for the pixel-centre test.
+    camera: CameraView,
 }
 
 impl View {
@@ -814,7 +816,19 @@ impl View {
             camera_eye: view.eye,
             near_box,
             margin,
+            camera: *view,
         }
+    }
+
+    /// Whether a box may show: it meets the frustum and, with a pixel grid, may cover a pixel
+    /// centre ([`CameraView::may_cover_centre`]).
+    pub fn in_view(&self, bounds: &Aabb) -> bool {
+        self.frustum.intersects(bounds) && self.camera.may_cover_centre(bounds)
+    }
+
+    /// The pixel-centre half of [`View::in_view`], for a box already known to meet the frustum.
+    pub fn may_cover_centre(&self, bounds: &Aabb) -> bool {
+        self.camera.may_cover_centre(bounds)
     }
 
     /// See [`eye_inside`]: the eye is in the (slightly enlarged) box, or the box reaches the

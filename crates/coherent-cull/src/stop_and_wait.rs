@@ -32,7 +32,7 @@ impl Culler for StopAndWait {
         while let Some(id) = self.queue.pop() {
             let node = &bvh.nodes[id as usize];
             stats.nodes_visited += 1;
-            if !view.frustum.intersects(&node.bounds) {
+            if !view.in_view(&node.bounds) {
                 stats.frustum_culled += 1;
                 continue;
             }

@@ -29,7 +29,7 @@ impl Vfc {
             .bvh
             .front_to_back_with(&mut self.queue, view.eye, |id, node| {
                 stats.nodes_visited += 1;
-                if !view.frustum.intersects(&node.bounds) {
+                if !view.in_view(&node.bounds) {
                     stats.frustum_culled += 1;
                     return false;
                 }

@@ -160,7 +160,7 @@ impl Chcpp {
         let bvh = input.bvh;
         stats.nodes_visited += 1;
         let bounds = &bvh.nodes[node as usize].bounds;
-        if !view.frustum.intersects(bounds) {
+        if !view.in_view(bounds) {
             self.frustum_cull(node, stats);
         } else if view.eye_inside(bounds) {
             self.traverse_unqueryable(bvh, node, view.eye, stats);
