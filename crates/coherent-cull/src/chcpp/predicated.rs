@@ -59,7 +59,9 @@
 //!
 //! # Why nothing visible is culled
 //!
-//! Every object in the frustum lies below exactly one node where the traversal stopped: (a) a
+//! A node outside the frustum, or (with the view's [`crate::PixelGrid`]) whose box holds no
+//! pixel centre, holds no object that can own a pixel. Every other object in the frustum lies
+//! below exactly one node where the traversal stopped: (a) a
 //! leaf opened unconditionally, whose objects are drawn; (b) a node whose box holds the eye,
 //! opened unconditionally; or (c) an i-queue node. In case (c) the node's query draws boxes that
 //! cover the object (its own box or its tight volume: this frame's boxes, so movers are covered
