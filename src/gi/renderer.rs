@@ -218,8 +218,10 @@ impl GiRenderer {
         // triangles).
         ctx.info.check_storage_buffer(
             &format!(
-                "gi: {} world-space triangles (the scene's, long ones split) in one storage buffer",
-                vertex_count / 3
+                "gi: {} world-space triangles (the scene's, long ones split; this device's \
+                 binding holds {}) in one storage buffer",
+                vertex_count / 3,
+                u64::from(ctx.info.max_storage_buffer_range) / (3 * VERTEX_FLOATS as u64 * 4)
             ),
             vertex_data.len() as u64 * 4,
         )?;
