@@ -71,15 +71,20 @@ impl Aabb {
             max: self.max + Vec3::splat(by),
         }
     }
-    /// The box around this box transformed by `m`.
-    pub fn transformed(&self, m: &Mat4) -> Aabb {
-        let mut out = Aabb::EMPTY;
-        for i in 0..8 {
-            let c = Vec3::new(
+    /// The eight corners; bit 0 of the index picks max x, bit 1 max y, bit 2 max z.
+    pub fn corners(&self) -> [Vec3; 8] {
+        std::array::from_fn(|i| {
+            Vec3::new(
                 if i & 1 == 0 { self.min.x } else { self.max.x },
                 if i & 2 == 0 { self.min.y } else { self.max.y },
                 if i & 4 == 0 { self.min.z } else { self.max.z },
-            );
+            )
+        })
+    }
+    /// The box around this box transformed by `m`.
+    pub fn transformed(&self, m: &Mat4) -> Aabb {
+        let mut out = Aabb::EMPTY;
+        for c in self.corners() {
             out.grow(m.transform_point3(c));
         }
         out

@@ -279,25 +279,12 @@ impl CameraView {
         let Some(grid) = self.pixel_grid else {
             return true;
         };
+        let Some((lo, hi)) = projected_rect(&self.view_proj, b) else {
+            return true;
+        };
         let size = glam::Vec2::new(grid.width as f32, grid.height as f32);
-        let mut lo = glam::Vec2::INFINITY;
-        let mut hi = glam::Vec2::NEG_INFINITY;
-        for i in 0..8 {
-            let corner = Vec3::select(
-                glam::BVec3::new(i & 1 != 0, i & 2 != 0, i & 4 != 0),
-                b.max,
-                b.min,
-            );
-            let c = self.view_proj * corner.extend(1.0);
-            // At or behind the eye plane (or NaN): no bound on the projection.
-            if c.w.is_nan() || c.w <= 1e-6 * c.truncate().length().max(1.0) {
-                return true;
-            }
-            let s = (glam::Vec2::new(c.x, c.y) / c.w * 0.5 + 0.5) * size;
-            lo = lo.min(s);
-            hi = hi.max(s);
-        }
-        grid.holds_centre(lo.to_array(), hi.to_array())
+        let to_pixels = |ndc: glam::Vec2| ((ndc * 0.5 + 0.5) * size).to_array();
+        grid.holds_centre(to_pixels(lo), to_pixels(hi))
     }
     /// The view frustum: near and far planes by the depth convention, no far plane if infinite.
     pub fn frustum(&self) -> Frustum {
@@ -369,6 +356,24 @@ impl Frustum {
             planes: planes.map(|p| p / p.truncate().length().max(1e-20)),
         }
     }
+}
+
+/// The rectangle (normalized device x and y) around the projections of `b`'s corners by
+/// `view_proj`; `None` when a corner lies at or behind the eye plane (or the matrix gives NaN),
+/// where the projection has no bound.
+pub(crate) fn projected_rect(view_proj: &Mat4, b: &Aabb) -> Option<(glam::Vec2, glam::Vec2)> {
+    let mut lo = glam::Vec2::INFINITY;
+    let mut hi = glam::Vec2::NEG_INFINITY;
+    for corner in b.corners() {
+        let c = *view_proj * corner.extend(1.0);
+        if c.w.is_nan() || c.w <= 1e-6 * c.truncate().length().max(1.0) {
+            return None;
+        }
+        let ndc = glam::Vec2::new(c.x, c.y) / c.w;
+        lo = lo.min(ndc);
+        hi = hi.max(ndc);
+    }
+    Some((lo, hi))
 }
 
 /// Right-handed reverse-Z perspective projection with an infinite far plane (near at depth 1,

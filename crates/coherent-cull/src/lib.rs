@@ -788,12 +788,10 @@ pub struct View {
     pub frustum: Frustum,
     /// The point front-to-back order measures from ([`CameraView::order_point`]).
     pub eye: Vec3,
-    /// The true eye position.
-    camera_eye: Vec3,
     /// The near-plane rectangle's bounding box, enlarged by `margin`.
     near_box: Aabb,
     margin: f32,
-    /// The camera, for the pixel-centre test.
+    /// The camera: its true eye position, and its grid for the pixel-centre test.
     camera: CameraView,
 }
 
@@ -813,7 +811,6 @@ impl View {
         View {
             frustum,
             eye: view.order_point(),
-            camera_eye: view.eye,
             near_box,
             margin,
             camera: *view,
@@ -835,7 +832,7 @@ impl View {
     /// near plane where the near rectangle is.
     pub fn eye_inside(&self, bounds: &Aabb) -> bool {
         let b = bounds.enlarged(self.margin);
-        if b.contains(self.camera_eye) {
+        if b.contains(self.camera.eye) {
             return true;
         }
         let near = self.frustum.planes[4];

@@ -21,7 +21,7 @@
 //! occluded grows with the frames `t` since it was last tested:
 //! `P_turns_occluded = 1 − (1 − visible_turnover)^t`.
 
-use glam::{Mat4, Vec3};
+use glam::Mat4;
 
 use crate::bvh::ObjectBvh;
 use crate::Aabb;
@@ -216,22 +216,9 @@ impl NohcRule {
     fn screen_pixels(&self, b: &Aabb) -> f64 {
         let (w, h) = self.params.viewport;
         let (w, h) = (f64::from(w), f64::from(h));
-        let mut lo = glam::Vec2::splat(f32::MAX);
-        let mut hi = glam::Vec2::splat(f32::MIN);
-        for i in 0..8 {
-            let p = Vec3::new(
-                if i & 1 == 0 { b.min.x } else { b.max.x },
-                if i & 2 == 0 { b.min.y } else { b.max.y },
-                if i & 4 == 0 { b.min.z } else { b.max.z },
-            );
-            let clip = self.view_proj * p.extend(1.0);
-            if clip.w <= 1e-6 {
-                return w * h;
-            }
-            let ndc = glam::Vec2::new(clip.x, clip.y) / clip.w;
-            lo = lo.min(ndc);
-            hi = hi.max(ndc);
-        }
+        let Some((lo, hi)) = crate::camera::projected_rect(&self.view_proj, b) else {
+            return w * h;
+        };
         let lo = lo.clamp(glam::Vec2::splat(-1.0), glam::Vec2::splat(1.0));
         let hi = hi.clamp(glam::Vec2::splat(-1.0), glam::Vec2::splat(1.0));
         let size = (hi - lo).max(glam::Vec2::ZERO) * 0.5;
@@ -266,6 +253,7 @@ mod tests {
     use super::*;
     use crate::camera::Camera;
     use crate::camera::CameraPose;
+    use glam::Vec3;
 
     fn costs() -> CostModel {
         CostModel {

@@ -130,15 +130,8 @@ impl Sight {
             return 0;
         }
         let c = b.center();
-        let corner = |i: u32| {
-            let p = Vec3::new(
-                if i & 1 == 0 { b.min.x } else { b.max.x },
-                if i & 2 == 0 { b.min.y } else { b.max.y },
-                if i & 4 == 0 { b.min.z } else { b.max.z },
-            );
-            c.lerp(p, 0.9)
-        };
-        let samples = std::iter::once(c).chain((0..8).map(corner));
+        let corners = b.corners().map(|p| c.lerp(p, 0.9));
+        let samples = std::iter::once(c).chain(corners);
         10 * samples.filter(|&p| !self.blocked(p)).count() as u64
     }
 
