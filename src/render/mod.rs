@@ -461,13 +461,10 @@ impl Renderer {
     ) -> Result<FrameResult> {
         let mut view: CameraView = camera.into();
         let extent = self.target.extent;
-        view.pixel_grid = None;
-        if self.pixel_grid {
-            view = view.with_pixel_grid(extent.width, extent.height);
-        }
-        if let Some(parts) = self.part_tests.as_mut() {
-            parts.pixel_grid = self.pixel_grid;
-        }
+        view.pixel_grid = self.pixel_grid.then_some(coherent_cull::PixelGrid {
+            width: extent.width,
+            height: extent.height,
+        });
         let owned = if culler.needs_box_visibility() {
             Some(self.box_visible(bvh, view)?)
         } else if culler.needs_exact_visibility() && exact.is_none() {
@@ -580,7 +577,7 @@ impl Renderer {
         self.query_segment.clear();
         self.query_read.clear();
         if let Some(parts) = self.part_tests.as_mut() {
-            parts.begin_frame();
+            parts.begin_frame(view.pixel_grid.is_some());
         }
         self.stall = Duration::ZERO;
         self.last_submit = None;
@@ -1903,7 +1900,8 @@ impl Renderer {
                 return Ok(None);
             }
             let gather = self.multi_draws() && self.ctx.info.optional.draw_indirect_count;
-            match part_tests::PartTests::new(&self.ctx, &self.target.depth, gather) {
+            let grid = self.frame_view.is_some_and(|v| v.pixel_grid.is_some());
+            match part_tests::PartTests::new(&self.ctx, &self.target.depth, gather, grid) {
                 Ok(p) => self.part_tests = Some(p),
                 Err(Error::Unsupported { feature }) => {
                     self.part_tests_unsupported = Some(feature);

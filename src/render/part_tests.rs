@@ -196,9 +196,9 @@ pub struct PartTests {
     /// such predicates are refused), and whether the last test was recorded without it.
     pub skip_barrier: bool,
     unguarded: bool,
-    /// Whether a box that holds no pixel centre is decided hidden without reading depth (the
-    /// renderer's [`crate::render::Renderer::pixel_grid`]).
-    pub pixel_grid: bool,
+    /// Whether a box that holds no pixel centre is decided hidden without reading depth: the
+    /// frame's view has a pixel grid ([`PartTests::begin_frame`]).
+    pixel_grid: bool,
 }
 
 impl PartTests {
@@ -207,8 +207,14 @@ impl PartTests {
     /// the renderer then queries the parts.
     /// With `gather`, the draws of the parts that pass are gathered on the device into one
     /// indirect draw with a count (the renderer checked `drawIndirectCount`, multi-draws and
-    /// `drawIndirectFirstInstance`).
-    pub fn new(ctx: &Arc<GpuContext>, depth: &Image, gather: bool) -> Result<PartTests> {
+    /// `drawIndirectFirstInstance`). `pixel_grid`: the current frame's view has one (as
+    /// [`PartTests::begin_frame`] says for each later frame).
+    pub fn new(
+        ctx: &Arc<GpuContext>,
+        depth: &Image,
+        gather: bool,
+        pixel_grid: bool,
+    ) -> Result<PartTests> {
         let i = &ctx.info;
         let mut missing = Vec::new();
         if !i.optional.depth_sampled {
@@ -262,7 +268,7 @@ impl PartTests {
             gather_set: None,
             group_words: Vec::new(),
             sampler,
-            pixel_grid: true,
+            pixel_grid,
             size: depth.size(),
             buffers,
             retired: Vec::new(),
@@ -285,8 +291,10 @@ impl PartTests {
         self.size
     }
 
-    /// Starts a frame: every earlier frame has completed (replaced buffers go), no parts.
-    pub fn begin_frame(&mut self) {
+    /// Starts a frame: every earlier frame has completed (replaced buffers go), no parts;
+    /// `pixel_grid`: the frame's view has one (boxes between pixel centres are hidden).
+    pub fn begin_frame(&mut self, pixel_grid: bool) {
+        self.pixel_grid = pixel_grid;
         self.retired.clear();
         self.retired_sets.clear();
         self.parts.clear();
