@@ -10,7 +10,6 @@ use coherent::gi::geometry::WorldGeometry;
 use coherent::gi::light::Spotlight;
 use coherent::gi::textures::TriangleTextures;
 use coherent::gi::vpl::VplSet;
-use coherent::gi::{GiOptions, GiRenderer, OutputMode};
 use coherent::scene::camera::Camera;
 use coherent::scene::gltf::testdata::GltfBuilder;
 use coherent::scene::{CameraPose, Scene};
@@ -85,19 +84,7 @@ fn direct_light(geometry: &WorldGeometry) -> Vec<u8> {
     let (ctx, log) = common::context();
     let out = {
         let rays = geometry.ray_scene();
-        let mut renderer = GiRenderer::new(
-            &ctx,
-            geometry,
-            GiOptions {
-                width: W,
-                height: H,
-                vpl_layers: 16,
-                max_vpls: 16,
-                shadow_size: 256,
-            },
-        )
-        .expect("renderer");
-        renderer.output = OutputMode::DirectOnly;
+        let mut renderer = crate::materials_gi::direct_only_renderer(&ctx, geometry, (W, H));
         let light = Spotlight::new(Vec3::new(0.0, 4.0, 0.0), Vec3::NEG_Y, Vec3::splat(200.0));
         let mut set = VplSet::new(16, 16);
         let stats = set.recompute_all(&light, &rays);

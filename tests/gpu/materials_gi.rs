@@ -228,19 +228,7 @@ fn direct_light_with(scene: &Scene, exact: bool) -> Vec<Vec<u8>> {
     let out = {
         let geometry = WorldGeometry::from_scene(scene);
         let rays = geometry.ray_scene();
-        let mut renderer = GiRenderer::new(
-            &ctx,
-            &geometry,
-            GiOptions {
-                width: W,
-                height: H,
-                vpl_layers: 16,
-                max_vpls: 16,
-                shadow_size: 256,
-            },
-        )
-        .expect("renderer");
-        renderer.output = OutputMode::DirectOnly;
+        let mut renderer = direct_only_renderer(&ctx, &geometry, (W, H));
         if exact {
             renderer
                 .use_exact_shadow_clipping()
@@ -262,6 +250,25 @@ fn direct_light_with(scene: &Scene, exact: bool) -> Vec<Vec<u8>> {
     drop(ctx);
     common::assert_silent(&log);
     out
+}
+
+/// A GI renderer of `size` that outputs the spotlight's direct light only (16 VPL layers,
+/// 256 x 256 shadow maps).
+pub(crate) fn direct_only_renderer(
+    ctx: &std::sync::Arc<coherent::gpu::GpuContext>,
+    geometry: &WorldGeometry,
+    (width, height): (u32, u32),
+) -> GiRenderer {
+    let options = GiOptions {
+        width,
+        height,
+        vpl_layers: 16,
+        max_vpls: 16,
+        shadow_size: 256,
+    };
+    let mut renderer = GiRenderer::new(ctx, geometry, options).expect("renderer");
+    renderer.output = OutputMode::DirectOnly;
+    renderer
 }
 
 fn direct_light(scene: &Scene) -> Vec<Vec<u8>> {
