@@ -128,6 +128,10 @@ pub struct WalkArgs {
     /// centres (they can own no pixel of the one-sample image), for comparison.
     #[arg(long)]
     pub no_pixel_grid: bool,
+    /// Test boxes in the predicated mode with occlusion queries (one draw each) instead of
+    /// box flags (one instanced draw at each resolve), for comparison.
+    #[arg(long)]
+    pub no_box_flags: bool,
 }
 
 /// `coherent view`.
@@ -537,6 +541,7 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         repeats: a.repeat,
         check: a.check,
         no_pixel_grid: a.no_pixel_grid,
+        no_box_flags: a.no_box_flags,
         nohc: None,
         pvs: None,
     };

@@ -786,6 +786,9 @@ impl Culler for Observed<'_> {
     fn needs_box_visibility(&self) -> bool {
         self.inner.needs_box_visibility()
     }
+    fn reads_tests_after_frame(&self) -> bool {
+        self.inner.reads_tests_after_frame()
+    }
     fn cull_frame(
         &mut self,
         input: &FrameInput,

@@ -38,6 +38,9 @@ pub struct WalkConfig {
     /// Give the cullers no pixel grid ([`Renderer::pixel_grid`] off): objects that fall
     /// between pixel centres are drawn like any other in the frustum.
     pub no_pixel_grid: bool,
+    /// Test boxes with occlusion queries in the predicated mode too
+    /// ([`Renderer::set_box_flags`] off).
+    pub no_box_flags: bool,
 }
 
 /// Runs the walk `repeats` times: `warmup + frames` poses spread over the whole path; every
@@ -253,9 +256,11 @@ pub fn run_with_movers(
 ) -> Result<(Vec<FrameRecord>, MoverStats)> {
     renderer.visibility_threshold = cfg.params.pixel_threshold;
     renderer.pixel_grid = !cfg.no_pixel_grid;
+    renderer.set_box_flags(!cfg.no_box_flags);
     if let Some((base, _)) = walk.baseline.as_mut() {
         base.visibility_threshold = cfg.params.pixel_threshold;
         base.pixel_grid = !cfg.no_pixel_grid;
+        base.set_box_flags(!cfg.no_box_flags);
     }
     let total = cfg.warmup + cfg.frames;
     let runs = cfg.algorithms.len() + walk.baseline_algorithms.len();

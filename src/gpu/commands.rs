@@ -74,7 +74,8 @@ pub struct CommandCounts {
     /// Conditional-rendering blocks (`vkCmdBeginConditionalRenderingEXT`).
     pub conditional_blocks: u32,
     /// Queries whose boxes were drawn inside a conditional block (a block begun while a query
-    /// is active); also in `queries_begun`.
+    /// is active; also in `queries_begun`), and box flags drawn under a predicate (also in
+    /// `flag_tests`).
     pub predicated_queries: u32,
     /// Render-state draw calls recorded inside a conditional block: one per object, or one
     /// indirect multi-draw of several objects ([`Recorder::draw_objects_indirect`]); also in
@@ -83,6 +84,10 @@ pub struct CommandCounts {
     /// Parts of split nodes decided by the depth part test instead of a query (predicated
     /// mode, built-in renderer); not in `queries_begun`.
     pub tested_parts: u32,
+    /// Box tests answered by flags instead of queries (predicated mode, built-in renderer
+    /// with box flags on): one flag each, their boxes drawn by instanced draws at the
+    /// resolves; not in `queries_begun`.
+    pub flag_tests: u32,
     /// Predicates (tested parts, or queried nodes with one predicate level) whose draws were
     /// gathered on the device into one indirect draw with a count
     /// ([`Recorder::count_gathered`]) instead of a conditional block each.
@@ -515,6 +520,16 @@ impl Recorder {
         unsafe {
             self.device
                 .cmd_draw(self.cmd, vertex_count, instances, 0, 0)
+        };
+        self.count_draw((vertex_count / 3) as u64 * instances as u64);
+    }
+
+    /// Non-indexed instanced draw from instance `first_instance` on.
+    pub fn draw_instanced(&mut self, vertex_count: u32, instances: u32, first_instance: u32) {
+        // SAFETY: recording inside rendering with a bound pipeline.
+        unsafe {
+            self.device
+                .cmd_draw(self.cmd, vertex_count, instances, 0, first_instance)
         };
         self.count_draw((vertex_count / 3) as u64 * instances as u64);
     }

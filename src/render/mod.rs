@@ -2,6 +2,7 @@
 //! chain of segments (command buffers): when a culler needs query results the current segment is
 //! submitted and recording goes on in the next one, which resumes rendering with LOAD ops.
 
+pub mod box_flags;
 mod box_oracle;
 mod draw_log;
 pub mod frame;
@@ -148,6 +149,17 @@ pub struct Renderer {
     part_tests_unsupported: Option<String>,
     /// The box oracle's pass ([`Renderer::box_visible`]), made on first use.
     box_oracle: Option<box_oracle::BoxOracle>,
+    /// Box tests answered by flags instead of queries ([`Renderer::set_box_flags`]), made on
+    /// first use; whether they were asked for, and whether this frame uses them.
+    box_flags: Option<box_flags::BoxFlags>,
+    box_flags_on: bool,
+    /// Whether the culler of the frame being begun reads its tests after the frame.
+    flags_for_culler: bool,
+    flags_frame: bool,
+    /// Why the device cannot use box flags (its tests are then queries).
+    box_flags_unsupported: Option<String>,
+    /// Leaves out the barrier after the flags' draw (the test that shows it is refused).
+    skip_flag_barrier: bool,
     /// The scene's blended objects ([`Scene::is_blended`]): no culler draws them (they are not
     /// in [`Scene::hierarchy`]); every frame draws those in its view after the culled pass.
     blended: Vec<u32>,
@@ -289,6 +301,12 @@ impl Renderer {
             part_tests: None,
             part_tests_unsupported: None,
             box_oracle: None,
+            box_flags: None,
+            box_flags_on: true,
+            flags_for_culler: false,
+            flags_frame: false,
+            box_flags_unsupported: None,
+            skip_flag_barrier: false,
             blended,
             blend_order: Vec::new(),
             blend_predicates: Vec::new(),
@@ -480,7 +498,10 @@ impl Renderer {
             None if culler.needs_exact_visibility() => exact,
             None => None,
         };
-        self.begin_frame(&view)?;
+        self.flags_for_culler = culler.reads_tests_after_frame();
+        let begun = self.begin_frame(&view);
+        self.flags_for_culler = false;
+        begun?;
         let start = Instant::now();
         let input = FrameInput {
             bvh,
@@ -497,6 +518,11 @@ impl Renderer {
         let gpu_ms = self.gpu_time_ms()?;
         let mut counts: CommandCounts = self.recorder.take_counts();
         add_query_counts(&mut counts, &self.queries.counts());
+        if let Some(f) = self.box_flags.as_ref().filter(|_| self.flags_frame) {
+            let c = f.counts();
+            counts.flag_tests += c.tests;
+            counts.predicated_queries += c.predicated;
+        }
         self.read_predicates(&mut counts)?;
         let unread = self.query_read.iter().filter(|r| !**r).count()
             + self.part_tests.as_ref().map_or(0, |p| p.unread());
@@ -591,6 +617,7 @@ impl Renderer {
         self.blended_queries.clear();
         self.blended_seen.resize(self.blended.len(), false);
         self.frames_begun += 1;
+        self.begin_box_flags()?;
         let vp = raster_matrix(view);
         self.view_proj = vp.to_cols_array();
         self.push[..64].copy_from_slice(bytes_of(&self.view_proj));
@@ -1336,8 +1363,100 @@ impl Renderer {
         result
     }
 
+    /// Whether the box tests of the predicated mode are answered with flags instead of
+    /// occlusion queries ([`box_flags`]: one instanced draw of a resolve's boxes, the flags
+    /// the predicates). On by default. They apply to the frames of a culler that reads its
+    /// tests after the frame ([`Culler::reads_tests_after_frame`]: the predicated mode with
+    /// one frame in flight), where the device can (`fragmentStoresAndAtomics`, conditional
+    /// rendering) and the visibility threshold is 0; elsewhere the tests stay queries
+    /// ([`Renderer::box_flags_unsupported`] says why a device cannot).
+    pub fn set_box_flags(&mut self, on: bool) {
+        self.box_flags_on = on;
+    }
+
+    /// Why box flags cannot be used here (`None` when they can, or were not tried).
+    pub fn box_flags_unsupported(&self) -> Option<&str> {
+        self.box_flags_unsupported.as_deref()
+    }
+
+    /// Leaves out the barrier between the flags' draw and their readers (for the test that
+    /// shows such a frame is refused).
+    #[doc(hidden)]
+    pub fn skip_flag_barrier(&mut self, skip: bool) {
+        self.skip_flag_barrier = skip;
+    }
+
+    /// Decides whether this frame's tests are flags, making them on first use.
+    fn begin_box_flags(&mut self) -> Result<()> {
+        self.flags_frame = false;
+        let wanted = self.box_flags_on && self.flags_for_culler;
+        if !wanted || self.visibility_threshold != 0 || !self.supports_predicates() {
+            return Ok(());
+        }
+        if self.box_flags.is_none() && self.box_flags_unsupported.is_none() {
+            match box_flags::BoxFlags::new(&self.ctx) {
+                Ok(f) => self.box_flags = Some(f),
+                Err(Error::Unsupported { feature }) => self.box_flags_unsupported = Some(feature),
+                Err(e) => return Err(e),
+            }
+        }
+        if let Some(f) = self.box_flags.as_mut() {
+            f.begin_frame()?;
+            self.flags_frame = true;
+        }
+        Ok(())
+    }
+
+    /// This frame's flags.
+    fn flags_mut(&mut self) -> Result<&mut box_flags::BoxFlags> {
+        self.box_flags
+            .as_mut()
+            .filter(|_| self.flags_frame)
+            .ok_or_else(|| Error::Input("this frame has no box flags".into()))
+    }
+
+    /// The predicate of flag `query`: its buffer and byte offset.
+    fn flag_predicate(&self, query: QueryId) -> Result<(vk::Buffer, u64)> {
+        match self.box_flags.as_ref().filter(|_| self.flags_frame) {
+            Some(f) => f.predicate_at(query),
+            None => Err(Error::Input(format!(
+                "{query:#x} is a box flag, and this frame has none"
+            ))),
+        }
+    }
+
+    /// Draws the pending box flags (inside rendering); whether there were any.
+    fn record_box_flags(&mut self) -> Result<bool> {
+        let pending = self.box_flags.as_ref().is_some_and(|f| f.pending());
+        if !self.flags_frame || !pending {
+            return Ok(false);
+        }
+        let Some(mut flags) = self.box_flags.take() else {
+            return Ok(false);
+        };
+        let matrix = self.view_proj;
+        let (queries, cmd) = (&mut self.queries, self.recorder.command_buffer().0);
+        let drawn = flags.record(&mut self.recorder, bytes_of(&matrix), |rec, at| {
+            match at {
+                // SAFETY: inside rendering; the predicate's writer and its barrier came before.
+                Some((b, o)) => unsafe { queries.begin_block_at(cmd, b, o)? },
+                // SAFETY: the block begun just before is open in this rendering.
+                None => unsafe { queries.end_block(cmd) },
+            }
+            rec.note_conditional(at.map(|_| FLAG_BLOCK));
+            Ok(())
+        });
+        self.box_flags = Some(flags);
+        // The flag pipeline bound its own set and layout: rebind the scene's state.
+        self.bound = None;
+        drawn.map(|()| true)
+    }
+
     /// Refuses a predicate that is not a resolved query (or a tested part) of this frame.
     fn check_predicate(&self, query: QueryId) -> Result<()> {
+        if box_flags::BoxFlags::is_flag(query) {
+            return self.flag_predicate(query).map(|_| ());
+        }
         if query & part_tests::PART_BIT != 0 {
             let tested = self.part_tests.as_ref().is_some_and(|p| p.is_tested(query));
             if !tested {
@@ -1358,6 +1477,15 @@ impl Renderer {
     fn begin_predicated(&mut self, query: QueryId) -> Result<()> {
         self.ensure_recording()?;
         let cmd = self.recorder.command_buffer().0;
+        if box_flags::BoxFlags::is_flag(query) {
+            let (buffer, offset) = self.flag_predicate(query)?;
+            // SAFETY: recording inside rendering, after the flags' draw and the barrier that
+            // made them visible to conditional rendering, in this command buffer; the set
+            // checks that no block is open.
+            unsafe { self.queries.begin_block_at(cmd, buffer, offset)? };
+            self.recorder.note_conditional(Some(query));
+            return Ok(());
+        }
         let part = query & part_tests::PART_BIT != 0;
         match self.part_tests.as_ref().filter(|_| part) {
             Some(parts) => {
@@ -1461,8 +1589,10 @@ impl Renderer {
     /// many were; adds the mover draws.
     fn read_predicates(&mut self, counts: &mut CommandCounts) -> Result<()> {
         let (queries, parts) = (&self.queries, self.part_tests.as_ref());
-        let predicate = |q: QueryId| match parts {
-            Some(p) if q & part_tests::PART_BIT != 0 => p.predicate(q),
+        let flags = self.box_flags.as_ref().filter(|_| self.flags_frame);
+        let predicate = |q: QueryId| match (parts, flags) {
+            (_, Some(f)) if box_flags::BoxFlags::is_flag(q) => f.predicate(q),
+            (Some(p), _) if q & part_tests::PART_BIT != 0 => p.predicate(q),
             _ => queries.predicate(q),
         };
         self.log
@@ -1516,8 +1646,28 @@ impl OcclusionBackend for Renderer {
             return Err(coherent_cull::predicates_unsupported());
         }
         self.ensure_recording()?;
+        let flagged = self.record_box_flags()?;
         // A pass break: the copy runs outside rendering, which resumes with LOAD ops.
         self.recorder.end_rendering();
+        if let Some(f) = self.box_flags.as_mut().filter(|_| flagged) {
+            // The flags are copied (into the predicates here, into the part tests' node values
+            // below) and, after the frame, read by the host.
+            self.recorder
+                .memory_barrier(Access::FragmentWrite, Access::TransferRead);
+            self.recorder
+                .memory_barrier(Access::FragmentWrite, Access::HostRead);
+            // The predicates of an earlier resolve of this frame were read and written before.
+            self.recorder
+                .memory_barrier(Access::ConditionalRead, Access::TransferWrite);
+            self.recorder
+                .memory_barrier(Access::TransferWrite, Access::TransferWrite);
+            f.record_copy(&mut self.recorder);
+            if !self.skip_flag_barrier {
+                self.recorder
+                    .memory_barrier(Access::TransferWrite, Access::ConditionalRead);
+                f.barrier_recorded();
+            }
+        }
         // SAFETY: outside rendering, after the queries it copies.
         unsafe {
             self.queries
@@ -1527,16 +1677,23 @@ impl OcclusionBackend for Renderer {
         let multi_draws = self.multi_draws();
         if let Some(parts) = self.part_tests.as_mut().filter(|p| p.pending()) {
             let segment = self.segments.used().saturating_sub(1) as u32;
+            let flags = self.box_flags.as_ref().filter(|_| self.flags_frame);
             parts.record(
                 &mut self.recorder,
                 &self.target.depth,
                 &mut self.queries,
+                flags.map(|f| f.flags()),
                 &self.view_proj,
                 segment,
                 self.ordered.buffer_generation().filter(|_| multi_draws),
                 self.ctx.info.max_draw_indirect_count,
             )?;
             tested = true;
+        }
+        if flagged {
+            // Later flags of this frame are written after these copies read the flags.
+            self.recorder
+                .memory_barrier(Access::TransferRead, Access::FragmentWrite);
         }
         self.begin_target_rendering(false)?;
         if tested {
@@ -1632,6 +1789,26 @@ impl OcclusionBackend for Renderer {
         boxes: &[Aabb],
         purpose: QueryPurpose,
     ) -> coherent_cull::Result<QueryId> {
+        if self.flags_frame {
+            let at = if box_flags::BoxFlags::is_flag(predicate) {
+                self.flag_predicate(predicate)?
+            } else {
+                self.check_predicate(predicate)?;
+                let parts = self.part_tests.as_ref();
+                match parts.filter(|_| predicate & part_tests::PART_BIT != 0) {
+                    Some(p) => p.predicate_at(predicate)?,
+                    None => {
+                        return Err(Error::Input(format!(
+                            "a box flag under query {predicate}: a frame with box flags has no                              queries"
+                        ))
+                        .into())
+                    }
+                }
+            };
+            let id = self.flags_mut()?.add(Some(at), boxes)?;
+            self.tag_query(purpose);
+            return Ok(id);
+        }
         let id = self.record_query(boxes, Some(predicate))?;
         self.tag_query(purpose);
         Ok(id)
@@ -1646,6 +1823,9 @@ impl OcclusionBackend for Renderer {
     }
 
     fn issue_query(&mut self, boxes: &[Aabb]) -> coherent_cull::Result<QueryId> {
+        if self.flags_frame {
+            return Ok(self.flags_mut()?.add(None, boxes)?);
+        }
         Ok(self.record_query(boxes, None)?)
     }
 
@@ -1654,6 +1834,11 @@ impl OcclusionBackend for Renderer {
         boxes: &[Aabb],
         purpose: QueryPurpose,
     ) -> coherent_cull::Result<QueryId> {
+        if self.flags_frame {
+            let id = self.flags_mut()?.add(None, boxes)?;
+            self.tag_query(purpose);
+            return Ok(id);
+        }
         let id = self.record_query(boxes, None)?;
         self.tag_query(purpose);
         Ok(id)
@@ -1667,10 +1852,21 @@ impl OcclusionBackend for Renderer {
     }
 
     fn flush(&mut self) -> coherent_cull::Result<()> {
+        if self.flags_frame {
+            return Err(flags_read_in_frame().into());
+        }
         Ok(self.submit_segment()?)
     }
 
     fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
+        if box_flags::BoxFlags::is_flag(query) {
+            let flags = self.box_flags.as_ref().filter(|_| self.flags_frame);
+            let r = flags.and_then(|f| f.result(query));
+            if let Some(v) = r {
+                self.recorder.note_query_read(v > self.visibility_threshold);
+            }
+            return Ok(r);
+        }
         // Only a completed segment's queries are read: on some drivers (lavapipe) reading a
         // query of a pending submission waits for the whole device, so that read would be a
         // hidden, uncounted stall.
@@ -1695,6 +1891,9 @@ impl OcclusionBackend for Renderer {
         if let Some(v) = self.query_result(query)? {
             return Ok(v);
         }
+        if box_flags::BoxFlags::is_flag(query) {
+            return Err(flags_read_in_frame().into());
+        }
         let seg = self.segment_of(query)?;
         if seg >= self.segment_values.len() {
             self.submit_segment()?;
@@ -1712,6 +1911,11 @@ impl OcclusionBackend for Renderer {
     }
 
     fn finish(&mut self) -> coherent_cull::Result<()> {
+        let flags_pending = self.box_flags.as_ref().is_some_and(|f| f.pending());
+        if self.flags_frame && flags_pending {
+            // Tests handed over with no resolve after them: drawn now.
+            self.resolve_predicates()?;
+        }
         if self.part_tests.as_ref().is_some_and(|p| p.pending()) {
             // Parts (and draws of theirs) handed over with no resolve after them: tested now.
             self.resolve_predicates()?;
@@ -1724,8 +1928,24 @@ impl OcclusionBackend for Renderer {
         let test = self.supports_predicates();
         self.draw_blended_order(test)?;
         self.submit_segment()?;
-        Ok(self.timeline.wait_all()?)
+        self.timeline.wait_all()?;
+        if let Some(f) = self.box_flags.as_mut() {
+            f.set_complete();
+        }
+        Ok(())
     }
+}
+
+/// What the recorder notes as the open block while flags are drawn under a predicate (no
+/// render-state draw happens inside it).
+const FLAG_BLOCK: QueryId = box_flags::FLAG_BIT;
+
+/// Why a box flag cannot be read inside its frame.
+fn flags_read_in_frame() -> Error {
+    Error::Input(
+        "box flags are read after their frame (the predicated mode with one frame in flight);          this culler reads tests inside the frame or later: use queries          (Renderer::set_box_flags(false))"
+            .into(),
+    )
 }
 
 impl Renderer {
@@ -1734,6 +1954,15 @@ impl Renderer {
     /// pixels), the device has conditional rendering, and this frame has room; `None` when
     /// it is to be queried.
     fn add_tested_part(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
+        if box_flags::BoxFlags::is_flag(predicate) {
+            // The node's flag, copied into the test's node values at its slot.
+            let (_, at) = self.flag_predicate(predicate)?;
+            let slot = (at / 4) as QueryId;
+            return match self.target_part_tests()? {
+                Some(parts) if parts.fits(boxes.len(), slot) => parts.add(slot, boxes).map(Some),
+                _ => Ok(None),
+            };
+        }
         if self.visibility_threshold != 0
             || !self.supports_predicates()
             || predicate & part_tests::PART_BIT != 0
@@ -1756,6 +1985,11 @@ impl Renderer {
     /// Whether `query` is a query of this frame not resolved yet whose draws can be gathered
     /// at its resolve ([`OcclusionBackend::gathers_predicated_draws`]).
     fn awaits_resolve(&self, query: QueryId) -> bool {
+        if box_flags::BoxFlags::is_flag(query) {
+            let flags = self.box_flags.as_ref().filter(|_| self.flags_frame);
+            return flags.is_some_and(|f| f.awaits_draw(query))
+                && self.part_tests.as_ref().is_some_and(|p| p.can_gather());
+        }
         query & part_tests::PART_BIT == 0
             && query >= self.queries.resolved()
             && query < self.queries.issued()

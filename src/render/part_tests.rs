@@ -530,6 +530,7 @@ impl PartTests {
         rec: &mut Recorder,
         depth: &Image,
         queries: &mut coherent_ash::QuerySet,
+        flags: Option<&Buffer>,
         view_proj: &[f32; 16],
         segment: u32,
         ordered: Option<(&Buffer, u64)>,
@@ -546,7 +547,7 @@ impl PartTests {
             .iter()
             .filter(|(id, _)| id & PART_BIT == 0);
         let issued = (self.parts.iter().map(|p| p[2] + 1))
-            .chain(node_runs.map(|(id, _)| id + 1))
+            .chain(node_runs.map(|(id, _)| super::box_flags::node_index(*id) + 1))
             .max()
             .unwrap_or(0);
         let groups = self.deferred.runs.len() as u32;
@@ -576,7 +577,9 @@ impl PartTests {
             b.boxes
                 .write(first_box * BOX_BYTES, bytes_of(&self.boxes[first_box..]))?;
         }
-        if issued > 0 {
+        if let (Some(f), true) = (flags, issued > 0) {
+            rec.copy_buffer(f, &b.node_values, u64::from(issued) * 4);
+        } else if issued > 0 {
             // SAFETY: outside rendering, after the queries named (the set checks that they were
             // issued); the buffer has room
             // for `issued` values and TRANSFER_DST usage.
@@ -646,8 +649,13 @@ impl PartTests {
         words.clear();
         for (id, run) in &d.runs {
             // Source 0: a part's predicate; 1: a queried node's value.
-            let node = u32::from(id & PART_BIT == 0);
-            words.extend_from_slice(&[id & !PART_BIT, run.start, run.len() as u32, node]);
+            let node = id & PART_BIT == 0;
+            let index = if node {
+                super::box_flags::node_index(*id)
+            } else {
+                id & !PART_BIT
+            };
+            words.extend_from_slice(&[index, run.start, run.len() as u32, u32::from(node)]);
         }
         let b = &mut self.buffers;
         b.groups.write(0, bytes_of(&words[..]))?;

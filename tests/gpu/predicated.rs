@@ -281,6 +281,8 @@ fn predicates_without_their_barrier_are_refused() {
         let cam = r.camera(pose, &bvh);
         let setup = CullerSetup::default();
         let mut c = culling::create_named("chcpp@predicated", &setup).unwrap();
+        // Queries' predicates first (box flags off), the flags' own barrier below.
+        r.set_box_flags(false);
         r.skip_predicate_barrier(true);
         let err = r.render_frame(c.as_mut(), &bvh, &cam, 0).unwrap_err();
         assert!(err.to_string().contains("barrier"), "{err}");
@@ -310,6 +312,74 @@ fn predicates_without_their_barrier_are_refused() {
         c.reset();
         let res = r.render_frame(c.as_mut(), &bvh, &cam, 40).unwrap();
         assert!(res.counts.conditional_blocks > 0);
+        // Box flags: without the barrier after their draw, a block on one is refused.
+        r.set_box_flags(true);
+        r.skip_flag_barrier(true);
+        c.reset();
+        let err = r.render_frame(c.as_mut(), &bvh, &cam, 41).unwrap_err();
+        assert!(err.to_string().contains("barrier"), "{err}");
+        r.skip_flag_barrier(false);
+        c.reset();
+        let res = r.render_frame(c.as_mut(), &bvh, &cam, 42).unwrap();
+        assert!(res.counts.flag_tests > 0 && res.counts.queries_begun == 0);
+        assert!(res.counts.conditional_blocks > 0);
+    }
+    common::assert_silent(&log);
+}
+
+/// Box flags answer the predicated mode's tests as its queries do (the visibility threshold is
+/// 0): along the street with a cut and a turn, CHC++ with flags draws the same objects frame
+/// by frame as with queries, with no occlusion query, one instanced draw of boxes per resolve
+/// at most beside the blocks of tests under predicates, and fewer draw calls; its images
+/// equal vfc's (the walks of `matches_vfc`, where `chcpp@predicated` uses flags by default).
+/// A culler that reads its tests inside the frame keeps its queries.
+#[test]
+fn box_flags_decide_as_queries_do() {
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+        let poses = poses(&scene, "street");
+        let setup = CullerSetup::default();
+        r.log_drawn_objects(true);
+        let mut drawn: [Vec<Vec<u32>>; 2] = [Vec::new(), Vec::new()];
+        let mut calls = [0u32; 2];
+        for (i, flags) in [true, false].into_iter().enumerate() {
+            r.set_box_flags(flags);
+            let mut c = culling::create_named("chcpp@predicated", &setup).unwrap();
+            for (f, &pose) in poses.iter().enumerate() {
+                let cam = r.camera(pose, &bvh);
+                let res = r.render_frame(c.as_mut(), &bvh, &cam, f as u64).unwrap();
+                let tag = format!("flags {flags}, frame {f}");
+                if flags {
+                    assert_eq!(res.counts.queries_begun, 0, "{tag}: queries");
+                    assert!(res.counts.flag_tests > 0, "{tag}: no flag test");
+                } else {
+                    assert_eq!(res.counts.flag_tests, 0, "{tag}: flags");
+                }
+                assert_eq!(res.counts.submits, 1, "{tag}");
+                assert!(res.counts.state_changes <= 4, "{tag}");
+                calls[i] += res.counts.draw_calls;
+                let mut objects = r.drawn_objects().to_vec();
+                objects.sort_unstable();
+                drawn[i].push(objects);
+            }
+        }
+        for (f, (a, b)) in drawn[0].iter().zip(&drawn[1]).enumerate() {
+            assert_eq!(a, b, "frame {f}: flags and queries drew different objects");
+        }
+        assert!(
+            calls[0] < calls[1],
+            "flags made {} draw calls, queries {}",
+            calls[0],
+            calls[1]
+        );
+        // In-frame CHC++ reads its queries inside the frame: they stay queries.
+        r.set_box_flags(true);
+        let mut c = culling::create_named("chcpp", &setup).unwrap();
+        let cam = r.camera(poses[0], &bvh);
+        let res = r.render_frame(c.as_mut(), &bvh, &cam, 0).unwrap();
+        assert!(res.counts.queries_begun > 0 && res.counts.flag_tests == 0);
     }
     common::assert_silent(&log);
 }

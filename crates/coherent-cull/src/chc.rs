@@ -20,6 +20,10 @@ impl Culler for Chc {
         "chc"
     }
 
+    fn reads_tests_after_frame(&self) -> bool {
+        self.0.reads_tests_after_frame()
+    }
+
     fn cull_frame(
         &mut self,
         input: &FrameInput,

@@ -67,6 +67,10 @@ impl Culler for FramesInFlight {
         self.inner.needs_box_visibility()
     }
 
+    fn reads_tests_after_frame(&self) -> bool {
+        self.k == 1 && self.inner.reads_tests_after_frame()
+    }
+
     fn cull_frame(
         &mut self,
         input: &FrameInput,

@@ -668,6 +668,15 @@ pub trait Culler: Send {
     fn needs_box_visibility(&self) -> bool {
         false
     }
+    /// Whether every box test this culler issues in a frame is read only after the frame's
+    /// [`OcclusionBackend::finish`], in the same call, and never waited for inside the frame
+    /// (the predicated mode with one frame in flight). A backend may then answer such tests
+    /// in any way that is readable by then (the built-in renderer draws them all as flags,
+    /// one instanced draw at each predicate resolve, instead of one occlusion query each).
+    /// Default: no.
+    fn reads_tests_after_frame(&self) -> bool {
+        false
+    }
     /// Decides visibility and records draws and queries through `backend`; must read back every
     /// query it issued before returning (after [`OcclusionBackend::finish`] if need be).
     ///

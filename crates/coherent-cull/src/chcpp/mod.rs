@@ -44,6 +44,10 @@ impl Culler for Chcpp {
         self.name
     }
 
+    fn reads_tests_after_frame(&self) -> bool {
+        self.mode.latency() == crate::Latency::Predicated && !self.reads_frames_later()
+    }
+
     /// Algorithm 1 of the paper: while the traversal queue or the query queue is not empty,
     /// first handle the queries that have returned, then take the next node from the traversal
     /// queue; when the traversal queue runs dry, issue what the queues hold. A latency mode
