@@ -36,10 +36,10 @@ use coherent_cull::{Aabb, QueryId};
 use gpu_allocator::MemoryLocation;
 
 use crate::error::{Error, Result};
-use crate::gpu::targets::{COLOR_FORMAT, DEPTH_FORMAT};
+use crate::gpu::targets::COLOR_FORMAT;
 use crate::gpu::{
-    shaders, word_at, Binding, Buffer, DescriptorSets, GpuContext, Pipeline, PipelineDesc,
-    PipelineKind, PipelineLayout, Recorder,
+    word_at, Binding, Buffer, DescriptorSets, GpuContext, Pipeline, PipelineKind, PipelineLayout,
+    Recorder,
 };
 
 /// Flag ids carry this bit (query ids never do; part ids carry [`super::part_tests::PART_BIT`]).
@@ -53,8 +53,6 @@ pub const MAX_FLAGS: u32 = 1 << SLOT_BITS;
 const MAX_BOXES: u32 = 1 << 18;
 /// Bytes of one box record (`box_visible.vert` `ObjectBox`: two vec4, the flag slot in lo.w).
 const BOX_BYTES: usize = 32;
-/// Push constants: the target's world-to-clip matrix.
-const PUSH: u32 = 64;
 
 /// Where the value of node test `id` (a query, or a flag: its slot) lies in the part tests'
 /// node values.
@@ -147,35 +145,12 @@ impl BoxFlags {
             vk::BufferUsageFlags::CONDITIONAL_RENDERING_EXT | vk::BufferUsageFlags::TRANSFER_DST,
             MemoryLocation::GpuOnly,
         )?;
-        let layout = PipelineLayout::new(
+        let (layout, pipeline) = super::box_oracle::marking_pipeline(
             ctx,
-            &[
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-            ],
-            PUSH,
+            "box flags",
+            COLOR_FORMAT,
+            PipelineKind::Query,
         )?;
-        let desc = PipelineDesc {
-            name: "box flags",
-            vert: shaders::BOX_VISIBLE_VERT,
-            frag: Some(shaders::BOX_VISIBLE_FRAG),
-            vertex_stride: 0,
-            attributes: &[],
-            color_formats: &[COLOR_FORMAT],
-            color_write: false,
-            depth_format: DEPTH_FORMAT,
-            depth_compare: vk::CompareOp::LESS_OR_EQUAL,
-            depth_write: false,
-            // Front faces, as coherent-ash's query boxes: a node whose box holds the eye is
-            // opened without a test.
-            cull: vk::CullModeFlags::BACK,
-            kind: PipelineKind::Query,
-            // As the query boxes: toward the eye, so a face lying on the surface it bounds
-            // passes.
-            depth_bias: (-4.0, -1.0),
-            blend: false,
-        };
-        let pipeline = Pipeline::graphics(ctx, &layout, &desc)?;
         let bindings = [
             Binding::StorageBuffer(&boxes),
             Binding::StorageBuffer(&flags),
@@ -244,11 +219,7 @@ impl BoxFlags {
         let slot = self.flags_used;
         self.words.clear();
         for b in boxes {
-            let (lo, hi) = (b.min, b.max);
-            self.words
-                .extend([lo.x.to_bits(), lo.y.to_bits(), lo.z.to_bits(), slot]);
-            self.words
-                .extend([hi.x.to_bits(), hi.y.to_bits(), hi.z.to_bits(), 0]);
+            self.words.extend(super::box_oracle::box_record(b, slot));
         }
         let at = self.boxes_used as usize * BOX_BYTES;
         self.boxes.write(at, crate::gpu::bytes_of(&self.words))?;

@@ -38,6 +38,67 @@ const BOX_BYTES: u64 = 32;
 /// Push constants: the ID pass's world-to-clip matrix.
 const PUSH: u32 = 64;
 
+/// The pipeline of a pass that marks boxes (`shaders/box_visible.vert` and `.frag`): one
+/// instance per record of its storage buffer (binding 0, [`box_record`]) draws the box's
+/// front faces with coherent-ash's query boxes' depth test and bias, writes no color or depth,
+/// and a fragment that passes (early fragment tests) writes 1 into the word of the storage
+/// buffer at binding 1 that the record names. The box oracle marks objects with it, the box
+/// flags tests. Push constants: the world-to-clip matrix.
+pub(super) fn marking_pipeline(
+    ctx: &Arc<GpuContext>,
+    name: &'static str,
+    color_format: vk::Format,
+    kind: PipelineKind,
+) -> Result<(PipelineLayout, Pipeline)> {
+    let layout = PipelineLayout::new(
+        ctx,
+        &[
+            vk::DescriptorType::STORAGE_BUFFER,
+            vk::DescriptorType::STORAGE_BUFFER,
+        ],
+        PUSH,
+    )?;
+    let desc = PipelineDesc {
+        name,
+        vert: shaders::BOX_VISIBLE_VERT,
+        frag: Some(shaders::BOX_VISIBLE_FRAG),
+        vertex_stride: 0,
+        attributes: &[],
+        color_formats: &[color_format],
+        color_write: false,
+        depth_format: DEPTH_FORMAT,
+        depth_compare: vk::CompareOp::LESS_OR_EQUAL,
+        depth_write: false,
+        // Front faces only, as the query boxes: the box of an object the eye is inside
+        // (or that reaches the near plane) may then show nothing, and exact cullers draw
+        // such objects without a test anyway.
+        cull: vk::CullModeFlags::BACK,
+        kind,
+        // As coherent-ash's query boxes: toward the eye, so a face lying on the surface
+        // it bounds passes.
+        depth_bias: (-4.0, -1.0),
+        blend: false,
+    };
+    let pipeline = Pipeline::graphics(ctx, &layout, &desc)?;
+    Ok((layout, pipeline))
+}
+
+/// One box record of [`marking_pipeline`]'s storage buffer: the corners, and in the minimum's
+/// w the index of the word a passing fragment marks.
+pub(super) fn box_record(b: &coherent_cull::Aabb, index: u32) -> [u32; 8] {
+    let (lo, hi) = (b.min, b.max);
+    [
+        lo.x.to_bits(),
+        lo.y.to_bits(),
+        lo.z.to_bits(),
+        index,
+        hi.x.to_bits(),
+        hi.y.to_bits(),
+        hi.z.to_bits(),
+        0,
+    ]
+}
+
 /// The box pass's pipeline, its buffers and their descriptor set.
 pub(super) struct BoxOracle {
     // The pipeline and the set go before the layout and the buffers they use.
@@ -80,36 +141,8 @@ impl BoxOracle {
             storage | vk::BufferUsageFlags::TRANSFER_DST,
             MemoryLocation::GpuToCpu,
         )?;
-        let layout = PipelineLayout::new(
-            ctx,
-            &[
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-            ],
-            PUSH,
-        )?;
-        let desc = PipelineDesc {
-            name: "oracle-box",
-            vert: shaders::BOX_VISIBLE_VERT,
-            frag: Some(shaders::BOX_VISIBLE_FRAG),
-            vertex_stride: 0,
-            attributes: &[],
-            color_formats: &[ID_FORMAT],
-            color_write: false,
-            depth_format: DEPTH_FORMAT,
-            depth_compare: vk::CompareOp::LESS_OR_EQUAL,
-            depth_write: false,
-            // Front faces only, as the query boxes: the box of an object the eye is inside
-            // (or that reaches the near plane) may then show nothing, and exact cullers draw
-            // such objects without a test anyway.
-            cull: vk::CullModeFlags::BACK,
-            kind: PipelineKind::Other,
-            // As coherent-ash's query boxes: toward the eye, so a face lying on the surface
-            // it bounds passes.
-            depth_bias: (-4.0, -1.0),
-            blend: false,
-        };
-        let pipeline = Pipeline::graphics(ctx, &layout, &desc)?;
+        let (layout, pipeline) =
+            marking_pipeline(ctx, "oracle-box", ID_FORMAT, PipelineKind::Other)?;
         let bindings = [
             Binding::StorageBuffer(&boxes),
             Binding::StorageBuffer(&visible),
@@ -139,8 +172,7 @@ impl BoxOracle {
                 .get(o as usize)
                 .ok_or_else(|| Error::Input(format!("oracle-box: no object {o}")))?
                 .bounds;
-            words.extend([b.min.x.to_bits(), b.min.y.to_bits(), b.min.z.to_bits(), o]);
-            words.extend([b.max.x.to_bits(), b.max.y.to_bits(), b.max.z.to_bits(), 0]);
+            words.extend(box_record(&b, o));
         }
         self.boxes.write(0, &as_bytes(&words))?;
         self.count = candidates.len() as u32;
