@@ -449,6 +449,11 @@ pub fn render(a: &RenderArgs) -> Result<()> {
             } else {
                 String::new()
             };
+            let tests = if c.flag_tests > 0 {
+                format!("{} box tests (flags)", c.flag_tests)
+            } else {
+                format!("{} queries", c.queries_begun)
+            };
             let frame = match walk {
                 Some((frames, warmup)) => format!(
                     "frame {} of a walk of {frames} (+ {warmup} warm-up)",
@@ -457,14 +462,13 @@ pub fn render(a: &RenderArgs) -> Result<()> {
                 None => format!("frame {}", a.frame),
             };
             println!(
-                "{}: {} {frame} with {}: {:.1} ms, {} draws, {} triangles, {} queries, {} state changes, {} submits{predicated} -> {}",
+                "{}: {} {frame} with {}: {:.1} ms, {} draws, {} triangles, {tests}, {} state changes, {} submits{predicated} -> {}",
                 scene.name,
                 path.name,
                 name,
                 r.frame_ms,
                 c.draw_calls,
                 c.drawn_triangles(),
-                c.queries_begun,
                 c.state_changes,
                 c.submits,
                 a.out.display()
