@@ -200,8 +200,9 @@ impl BoxFlags {
         Ok(())
     }
 
-    /// A test of `boxes`, drawn at the next resolve (under the flag or part predicate
-    /// `predicate` at byte offset `at` of its buffer, when given); returns its id.
+    /// A test of `boxes`, drawn at the next resolve; with `predicate` (a predicate buffer and
+    /// byte offset: a resolved flag's or a tested part's) inside a conditional block on it.
+    /// Returns the test's id.
     pub(super) fn add(
         &mut self,
         predicate: Option<(vk::Buffer, u64)>,
