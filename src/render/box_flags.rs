@@ -25,7 +25,9 @@
 //! gets nearer. What a flag gives up is the pixel count: the visibility threshold must be 0.
 //!
 //! A flag names its frame: a result asked for after the next frame began is `None` (dropped,
-//! as a result not back), so the culler must read them after the frame (one frame in flight).
+//! as a result not back), so the culler must read them after the frame; with `k` frames in
+//! flight the built-in renderer's cullers are wrapped in `FramesInFlight`, which does and
+//! keeps them.
 //! Tests drawn under a predicate (parts queried under their node's) get a conditional block
 //! each, as queries do.
 

@@ -1366,8 +1366,9 @@ impl Renderer {
     /// Whether the box tests of the predicated mode are answered with flags instead of
     /// occlusion queries ([`box_flags`]: one instanced draw of a resolve's boxes, the flags
     /// the predicates). On by default. They apply to the frames of a culler that reads its
-    /// tests after the frame ([`Culler::reads_tests_after_frame`]: the predicated mode with
-    /// one frame in flight), where the device can (`fragmentStoresAndAtomics`, conditional
+    /// tests after the frame ([`Culler::reads_tests_after_frame`]: the predicated mode; with
+    /// `k` frames in flight through `FramesInFlight`, which reads them right after the frame),
+    /// where the device can (`fragmentStoresAndAtomics`, conditional
     /// rendering) and the visibility threshold is 0; elsewhere the tests stay queries
     /// ([`Renderer::box_flags_unsupported`] says why a device cannot).
     pub fn set_box_flags(&mut self, on: bool) {

@@ -68,7 +68,8 @@ impl Culler for FramesInFlight {
     }
 
     fn reads_tests_after_frame(&self) -> bool {
-        self.k == 1 && self.inner.reads_tests_after_frame()
+        // The wrapped culler's tests are read right after the frame (`collect`).
+        self.inner.reads_tests_after_frame()
     }
 
     fn cull_frame(

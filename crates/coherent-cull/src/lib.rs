@@ -668,12 +668,14 @@ pub trait Culler: Send {
     fn needs_box_visibility(&self) -> bool {
         false
     }
-    /// Whether every box test this culler issues in a frame is read only after the frame's
-    /// [`OcclusionBackend::finish`], in the same call, and never waited for inside the frame
-    /// (the predicated mode with one frame in flight). A backend may then answer such tests
-    /// in any way that is readable by then (the built-in renderer draws them all as flags,
-    /// one instanced draw at each predicate resolve, instead of one occlusion query each).
-    /// Default: no.
+    /// Whether this culler never reads a box test inside the frame that issued it, nor waits
+    /// for one: it reads them after the frame's [`OcclusionBackend::finish`] in the same call,
+    /// or (`k` frames in flight) `k` frames later, through a backend that keeps them that long
+    /// ([`OcclusionBackend::frames_in_flight`]; [`latency::FramesInFlight`] reads them right after the
+    /// frame and keeps them). The predicated mode. A backend may then answer such tests in
+    /// any way that is readable after the frame (the built-in renderer draws them all as
+    /// flags, one instanced draw at each predicate resolve, instead of one occlusion query
+    /// each). Default: no.
     fn reads_tests_after_frame(&self) -> bool {
         false
     }

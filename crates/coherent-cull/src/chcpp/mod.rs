@@ -45,7 +45,7 @@ impl Culler for Chcpp {
     }
 
     fn reads_tests_after_frame(&self) -> bool {
-        self.mode.latency() == crate::Latency::Predicated && !self.reads_frames_later()
+        self.mode.latency() == crate::Latency::Predicated
     }
 
     /// Algorithm 1 of the paper: while the traversal queue or the query queue is not empty,
