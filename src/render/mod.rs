@@ -1944,7 +1944,8 @@ const FLAG_BLOCK: QueryId = box_flags::FLAG_BIT;
 /// Why a box flag cannot be read inside its frame.
 fn flags_read_in_frame() -> Error {
     Error::Input(
-        "box flags are read after their frame (the predicated mode with one frame in flight);          this culler reads tests inside the frame or later: use queries          (Renderer::set_box_flags(false))"
+        "box flags are read after their frame (the predicated mode); this culler reads a \
+         test inside its frame: use queries (Renderer::set_box_flags(false))"
             .into(),
     )
 }
