@@ -153,8 +153,6 @@ pub struct Renderer {
     /// first use; whether they were asked for, and whether this frame uses them.
     box_flags: Option<box_flags::BoxFlags>,
     box_flags_on: bool,
-    /// Whether the culler of the frame being begun reads its tests after the frame.
-    flags_for_culler: bool,
     flags_frame: bool,
     /// Why the device cannot use box flags (its tests are then queries).
     box_flags_unsupported: Option<String>,
@@ -303,7 +301,6 @@ impl Renderer {
             box_oracle: None,
             box_flags: None,
             box_flags_on: true,
-            flags_for_culler: false,
             flags_frame: false,
             box_flags_unsupported: None,
             skip_flag_barrier: false,
@@ -498,10 +495,8 @@ impl Renderer {
             None if culler.needs_exact_visibility() => exact,
             None => None,
         };
-        self.flags_for_culler = culler.reads_tests_after_frame();
-        let begun = self.begin_frame(&view);
-        self.flags_for_culler = false;
-        begun?;
+        self.begin_frame(&view)?;
+        self.begin_box_flags(culler.reads_tests_after_frame())?;
         let start = Instant::now();
         let input = FrameInput {
             bvh,
@@ -518,7 +513,7 @@ impl Renderer {
         let gpu_ms = self.gpu_time_ms()?;
         let mut counts: CommandCounts = self.recorder.take_counts();
         add_query_counts(&mut counts, &self.queries.counts());
-        if let Some(f) = self.box_flags.as_ref().filter(|_| self.flags_frame) {
+        if let Some(f) = self.frame_flags() {
             let c = f.counts();
             counts.flag_tests += c.tests;
             counts.predicated_queries += c.predicated;
@@ -617,7 +612,8 @@ impl Renderer {
         self.blended_queries.clear();
         self.blended_seen.resize(self.blended.len(), false);
         self.frames_begun += 1;
-        self.begin_box_flags()?;
+        // Tests are queries unless the frame's culler takes flags (`begin_box_flags`).
+        self.flags_frame = false;
         let vp = raster_matrix(view);
         self.view_proj = vp.to_cols_array();
         self.push[..64].copy_from_slice(bytes_of(&self.view_proj));
@@ -1387,10 +1383,11 @@ impl Renderer {
         self.skip_flag_barrier = skip;
     }
 
-    /// Decides whether this frame's tests are flags, making them on first use.
-    fn begin_box_flags(&mut self) -> Result<()> {
-        self.flags_frame = false;
-        let wanted = self.box_flags_on && self.flags_for_culler;
+    /// After [`Renderer::begin_frame`]: decides whether this frame's tests are flags (its
+    /// culler `reads_after_frame`, [`Culler::reads_tests_after_frame`]), making them on first
+    /// use.
+    fn begin_box_flags(&mut self, reads_after_frame: bool) -> Result<()> {
+        let wanted = self.box_flags_on && reads_after_frame;
         if !wanted || self.visibility_threshold != 0 || !self.supports_predicates() {
             return Ok(());
         }
@@ -1408,6 +1405,11 @@ impl Renderer {
         Ok(())
     }
 
+    /// This frame's flags, when its tests are flags.
+    fn frame_flags(&self) -> Option<&box_flags::BoxFlags> {
+        self.box_flags.as_ref().filter(|_| self.flags_frame)
+    }
+
     /// This frame's flags.
     fn flags_mut(&mut self) -> Result<&mut box_flags::BoxFlags> {
         self.box_flags
@@ -1418,7 +1420,7 @@ impl Renderer {
 
     /// The predicate of flag `query`: its buffer and byte offset.
     fn flag_predicate(&self, query: QueryId) -> Result<(vk::Buffer, u64)> {
-        match self.box_flags.as_ref().filter(|_| self.flags_frame) {
+        match self.frame_flags() {
             Some(f) => f.predicate_at(query),
             None => Err(Error::Input(format!(
                 "{query:#x} is a box flag, and this frame has none"
@@ -1474,28 +1476,29 @@ impl Renderer {
         Ok(())
     }
 
+    /// Where the predicate of a flag or a tested part lies: its buffer and byte offset (the
+    /// value was written and made visible to conditional rendering, else an error); `None`
+    /// for a query, whose predicate the query set keeps.
+    fn predicate_buffer(&self, query: QueryId) -> Result<Option<(vk::Buffer, u64)>> {
+        if box_flags::BoxFlags::is_flag(query) {
+            return self.flag_predicate(query).map(Some);
+        }
+        let part = query & part_tests::PART_BIT != 0;
+        match self.part_tests.as_ref().filter(|_| part) {
+            Some(parts) => parts.predicate_at(query).map(Some),
+            None => Ok(None),
+        }
+    }
+
     /// Begins a conditional block on `query` (checked by [`Renderer::check_predicate`]).
     fn begin_predicated(&mut self, query: QueryId) -> Result<()> {
         self.ensure_recording()?;
         let cmd = self.recorder.command_buffer().0;
-        if box_flags::BoxFlags::is_flag(query) {
-            let (buffer, offset) = self.flag_predicate(query)?;
-            // SAFETY: recording inside rendering, after the flags' draw and the barrier that
-            // made them visible to conditional rendering, in this command buffer; the set
-            // checks that no block is open.
-            unsafe { self.queries.begin_block_at(cmd, buffer, offset)? };
-            self.recorder.note_conditional(Some(query));
-            return Ok(());
-        }
-        let part = query & part_tests::PART_BIT != 0;
-        match self.part_tests.as_ref().filter(|_| part) {
-            Some(parts) => {
-                let (buffer, offset) = parts.predicate_at(query)?;
-                // SAFETY: recording inside rendering, after the test that wrote the predicate
-                // and its barrier to conditional rendering, in this command buffer; the set
-                // checks that no block is open.
-                unsafe { self.queries.begin_block_at(cmd, buffer, offset)? };
-            }
+        match self.predicate_buffer(query)? {
+            // SAFETY: recording inside rendering, after what wrote the predicate (the flags'
+            // draw and copy, or the part test) and its barrier to conditional rendering, in
+            // this command buffer; the set checks that no block is open.
+            Some((buffer, offset)) => unsafe { self.queries.begin_block_at(cmd, buffer, offset)? },
             // SAFETY: recording inside rendering, after the resolve in this command buffer;
             // the set checks the predicate, its barrier and that no block is open.
             None => unsafe { self.queries.begin_block(cmd, query)? },
@@ -1590,6 +1593,7 @@ impl Renderer {
     /// many were; adds the mover draws.
     fn read_predicates(&mut self, counts: &mut CommandCounts) -> Result<()> {
         let (queries, parts) = (&self.queries, self.part_tests.as_ref());
+        // Field by field: the log is borrowed mutably below.
         let flags = self.box_flags.as_ref().filter(|_| self.flags_frame);
         let predicate = |q: QueryId| match (parts, flags) {
             (_, Some(f)) if box_flags::BoxFlags::is_flag(q) => f.predicate(q),
@@ -1678,6 +1682,7 @@ impl OcclusionBackend for Renderer {
         let multi_draws = self.multi_draws();
         if let Some(parts) = self.part_tests.as_mut().filter(|p| p.pending()) {
             let segment = self.segments.used().saturating_sub(1) as u32;
+            // Field by field: the part tests are borrowed mutably.
             let flags = self.box_flags.as_ref().filter(|_| self.flags_frame);
             parts.record(
                 &mut self.recorder,
@@ -1791,20 +1796,12 @@ impl OcclusionBackend for Renderer {
         purpose: QueryPurpose,
     ) -> coherent_cull::Result<QueryId> {
         if self.flags_frame {
-            let at = if box_flags::BoxFlags::is_flag(predicate) {
-                self.flag_predicate(predicate)?
-            } else {
-                self.check_predicate(predicate)?;
-                let parts = self.part_tests.as_ref();
-                match parts.filter(|_| predicate & part_tests::PART_BIT != 0) {
-                    Some(p) => p.predicate_at(predicate)?,
-                    None => {
-                        return Err(Error::Input(format!(
-                            "a box flag under query {predicate}: a frame with box flags has no                              queries"
-                        ))
-                        .into())
-                    }
-                }
+            self.check_predicate(predicate)?;
+            let Some(at) = self.predicate_buffer(predicate)? else {
+                return Err(Error::Input(format!(
+                    "a box flag under query {predicate}: a frame with box flags has no queries"
+                ))
+                .into());
             };
             let id = self.flags_mut()?.add(Some(at), boxes)?;
             self.tag_query(purpose);
@@ -1861,8 +1858,7 @@ impl OcclusionBackend for Renderer {
 
     fn query_result(&mut self, query: QueryId) -> coherent_cull::Result<Option<u64>> {
         if box_flags::BoxFlags::is_flag(query) {
-            let flags = self.box_flags.as_ref().filter(|_| self.flags_frame);
-            let r = flags.and_then(|f| f.result(query));
+            let r = self.frame_flags().and_then(|f| f.result(query));
             if let Some(v) = r {
                 self.recorder.note_query_read(v > self.visibility_threshold);
             }
@@ -1988,8 +1984,7 @@ impl Renderer {
     /// at its resolve ([`OcclusionBackend::gathers_predicated_draws`]).
     fn awaits_resolve(&self, query: QueryId) -> bool {
         if box_flags::BoxFlags::is_flag(query) {
-            let flags = self.box_flags.as_ref().filter(|_| self.flags_frame);
-            return flags.is_some_and(|f| f.awaits_draw(query))
+            return self.frame_flags().is_some_and(|f| f.awaits_draw(query))
                 && self.part_tests.as_ref().is_some_and(|p| p.can_gather());
         }
         query & part_tests::PART_BIT == 0
