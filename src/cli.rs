@@ -132,6 +132,10 @@ pub struct WalkArgs {
     /// box flags (one instanced draw at each resolve), for comparison.
     #[arg(long)]
     pub no_box_flags: bool,
+    /// With box flags, decide the parts of split nodes by the depth part test (a compute pass
+    /// over their screen rectangles) instead of box flags gated by their node's, for comparison.
+    #[arg(long)]
+    pub depth_part_tests: bool,
 }
 
 /// `coherent view`.
@@ -225,6 +229,10 @@ pub struct ChcppArgs {
     /// children queried instead (more queries, fewer extra draws).
     #[arg(long, default_value_t = ChcppParams::default().predicated_budget)]
     pub predicate_budget: f32,
+    /// Predicated mode: a query box covering more than this fraction of the screen is
+    /// replaced by its children's boxes where theirs cover less (one test still; 0: off)
+    #[arg(long, value_name = "FRACTION", default_value_t = ChcppParams::default().predicated_screen_split)]
+    pub screen_split: f32,
 }
 
 impl ChcppArgs {
@@ -269,6 +277,7 @@ impl ChcppArgs {
             predicated_split_ratio: self.split_ratio,
             predicated_tested_parts_min: self.tested_parts_min,
             predicated_budget: self.predicate_budget,
+            predicated_screen_split: self.screen_split,
             ..ChcppParams::default()
         };
         for d in &self.disable {
@@ -546,6 +555,7 @@ pub fn walk(a: &WalkArgs) -> Result<()> {
         check: a.check,
         no_pixel_grid: a.no_pixel_grid,
         no_box_flags: a.no_box_flags,
+        depth_part_tests: a.depth_part_tests,
         nohc: None,
         pvs: None,
     };

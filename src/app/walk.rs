@@ -41,6 +41,9 @@ pub struct WalkConfig {
     /// Test boxes with occlusion queries in the predicated mode too
     /// ([`Renderer::set_box_flags`] off).
     pub no_box_flags: bool,
+    /// With box flags, decide the parts of split nodes by the depth part test instead of
+    /// gated flags ([`Renderer::set_gated_parts`] off).
+    pub depth_part_tests: bool,
 }
 
 /// Runs the walk `repeats` times: `warmup + frames` poses spread over the whole path; every
@@ -257,10 +260,12 @@ pub fn run_with_movers(
     renderer.visibility_threshold = cfg.params.pixel_threshold;
     renderer.pixel_grid = !cfg.no_pixel_grid;
     renderer.set_box_flags(!cfg.no_box_flags);
+    renderer.set_gated_parts(!cfg.depth_part_tests);
     if let Some((base, _)) = walk.baseline.as_mut() {
         base.visibility_threshold = cfg.params.pixel_threshold;
         base.pixel_grid = !cfg.no_pixel_grid;
         base.set_box_flags(!cfg.no_box_flags);
+        base.set_gated_parts(!cfg.depth_part_tests);
     }
     let total = cfg.warmup + cfg.frames;
     let runs = cfg.algorithms.len() + walk.baseline_algorithms.len();

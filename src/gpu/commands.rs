@@ -81,8 +81,9 @@ pub struct CommandCounts {
     /// indirect multi-draw of several objects ([`Recorder::draw_objects_indirect`]); also in
     /// `object_draws`.
     pub predicated_calls: u32,
-    /// Parts of split nodes decided by the depth part test instead of a query (predicated
-    /// mode, built-in renderer); not in `queries_begun`.
+    /// Parts of split nodes decided by the renderer instead of a query (predicated mode,
+    /// built-in renderer): by the depth part test, or by box flags gated by their node's
+    /// (also in `flag_tests`); not in `queries_begun`.
     pub tested_parts: u32,
     /// Box tests answered by flags instead of queries (predicated mode, built-in renderer
     /// with box flags on): one flag each, their boxes drawn by instanced draws at the
@@ -141,6 +142,8 @@ pub enum Access {
     ConditionalRead,
     /// Written by fragment shaders (storage buffers).
     FragmentWrite,
+    /// Read by vertex shaders (storage buffers).
+    VertexRead,
 }
 
 impl Access {
@@ -161,6 +164,7 @@ impl Access {
                 A::CONDITIONAL_RENDERING_READ_EXT,
             ),
             Access::FragmentWrite => (S::FRAGMENT_SHADER, A::SHADER_STORAGE_WRITE),
+            Access::VertexRead => (S::VERTEX_SHADER, A::SHADER_STORAGE_READ),
         }
     }
 }

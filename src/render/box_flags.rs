@@ -78,8 +78,10 @@ struct Group {
 pub struct FlagCounts {
     /// Tests issued (each one flag).
     pub tests: u32,
-    /// Of those, tests drawn under another predicate.
+    /// Of those, tests drawn under another predicate in a conditional block.
     pub predicated: u32,
+    /// Of those, tests gated by another flag ([`BoxFlags::add_gated`]: parts of split nodes).
+    pub gated: u32,
     /// Instanced draws of boxes.
     pub draws: u32,
     /// Boxes drawn.
@@ -144,7 +146,9 @@ impl BoxFlags {
             ctx,
             "box flag predicates",
             u64::from(MAX_FLAGS) * 4,
-            vk::BufferUsageFlags::CONDITIONAL_RENDERING_EXT | vk::BufferUsageFlags::TRANSFER_DST,
+            vk::BufferUsageFlags::CONDITIONAL_RENDERING_EXT
+                | vk::BufferUsageFlags::TRANSFER_DST
+                | storage,
             MemoryLocation::GpuOnly,
         )?;
         let (layout, pipeline) = super::box_oracle::marking_pipeline(
@@ -153,9 +157,11 @@ impl BoxFlags {
             COLOR_FORMAT,
             PipelineKind::Query,
         )?;
+        // The predicates are the gates of gated tests (BoxFlags::add_gated).
         let bindings = [
             Binding::StorageBuffer(&boxes),
             Binding::StorageBuffer(&flags),
+            Binding::StorageBuffer(&predicates),
         ];
         let sets = DescriptorSets::new(ctx, &[(&layout, &bindings[..])])?;
         let mut f = BoxFlags {
@@ -210,6 +216,31 @@ impl BoxFlags {
         predicate: Option<(vk::Buffer, u64)>,
         boxes: &[Aabb],
     ) -> Result<QueryId> {
+        self.add_test(predicate, super::box_oracle::NO_GATE, boxes)
+    }
+
+    /// A test of `boxes` whose boxes are drawn only where resolved flag `gate` of this frame
+    /// is 1 (else the test reads 0): in the draw of the unconditional tests, with no
+    /// conditional block. The shader reads the gate from the predicates, so a barrier from
+    /// their copy to vertex-shader reads must lie between the gate's resolve and this test's
+    /// draw, and one from those reads to the next copy after it (the renderer's resolve).
+    pub(super) fn add_gated(&mut self, gate: QueryId, boxes: &[Aabb]) -> Result<QueryId> {
+        let slot = self.resolved_slot(gate).ok_or_else(|| {
+            Error::Input(format!(
+                "{gate:#x} is not a resolved box flag of this frame: a gate must be"
+            ))
+        })?;
+        let id = self.add_test(None, slot, boxes)?;
+        self.counts.gated += 1;
+        Ok(id)
+    }
+
+    fn add_test(
+        &mut self,
+        predicate: Option<(vk::Buffer, u64)>,
+        gate: u32,
+        boxes: &[Aabb],
+    ) -> Result<QueryId> {
         let n = boxes.len() as u32;
         if n == 0 {
             return Err(Error::Input("a box test of no boxes".into()));
@@ -222,7 +253,8 @@ impl BoxFlags {
         let slot = self.flags_used;
         self.words.clear();
         for b in boxes {
-            self.words.extend(super::box_oracle::box_record(b, slot));
+            self.words
+                .extend(super::box_oracle::box_record(b, slot, gate));
         }
         let at = self.boxes_used as usize * BOX_BYTES;
         self.boxes.write(at, crate::gpu::bytes_of(&self.words))?;
@@ -287,17 +319,17 @@ impl BoxFlags {
     pub(super) fn record(
         &mut self,
         rec: &mut Recorder,
-        matrix: &[u8],
+        push: &[u8],
         mut block: impl FnMut(&mut Recorder, Option<(vk::Buffer, u64)>) -> Result<()>,
     ) -> Result<()> {
         rec.bind_pipeline(&self.pipeline);
         rec.bind_graphics_set(&self.layout, self.sets.get(0));
-        rec.push_constants(&self.layout, matrix);
+        rec.push_constants(&self.layout, push);
         for g in &self.pending {
             if g.predicate.is_some() {
                 block(rec, g.predicate)?;
             }
-            rec.draw_instanced(36, g.count, g.first);
+            rec.draw_instanced(super::box_oracle::BOX_VERTICES, g.count, g.first);
             if g.predicate.is_some() {
                 block(rec, None)?;
             }

@@ -35,15 +35,38 @@ use super::ObjectDraw;
 
 /// Bytes of one box record (`box_visible.vert` `ObjectBox`: two vec4).
 const BOX_BYTES: u64 = 32;
-/// Push constants: the ID pass's world-to-clip matrix.
-const PUSH: u32 = 64;
+/// Push constants of [`marking_pipeline`]: the world-to-clip matrix and the eye
+/// ([`marking_push`]).
+pub(super) const PUSH: u32 = 80;
+/// Vertices of one box: one face per axis, two triangles each (`box_visible.vert`).
+pub(super) const BOX_VERTICES: u32 = 18;
+
+/// The push constants of a marking pass seen through `matrix` from `view`: the matrix, and the
+/// eye (w = 1) or, for an orthographic view, the direction toward it (w = 0), from which the
+/// shader picks each box's faces toward the eye.
+pub(super) fn marking_push(
+    matrix: &[f32; 16],
+    view: &coherent_cull::CameraView,
+) -> [u8; PUSH as usize] {
+    let eye = if view.is_orthographic() {
+        (-view.forward()).extend(0.0)
+    } else {
+        view.eye.extend(1.0)
+    };
+    let mut push = [0u8; PUSH as usize];
+    push[..64].copy_from_slice(crate::gpu::bytes_of(matrix));
+    push[64..].copy_from_slice(crate::gpu::bytes_of(&eye.to_array()));
+    push
+}
 
 /// The pipeline of a pass that marks boxes (`shaders/box_visible.vert` and `.frag`): one
 /// instance per record of its storage buffer (binding 0, [`box_record`]) draws the box's
-/// front faces with coherent-ash's query boxes' depth test and bias, writes no color or depth,
+/// faces toward the eye (the front faces) with coherent-ash's query boxes' depth test and
+/// bias, writes no color or depth,
 /// and a fragment that passes (early fragment tests) writes 1 into the word of the storage
-/// buffer at binding 1 that the record names. The box oracle marks objects with it, the box
-/// flags tests. Push constants: the world-to-clip matrix.
+/// buffer at binding 1 that the record names. A record may name a gate, a word of the storage
+/// buffer at binding 2: its box is drawn only where that word is non-zero. The box oracle
+/// marks objects with it, the box flags tests. Push constants: [`marking_push`].
 pub(super) fn marking_pipeline(
     ctx: &Arc<GpuContext>,
     name: &'static str,
@@ -53,6 +76,7 @@ pub(super) fn marking_pipeline(
     let layout = PipelineLayout::new(
         ctx,
         &[
+            vk::DescriptorType::STORAGE_BUFFER,
             vk::DescriptorType::STORAGE_BUFFER,
             vk::DescriptorType::STORAGE_BUFFER,
         ],
@@ -83,9 +107,13 @@ pub(super) fn marking_pipeline(
     Ok((layout, pipeline))
 }
 
-/// One box record of [`marking_pipeline`]'s storage buffer: the corners, and in the minimum's
-/// w the index of the word a passing fragment marks.
-pub(super) fn box_record(b: &coherent_cull::Aabb, index: u32) -> [u32; 8] {
+/// A box record's gate for a box drawn whatever the gates hold.
+pub(super) const NO_GATE: u32 = u32::MAX;
+
+/// One box record of [`marking_pipeline`]'s storage buffer: the corners, in the minimum's w
+/// the index of the word a passing fragment marks, and in the maximum's w the index of the
+/// word at binding 2 that must be non-zero for the box to be drawn ([`NO_GATE`]: none).
+pub(super) fn box_record(b: &coherent_cull::Aabb, index: u32, gate: u32) -> [u32; 8] {
     let (lo, hi) = (b.min, b.max);
     [
         lo.x.to_bits(),
@@ -95,7 +123,7 @@ pub(super) fn box_record(b: &coherent_cull::Aabb, index: u32) -> [u32; 8] {
         hi.x.to_bits(),
         hi.y.to_bits(),
         hi.z.to_bits(),
-        0,
+        gate,
     ]
 }
 
@@ -109,6 +137,8 @@ pub(super) struct BoxOracle {
     boxes: Buffer,
     /// One word per object: 1 where a fragment of its box passed (read by the host after it).
     visible: Buffer,
+    /// The gates' binding (unused: no box has a gate).
+    _gates: Buffer,
     /// Objects the buffers are sized for.
     objects: usize,
     /// Candidates in the box buffer now.
@@ -141,11 +171,14 @@ impl BoxOracle {
             storage | vk::BufferUsageFlags::TRANSFER_DST,
             MemoryLocation::GpuToCpu,
         )?;
+        // No box of the oracle has a gate: a word the shader never reads.
+        let gates = Buffer::new(ctx, "oracle-box gates", 4, storage, MemoryLocation::GpuOnly)?;
         let (layout, pipeline) =
             marking_pipeline(ctx, "oracle-box", ID_FORMAT, PipelineKind::Other)?;
         let bindings = [
             Binding::StorageBuffer(&boxes),
             Binding::StorageBuffer(&visible),
+            Binding::StorageBuffer(&gates),
         ];
         let sets = DescriptorSets::new(ctx, &[(&layout, &bindings[..])])?;
         Ok(BoxOracle {
@@ -154,6 +187,7 @@ impl BoxOracle {
             layout,
             boxes,
             visible,
+            _gates: gates,
             objects,
             count: 0,
         })
@@ -172,7 +206,7 @@ impl BoxOracle {
                 .get(o as usize)
                 .ok_or_else(|| Error::Input(format!("oracle-box: no object {o}")))?
                 .bounds;
-            words.extend(box_record(&b, o));
+            words.extend(box_record(&b, o, NO_GATE));
         }
         self.boxes.write(0, &as_bytes(&words))?;
         self.count = candidates.len() as u32;
@@ -180,15 +214,15 @@ impl BoxOracle {
     }
 
     /// Records the pass inside the ID pass's rendering, after its draws: one instanced draw of
-    /// the boxes written by [`BoxOracle::write_boxes`].
-    pub(super) fn record(&self, rec: &mut crate::gpu::Recorder, matrix: &[u8]) {
+    /// the boxes written by [`BoxOracle::write_boxes`]; `push` from [`marking_push`].
+    pub(super) fn record(&self, rec: &mut crate::gpu::Recorder, push: &[u8]) {
         if self.count == 0 {
             return;
         }
         rec.bind_pipeline(&self.pipeline);
         rec.bind_graphics_set(&self.layout, self.sets.get(0));
-        rec.push_constants(&self.layout, matrix);
-        rec.draw(36, self.count);
+        rec.push_constants(&self.layout, push);
+        rec.draw(BOX_VERTICES, self.count);
     }
 
     /// The visible flags buffer, cleared before the pass and read after it.

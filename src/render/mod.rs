@@ -106,6 +106,9 @@ pub struct Renderer {
     target: Target,
     id_image: Option<Image>,
     timestamps: QueryPools,
+    /// Diagnostic phase marks (COHERENT_PHASES): timestamp index and name.
+    phase_marks: Vec<(u32, &'static str)>,
+    phases_on: bool,
     query_segment: Vec<u32>,
     query_read: Vec<bool>,
     recorder: Recorder,
@@ -158,6 +161,9 @@ pub struct Renderer {
     box_flags_unsupported: Option<String>,
     /// Leaves out the barrier after the flags' draw (the test that shows it is refused).
     skip_flag_barrier: bool,
+    /// Parts of split nodes tested by gated box flags (on by default; see
+    /// [`Renderer::set_gated_parts`]).
+    gated_parts: bool,
     /// The scene's blended objects ([`Scene::is_blended`]): no culler draws them (they are not
     /// in [`Scene::hierarchy`]); every frame draws those in its view after the culled pass.
     blended: Vec<u32>,
@@ -274,6 +280,8 @@ impl Renderer {
             target,
             id_image: None,
             timestamps: QueryPools::new(ctx, vk::QueryType::TIMESTAMP, 256)?,
+            phase_marks: Vec::new(),
+            phases_on: std::env::var_os("COHERENT_PHASES").is_some(),
             query_segment: Vec::new(),
             query_read: Vec::new(),
             recorder,
@@ -304,6 +312,7 @@ impl Renderer {
             flags_frame: false,
             box_flags_unsupported: None,
             skip_flag_barrier: false,
+            gated_parts: true,
             blended,
             blend_order: Vec::new(),
             blend_predicates: Vec::new(),
@@ -517,6 +526,7 @@ impl Renderer {
             let c = f.counts();
             counts.flag_tests += c.tests;
             counts.predicated_queries += c.predicated;
+            counts.tested_parts += c.gated;
         }
         self.read_predicates(&mut counts)?;
         let unread = self.query_read.iter().filter(|r| !**r).count()
@@ -595,6 +605,7 @@ impl Renderer {
         // SAFETY: every segment of the previous frame has completed (finish() waited).
         unsafe { self.queries.reset_from_host()? };
         self.timestamps.reset();
+        self.phase_marks.clear();
         self.query_segment.clear();
         self.query_read.clear();
         if let Some(parts) = self.part_tests.as_mut() {
@@ -706,15 +717,41 @@ impl Renderer {
         until_submit.saturating_sub(waited).as_secs_f64() * 1e3
     }
 
+    /// Diagnostic: a timestamp named `name` (COHERENT_PHASES set).
+    pub(crate) fn phase(&mut self, name: &'static str) -> Result<()> {
+        if self.phases_on {
+            let ts = self.timestamps.allocate()?;
+            self.recorder.write_timestamp(&self.timestamps, ts);
+            self.phase_marks.push((ts, name));
+        }
+        Ok(())
+    }
+
     fn gpu_time_ms(&self) -> Result<f64> {
         let mut total = 0u64;
         let n = self.timestamps.used();
-        let mut i = 0;
-        while i + 1 < n {
-            let a = self.timestamps.poll(i)?.unwrap_or(0);
-            let b = self.timestamps.poll(i + 1)?.unwrap_or(a);
-            total += b.saturating_sub(a);
-            i += 2;
+        // The segments' timestamps in pairs (start, end), the phase marks between them left out.
+        let marked = |i: u32| self.phase_marks.iter().any(|m| m.0 == i);
+        let mut start = None;
+        for i in (0..n).filter(|&i| !marked(i)) {
+            let t = self.timestamps.poll(i)?;
+            match start.take() {
+                None => start = Some(t.unwrap_or(0)),
+                Some(a) => total += t.unwrap_or(a).saturating_sub(a),
+            }
+        }
+        if self.phases_on && n > 0 {
+            let tick = self.ctx.info.timestamp_period_ns as f64 * 1e-6;
+            let mut prev = self.timestamps.poll(0)?.unwrap_or(0);
+            let mut line = String::from("PHASES");
+            for &(ts, name) in &self.phase_marks {
+                let t = self.timestamps.poll(ts)?.unwrap_or(prev);
+                line += &format!(" {name}={:.3}", t.saturating_sub(prev) as f64 * tick);
+                prev = t;
+            }
+            let end = self.timestamps.poll(n - 1)?.unwrap_or(prev);
+            line += &format!(" end={:.3}", end.saturating_sub(prev) as f64 * tick);
+            eprintln!("{line}");
         }
         Ok(total as f64 * self.ctx.info.timestamp_period_ns as f64 * 1e-6)
     }
@@ -892,8 +929,10 @@ impl Renderer {
         boxes: Option<&box_oracle::BoxOracle>,
     ) -> Result<()> {
         let mut push = self.push;
-        push[..64].copy_from_slice(bytes_of(&raster_matrix(view).to_cols_array()));
+        let matrix = raster_matrix(view).to_cols_array();
+        push[..64].copy_from_slice(bytes_of(&matrix));
         let push = &push[..];
+        let box_push = box_oracle::marking_push(&matrix, view);
         if self.id_image.is_none() {
             self.id_image = Some(Image::new(
                 &self.ctx,
@@ -948,7 +987,7 @@ impl Renderer {
                 }
             }
             if let Some(b) = boxes {
-                b.record(rec, &push[..64]);
+                b.record(rec, &box_push);
             }
             rec.end_rendering();
             if boxes.is_some() {
@@ -1376,6 +1415,18 @@ impl Renderer {
         self.box_flags_unsupported.as_deref()
     }
 
+    /// Whether, with box flags, the parts of split nodes are tested by box flags gated by
+    /// their node's flag (on by default): the parts' boxes go into the resolve's instanced
+    /// draw, and its vertex shader draws a part's boxes only where its node's flag is 1, so
+    /// no conditional block is needed; the parts that pass have their objects gathered into
+    /// one indirect draw. Exact on a query's terms, as the node's test. Off: the depth part
+    /// test ([`part_tests`]: the parts' screen rectangles against the depth texels, a compute
+    /// dispatch; coarser). Needs the gathering (`drawIndirectCount`), else parts stay depth
+    /// part tests.
+    pub fn set_gated_parts(&mut self, on: bool) {
+        self.gated_parts = on;
+    }
+
     /// Leaves out the barrier between the flags' draw and their readers (for the test that
     /// shows such a frame is refused).
     #[doc(hidden)]
@@ -1437,9 +1488,13 @@ impl Renderer {
         let Some(mut flags) = self.box_flags.take() else {
             return Ok(false);
         };
-        let matrix = self.view_proj;
+        let Some(view) = self.frame_view else {
+            self.box_flags = Some(flags);
+            return Err(Error::Input("box flags recorded outside a frame".into()));
+        };
+        let push = box_oracle::marking_push(&self.view_proj, &view);
         let (queries, cmd) = (&mut self.queries, self.recorder.command_buffer().0);
-        let drawn = flags.record(&mut self.recorder, bytes_of(&matrix), |rec, at| {
+        let drawn = flags.record(&mut self.recorder, &push, |rec, at| {
             match at {
                 // SAFETY: inside rendering; the predicate's writer and its barrier came before.
                 Some((b, o)) => unsafe { queries.begin_block_at(cmd, b, o)? },
@@ -1651,9 +1706,11 @@ impl OcclusionBackend for Renderer {
             return Err(coherent_cull::predicates_unsupported());
         }
         self.ensure_recording()?;
+        self.phase("draws")?;
         let flagged = self.record_box_flags()?;
         // A pass break: the copy runs outside rendering, which resumes with LOAD ops.
         self.recorder.end_rendering();
+        self.phase("flags")?;
         if let Some(f) = self.box_flags.as_mut().filter(|_| flagged) {
             // The flags are copied (into the predicates here, into the part tests' node values
             // below) and, after the frame, read by the host.
@@ -1661,15 +1718,21 @@ impl OcclusionBackend for Renderer {
                 .memory_barrier(Access::FragmentWrite, Access::TransferRead);
             self.recorder
                 .memory_barrier(Access::FragmentWrite, Access::HostRead);
-            // The predicates of an earlier resolve of this frame were read and written before.
+            // The predicates of an earlier resolve of this frame were read (as predicates and
+            // as gates) and written before.
             self.recorder
                 .memory_barrier(Access::ConditionalRead, Access::TransferWrite);
+            self.recorder
+                .memory_barrier(Access::VertexRead, Access::TransferWrite);
             self.recorder
                 .memory_barrier(Access::TransferWrite, Access::TransferWrite);
             f.record_copy(&mut self.recorder);
             if !self.skip_flag_barrier {
                 self.recorder
                     .memory_barrier(Access::TransferWrite, Access::ConditionalRead);
+                // Gated tests of later resolves read them in the vertex shader.
+                self.recorder
+                    .memory_barrier(Access::TransferWrite, Access::VertexRead);
                 f.barrier_recorded();
             }
         }
@@ -1696,6 +1759,7 @@ impl OcclusionBackend for Renderer {
             )?;
             tested = true;
         }
+        self.phase("resolve")?;
         if flagged {
             // Later flags of this frame are written after these copies read the flags.
             self.recorder
@@ -1952,6 +2016,14 @@ impl Renderer {
     /// pixels), the device has conditional rendering, and this frame has room; `None` when
     /// it is to be queried.
     fn add_tested_part(&mut self, predicate: QueryId, boxes: &[Aabb]) -> Result<Option<QueryId>> {
+        if box_flags::BoxFlags::is_flag(predicate) && self.gated_parts && self.multi_draws() {
+            // A box flag gated by the node's: its objects are gathered at the next resolve
+            // with the other runs whose flag is 1.
+            self.flag_predicate(predicate)?;
+            if self.target_part_tests()?.is_some_and(|p| p.can_gather()) {
+                return self.flags_mut()?.add_gated(predicate, boxes).map(Some);
+            }
+        }
         if box_flags::BoxFlags::is_flag(predicate) {
             // The node's flag, copied into the test's node values at its slot.
             let (_, at) = self.flag_predicate(predicate)?;

@@ -344,6 +344,9 @@ fn box_flags_decide_as_queries_do() {
         r.log_drawn_objects(true);
         let mut drawn: [Vec<Vec<u32>>; 2] = [Vec::new(), Vec::new()];
         let mut calls = [0u32; 2];
+        // Parts by the depth part test either way (gated flags would test them as queries
+        // do, not as that test does).
+        r.set_gated_parts(false);
         for (i, flags) in [true, false].into_iter().enumerate() {
             r.set_box_flags(flags);
             let mut c = culling::create_named("chcpp@predicated", &setup).unwrap();
@@ -374,12 +377,88 @@ fn box_flags_decide_as_queries_do() {
             calls[0],
             calls[1]
         );
-        // In-frame CHC++ reads its queries inside the frame: they stay queries.
+        // Parts tested by gated flags: some tests lie under a node's flag, in no block.
+        r.set_gated_parts(true);
         r.set_box_flags(true);
+        let mut c = culling::create_named("chcpp@predicated", &setup).unwrap();
+        let mut gated = 0;
+        for (f, &pose) in poses.iter().enumerate() {
+            let cam = r.camera(pose, &bvh);
+            let res = r.render_frame(c.as_mut(), &bvh, &cam, f as u64).unwrap();
+            assert_eq!(res.counts.submits, 1);
+            gated += res.counts.tested_parts;
+        }
+        assert!(gated > 0, "no part was tested under its node's flag");
+        // In-frame CHC++ reads its queries inside the frame: they stay queries.
         let mut c = culling::create_named("chcpp", &setup).unwrap();
         let cam = r.camera(poses[0], &bvh);
         let res = r.render_frame(c.as_mut(), &bvh, &cam, 0).unwrap();
         assert!(res.counts.queries_begun > 0 && res.counts.flag_tests == 0);
+    }
+    common::assert_silent(&log);
+}
+
+/// A part tested by a gated box flag (`test_part_if` under a node's flag) reads 1 only where its
+/// node's flag is 1: with nothing drawn, a box ahead of the eye shows wherever it is tested,
+/// and its test gated by a flag that read 0 (a box behind the eye) reads 0. Without the gate
+/// in the vertex shader it would read 1.
+#[test]
+fn gated_box_flags_follow_their_gate() {
+    use coherent::culling::{CullStats, FrameInput, OcclusionBackend, QueryId};
+    use coherent::scene::Aabb;
+    struct Gated {
+        ids: Vec<QueryId>,
+    }
+    impl Culler for Gated {
+        fn name(&self) -> &str {
+            "gated"
+        }
+        fn reads_tests_after_frame(&self) -> bool {
+            true
+        }
+        fn cull_frame(
+            &mut self,
+            input: &FrameInput,
+            backend: &mut dyn OcclusionBackend,
+        ) -> culling::Result<CullStats> {
+            let (eye, forward) = (input.view.eye, input.view.forward());
+            let ahead = Aabb::new(eye + forward * 5.0 - 0.5, eye + forward * 5.0 + 0.5);
+            let behind = Aabb::new(eye - forward * 5.0 - 0.5, eye - forward * 5.0 + 0.5);
+            let shown = backend.issue_query(&[ahead])?;
+            let hidden = backend.issue_query(&[behind])?;
+            backend.resolve_predicates()?;
+            let under_shown = backend.test_part_if(shown, &[ahead])?;
+            let under_hidden = backend.test_part_if(hidden, &[ahead])?;
+            backend.resolve_predicates()?;
+            self.ids = [Some(shown), Some(hidden), under_shown, under_hidden]
+                .into_iter()
+                .map(|id| id.expect("the renderer tests parts under box flags"))
+                .collect();
+            Ok(CullStats::default())
+        }
+        fn reset(&mut self) {}
+    }
+    let (ctx, log) = common::context();
+    {
+        let (scene, bvh) = common::scene("city", 0.1);
+        let mut r = Renderer::new(&ctx, &scene, 160, 90).unwrap();
+        let pose = scene.path("street").unwrap().pose_at(10.0);
+        let cam = r.camera(pose, &bvh);
+        let mut c = Gated { ids: Vec::new() };
+        let res = r.render_frame(&mut c, &bvh, &cam, 0).unwrap();
+        assert_eq!(res.counts.queries_begun, 0);
+        assert_eq!(res.counts.flag_tests, 4);
+        assert_eq!(res.counts.tested_parts, 2);
+        let values: Vec<Option<u64>> = c
+            .ids
+            .iter()
+            .map(|&id| r.query_result(id).unwrap())
+            .collect();
+        assert_eq!(
+            values,
+            [Some(1), Some(0), Some(1), Some(0)],
+            "shown, hidden, under each"
+        );
     }
     common::assert_silent(&log);
 }

@@ -794,6 +794,7 @@ pub fn eye_inside(bounds: &Aabb, view: &CameraView) -> bool {
 
 /// Helper shared by the algorithms: the frustum, eye and front-to-back origin of a frame.
 #[doc(hidden)]
+#[derive(Clone, Debug)]
 pub struct View {
     /// The view frustum's planes.
     pub frustum: Frustum,
@@ -832,6 +833,11 @@ impl View {
     /// centre ([`CameraView::may_cover_centre`]).
     pub fn in_view(&self, bounds: &Aabb) -> bool {
         self.frustum.intersects(bounds) && self.camera.may_cover_centre(bounds)
+    }
+
+    /// The frame's camera.
+    pub(crate) fn camera(&self) -> &CameraView {
+        &self.camera
     }
 
     /// The pixel-centre half of [`View::in_view`], for a box already known to meet the frustum.

@@ -36,7 +36,7 @@ mod state;
 mod tight;
 
 use latency::LatencyMode;
-pub use params::ChcppParams;
+pub use params::{ChcppParams, SCREEN_SPLIT_GAIN};
 use rules::QueryRule;
 
 impl Culler for Chcpp {
@@ -60,6 +60,7 @@ impl Culler for Chcpp {
         let bvh = input.bvh;
         let view = View::new(&input.view);
         let eye = view.eye;
+        self.frame_view = Some(view.clone());
         let mut stats = CullStats::default();
         self.mode.check_backend(backend)?;
         // With k frames in flight, a latency mode reads the queries of frame N-k first.
@@ -476,6 +477,8 @@ pub struct Chcpp {
     rule: Box<dyn QueryRule>,
     /// The eye of the current frame.
     eye: glam::Vec3,
+    /// The view of the current frame (the screen split of query boxes).
+    frame_view: Option<View>,
     /// When query results are read and how they are applied: the latency mode's policy
     /// (`latency.rs`, see [`Latency`](crate::Latency)).
     mode: &'static dyn LatencyMode,

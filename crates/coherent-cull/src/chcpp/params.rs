@@ -101,7 +101,19 @@ pub struct ChcppParams {
     /// (docs/measurements.md): against 10, about 5% faster from above (6,284 objects a frame
     /// against 6,523) and about 2% slower on the street (137.5 queries against 117).
     pub predicated_visible_interval: u32,
+    /// Predicated mode: a query box that covers more than this fraction of the screen (its
+    /// screen rectangle, clipped) is replaced by the boxes of its children that may show,
+    /// level by level, while their rectangles cover less than [`SCREEN_SPLIT_GAIN`] times
+    /// its own (default 0.005; 0: off). On a CPU rasterizer a box test costs its fill, and
+    /// a few large boxes of hidden nodes near the eye make most of it; their children, seen
+    /// from the street, often cover much less. The test stays one test (one predicate) and
+    /// stays exact: the children's boxes cover every object of the node that can show.
+    pub predicated_screen_split: f32,
 }
+
+/// See [`ChcppParams::predicated_screen_split`]: children replace a box only when their
+/// screen rectangles add up to less than this fraction of its own.
+pub const SCREEN_SPLIT_GAIN: f32 = 0.8;
 
 impl Default for ChcppParams {
     fn default() -> Self {
@@ -128,6 +140,7 @@ impl Default for ChcppParams {
             predicated_tested_parts_min: 0,
             predicated_tight_bounds: false,
             predicated_visible_interval: 7,
+            predicated_screen_split: 0.005,
         }
     }
 }

@@ -43,6 +43,7 @@ impl Chcpp {
             batch_order: Vec::new(),
             rule: Box::new(PaperRule),
             eye: glam::Vec3::ZERO,
+            frame_view: None,
             mode: latency::mode(Latency::InFrame),
             result_frame: Vec::new(),
             frames_in_flight: 1,

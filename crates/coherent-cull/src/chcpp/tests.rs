@@ -1,6 +1,6 @@
 //! Unit tests of the traversal's steps on a small mock backend.
 
-use super::tight::tight_boxes;
+use super::tight::{screen_fraction, screen_split, tight_boxes};
 use super::*;
 use crate::camera::Camera;
 use crate::camera::CameraPose;
@@ -315,4 +315,65 @@ fn tight_bounds_descend_level_by_level() {
         ..params
     };
     assert!(tight_boxes(&bvh, 0, &strict).is_none());
+}
+
+/// Two clusters of boxes at opposite corners of the view, near the eye, and one box outside
+/// the frustum: the root's box covers most of the screen, its children's much less.
+fn corners() -> (ObjectBvh, Camera) {
+    let mut boxes = Vec::new();
+    for i in 0..4 {
+        let d = i as f32 * 0.3;
+        boxes.push(Aabb::new(
+            Vec3::new(-6.0 + d, -4.0, 0.0),
+            Vec3::new(-5.5 + d, -3.5, 0.5),
+        ));
+        boxes.push(Aabb::new(
+            Vec3::new(5.5 - d, 3.5, 0.0),
+            Vec3::new(6.0 - d, 4.0, 0.5),
+        ));
+    }
+    // Behind the eye: outside the view.
+    boxes.push(Aabb::new(
+        Vec3::new(0.0, 0.0, 30.0),
+        Vec3::new(1.0, 1.0, 31.0),
+    ));
+    let bvh = ObjectBvh::build(&boxes, 1);
+    let pose = CameraPose {
+        eye: Vec3::new(0.0, 0.0, 10.0),
+        target: Vec3::new(0.0, 0.0, 0.0),
+    };
+    (bvh, Camera::from_pose(pose, 1.0, 500.0))
+}
+
+#[test]
+fn screen_split_covers_every_object_in_view_with_less_screen() {
+    let (bvh, cam) = corners();
+    let view = View::new(&(&cam).into());
+    let root = 0;
+    let mut out = Vec::new();
+    screen_split(&bvh, root, &view, 0.005, &mut out);
+    assert!(out.len() > 1, "the root's box is split: {out:?}");
+    let area: f32 = out.iter().map(|b| screen_fraction(&view, b)).sum();
+    let root_area = screen_fraction(&view, &bvh.nodes[root as usize].bounds);
+    assert!(
+        area < 0.5 * root_area,
+        "{area} against the root's {root_area}"
+    );
+    // Every object that may show lies in a box of the split; the one behind the eye in none.
+    let mut in_view = 0;
+    for o in 0..9u32 {
+        let b = bvh.object_bounds(o).expect("an object");
+        let covered = out.iter().any(|s| s.contains(b.min) && s.contains(b.max));
+        if view.in_view(&b) {
+            in_view += 1;
+            assert!(covered, "object {o} in view is not covered");
+        }
+    }
+    assert_eq!(in_view, 8);
+    // With the whole screen as the threshold only the root's box, which reaches behind the
+    // eye (no screen bound), is split: into its one child in view, the two clusters'.
+    out.clear();
+    screen_split(&bvh, root, &view, 1.0, &mut out);
+    assert_eq!(out.len(), 1, "{out:?}");
+    assert!(out[0].max.z < 1.0 && out[0].min.x <= -6.0 && out[0].max.x >= 6.0);
 }
