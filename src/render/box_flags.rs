@@ -103,6 +103,8 @@ pub(super) struct BoxFlags {
     pending: Vec<Group>,
     /// Scratch: one test's box records.
     words: Vec<u32>,
+    /// Per slot of this frame: whether its test is gated ([`BoxFlags::add_gated`]).
+    gated: Vec<bool>,
     boxes_used: u32,
     flags_used: u32,
     /// Flags whose boxes were drawn and made visible to predicates by a barrier.
@@ -173,6 +175,7 @@ impl BoxFlags {
             predicates,
             pending: Vec::new(),
             words: Vec::new(),
+            gated: Vec::new(),
             boxes_used: 0,
             // Zeroes the whole buffer before the first frame.
             flags_used: MAX_FLAGS,
@@ -198,6 +201,7 @@ impl BoxFlags {
             bytes[..used].fill(0);
         }
         self.pending.clear();
+        self.gated.clear();
         self.boxes_used = 0;
         self.flags_used = 0;
         self.resolved = 0;
@@ -268,6 +272,7 @@ impl BoxFlags {
         }
         self.boxes_used += n;
         self.flags_used += 1;
+        self.gated.push(gate != super::box_oracle::NO_GATE);
         self.counts.tests += 1;
         self.counts.predicated += u32::from(predicate.is_some());
         Ok(FLAG_BIT | (self.frame << SLOT_BITS) | slot)
@@ -294,6 +299,15 @@ impl BoxFlags {
     /// visible to predicates.
     pub(super) fn resolved_slot(&self, id: QueryId) -> Option<u32> {
         self.slot(id).filter(|&s| s < self.resolved)
+    }
+
+    /// Whether `id` is a gated flag of this frame ([`BoxFlags::add_gated`]) whose boxes wait
+    /// for their draw: draws under it may be handed over before its resolve.
+    pub(super) fn gated_awaits_draw(&self, id: QueryId) -> bool {
+        self.awaits_draw(id)
+            && self
+                .slot(id)
+                .is_some_and(|s| self.gated.get(s as usize) == Some(&true))
     }
 
     /// Whether `id` is a flag of this frame whose boxes wait for their draw.

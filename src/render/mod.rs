@@ -164,6 +164,10 @@ pub struct Renderer {
     /// Parts of split nodes tested by gated box flags (on by default; see
     /// [`Renderer::set_gated_parts`]).
     gated_parts: bool,
+    /// Objects handed over under gated flags before their resolve, drawn after it
+    /// ([`Renderer::record_flag_lists`]): each flag's range of `flag_list_objects`.
+    flag_lists: Vec<(QueryId, std::ops::Range<usize>)>,
+    flag_list_objects: Vec<u32>,
     /// The scene's blended objects ([`Scene::is_blended`]): no culler draws them (they are not
     /// in [`Scene::hierarchy`]); every frame draws those in its view after the culled pass.
     blended: Vec<u32>,
@@ -313,6 +317,8 @@ impl Renderer {
             box_flags_unsupported: None,
             skip_flag_barrier: false,
             gated_parts: true,
+            flag_lists: Vec::new(),
+            flag_list_objects: Vec::new(),
             blended,
             blend_order: Vec::new(),
             blend_predicates: Vec::new(),
@@ -537,6 +543,13 @@ impl Renderer {
                 culler.name()
             )));
         }
+        if !self.flag_lists.is_empty() {
+            return Err(Error::Input(format!(
+                "{}: objects were drawn under {} tested parts whose resolve never came                  (OcclusionBackend::resolve_predicates after test_part_if)",
+                culler.name(),
+                self.flag_lists.len()
+            )));
+        }
         Ok(FrameResult {
             frame_ms: frame_time.as_secs_f64() * 1e3,
             gpu_ms,
@@ -618,6 +631,8 @@ impl Renderer {
         self.draw_chunk = 0;
         self.draw_used = 0;
         self.ordered.begin_frame();
+        self.flag_lists.clear();
+        self.flag_list_objects.clear();
         self.frame_view = Some(*view);
         self.blended_drawn = false;
         self.blended_queries.clear();
@@ -1769,12 +1784,31 @@ impl OcclusionBackend for Renderer {
         if tested {
             self.record_part_draws()?;
         }
+        self.record_flag_lists()?;
         Ok(())
     }
 
     fn draw_objects_if(&mut self, query: QueryId, objects: &[u32]) -> coherent_cull::Result<()> {
         if self.awaits_part_test(query) {
             return Ok(self.defer_part_draw(query, objects)?);
+        }
+        if self
+            .frame_flags()
+            .is_some_and(|f| f.gated_awaits_draw(query))
+        {
+            // A part tested by a gated flag, before its resolve: drawn after it, in a block.
+            if let Some(&o) = objects.iter().find(|&&o| o as usize >= self.objects.len()) {
+                return Err(Error::Input(format!(
+                    "draw names object {o} (scene has {})",
+                    self.objects.len()
+                ))
+                .into());
+            }
+            let first = self.flag_list_objects.len();
+            self.flag_list_objects.extend_from_slice(objects);
+            self.flag_lists
+                .push((query, first..self.flag_list_objects.len()));
+            return Ok(());
         }
         self.check_predicate(query)?;
         if objects.is_empty() {
@@ -2071,6 +2105,43 @@ impl Renderer {
         self.part_tests
             .as_ref()
             .is_some_and(|p| p.awaits_test(query))
+    }
+
+    /// Draws the objects handed over under gated flags before their resolve
+    /// ([`OcclusionBackend::draw_objects_if`]), each list in a block on its flag, once the
+    /// flag is resolved.
+    fn record_flag_lists(&mut self) -> Result<()> {
+        let mut lists = std::mem::take(&mut self.flag_lists);
+        let objects = std::mem::take(&mut self.flag_list_objects);
+        let resolved = |r: &Renderer, q| {
+            r.frame_flags()
+                .is_some_and(|f| f.resolved_slot(q).is_some())
+        };
+        let mut drawn = Ok(());
+        let mut kept = 0;
+        for i in 0..lists.len() {
+            let (query, range) = lists[i].clone();
+            if !resolved(self, query) {
+                lists[kept] = (query, range);
+                kept += 1;
+                continue;
+            }
+            drawn = self.begin_predicated(query).and_then(|()| {
+                let r = self.record_objects(&objects[range], Some(query));
+                self.end_predicated();
+                r
+            });
+            if drawn.is_err() {
+                break;
+            }
+        }
+        lists.truncate(kept);
+        self.flag_lists = lists;
+        self.flag_list_objects = objects;
+        if self.flag_lists.is_empty() {
+            self.flag_list_objects.clear();
+        }
+        drawn
     }
 
     /// Keeps `objects` of a part that waits for its test, to be drawn after it

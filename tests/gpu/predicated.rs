@@ -429,6 +429,12 @@ fn gated_box_flags_follow_their_gate() {
             backend.resolve_predicates()?;
             let under_shown = backend.test_part_if(shown, &[ahead])?;
             let under_hidden = backend.test_part_if(hidden, &[ahead])?;
+            // Objects handed over under the parts before their resolve: drawn after it, under
+            // each part's flag.
+            if let (Some(a), Some(b)) = (under_shown, under_hidden) {
+                backend.draw_objects_if(a, &[0])?;
+                backend.draw_objects_if(b, &[1])?;
+            }
             backend.resolve_predicates()?;
             self.ids = [Some(shown), Some(hidden), under_shown, under_hidden]
                 .into_iter()
@@ -445,7 +451,10 @@ fn gated_box_flags_follow_their_gate() {
         let pose = scene.path("street").unwrap().pose_at(10.0);
         let cam = r.camera(pose, &bvh);
         let mut c = Gated { ids: Vec::new() };
+        r.log_drawn_objects(true);
         let res = r.render_frame(&mut c, &bvh, &cam, 0).unwrap();
+        assert_eq!(r.drawn_objects(), [0], "drawn under the parts' flags");
+        assert_eq!(res.counts.conditional_blocks, 2);
         assert_eq!(res.counts.queries_begun, 0);
         assert_eq!(res.counts.flag_tests, 4);
         assert_eq!(res.counts.tested_parts, 2);
