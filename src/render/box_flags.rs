@@ -6,8 +6,9 @@
 //! boxes it draws (about 0.1-0.3 us a box when 1,024 boxes share one draw): docs/measurements.md,
 //! "What a draw costs lavapipe". Here the boxes of all tests issued before a predicate resolve
 //! are drawn at the resolve, one instanced draw for the unconditional ones
-//! (`shaders/box_visible.vert`, the box oracle's shaders: front faces, the query boxes' depth
-//! bias toward the eye, no writes but the flag), and a fragment that passes the depth test
+//! (`shaders/box_visible.vert`, the box oracle's shaders: each box's faces toward the eye, 18
+//! vertices, the query boxes' depth bias toward the eye, no writes but the flag), and a
+//! fragment that passes the depth test
 //! (early fragment tests, so the shader runs only for those) writes 1 into its test's 32-bit
 //! flag. A copy of the flags is the predicate buffer, the flags themselves the part tests' node
 //! values (copied again) and, once the frame completed, the results the culler reads (1 or 0).
@@ -28,8 +29,14 @@
 //! as a result not back), so the culler must read them after the frame; with `k` frames in
 //! flight the built-in renderer's cullers are wrapped in `FramesInFlight`, which does and
 //! keeps them.
-//! Tests drawn under a predicate (parts queried under their node's) get a conditional block
-//! each, as queries do.
+//!
+//! The parts of split nodes ([`coherent_cull::OcclusionBackend::test_part_if`] under a node's
+//! flag) are *gated* flags ([`BoxFlags::add_gated`]): their records name the node's flag, and
+//! the vertex shader reads it from the predicates and draws the part's boxes only where it is
+//! 1, so they join the resolve's one instanced draw with no conditional block; a part whose node
+//! was hidden reads 0, as a query in a block on the node's predicate would. Other tests drawn
+//! under a predicate (parts queried under their node's) get a conditional block each, as
+//! queries do.
 
 use std::sync::Arc;
 

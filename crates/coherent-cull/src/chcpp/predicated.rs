@@ -17,7 +17,8 @@
 //!    unconditionally, as in every mode.
 //! 2. When the traversal is done, the render queue is drawn, then the i-queue is queried in one
 //!    batch (multiqueries; the nodes' own boxes, or with `predicated_tight_bounds` their
-//!    tight volumes) together with the v-queue.
+//!    tight volumes; a box over [`ChcppParams::predicated_screen_split`] of the screen gives
+//!    way to its children's in view where theirs cover less) together with the v-queue.
 //! 3. The backend resolves the predicates ([`OcclusionBackend::resolve_predicates`]: on Vulkan
 //!    one pass break, a copy and a barrier), and the objects under each i-queue query's nodes
 //!    that lie in the frustum are drawn under that query's predicate, handed over as ranges of
@@ -43,10 +44,11 @@
 //!    its boxes (a part decided by the backend's test, below, costs no query, so while the
 //!    backend tests parts the rule is off).
 //!    A backend with a test of its own ([`OcclusionBackend::test_part_if`]; the built-in
-//!    renderer's test of the parts' screen rectangles against the depth drawn so far, one
-//!    compute dispatch at the second resolve) decides the parts instead of queries (in a
+//!    renderer's box flags gated by the node's flag, all parts in one instanced draw at the
+//!    second resolve, or with queries its test of the parts' screen rectangles against the
+//!    depth drawn so far, one compute dispatch) decides the parts instead of queries (in a
 //!    frame after one that split at least `predicated_tested_parts_min` parts, by default
-//!    always): no query per part, a coarser test. A tested part's objects are handed over
+//!    always): no query per part, a test as fine as a query's or coarser. A tested part's objects are handed over
 //!    as soon as the part is, before the resolve that tests it; the backend draws them after
 //!    the test (the built-in renderer: the draws of the parts that passed, gathered on the
 //!    device into one indirect draw, with no conditional block per part).
@@ -64,9 +66,10 @@
 //! below exactly one node where the traversal stopped: (a) a
 //! leaf opened unconditionally, whose objects are drawn; (b) a node whose box holds the eye,
 //! opened unconditionally; or (c) an i-queue node. In case (c) the node's query draws boxes that
-//! cover the object (its own box or its tight volume: this frame's boxes, so movers are covered
-//! where they are now) against the depth of the frame's unconditional draws, which is depth
-//! written by real geometry of this frame and only gets nearer as the frame goes on. If the
+//! cover the object (its own box, its tight volume or its children's boxes in view: this
+//! frame's boxes, so movers are covered where they are now) against the depth of the frame's
+//! unconditional draws, which is depth written by real geometry of this frame and only gets
+//! nearer as the frame goes on. If the
 //! query counted no sample, every sample of the object's surface lies behind that depth and
 //! owns no pixel of the final image; if it counted any, the object is drawn. A multiquery's
 //! predicate covers all its nodes: they are drawn when any of them is visible. Nodes that enter
