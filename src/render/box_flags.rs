@@ -31,7 +31,7 @@
 //! keeps them.
 //!
 //! The parts of split nodes ([`coherent_cull::OcclusionBackend::test_part_if`] under a node's
-//! flag) are *gated* flags ([`BoxFlags::add_gated`]): their records name the node's flag, and
+//! flag) are *gated* flags (`BoxFlags::add_gated`): their records name the node's flag, and
 //! the vertex shader reads it from the predicates and draws the part's boxes only where it is
 //! 1, so they join the resolve's one instanced draw with no conditional block; a part whose node
 //! was hidden reads 0, as a query in a block on the node's predicate would. Other tests drawn
@@ -87,7 +87,7 @@ pub struct FlagCounts {
     pub tests: u32,
     /// Of those, tests drawn under another predicate in a conditional block.
     pub predicated: u32,
-    /// Of those, tests gated by another flag ([`BoxFlags::add_gated`]: parts of split nodes).
+    /// Of those, tests gated by another flag (`BoxFlags::add_gated`: parts of split nodes).
     pub gated: u32,
     /// Instanced draws of boxes.
     pub draws: u32,
