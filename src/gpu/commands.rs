@@ -528,6 +528,30 @@ impl Recorder {
         self.count_draw((vertex_count / 3) as u64 * instances as u64);
     }
 
+    /// Binds `indices` (32-bit) as the index buffer.
+    pub fn bind_index_buffer(&mut self, indices: &Buffer) {
+        // SAFETY: recording command buffer and a valid buffer.
+        unsafe {
+            self.device
+                .cmd_bind_index_buffer(self.cmd, indices.handle, 0, vk::IndexType::UINT32)
+        };
+    }
+
+    /// Indexed instanced draw of `index_count` indices from instance `first_instance` on.
+    pub fn draw_indexed_instanced(
+        &mut self,
+        index_count: u32,
+        instances: u32,
+        first_instance: u32,
+    ) {
+        // SAFETY: recording inside rendering with a bound pipeline and index buffer.
+        unsafe {
+            self.device
+                .cmd_draw_indexed(self.cmd, index_count, instances, 0, 0, first_instance)
+        };
+        self.count_draw((index_count / 3) as u64 * instances as u64);
+    }
+
     /// Non-indexed instanced draw from instance `first_instance` on.
     pub fn draw_instanced(&mut self, vertex_count: u32, instances: u32, first_instance: u32) {
         // SAFETY: recording inside rendering with a bound pipeline.

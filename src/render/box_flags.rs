@@ -6,8 +6,8 @@
 //! boxes it draws (about 0.1-0.3 us a box when 1,024 boxes share one draw): docs/measurements.md,
 //! "What a draw costs lavapipe". Here the boxes of all tests issued before a predicate resolve
 //! are drawn at the resolve, one instanced draw for the unconditional ones
-//! (`shaders/box_visible.vert`, the box oracle's shaders: each box's faces toward the eye, 18
-//! vertices, the query boxes' depth bias toward the eye, no writes but the flag), and a
+//! (`shaders/box_visible.vert`, the box oracle's shaders: front faces, an indexed draw of the
+//! boxes' 8 corners, the query boxes' depth bias toward the eye, no writes but the flag), and a
 //! fragment that passes the depth test
 //! (early fragment tests, so the shader runs only for those) writes 1 into its test's 32-bit
 //! flag. A copy of the flags is the predicate buffer, the flags themselves the part tests' node
@@ -108,6 +108,8 @@ pub(super) struct BoxFlags {
     /// The drawn flags copied at each resolve: the buffer conditional blocks read.
     predicates: Buffer,
     pending: Vec<Group>,
+    /// The boxes' triangles as corner indices (`box_oracle::BOX_INDICES`).
+    indices: Buffer,
     /// Scratch: one test's box records.
     words: Vec<u32>,
     /// Per slot of this frame: whether its test is gated ([`BoxFlags::add_gated`]).
@@ -182,6 +184,7 @@ impl BoxFlags {
             predicates,
             pending: Vec::new(),
             words: Vec::new(),
+            indices: super::box_oracle::box_index_buffer(ctx, "box flag indices")?,
             gated: Vec::new(),
             boxes_used: 0,
             // Zeroes the whole buffer before the first frame.
@@ -340,17 +343,19 @@ impl BoxFlags {
     pub(super) fn record(
         &mut self,
         rec: &mut Recorder,
-        push: &[u8],
+        matrix: &[u8],
         mut block: impl FnMut(&mut Recorder, Option<(vk::Buffer, u64)>) -> Result<()>,
     ) -> Result<()> {
         rec.bind_pipeline(&self.pipeline);
         rec.bind_graphics_set(&self.layout, self.sets.get(0));
-        rec.push_constants(&self.layout, push);
+        rec.push_constants(&self.layout, matrix);
         for g in &self.pending {
             if g.predicate.is_some() {
                 block(rec, g.predicate)?;
             }
-            rec.draw_instanced(super::box_oracle::BOX_VERTICES, g.count, g.first);
+            rec.bind_index_buffer(&self.indices);
+            let indices = super::box_oracle::BOX_INDICES.len() as u32;
+            rec.draw_indexed_instanced(indices, g.count, g.first);
             if g.predicate.is_some() {
                 block(rec, None)?;
             }

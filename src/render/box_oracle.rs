@@ -35,38 +35,38 @@ use super::ObjectDraw;
 
 /// Bytes of one box record (`box_visible.vert` `ObjectBox`: two vec4).
 const BOX_BYTES: u64 = 32;
-/// Push constants of [`marking_pipeline`]: the world-to-clip matrix and the eye
-/// ([`marking_push`]).
-pub(super) const PUSH: u32 = 80;
-/// Vertices of one box: one face per axis, two triangles each (`box_visible.vert`).
-pub(super) const BOX_VERTICES: u32 = 18;
+/// Push constants of [`marking_pipeline`]: the world-to-clip matrix.
+const PUSH: u32 = 64;
+/// The 12 triangles of a box as indices of its corners (x | y << 1 | z << 2), counter-clockwise
+/// seen from outside, face by face (-z, +z, -y, +y, -x, +x): coherent-ash's BOX_FACES, so these
+/// boxes cover the pixels its query boxes do. `box_visible.vert` makes the corner from the index.
+pub(super) const BOX_INDICES: [u32; 36] = [
+    0, 2, 1, 1, 2, 3, // -z
+    4, 5, 6, 5, 7, 6, // +z
+    0, 1, 4, 1, 5, 4, // -y
+    2, 6, 3, 3, 6, 7, // +y
+    0, 4, 2, 2, 4, 6, // -x
+    1, 3, 5, 3, 7, 5, // +x
+];
 
-/// The push constants of a marking pass seen through `matrix` from `view`: the matrix, and the
-/// eye (w = 1) or, for an orthographic view, the direction toward it (w = 0), from which the
-/// shader picks each box's faces toward the eye.
-pub(super) fn marking_push(
-    matrix: &[f32; 16],
-    view: &coherent_cull::CameraView,
-) -> [u8; PUSH as usize] {
-    let eye = if view.is_orthographic() {
-        (-view.forward()).extend(0.0)
-    } else {
-        view.eye.extend(1.0)
-    };
-    let mut push = [0u8; PUSH as usize];
-    push[..64].copy_from_slice(crate::gpu::bytes_of(matrix));
-    push[64..].copy_from_slice(crate::gpu::bytes_of(&eye.to_array()));
-    push
+/// The index buffer of [`BOX_INDICES`], for a marking pass's indexed instanced draw.
+pub(super) fn box_index_buffer(ctx: &Arc<GpuContext>, name: &str) -> Result<Buffer> {
+    Buffer::with_data(
+        ctx,
+        name,
+        crate::gpu::bytes_of(&BOX_INDICES),
+        vk::BufferUsageFlags::INDEX_BUFFER,
+    )
 }
 
 /// The pipeline of a pass that marks boxes (`shaders/box_visible.vert` and `.frag`): one
 /// instance per record of its storage buffer (binding 0, [`box_record`]) draws the box's
-/// faces toward the eye (the front faces) with coherent-ash's query boxes' depth test and
-/// bias, writes no color or depth,
+/// front faces (an indexed draw of [`BOX_INDICES`]) with coherent-ash's query boxes' depth
+/// test and bias, writes no color or depth,
 /// and a fragment that passes (early fragment tests) writes 1 into the word of the storage
 /// buffer at binding 1 that the record names. A record may name a gate, a word of the storage
 /// buffer at binding 2: its box is drawn only where that word is non-zero. The box oracle
-/// marks objects with it, the box flags tests. Push constants: [`marking_push`].
+/// marks objects with it, the box flags tests. Push constants: the world-to-clip matrix.
 pub(super) fn marking_pipeline(
     ctx: &Arc<GpuContext>,
     name: &'static str,
@@ -139,6 +139,8 @@ pub(super) struct BoxOracle {
     visible: Buffer,
     /// The gates' binding (unused: no box has a gate).
     _gates: Buffer,
+    /// [`BOX_INDICES`].
+    indices: Buffer,
     /// Objects the buffers are sized for.
     objects: usize,
     /// Candidates in the box buffer now.
@@ -188,6 +190,7 @@ impl BoxOracle {
             boxes,
             visible,
             _gates: gates,
+            indices: box_index_buffer(ctx, "oracle-box indices")?,
             objects,
             count: 0,
         })
@@ -214,15 +217,16 @@ impl BoxOracle {
     }
 
     /// Records the pass inside the ID pass's rendering, after its draws: one instanced draw of
-    /// the boxes written by [`BoxOracle::write_boxes`]; `push` from [`marking_push`].
-    pub(super) fn record(&self, rec: &mut crate::gpu::Recorder, push: &[u8]) {
+    /// the boxes written by [`BoxOracle::write_boxes`]; `matrix` the world-to-clip matrix.
+    pub(super) fn record(&self, rec: &mut crate::gpu::Recorder, matrix: &[u8]) {
         if self.count == 0 {
             return;
         }
         rec.bind_pipeline(&self.pipeline);
         rec.bind_graphics_set(&self.layout, self.sets.get(0));
-        rec.push_constants(&self.layout, push);
-        rec.draw(BOX_VERTICES, self.count);
+        rec.push_constants(&self.layout, matrix);
+        rec.bind_index_buffer(&self.indices);
+        rec.draw_indexed_instanced(BOX_INDICES.len() as u32, self.count, 0);
     }
 
     /// The visible flags buffer, cleared before the pass and read after it.

@@ -944,10 +944,8 @@ impl Renderer {
         boxes: Option<&box_oracle::BoxOracle>,
     ) -> Result<()> {
         let mut push = self.push;
-        let matrix = raster_matrix(view).to_cols_array();
-        push[..64].copy_from_slice(bytes_of(&matrix));
+        push[..64].copy_from_slice(bytes_of(&raster_matrix(view).to_cols_array()));
         let push = &push[..];
-        let box_push = box_oracle::marking_push(&matrix, view);
         if self.id_image.is_none() {
             self.id_image = Some(Image::new(
                 &self.ctx,
@@ -1002,7 +1000,7 @@ impl Renderer {
                 }
             }
             if let Some(b) = boxes {
-                b.record(rec, &box_push);
+                b.record(rec, &push[..64]);
             }
             rec.end_rendering();
             if boxes.is_some() {
@@ -1503,13 +1501,9 @@ impl Renderer {
         let Some(mut flags) = self.box_flags.take() else {
             return Ok(false);
         };
-        let Some(view) = self.frame_view else {
-            self.box_flags = Some(flags);
-            return Err(Error::Input("box flags recorded outside a frame".into()));
-        };
-        let push = box_oracle::marking_push(&self.view_proj, &view);
+        let matrix = self.view_proj;
         let (queries, cmd) = (&mut self.queries, self.recorder.command_buffer().0);
-        let drawn = flags.record(&mut self.recorder, &push, |rec, at| {
+        let drawn = flags.record(&mut self.recorder, bytes_of(&matrix), |rec, at| {
             match at {
                 // SAFETY: inside rendering; the predicate's writer and its barrier came before.
                 Some((b, o)) => unsafe { queries.begin_block_at(cmd, b, o)? },
