@@ -38,16 +38,9 @@ const BOX_BYTES: u64 = 32;
 /// Push constants of [`marking_pipeline`]: the world-to-clip matrix.
 const PUSH: u32 = 64;
 /// The 12 triangles of a box as indices of its corners (x | y << 1 | z << 2), counter-clockwise
-/// seen from outside, face by face (-z, +z, -y, +y, -x, +x): coherent-ash's BOX_FACES, so these
-/// boxes cover the pixels its query boxes do. `box_visible.vert` makes the corner from the index.
-pub(super) const BOX_INDICES: [u32; 36] = [
-    0, 2, 1, 1, 2, 3, // -z
-    4, 5, 6, 5, 7, 6, // +z
-    0, 1, 4, 1, 5, 4, // -y
-    2, 6, 3, 3, 6, 7, // +y
-    0, 4, 2, 2, 4, 6, // -x
-    1, 3, 5, 3, 7, 5, // +x
-];
+/// seen from outside: coherent-ash's query boxes' [`coherent_ash::BOX_FACES`], so these boxes
+/// cover the pixels its query boxes do. `box_visible.vert` makes the corner from the index.
+pub(super) const BOX_INDICES: [u32; 36] = coherent_ash::BOX_FACES;
 
 /// The index buffer of [`BOX_INDICES`], for a marking pass's indexed instanced draw.
 pub(super) fn box_index_buffer(ctx: &Arc<GpuContext>, name: &str) -> Result<Buffer> {
