@@ -552,16 +552,6 @@ impl Recorder {
         self.count_draw((index_count / 3) as u64 * instances as u64);
     }
 
-    /// Non-indexed instanced draw from instance `first_instance` on.
-    pub fn draw_instanced(&mut self, vertex_count: u32, instances: u32, first_instance: u32) {
-        // SAFETY: recording inside rendering with a bound pipeline.
-        unsafe {
-            self.device
-                .cmd_draw(self.cmd, vertex_count, instances, 0, first_instance)
-        };
-        self.count_draw((vertex_count / 3) as u64 * instances as u64);
-    }
-
     /// Counts a draw of `tris` triangles and, in render state, as an object draw (query boxes
     /// are drawn and counted by coherent-ash's query set, and added to these counts by the
     /// scene renderer after the frame).

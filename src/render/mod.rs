@@ -1790,19 +1790,7 @@ impl OcclusionBackend for Renderer {
             .frame_flags()
             .is_some_and(|f| f.gated_awaits_draw(query))
         {
-            // A part tested by a gated flag, before its resolve: drawn after it, in a block.
-            if let Some(&o) = objects.iter().find(|&&o| o as usize >= self.objects.len()) {
-                return Err(Error::Input(format!(
-                    "draw names object {o} (scene has {})",
-                    self.objects.len()
-                ))
-                .into());
-            }
-            let first = self.flag_list_objects.len();
-            self.flag_list_objects.extend_from_slice(objects);
-            self.flag_lists
-                .push((query, first..self.flag_list_objects.len()));
-            return Ok(());
+            return Ok(self.defer_flag_draw(query, objects)?);
         }
         self.check_predicate(query)?;
         if objects.is_empty() {
@@ -2102,40 +2090,45 @@ impl Renderer {
     }
 
     /// Draws the objects handed over under gated flags before their resolve
-    /// ([`OcclusionBackend::draw_objects_if`]), each list in a block on its flag, once the
-    /// flag is resolved.
+    /// ([`Renderer::defer_flag_draw`]), each list in a block on its flag, which the resolve
+    /// just drew and made visible to conditional rendering.
     fn record_flag_lists(&mut self) -> Result<()> {
-        let mut lists = std::mem::take(&mut self.flag_lists);
+        let lists = std::mem::take(&mut self.flag_lists);
         let objects = std::mem::take(&mut self.flag_list_objects);
-        let resolved = |r: &Renderer, q| {
-            r.frame_flags()
-                .is_some_and(|f| f.resolved_slot(q).is_some())
-        };
-        let mut drawn = Ok(());
-        let mut kept = 0;
-        for i in 0..lists.len() {
-            let (query, range) = lists[i].clone();
-            if !resolved(self, query) {
-                lists[kept] = (query, range);
-                kept += 1;
-                continue;
-            }
-            drawn = self.begin_predicated(query).and_then(|()| {
-                let r = self.record_objects(&objects[range], Some(query));
-                self.end_predicated();
-                r
-            });
-            if drawn.is_err() {
-                break;
-            }
-        }
-        lists.truncate(kept);
+        let drawn = lists.iter().try_for_each(|(query, range)| {
+            self.begin_predicated(*query)?;
+            let r = self.record_objects(&objects[range.clone()], Some(*query));
+            self.end_predicated();
+            r
+        });
+        // The emptied vectors back, their room kept for the next frame.
         self.flag_lists = lists;
+        self.flag_lists.clear();
         self.flag_list_objects = objects;
-        if self.flag_lists.is_empty() {
-            self.flag_list_objects.clear();
-        }
+        self.flag_list_objects.clear();
         drawn
+    }
+
+    /// Fails when `objects` names an object the scene does not have.
+    fn check_object_ids(&self, objects: &[u32]) -> Result<()> {
+        match objects.iter().find(|&&o| o as usize >= self.objects.len()) {
+            Some(&o) => Err(Error::Input(format!(
+                "draw names object {o} (scene has {})",
+                self.objects.len()
+            ))),
+            None => Ok(()),
+        }
+    }
+
+    /// Keeps `objects` of a part tested by a gated flag, handed over before the flag's
+    /// resolve, to be drawn after it ([`Renderer::record_flag_lists`]).
+    fn defer_flag_draw(&mut self, part: QueryId, objects: &[u32]) -> Result<()> {
+        self.check_object_ids(objects)?;
+        let first = self.flag_list_objects.len();
+        self.flag_list_objects.extend_from_slice(objects);
+        self.flag_lists
+            .push((part, first..self.flag_list_objects.len()));
+        Ok(())
     }
 
     /// Keeps `objects` of a part that waits for its test, to be drawn after it
@@ -2144,12 +2137,7 @@ impl Renderer {
         if objects.is_empty() {
             return Ok(());
         }
-        if let Some(&o) = objects.iter().find(|&&o| o as usize >= self.objects.len()) {
-            return Err(Error::Input(format!(
-                "draw names object {o} (scene has {})",
-                self.objects.len()
-            )));
-        }
+        self.check_object_ids(objects)?;
         match self.part_tests.as_mut() {
             Some(parts) => parts.defer(part, objects),
             None => Err(Error::Input(format!(
