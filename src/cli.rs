@@ -233,6 +233,11 @@ pub struct ChcppArgs {
     /// replaced by its children's boxes where theirs cover less (one test still; 0: off)
     #[arg(long, value_name = "FRACTION", default_value_t = ChcppParams::default().predicated_screen_split)]
     pub screen_split: f32,
+    /// Predicated mode: a node that enters the frustum with a box over this fraction of the
+    /// screen is opened unconditionally instead of queried (what comes into view near the eye
+    /// hides what lies behind it before the frame's tests; 0: off)
+    #[arg(long, value_name = "FRACTION", default_value_t = ChcppParams::default().predicated_enter_fraction)]
+    pub enter_fraction: f32,
 }
 
 impl ChcppArgs {
@@ -278,6 +283,7 @@ impl ChcppArgs {
             predicated_tested_parts_min: self.tested_parts_min,
             predicated_budget: self.predicate_budget,
             predicated_screen_split: self.screen_split,
+            predicated_enter_fraction: self.enter_fraction,
             ..ChcppParams::default()
         };
         for d in &self.disable {
@@ -309,6 +315,12 @@ impl ChcppArgs {
             bail!(
                 "--predicate-budget {} must be a finite number at least 0",
                 p.predicated_budget
+            );
+        }
+        if !(p.predicated_enter_fraction >= 0.0 && p.predicated_enter_fraction.is_finite()) {
+            bail!(
+                "--enter-fraction {} must be a finite number at least 0",
+                p.predicated_enter_fraction
             );
         }
         if p.multiqueries && !p.batching {

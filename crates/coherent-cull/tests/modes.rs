@@ -1362,3 +1362,75 @@ fn a_frame_that_ran_out_of_queries_fails_and_the_next_ones_are_exact() {
         }
     }
 }
+
+/// A wall near the eye to the left, a small box far behind it and the row ahead: looking
+/// ahead, neither is in view; then the camera turns left and both enter. Returns the frame
+/// the camera turned in: the objects drawn, those drawn unconditionally and its queries.
+fn turn_towards_a_wall(params: ChcppParams) -> (Vec<u32>, Vec<u32>, usize) {
+    let (mut boxes, cam) = row();
+    // Object 8: a wall 4 units left of the eye, 10 wide and 6 high, facing it.
+    boxes.push(Aabb::new(
+        Vec3::new(-4.0, -3.0, 5.0),
+        Vec3::new(-3.0, 3.0, 15.0),
+    ));
+    // Object 9: a small box far behind the wall.
+    boxes.push(Aabb::new(
+        Vec3::new(-40.0, 0.0, 9.5),
+        Vec3::new(-39.0, 1.0, 10.5),
+    ));
+    let bvh = ObjectBvh::build(&boxes, 1);
+    let left = Camera::from_pose(
+        CameraPose {
+            eye: cam.eye,
+            target: cam.eye + Vec3::new(-20.0, 0.0, 0.0),
+        },
+        16.0 / 9.0,
+        100.0,
+    );
+    // Everything shows but object 9 (hidden behind the wall).
+    let wall = boxes[8];
+    let mut backend =
+        MockBackend::new(move |b: &Aabb| if b.max.x < wall.min.x { 0 } else { PIXELS });
+    let mut c = Chcpp::new(params).with_latency(Latency::Predicated);
+    for f in 1..=6 {
+        let fr = run(&mut c, &bvh, &cam, &mut backend, f);
+        assert!(
+            !fr.drawn.contains(&8) && !fr.drawn.contains(&9),
+            "frame {f}"
+        );
+    }
+    let fr = run(&mut c, &bvh, &left, &mut backend, 7);
+    assert!(fr.drawn.contains(&8), "the wall that entered is drawn");
+    let unconditional = fr
+        .events
+        .iter()
+        .filter_map(|e| match e {
+            MockEvent::Draw(objects) => Some(objects.clone()),
+            _ => None,
+        })
+        .flatten()
+        .collect();
+    let queried = fr
+        .events
+        .iter()
+        .filter(|e| matches!(e, MockEvent::Query { .. }))
+        .count();
+    (fr.drawn, unconditional, queried)
+}
+
+#[test]
+fn a_large_node_entering_the_view_is_drawn_before_the_tests() {
+    // By default the wall, entering large, is drawn with the unconditional draws (and hides
+    // what lies behind it from the frame's tests); the small box far behind it is queried.
+    let (all, drawn, _) = turn_towards_a_wall(ChcppParams::default());
+    assert!(drawn.contains(&8), "unconditional draws: {drawn:?}");
+    assert!(!all.contains(&9), "drawn: {all:?}");
+    // Off, the wall is queried like any node entering the view and drawn under a predicate.
+    let off = ChcppParams {
+        predicated_enter_fraction: 0.0,
+        ..ChcppParams::default()
+    };
+    let (_, drawn, queried) = turn_towards_a_wall(off);
+    assert!(!drawn.contains(&8), "unconditional draws: {drawn:?}");
+    assert!(queried > 0);
+}

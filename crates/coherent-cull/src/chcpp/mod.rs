@@ -178,7 +178,11 @@ impl Chcpp {
         } else {
             self.traverse_previously_visible(bvh, node, view.eye, backend, stats)?;
         }
-        self.state[node as usize].seen_epoch = bvh.epoch();
+        let s = &mut self.state[node as usize];
+        if view.in_view(bounds) {
+            s.entering = false;
+        }
+        s.seen_epoch = bvh.epoch();
         Ok(())
     }
 
@@ -190,6 +194,7 @@ impl Chcpp {
         stats.frustum_culled += 1;
         let s = &mut self.state[node as usize];
         s.visible = false;
+        s.entering = true;
         s.last_visited = self.frame;
         if !s.tested {
             s.last_visible = self.frame;
@@ -517,6 +522,9 @@ struct NodeState {
     /// Predicated mode: an interior node whose own query said visible stays open until this
     /// frame.
     open_until: u64,
+    /// The node lay outside the frustum when last visited, or it is the child of a node
+    /// opened as entering in this frame: it enters the view now (predicated mode).
+    entering: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -109,6 +109,17 @@ pub struct ChcppParams {
     /// from the street, often cover much less. The test stays one test (one predicate) and
     /// stays exact: the children's boxes cover every object of the node that can show.
     pub predicated_screen_split: f32,
+    /// Predicated mode: a previously invisible node that enters the frustum in this frame
+    /// (it lay outside when last visited) and whose box covers more than this fraction of
+    /// the screen (its screen rectangle, clipped) is opened unconditionally rather than
+    /// queried: a leaf is drawn with the unconditional draws and queried later as a visible
+    /// leaf, an interior node's children are visited as entering too (default 0.003; 0: off).
+    /// When the camera turns, what enters from the side near the eye is mostly in front of
+    /// what lies behind it, and drawn before the frame's tests it hides that: otherwise the
+    /// frame's tests run against depth that lacks it and pass for everything behind. On the
+    /// city street (docs/measurements.md) it took the slowest frames from 125 ms to 73 ms
+    /// and the mean frame from 1.47x to 1.39x the oracle, with the median unchanged.
+    pub predicated_enter_fraction: f32,
 }
 
 /// See [`ChcppParams::predicated_screen_split`]: children replace a box only when their
@@ -141,6 +152,7 @@ impl Default for ChcppParams {
             predicated_tight_bounds: false,
             predicated_visible_interval: 7,
             predicated_screen_split: 0.005,
+            predicated_enter_fraction: 0.003,
         }
     }
 }

@@ -14,7 +14,10 @@
 //!    other modes keep the paper's 5: here those queries save fewer draws).
 //!    Previously invisible nodes go into the i-queue; no batch goes out during the traversal.
 //!    A node whose box holds the eye (or reaches the near plane where the view is) is opened
-//!    unconditionally, as in every mode.
+//!    unconditionally, as in every mode, and so is a node that enters the frustum in this
+//!    frame with a box over [`ChcppParams::predicated_enter_fraction`] of the screen (its
+//!    children enter with it): what comes into view near the eye as the camera turns is
+//!    drawn before the tests and hides what lies behind it.
 //! 2. When the traversal is done, the render queue is drawn, then the i-queue is queried in one
 //!    batch (multiqueries; the nodes' own boxes, or with `predicated_tight_bounds` their
 //!    tight volumes; a box over [`ChcppParams::predicated_screen_split`] of the screen gives
@@ -63,14 +66,13 @@
 //!
 //! A node outside the frustum, or (with the view's [`crate::PixelGrid`]) whose box holds no
 //! pixel centre, holds no object that can own a pixel. Every other object in the frustum lies
-//! below exactly one node where the traversal stopped: (a) a
-//! leaf opened unconditionally, whose objects are drawn; (b) a node whose box holds the eye,
-//! opened unconditionally; or (c) an i-queue node. In case (c) the node's query draws boxes that
-//! cover the object (its own box, its tight volume or its children's boxes in view: this
-//! frame's boxes, so movers are covered where they are now) against the depth of the frame's
-//! unconditional draws, which is depth written by real geometry of this frame and only gets
-//! nearer as the frame goes on. If the
-//! query counted no sample, every sample of the object's surface lies behind that depth and
+//! below exactly one node where the traversal stopped: (a) a leaf opened unconditionally,
+//! whose objects are drawn; (b) a node opened unconditionally (its box holds the eye, or it
+//! enters the view large), whose children are visited; or (c) an i-queue node. In case (c)
+//! the node's query draws boxes that cover the object (its own box, its tight volume or its
+//! children's boxes in view: this frame's boxes, so movers are covered where they are now)
+//! against the depth of the frame's unconditional draws, which is depth written by real
+//! geometry of this frame and only gets nearer as the frame goes on. If the query counted no sample, every sample of the object's surface lies behind that depth and
 //! owns no pixel of the final image; if it counted any, the object is drawn. A multiquery's
 //! predicate covers all its nodes: they are drawn when any of them is visible. Nodes that enter
 //! the frustum or the hierarchy have no visible history and are case (c). The boxes must be
@@ -139,7 +141,8 @@ impl LatencyMode for Predicated {
         p.tested_last_frame = std::mem::take(&mut p.tested_this_frame);
     }
 
-    /// A node held open: its children are visited.
+    /// A node held open: its children are visited. A node entering the view near the eye:
+    /// opened unconditionally.
     fn opens_previously_invisible(
         &self,
         c: &mut Chcpp,
@@ -148,11 +151,15 @@ impl LatencyMode for Predicated {
         eye: glam::Vec3,
         stats: &mut CullStats,
     ) -> bool {
-        let held = c.held_open(bvh, node);
-        if held {
+        if c.held_open(bvh, node) {
             c.traverse_held_open(bvh, node, eye, stats);
+            true
+        } else if c.enters_large(bvh, node) {
+            c.open_entering(bvh, node, eye, stats);
+            true
+        } else {
+            false
         }
-        held
     }
 
     fn opens_instead_of_query(&self, c: &Chcpp, bvh: &ObjectBvh, node: u32) -> bool {
@@ -646,6 +653,37 @@ impl Chcpp {
         let objects = self.predicated.objects_below(node) as f32;
         let expected = (1.0 - self.stays_invisible(node)) * objects;
         expected > self.params.predicated_budget
+    }
+
+    /// Whether `node` enters the view in this frame with a box over
+    /// `predicated_enter_fraction` of the screen (see [`ChcppParams::predicated_enter_fraction`]).
+    fn enters_large(&self, bvh: &ObjectBvh, node: u32) -> bool {
+        let fraction = self.params.predicated_enter_fraction;
+        if fraction <= 0.0 || !self.state[node as usize].entering {
+            return false;
+        }
+        self.frame_view.as_ref().is_some_and(|view| {
+            super::tight::screen_fraction(view, &bvh.nodes[node as usize].bounds) > fraction
+        })
+    }
+
+    /// Opens an entering node unconditionally (a leaf is drawn and queried later as a visible
+    /// leaf); its children enter with it.
+    fn open_entering(
+        &mut self,
+        bvh: &ObjectBvh,
+        node: u32,
+        eye: glam::Vec3,
+        stats: &mut CullStats,
+    ) {
+        let n = &bvh.nodes[node as usize];
+        if !n.is_leaf() {
+            for &child in &n.children {
+                self.state[child as usize].entering = true;
+            }
+        }
+        self.state[node as usize].tested = true;
+        self.traverse_unqueryable(bvh, node, eye, stats);
     }
 
     /// Whether `node` is an interior node held open in the predicated mode: its own query said
