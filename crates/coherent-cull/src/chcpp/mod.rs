@@ -165,7 +165,8 @@ impl Chcpp {
         let bvh = input.bvh;
         stats.nodes_visited += 1;
         let bounds = &bvh.nodes[node as usize].bounds;
-        if !view.in_view(bounds) {
+        let in_view = view.in_view(bounds);
+        if !in_view {
             self.frustum_cull(node, stats);
         } else if view.eye_inside(bounds) {
             self.traverse_unqueryable(bvh, node, view.eye, stats);
@@ -179,7 +180,8 @@ impl Chcpp {
             self.traverse_previously_visible(bvh, node, view.eye, backend, stats)?;
         }
         let s = &mut self.state[node as usize];
-        if view.in_view(bounds) {
+        if in_view {
+            // Seen in the frustum: it enters no more (frustum_cull sets it otherwise).
             s.entering = false;
         }
         s.seen_epoch = bvh.epoch();

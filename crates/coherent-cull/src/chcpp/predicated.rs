@@ -72,8 +72,9 @@
 //! the node's query draws boxes that cover the object (its own box, its tight volume or its
 //! children's boxes in view: this frame's boxes, so movers are covered where they are now)
 //! against the depth of the frame's unconditional draws, which is depth written by real
-//! geometry of this frame and only gets nearer as the frame goes on. If the query counted no sample, every sample of the object's surface lies behind that depth and
-//! owns no pixel of the final image; if it counted any, the object is drawn. A multiquery's
+//! geometry of this frame and only gets nearer as the frame goes on. If the query counted no
+//! sample, every sample of the object's surface lies behind that depth and owns no pixel of
+//! the final image; if it counted any, the object is drawn. A multiquery's
 //! predicate covers all its nodes: they are drawn when any of them is visible. Nodes that enter
 //! the frustum or the hierarchy have no visible history and are case (c). The boxes must be
 //! rasterized conservatively (a depth bias towards the eye and a compare that passes on equal
