@@ -1778,7 +1778,9 @@ impl OcclusionBackend for Renderer {
         if tested {
             self.record_part_draws()?;
         }
+        self.phase("partdraws")?;
         self.record_flag_lists()?;
+        self.phase("flaglists")?;
         Ok(())
     }
 
