@@ -36,6 +36,9 @@ pub(super) struct DrawLog {
     /// Unconditional draws of those this frame (draws under a predicate count once it is
     /// read back, if it was true).
     mover_draws: u32,
+    /// Where the objects drawn under true predicates begin in `drawn`, once
+    /// [`DrawLog::end_frame`] added them (`None`: all of `drawn` was drawn unconditionally).
+    predicated_from: Option<usize>,
 }
 
 impl DrawLog {
@@ -61,6 +64,7 @@ impl DrawLog {
         self.predicated.clear();
         self.predicated_calls.clear();
         self.mover_draws = 0;
+        self.predicated_from = None;
     }
 
     /// `objects` (`triangles` in all) were drawn in render state, under `predicate`'s query
@@ -99,6 +103,9 @@ impl DrawLog {
     pub(super) fn end_frame(&mut self, counts: &mut CommandCounts, taken: impl Fn(u32) -> bool) {
         counts.mover_draws += self.mover_draws;
         self.mover_draws = 0;
+        if self.on && !self.predicated_calls.is_empty() {
+            self.predicated_from.get_or_insert(self.drawn.len());
+        }
         let mut first = 0;
         for c in &self.predicated_calls {
             let call = first..first + c.objects as usize;
@@ -121,5 +128,13 @@ impl DrawLog {
     /// unconditional ones once [`DrawLog::end_frame`] read their predicates.
     pub(super) fn drawn(&self) -> &[u32] {
         &self.drawn
+    }
+
+    /// How many of [`DrawLog::drawn`]'s entries, from the start, were drawn unconditionally
+    /// (the rest under true predicates).
+    pub(super) fn unconditional(&self) -> usize {
+        self.predicated_from
+            .unwrap_or(self.drawn.len())
+            .min(self.drawn.len())
     }
 }

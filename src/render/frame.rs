@@ -39,4 +39,9 @@ pub struct Check {
     /// Drawn objects that own no pixel (hidden, or outside the view): the draws an exact
     /// visibility oracle would have saved.
     pub extra_objects: u32,
+    /// Of `extra_objects`, those drawn only under true predicates (the predicated mode's
+    /// objects under a node or part whose test passed), none of their draws unconditional:
+    /// `extra_objects` less this are the unconditional draws that own no pixel (leaves last
+    /// seen visible, or opened without a test).
+    pub extra_predicated_objects: u32,
 }

@@ -880,28 +880,38 @@ impl Renderer {
     /// [`Renderer::log_drawn_objects`]) with `pixels` from [`Renderer::object_pixels`] for the
     /// same camera.
     pub fn check_drawn(&self, pixels: &[u32]) -> Check {
-        Renderer::check_objects(self.log.drawn(), pixels)
+        Renderer::check_split(self.log.drawn(), self.log.unconditional(), pixels)
     }
 
     /// [`Renderer::check_drawn`] for a list of drawn objects from elsewhere (the GPU-generated
-    /// draws of `hiz`, read back).
+    /// draws of `hiz`, read back), all drawn unconditionally.
     pub fn check_objects(drawn_objects: &[u32], pixels: &[u32]) -> Check {
-        let mut drawn = vec![false; pixels.len()];
-        for &o in drawn_objects {
+        Renderer::check_split(drawn_objects, drawn_objects.len(), pixels)
+    }
+
+    /// The check of `drawn_objects`, of which the first `unconditional` were drawn
+    /// unconditionally and the rest under true predicates.
+    fn check_split(drawn_objects: &[u32], unconditional: usize, pixels: &[u32]) -> Check {
+        // 0: not drawn, 1: drawn only under predicates, 2: drawn unconditionally.
+        let mut drawn = vec![0u8; pixels.len()];
+        for (i, &o) in drawn_objects.iter().enumerate() {
             if let Some(d) = drawn.get_mut(o as usize) {
-                *d = true;
+                *d = (*d).max(if i < unconditional { 2 } else { 1 });
             }
         }
         let mut check = Check::default();
         for (&p, &d) in pixels.iter().zip(&drawn) {
             if p > 0 {
                 check.visible_objects += 1;
-                if !d {
+                if d == 0 {
                     check.missed_objects += 1;
                     check.missed_pixels += u64::from(p);
                 }
-            } else if d {
+            } else if d > 0 {
                 check.extra_objects += 1;
+                if d == 1 {
+                    check.extra_predicated_objects += 1;
+                }
             }
         }
         check
@@ -2605,8 +2615,31 @@ mod tests {
                 missed_objects: 2,
                 missed_pixels: 4,
                 extra_objects: 2,
+                extra_predicated_objects: 0,
             }
         );
         assert_eq!(Renderer::check_objects(&[], &[]), Check::default());
+    }
+
+    #[test]
+    fn the_check_tells_extra_objects_drawn_only_under_predicates() {
+        // Objects 0..6 own 0, 5, 0, 0, 2 and 0 pixels. Drawn unconditionally: 0 and 1; under
+        // true predicates: 0 again (drawn unconditionally too), 2, 3, 4 and 3 again.
+        let pixels = [0, 5, 0, 0, 2, 0];
+        let check = Renderer::check_split(&[0, 1, 0, 2, 3, 4, 3], 2, &pixels);
+        assert_eq!(
+            check,
+            Check {
+                visible_objects: 2,
+                missed_objects: 0,
+                missed_pixels: 0,
+                extra_objects: 3,
+                extra_predicated_objects: 2,
+            }
+        );
+        // Nothing under predicates: none of the extra objects counts there.
+        let all = Renderer::check_split(&[0, 2, 3], 3, &pixels);
+        assert_eq!((all.extra_objects, all.extra_predicated_objects), (3, 0));
+        assert_eq!(all.missed_objects, 2);
     }
 }

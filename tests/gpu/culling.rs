@@ -688,6 +688,16 @@ fn objects_between_pixel_centres_are_culled_and_every_owner_is_drawn() {
                 assert_eq!(d, 0, "{name} frame {f}: {d} pixels differ from vfc's");
                 let check = r.check_drawn(&pixels);
                 assert_eq!(check.missed_objects, 0, "{name} frame {f}: missed owners");
+                // Only the predicated modes draw under predicates.
+                let under = check.extra_predicated_objects;
+                if name.contains("predicated") {
+                    assert!(
+                        under <= check.extra_objects,
+                        "{name} frame {f}: {under} extra"
+                    );
+                } else {
+                    assert_eq!(under, 0, "{name} frame {f}: extra under predicates");
+                }
                 if *name == "vfc" {
                     with_grid += res.cull.objects_drawn;
                 }

@@ -144,6 +144,16 @@ fn matches_vfc(
             r.object_pixels(bvh, &cam, &mut pixels).unwrap();
             let check = r.check_drawn(&pixels);
             assert_eq!(check.missed_objects, 0, "{tag}: missed visible objects");
+            // The extra objects drawn only under true predicates are among the extra objects
+            // and among the objects the true predicates drew.
+            assert!(
+                check.extra_predicated_objects <= check.extra_objects
+                    && check.extra_predicated_objects <= res.counts.predicated_objects_taken,
+                "{tag}: {} extra objects under predicates, {} extra, {} drawn under predicates",
+                check.extra_predicated_objects,
+                check.extra_objects,
+                res.counts.predicated_objects_taken
+            );
             let d = common::diff_pixels(&reference, &px);
             assert!(d <= tie_pixels, "{tag}: differs from vfc in {d} pixels");
         }

@@ -123,7 +123,7 @@ fn walk_writes_csv_json_and_plots() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels,extra_objects,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,flag_tests,cpu_ms"
+        "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,missed_objects,missed_pixels,extra_objects,extra_predicated_objects,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,flag_tests,cpu_ms"
     );
     assert_eq!(lines.count(), 6 * 5);
     for png in ["frametime.png", "counts.png"] {

@@ -60,6 +60,9 @@ pub struct FrameRecord {
     /// With `walk --check`: drawn objects that own no pixel of the exact ID pass (draws an
     /// exact oracle saves).
     pub extra_objects: Option<u32>,
+    /// With `walk --check`: of `extra_objects`, those drawn only under true predicates (the
+    /// predicated modes; 0 elsewhere).
+    pub extra_predicated_objects: Option<u32>,
     /// With movers (`walk --movers N`): object draws of moving objects (the recorder's count;
     /// part of `object_draws`; under a predicate only where it was true).
     pub mover_draws: Option<u32>,
@@ -108,6 +111,7 @@ impl FrameRecord {
             missed_objects: r.check.map(|c| c.missed_objects),
             missed_pixels: r.check.map(|c| c.missed_pixels),
             extra_objects: r.check.map(|c| c.extra_objects),
+            extra_predicated_objects: r.check.map(|c| c.extra_predicated_objects),
             mover_draws: None,
             predicated_draws: r.counts.predicated_objects,
             predicated_taken: r.counts.predicated_objects_taken,
@@ -122,7 +126,7 @@ impl FrameRecord {
 }
 
 /// Column names of the CSV written by [`write_frames_csv`], in order.
-pub const CSV_HEADER: [&str; 29] = [
+pub const CSV_HEADER: [&str; 30] = [
     "algorithm",
     "frame",
     "repeat",
@@ -142,6 +146,7 @@ pub const CSV_HEADER: [&str; 29] = [
     "missed_objects",
     "missed_pixels",
     "extra_objects",
+    "extra_predicated_objects",
     "mover_draws",
     "predicated_draws",
     "predicated_taken",
@@ -175,7 +180,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
     for r in records {
         writeln!(
             w,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             csv_field(&r.algorithm),
             r.frame,
             r.repeat,
@@ -195,6 +200,7 @@ pub fn write_frames_csv(path: &Path, records: &[FrameRecord]) -> Result<(), Erro
             optional(r.missed_objects),
             optional(r.missed_pixels),
             optional(r.extra_objects),
+            optional(r.extra_predicated_objects),
             optional(r.mover_draws),
             r.predicated_draws,
             r.predicated_taken,
@@ -271,13 +277,13 @@ mod tests {
             lines[0],
             "algorithm,frame,repeat,frame_ms,gpu_ms,stall_ms,queries,wasted_queries,state_changes,\
              pipeline_binds,draw_calls,object_draws,query_draws,triangles,objects,submits,\
-             missed_objects,missed_pixels,extra_objects,mover_draws,predicated_draws,predicated_taken,\
+             missed_objects,missed_pixels,extra_objects,extra_predicated_objects,mover_draws,predicated_draws,predicated_taken,\
              predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,flag_tests,cpu_ms"
         );
         assert_eq!(lines.len(), 1 + records.len());
         assert_eq!(
             lines[1],
-            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,,0,0,0,0,0,0,0,0,0"
+            "chc++,0,0,0,0,0,0,0,0,0,0,0,0,1000000,0,0,,,,,,0,0,0,0,0,0,0,0,0"
         );
         assert!(lines[2].starts_with("\"a,b\",1,0,1.5,"));
         std::fs::remove_dir_all(&dir).unwrap();

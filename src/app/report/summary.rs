@@ -62,6 +62,10 @@ pub struct AlgorithmSummary {
     /// pass (hidden or outside the view: the draws an exact visibility oracle saves).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub extra_objects_median: Option<f64>,
+    /// With `walk --check`: median per frame of those drawn only under true predicates
+    /// (predicated modes: the objects of nodes and parts whose test passed that own no pixel).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub extra_predicated_objects_median: Option<f64>,
     /// With movers (`walk --movers N`): median object draws of moving objects per frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mover_draws_median: Option<f64>,
@@ -207,6 +211,9 @@ impl AlgorithmSummary {
             missed_pixels_worst_frame: worst_frame(records),
             missed_frames: MissedFrames::of(records),
             extra_objects_median: median_of(records.iter().filter_map(|r| r.extra_objects)),
+            extra_predicated_objects_median: median_of(
+                records.iter().filter_map(|r| r.extra_predicated_objects),
+            ),
             mover_draws_median: median_of(records.iter().filter_map(|r| r.mover_draws)),
             objects_median: med(&|r| f64::from(r.objects)),
             predicated_draws_median: med(&|r| f64::from(r.predicated_draws)),
@@ -618,6 +625,9 @@ impl WalkSummary {
                 }
                 if let Some(e) = s.extra_objects_median {
                     let _ = write!(at, "; {} drawn own no pixel", fmt_count(e));
+                    if let Some(p) = s.extra_predicated_objects_median.filter(|&p| p > 0.0) {
+                        let _ = write!(at, " ({} of them under true predicates)", fmt_count(p));
+                    }
                 }
                 let _ = writeln!(out, "  {name:<w$} {o} objects, {p} pixels{at}");
             }
@@ -857,6 +867,8 @@ mod tests {
             } else {
                 0
             });
+            // Two of zeta's are drawn only under true predicates; none of the others'.
+            r.extra_predicated_objects = Some(if r.algorithm == "zeta" { 2 } else { 0 });
         }
         let clean = summarize("city", 1, 1, "Test GPU", (64, 64), &records, &[]);
         let z = clean.get("zeta").unwrap();
@@ -873,7 +885,7 @@ mod tests {
         };
         assert_eq!(
             line(&clean),
-            "zeta 0 objects, 0 pixels; 5.5 drawn own no pixel"
+            "zeta 0 objects, 0 pixels; 5.5 drawn own no pixel (2 of them under true predicates)"
         );
         assert_eq!(clean.get("oracle").unwrap().extra_objects_median, Some(0.0));
         // zeta misses 40 pixels in frames 3 and 7, fewer elsewhere.
@@ -889,7 +901,7 @@ mod tests {
         assert_eq!(
             line(&w),
             "zeta 1 objects, 40 pixels (the most pixels in frame 3); misses in 4 of 10 frames; \
-             5.5 drawn own no pixel"
+             5.5 drawn own no pixel (2 of them under true predicates)"
         );
         assert_eq!(
             z.missed_frames,
