@@ -360,5 +360,5 @@ fn walk_check_reports_no_missed_objects_for_exact_algorithms() {
         .lines()
         .next()
         .unwrap()
-        .ends_with("missed_objects,missed_pixels,extra_objects,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,flag_tests,cpu_ms"));
+        .ends_with("missed_objects,missed_pixels,extra_objects,extra_predicated_objects,mover_draws,predicated_draws,predicated_taken,predicate_resolves,multiqueries,visible_leaf_queries,predicated_queries,tested_parts,flag_tests,cpu_ms"));
 }
