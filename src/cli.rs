@@ -270,10 +270,22 @@ impl ChcppArgs {
     }
 
     fn params(&self) -> Result<ChcppParams> {
+        for (name, value) in [
+            ("--batch-size", self.batch_size as u64),
+            ("--visible-interval", u64::from(self.visible_interval)),
+            (
+                "--predicated-visible-interval",
+                u64::from(self.predicated_visible_interval),
+            ),
+        ] {
+            if value == 0 {
+                bail!("{name} must be at least 1 (1: no batching or no interval)");
+            }
+        }
         let mut p = ChcppParams {
-            batch_size: self.batch_size.max(1),
-            visible_interval: self.visible_interval.max(1),
-            predicated_visible_interval: self.predicated_visible_interval.max(1),
+            batch_size: self.batch_size,
+            visible_interval: self.visible_interval,
+            predicated_visible_interval: self.predicated_visible_interval,
             pixel_threshold: self.pixel_threshold,
             predicated_refine_levels: self
                 .refine_levels
@@ -315,6 +327,12 @@ impl ChcppArgs {
             bail!(
                 "--predicate-budget {} must be a finite number at least 0",
                 p.predicated_budget
+            );
+        }
+        if !(0.0..=1.0).contains(&p.predicated_screen_split) {
+            bail!(
+                "--screen-split {} must be a fraction of the screen from 0 (off) to 1",
+                p.predicated_screen_split
             );
         }
         if !(p.predicated_enter_fraction >= 0.0 && p.predicated_enter_fraction.is_finite()) {
@@ -1243,5 +1261,36 @@ mod tests {
             let err = parse(&[bad]).params().unwrap_err();
             assert!(err.to_string().contains("--predicate-budget"), "{err}");
         }
+        // Zero counts and a screen split outside [0, 1] are refused, not quietly changed.
+        let argv = ["coherent", "walk", "--scene", "city", "--batch-size", "0"];
+        let crate::Command::Walk(w) = crate::Cli::try_parse_from(argv).unwrap().command else {
+            unreachable!()
+        };
+        let err = w.chcpp.params().unwrap_err();
+        assert!(err.to_string().contains("--batch-size"), "{err}");
+        for (bad, names) in [
+            ("--visible-interval=0", "--visible-interval"),
+            (
+                "--predicated-visible-interval=0",
+                "--predicated-visible-interval",
+            ),
+            ("--screen-split=-0.1", "--screen-split"),
+            ("--screen-split=2", "--screen-split"),
+            ("--screen-split=NaN", "--screen-split"),
+        ] {
+            let err = parse(&[bad]).params().unwrap_err();
+            assert!(err.to_string().contains(names), "{bad}: {err}");
+        }
+        assert_eq!(
+            parse(&["--screen-split=0"])
+                .params()
+                .unwrap()
+                .predicated_screen_split,
+            0.0
+        );
+        // A leaf holds at least one object.
+        let argv = ["coherent", "walk", "--scene", "city", "--leaf-size", "0"];
+        let err = crate::Cli::try_parse_from(argv).err().expect("refused");
+        assert!(err.to_string().contains("--leaf-size"), "{err}");
     }
 }

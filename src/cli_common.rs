@@ -25,8 +25,8 @@ pub struct SceneArgs {
     /// Split glTF meshes into chunks of at most this many triangles (0: don't split).
     #[arg(long, default_value_t = 4096)]
     pub chunk_triangles: u32,
-    /// Objects per BVH leaf.
-    #[arg(long, default_value_t = 1)]
+    /// Objects per BVH leaf (at least 1).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub leaf_size: u32,
     /// A glTF file's animation to play, by index or name, or `none` (every object static);
     /// the file's first by default. Its moving objects are movers.
