@@ -347,6 +347,8 @@ impl ChcppArgs {
                  use --disable batching,multiqueries"
             );
         }
+        // What the options above do not name (the culler checks the same each frame).
+        p.validate()?;
         Ok(p)
     }
 }

@@ -123,6 +123,123 @@ fn frames_in_flight_need_a_backend_that_keeps_results_that_long() {
     assert!(matches!(err, Error::Input(_)), "{err}");
 }
 
+/// Parameters that mean nothing (a zero count, a NaN or negative fraction) refuse the frame
+/// with an error naming the field, before anything is recorded; every configuration the
+/// crate offers passes.
+#[test]
+fn nonsense_parameters_refuse_the_frame_and_name_the_field() {
+    let d = ChcppParams::default();
+    for p in [
+        d.clone(),
+        ChcppParams::chc(),
+        ChcppParams::for_gpu(),
+        ChcppParams::only(&["batching", "interval", "multiqueries", "tight"]),
+        ChcppParams::only(&[]),
+    ] {
+        p.validate().unwrap();
+    }
+    let bad = [
+        (
+            ChcppParams {
+                batch_size: 0,
+                ..d.clone()
+            },
+            "batch_size",
+        ),
+        (
+            ChcppParams {
+                visible_interval: 0,
+                ..d.clone()
+            },
+            "visible_interval",
+        ),
+        (
+            ChcppParams {
+                predicated_visible_interval: 0,
+                ..d.clone()
+            },
+            "predicated_visible_interval",
+        ),
+        (
+            ChcppParams {
+                flush_interval: 0,
+                ..d.clone()
+            },
+            "flush_interval",
+        ),
+        (
+            ChcppParams {
+                predicated_budget: f32::NAN,
+                ..d.clone()
+            },
+            "predicated_budget",
+        ),
+        (
+            ChcppParams {
+                predicated_split_ratio: -1.0,
+                ..d.clone()
+            },
+            "predicated_split_ratio",
+        ),
+        (
+            ChcppParams {
+                predicated_enter_fraction: f32::INFINITY,
+                ..d.clone()
+            },
+            "predicated_enter_fraction",
+        ),
+        (
+            ChcppParams {
+                predicated_screen_split: 1.5,
+                ..d.clone()
+            },
+            "predicated_screen_split",
+        ),
+        (
+            ChcppParams {
+                predicated_screen_split: f32::NAN,
+                ..d.clone()
+            },
+            "predicated_screen_split",
+        ),
+        (
+            ChcppParams {
+                tight_area_factor: 0.0,
+                ..d.clone()
+            },
+            "tight_area_factor",
+        ),
+    ];
+    let (boxes, cam) = row();
+    let bvh = ObjectBvh::build(&boxes, 1);
+    for (params, field) in bad {
+        let e = params.validate().unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("ChcppParams::{field} ")),
+            "{field}: {e}"
+        );
+        for latency in [Latency::InFrame, Latency::Predicated] {
+            let mut c = Chcpp::new(params.clone()).with_latency(latency);
+            let mut backend = MockBackend::new(|_| PIXELS);
+            let input = FrameInput {
+                bvh: &bvh,
+                view: (&cam).into(),
+                frame: 1,
+                exact_visible: None,
+            };
+            let err = c.cull_frame(&input, &mut backend).unwrap_err();
+            assert!(matches!(err, Error::Input(_)), "{field}: {err}");
+            assert!(err.to_string().contains(field), "{field}: {err}");
+            let counts = backend.counts();
+            assert_eq!(
+                (counts.draw_calls, counts.queries),
+                (0, 0),
+                "{field}: recorded"
+            );
+        }
+    }
+}
+
 #[test]
 fn conservative_mode_draws_nodes_without_a_recent_result() {
     let (boxes, cam) = row();

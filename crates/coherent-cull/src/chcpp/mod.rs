@@ -57,6 +57,7 @@ impl Culler for Chcpp {
         input: &FrameInput,
         backend: &mut dyn OcclusionBackend,
     ) -> Result<CullStats> {
+        self.params.validate()?;
         let bvh = input.bvh;
         let view = View::new(&input.view);
         let eye = view.eye;

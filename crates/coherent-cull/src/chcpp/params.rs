@@ -158,6 +158,57 @@ impl Default for ChcppParams {
 }
 
 impl ChcppParams {
+    /// Checks that every count is at least 1 where a count of 0 means nothing (the batch
+    /// size, the visible intervals, the flush interval) and that every fraction, factor and
+    /// budget is a finite number in its range. [`Chcpp`](super::Chcpp) checks its
+    /// parameters at the start of every frame and refuses the frame with this error, which
+    /// names the field, rather than quietly reading a NaN as "off" or a 0 as 1.
+    pub fn validate(&self) -> crate::Result<()> {
+        let fail = |field: &str, value: String, rule: &str| {
+            Err(crate::Error::Input(format!(
+                "ChcppParams::{field} is {value}: it must be {rule}"
+            )))
+        };
+        for (field, value) in [
+            ("batch_size", self.batch_size as u64),
+            ("visible_interval", u64::from(self.visible_interval)),
+            (
+                "predicated_visible_interval",
+                u64::from(self.predicated_visible_interval),
+            ),
+            ("flush_interval", self.flush_interval as u64),
+        ] {
+            if value == 0 {
+                return fail(field, value.to_string(), "at least 1");
+            }
+        }
+        let at_least_zero = [
+            ("predicated_budget", self.predicated_budget),
+            ("predicated_split_ratio", self.predicated_split_ratio),
+            ("predicated_enter_fraction", self.predicated_enter_fraction),
+        ];
+        for (field, value) in at_least_zero {
+            if !(value >= 0.0 && value.is_finite()) {
+                return fail(field, value.to_string(), "a finite number at least 0");
+            }
+        }
+        if !(0.0..=1.0).contains(&self.predicated_screen_split) {
+            return fail(
+                "predicated_screen_split",
+                self.predicated_screen_split.to_string(),
+                "a fraction of the screen from 0 (off) to 1",
+            );
+        }
+        if !(self.tight_area_factor > 0.0 && self.tight_area_factor.is_finite()) {
+            return fail(
+                "tight_area_factor",
+                self.tight_area_factor.to_string(),
+                "a finite number above 0",
+            );
+        }
+        Ok(())
+    }
+
     /// The original CHC as a configuration of the same traversal: no batching (each query is
     /// issued at once, so one state change per query), every visible leaf queried every frame,
     /// single queries with the node's own box.
