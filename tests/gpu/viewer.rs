@@ -5,19 +5,31 @@
 use std::collections::HashMap;
 use std::path::Path;
 use std::process::{Command, Output};
-use std::sync::Mutex;
 
 use crate::common;
 
-/// `xvfb-run -a` picks a free display number racily; run one viewer at a time.
-static XVFB: Mutex<()> = Mutex::new(());
+/// `xvfb-run -a` picks a free display number racily: one viewer at a time, in this process
+/// and in the others of the suite (scripts/run_tests.sh runs each test in its own process).
+/// The lock is the returned file's (released when it is closed).
+fn xvfb_lock() -> std::fs::File {
+    let path = std::env::temp_dir().join("coherent-tests-xvfb.lock");
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    file.lock()
+        .unwrap_or_else(|e| panic!("lock {}: {e}", path.display()));
+    file
+}
 
 fn scratch(name: &str) -> coherent::testing::TempDir {
     coherent::testing::TempDir::new(&format!("viewer-{name}"))
 }
 
 fn run_viewer(args: &[&str], env: &[(&str, &str)]) -> Output {
-    let _guard = XVFB.lock().unwrap_or_else(|p| p.into_inner());
+    let _guard = xvfb_lock();
     let mut cmd = Command::new("xvfb-run");
     cmd.args([
         "-a",
