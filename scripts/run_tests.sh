@@ -7,8 +7,9 @@
 # per-instance and per-device data in one process-wide map that it changes, without a lock,
 # when an instance or device is created or destroyed, and reads on every Vulkan call
 # (KhronosGroup/Vulkan-ValidationLayers#4391). Each test makes its own validated device, so two
-# tests in one process can crash inside the layer: a threaded run of the GPU tests did, once,
-# and two threads doing only that crash in under a minute. Processes share nothing.
+# tests in one process can crash inside the layer: a threaded run of the GPU tests did
+# (2026-12-03), and so did, within a minute, a program whose one thread made and destroyed
+# validated devices while another made buffers on its own. Processes share nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
