@@ -33,6 +33,22 @@ fn row() -> (Vec<Aabb>, Camera) {
     (boxes, Camera::from_pose(pose, 16.0 / 9.0, 100.0))
 }
 
+/// The error `c` refuses frame 1 with (it must refuse it).
+fn first_frame_error(
+    c: &mut dyn Culler,
+    bvh: &ObjectBvh,
+    cam: &Camera,
+    backend: &mut MockBackend,
+) -> Error {
+    let input = FrameInput {
+        bvh,
+        view: cam.into(),
+        frame: 1,
+        exact_visible: None,
+    };
+    c.cull_frame(&input, backend).unwrap_err()
+}
+
 /// A visibility function: a box sees pixels when it overlaps an object whose bit is set in
 /// `mask` (read at every query, so the test can change what is visible between frames).
 fn masked<'a>(boxes: &'a [Aabb], mask: &'a Cell<u64>) -> impl FnMut(&Aabb) -> u64 + 'a {
@@ -113,13 +129,7 @@ fn frames_in_flight_need_a_backend_that_keeps_results_that_long() {
         .with_latency(Latency::NextFrame)
         .with_frames_in_flight(3);
     let mut backend = MockBackend::new(|_| PIXELS).with_frames_in_flight(2);
-    let input = FrameInput {
-        bvh: &bvh,
-        view: (&cam).into(),
-        frame: 1,
-        exact_visible: None,
-    };
-    let err = c.cull_frame(&input, &mut backend).unwrap_err();
+    let err = first_frame_error(&mut c, &bvh, &cam, &mut backend);
     assert!(matches!(err, Error::Input(_)), "{err}");
 }
 
@@ -221,13 +231,7 @@ fn nonsense_parameters_refuse_the_frame_and_name_the_field() {
         for latency in [Latency::InFrame, Latency::Predicated] {
             let mut c = Chcpp::new(params.clone()).with_latency(latency);
             let mut backend = MockBackend::new(|_| PIXELS);
-            let input = FrameInput {
-                bvh: &bvh,
-                view: (&cam).into(),
-                frame: 1,
-                exact_visible: None,
-            };
-            let err = c.cull_frame(&input, &mut backend).unwrap_err();
+            let err = first_frame_error(&mut c, &bvh, &cam, &mut backend);
             assert!(matches!(err, Error::Input(_)), "{field}: {err}");
             assert!(err.to_string().contains(field), "{field}: {err}");
             let counts = backend.counts();
@@ -962,13 +966,7 @@ fn predicated_refuses_a_backend_without_predicates() {
     let bvh = ObjectBvh::build(&boxes, 1);
     let mut c = predicated("chcpp", 1);
     let mut backend = MockBackend::new(|_| PIXELS).without_predicates();
-    let input = FrameInput {
-        bvh: &bvh,
-        view: (&cam).into(),
-        frame: 1,
-        exact_visible: None,
-    };
-    let err = c.cull_frame(&input, &mut backend).unwrap_err();
+    let err = first_frame_error(&mut c, &bvh, &cam, &mut backend);
     assert!(matches!(err, Error::Unsupported { .. }), "{err}");
     assert!(
         err.to_string().contains("VK_EXT_conditional_rendering"),
