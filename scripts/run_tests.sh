@@ -50,7 +50,7 @@ export WORK="$work"
 run_one() {
     local dir exe name log start rc
     IFS=$'\t' read -r dir exe name <<<"$1"
-    log="$WORK/logs/$(printf '%s' "$exe $name" | md5sum | cut -c1-16).log"
+    log="$(mktemp "$WORK/logs/XXXXXX")"
     start=$SECONDS
     rc=0
     (cd "$dir" && CARGO_MANIFEST_DIR="$dir" "$exe" --exact "$name" --test-threads=1) >"$log" 2>&1 || rc=$?

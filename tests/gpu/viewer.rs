@@ -13,12 +13,7 @@ use crate::common;
 /// The lock is the returned file's (released when it is closed).
 fn xvfb_lock() -> std::fs::File {
     let path = std::env::temp_dir().join("coherent-tests-xvfb.lock");
-    let file = std::fs::OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(&path)
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let file = std::fs::File::create(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     file.lock()
         .unwrap_or_else(|e| panic!("lock {}: {e}", path.display()));
     file
